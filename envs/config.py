@@ -1,0 +1,190 @@
+"""Validated, typed options of the IPP environment.
+
+Every option a user can pass to :func:`envs.make_env` lives here with its default (DESIGN
+section 3). ``IppConfig.from_options(**options)`` is the single place where user input is
+checked, so a bad value fails at construction with a message naming the option, the value and
+what is allowed, instead of a traceback from deep inside a footprint kernel.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+#: Channel-noise presets on received sensor maps: (lower bound of the attenuation a, sigma of n).
+#: The lower bound applies at the edge of the communication range and rises linearly to 1 at
+#: distance 0 (DESIGN section 3: "a's lower bound falls with sender distance").
+NOISE_PRESETS: dict[str, tuple[float, float]] = {
+    "none": (1.0, 0.0),
+    "moderate": (0.8, 0.02),
+    "loud": (0.6, 0.06),
+}
+
+DEFAULT_FLIP_PROBABILITY: dict[float, float] = {5.0: 0.01, 10.0: 0.265, 15.0: 0.375}
+DEFAULT_STARTS: tuple[tuple[float, float, float], ...] = (
+    (10.0, 10.0, 15.0),
+    (40.0, 10.0, 15.0),
+    (40.0, 40.0, 15.0),
+    (10.0, 40.0, 15.0),
+)
+
+
+class ConfigError(ValueError):
+    """A user-facing option has a bad value; the message names the option and what is allowed."""
+
+
+def _fail(option: str, value: Any, allowed: str) -> None:
+    raise ConfigError(f"invalid option {option}={value!r}: {allowed}")
+
+
+@dataclass(frozen=True)
+class IppConfig:
+    """All options of one environment instance (frozen: an env never changes its rules mid-run)."""
+
+    map_name: str = "env1"
+    map_path: str | None = None
+    valuable: str | None = None
+    map_seed: int | None = 0
+    n_uavs: int = 4
+    budget: int = 15
+    field_size: float = 50.0
+    grid: int = 493
+    lattice: int = 11
+    altitudes: tuple[float, ...] = (5.0, 10.0, 15.0)
+    flip_probability: Mapping[float, float] = field(default_factory=lambda: dict(DEFAULT_FLIP_PROBABILITY))
+    fov_deg: float = 60.0
+    start: str = "fixed"
+    start_positions: tuple[tuple[float, float, float], ...] | None = None
+    start_altitude: float = 15.0
+    comm_range: float = 25.0
+    drop_probability: float = 0.0
+    noise: str = "moderate"
+    comm_grid: int = 44
+    alpha: float = 10.0
+    beta: float = -0.17
+    render_mode: str | None = None
+
+    # ------------------------------------------------------------------ derived values
+    @property
+    def spacing(self) -> float:
+        """Distance between neighbouring lattice positions in metres (5 m by default)."""
+        return self.field_size / (self.lattice - 1)
+
+    @property
+    def cell_size(self) -> float:
+        """Side of one belief cell in metres (about 0.1014 m by default)."""
+        return self.field_size / self.grid
+
+    @property
+    def noise_params(self) -> tuple[float, float]:
+        return NOISE_PRESETS[self.noise]
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_options(cls, name: str = "env1", **options: Any) -> "IppConfig":
+        """Build a config from ``make_env`` keyword options, rejecting unknown or bad ones."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ConfigError(
+                f"unknown environment option(s) {unknown}; allowed options: {sorted(known - {'map_name'})}"
+            )
+        if "map_name" in options:
+            raise ConfigError("pass the map as the first argument (name=...), not as map_name=")
+        if "altitudes" in options and options["altitudes"] is not None:
+            options["altitudes"] = tuple(float(a) for a in options["altitudes"])
+        if "flip_probability" in options and options["flip_probability"] is not None:
+            fp = options["flip_probability"]
+            if not isinstance(fp, Mapping):
+                _fail("flip_probability", fp, "a mapping altitude -> flip probability")
+            options["flip_probability"] = {float(k): float(v) for k, v in fp.items()}
+        if options.get("start_positions") is not None:
+            try:
+                options["start_positions"] = tuple(tuple(float(c) for c in p) for p in options["start_positions"])
+            except (TypeError, ValueError):
+                _fail("start_positions", options["start_positions"], "a list of (x, y, z) triples in metres")
+        config = cls(map_name=str(name), **options)
+        config.validate()
+        return config
+
+    def replace(self, **changes: Any) -> "IppConfig":
+        """A validated copy with some options changed."""
+        config = dataclasses.replace(self, **changes)
+        config.validate()
+        return config
+
+    # ------------------------------------------------------------------ validation
+    def validate(self) -> None:
+        """Check every option; raise :class:`ConfigError` naming the first bad one."""
+        def is_int(v: Any) -> bool:
+            return isinstance(v, int) and not isinstance(v, bool)
+
+        if not is_int(self.lattice) or self.lattice < 2:
+            _fail("lattice", self.lattice, "an integer >= 2")
+        if not is_int(self.grid) or self.grid < self.lattice:
+            _fail("grid", self.grid, f"an integer >= lattice ({self.lattice})")
+        if not is_int(self.n_uavs) or self.n_uavs < 1:
+            _fail("n_uavs", self.n_uavs, "an integer >= 1")
+        if self.n_uavs > self.lattice * self.lattice:
+            _fail("n_uavs", self.n_uavs, f"at most {self.lattice * self.lattice} (one UAV per lattice column)")
+        if not is_int(self.budget) or self.budget < 1:
+            _fail("budget", self.budget, "an integer >= 1 (decisions per UAV)")
+        if not (isinstance(self.field_size, (int, float)) and math.isfinite(self.field_size) and self.field_size > 0):
+            _fail("field_size", self.field_size, "a positive number of metres")
+        if not self.altitudes or any(not math.isfinite(a) or a <= 0 for a in self.altitudes):
+            _fail("altitudes", self.altitudes, "a non-empty list of positive altitudes in metres")
+        if list(self.altitudes) != sorted(set(self.altitudes)):
+            _fail("altitudes", self.altitudes, "strictly increasing altitudes")
+        if len(self.altitudes) > 1:
+            steps = {round(b - a, 9) for a, b in zip(self.altitudes, self.altitudes[1:])}
+            if len(steps) != 1:
+                _fail("altitudes", self.altitudes, "equally spaced altitudes (up/down move one level)")
+        missing = [a for a in self.altitudes if a not in self.flip_probability]
+        if missing:
+            _fail("flip_probability", dict(self.flip_probability), f"an entry for every altitude; missing {missing}")
+        for alt, q in self.flip_probability.items():
+            if not (0.0 < q < 0.5):
+                _fail("flip_probability", dict(self.flip_probability),
+                      f"probabilities strictly between 0 and 0.5 (altitude {alt} has {q})")
+        if not (0 < self.fov_deg < 180):
+            _fail("fov_deg", self.fov_deg, "an angle in (0, 180) degrees")
+        if self.start not in ("fixed", "random"):
+            _fail("start", self.start, "'fixed' or 'random'")
+        if self.start_altitude not in self.altitudes:
+            _fail("start_altitude", self.start_altitude, f"one of the altitudes {list(self.altitudes)}")
+        if self.start_positions is not None:
+            self._validate_start_positions(self.start_positions)
+        if self.noise not in NOISE_PRESETS:
+            _fail("noise", self.noise, f"one of {sorted(NOISE_PRESETS)}")
+        if not (isinstance(self.comm_range, (int, float)) and self.comm_range >= 0 and not math.isnan(self.comm_range)):
+            _fail("comm_range", self.comm_range, "a distance >= 0 in metres (inf for unlimited)")
+        if not (0.0 <= self.drop_probability <= 1.0):
+            _fail("drop_probability", self.drop_probability, "a probability in [0, 1]")
+        if not is_int(self.comm_grid) or self.comm_grid < 4 or self.comm_grid % 4 or self.comm_grid > self.grid:
+            _fail("comm_grid", self.comm_grid, f"a multiple of 4 between 4 and grid ({self.grid})")
+        if not math.isfinite(self.alpha) or not math.isfinite(self.beta):
+            _fail("alpha/beta", (self.alpha, self.beta), "finite reward scale and offset")
+        if self.render_mode not in (None, "rgb_array", "ansi"):
+            _fail("render_mode", self.render_mode, "None, 'rgb_array' or 'ansi'")
+        if self.map_seed is not None and (not is_int(self.map_seed) or self.map_seed < 0):
+            _fail("map_seed", self.map_seed, "None (a new map each reset, env1 only) or an integer >= 0")
+
+    def _validate_start_positions(self, positions: tuple[tuple[float, float, float], ...]) -> None:
+        if len(positions) != self.n_uavs:
+            _fail("start_positions", positions, f"exactly n_uavs={self.n_uavs} positions")
+        columns = set()
+        for p in positions:
+            if len(p) != 3:
+                _fail("start_positions", positions, "(x, y, z) triples")
+            x, y, z = p
+            for coord in (x, y):
+                k = coord / self.spacing
+                if not (0 <= coord <= self.field_size) or abs(k - round(k)) > 1e-6:
+                    _fail("start_positions", p, f"x and y on the lattice: multiples of {self.spacing:g} m in [0, {self.field_size:g}]")
+            if z not in self.altitudes:
+                _fail("start_positions", p, f"z one of the altitudes {list(self.altitudes)}")
+            col = (round(x / self.spacing), round(y / self.spacing))
+            if col in columns:
+                _fail("start_positions", p, "distinct (x, y) columns: two UAVs cannot share a column")
+            columns.add(col)

@@ -1,0 +1,138 @@
+"""Static geometry of the field: lattice, belief grid, communication grid, camera footprints.
+
+Everything here is computed once per environment and then only indexed, so the per-step cost of
+a measurement depends on the footprint's area and never on the size of the map.
+
+Conventions: arrays are indexed ``[y, x]`` (row = y), lattice index ``k`` sits at ``k * spacing``
+metres, belief cell ``i`` spans ``[i, i+1) * cell_size`` metres.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import IppConfig
+
+
+def block_index(n_cells: int, field_size: float, lattice: int) -> np.ndarray:
+    """Lattice block of every cell along one axis: the lattice point nearest to the cell centre.
+
+    Blocks are 5 m squares centred on lattice points (half squares at the borders), which is how
+    the 11 x 11 observation maps aggregate the fine grids.
+    """
+    centres = (np.arange(n_cells) + 0.5) * (field_size / n_cells)
+    spacing = field_size / (lattice - 1)
+    return np.clip(np.floor(centres / spacing + 0.5), 0, lattice - 1).astype(np.int64)
+
+
+def comm_index(n_cells: int, comm_grid: int) -> np.ndarray:
+    """Communication-grid cell of every belief cell along one axis (equal-width bins)."""
+    return np.minimum((np.arange(n_cells) * comm_grid) // n_cells, comm_grid - 1).astype(np.int64)
+
+
+def overlap_matrix(comm_grid: int, field_size: float, lattice: int) -> np.ndarray:
+    """Row-stochastic (lattice x comm_grid) matrix of area weights from comm cells to lattice blocks.
+
+    ``A @ m @ A.T`` turns a comm-grid map into the 11 x 11 block means in two tiny matmuls.
+    """
+    spacing = field_size / (lattice - 1)
+    edges = np.linspace(0.0, field_size, comm_grid + 1)
+    a = np.zeros((lattice, comm_grid), dtype=np.float64)
+    for k in range(lattice):
+        lo = max(0.0, (k - 0.5) * spacing)
+        hi = min(field_size, (k + 0.5) * spacing)
+        a[k] = np.clip(np.minimum(edges[1:], hi) - np.maximum(edges[:-1], lo), 0.0, None)
+    a /= a.sum(axis=1, keepdims=True)
+    return a.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """A camera footprint clipped to the field, as half-open index ranges on both grids."""
+
+    r0: int
+    r1: int
+    c0: int
+    c1: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.r1 - self.r0, self.c1 - self.c0)
+
+
+class FieldGeometry:
+    """Lattice, grids and the footprint table of one environment configuration."""
+
+    def __init__(self, config: IppConfig) -> None:
+        self.config = config
+        self.lattice = config.lattice
+        self.grid = config.grid
+        self.comm_grid = config.comm_grid
+        self.spacing = config.spacing
+        self.cell = config.cell_size
+        self.altitudes = np.asarray(config.altitudes, dtype=np.float64)
+        half_fov = math.radians(config.fov_deg) / 2.0
+        #: Half side of the square footprint per altitude level, metres.
+        self.half_side = self.altitudes * math.tan(half_fov)
+        self.block_of_cell = block_index(self.grid, config.field_size, self.lattice)
+        self.comm_of_cell = comm_index(self.grid, self.comm_grid)
+        self.cells_per_block = np.bincount(self.block_of_cell, minlength=self.lattice).astype(np.int64)
+        self.block_area = np.outer(self.cells_per_block, self.cells_per_block).astype(np.float64)
+        self.cells_per_comm = np.bincount(self.comm_of_cell, minlength=self.comm_grid).astype(np.int64)
+        self.comm_to_lattice = overlap_matrix(self.comm_grid, config.field_size, self.lattice)
+        self._ranges = self._footprint_ranges()
+        self.comm_cell_area = np.outer(self.cells_per_comm, self.cells_per_comm).astype(np.float32)
+        self.comm_blocks, self.comm_weights = self._comm_block_weights()
+
+    def _comm_block_weights(self) -> tuple[np.ndarray, np.ndarray]:
+        """For each comm cell along one axis, the (at most two) lattice blocks it overlaps and
+        the weights of ``comm_to_lattice`` for them, for incremental block means."""
+        a = self.comm_to_lattice
+        blocks = np.zeros((self.comm_grid, 2), dtype=np.int64)
+        weights = np.zeros((self.comm_grid, 2), dtype=np.float64)
+        for c in range(self.comm_grid):
+            nz = np.flatnonzero(a[:, c] > 0)
+            if len(nz) > 2:
+                raise ValueError(f"comm_grid={self.comm_grid} is coarser than the lattice blocks; use a finer grid")
+            blocks[c, :len(nz)] = nz
+            weights[c, :len(nz)] = a[nz, c]
+        return blocks, weights
+
+    def _footprint_ranges(self) -> np.ndarray:
+        """(lattice, n_alt, 2) half-open belief-cell ranges covered along one axis.
+
+        A cell is covered when its centre lies inside the footprint (clipped to the field).
+        """
+        n_alt = len(self.altitudes)
+        ranges = np.zeros((self.lattice, n_alt, 2), dtype=np.int64)
+        for k in range(self.lattice):
+            centre = k * self.spacing
+            for a in range(n_alt):
+                lo = (centre - self.half_side[a]) / self.cell - 0.5
+                hi = (centre + self.half_side[a]) / self.cell - 0.5
+                first = max(0, math.ceil(lo - 1e-9))
+                last = min(self.grid - 1, math.floor(hi + 1e-9))
+                ranges[k, a] = (first, last + 1)
+        return ranges
+
+    def footprint(self, ix: int, iy: int, alt_level: int) -> Footprint:
+        """Footprint of a UAV at lattice column (ix, iy) and altitude level index ``alt_level``."""
+        r0, r1 = self._ranges[iy, alt_level]
+        c0, c1 = self._ranges[ix, alt_level]
+        return Footprint(int(r0), int(r1), int(c0), int(c1))
+
+    def footprint_side_cells(self, alt_level: int) -> int:
+        """Side of an unclipped footprint in belief cells (57 / 114 / 171 by default)."""
+        centre = self.lattice // 2
+        r0, r1 = self._ranges[centre, alt_level]
+        return int(r1 - r0)
+
+    def to_lattice(self, comm_map: np.ndarray) -> np.ndarray:
+        """Area-weighted 11 x 11 block means of one or many comm-grid maps (..., R, R)."""
+        a = self.comm_to_lattice
+        return np.matmul(np.matmul(a, comm_map), a.T)
+
+    def lattice_of(self, x: float, y: float) -> tuple[int, int]:
+        return int(round(x / self.spacing)), int(round(y / self.spacing))

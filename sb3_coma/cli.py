@@ -1,0 +1,67 @@
+"""The ``sb3-coma`` command line.
+
+Each sub-command lives in its own module under :mod:`sb3_coma.commands` and exposes
+``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``; modules are discovered
+at start-up, so adding a command never touches this file. Errors that users can fix (bad options,
+missing files) are printed as one line and exit with status 2, never as a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from types import ModuleType
+
+from . import commands
+
+
+class UserError(Exception):
+    """An error the user can fix; printed without a traceback."""
+
+
+def _command_modules() -> list[ModuleType]:
+    mods = []
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda i: i.name):
+        if info.name.startswith("_"):
+            continue
+        mod = importlib.import_module(f"{commands.__name__}.{info.name}")
+        if hasattr(mod, "NAME") and hasattr(mod, "run"):
+            mods.append(mod)
+    return mods
+
+
+def build_parser() -> tuple[argparse.ArgumentParser, dict[str, ModuleType]]:
+    parser = argparse.ArgumentParser(prog="sb3-coma", description="COMA + SenDFuse + CBAM for multi-UAV IPP")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    table = {}
+    for mod in _command_modules():
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
+        mod.add_arguments(p)
+        table[mod.NAME] = mod
+    return parser, table
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser, table = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    # Known user-facing error types across the package, rendered as one line.
+    from envs.config import ConfigError
+    from envs.maps import MapError
+
+    user_errors: tuple[type[BaseException], ...] = (UserError, ConfigError, MapError, FileNotFoundError)
+    try:
+        return int(table[args.command].run(args) or 0)
+    except user_errors as exc:
+        print(f"sb3-coma {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"sb3-coma {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

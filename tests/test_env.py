@@ -1,0 +1,331 @@
+"""The IPP environment: API compliance, physics, bookkeeping, determinism and bad input."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test
+
+import envs
+from envs import kernels, layout
+from envs.config import ConfigError
+from envs.ipp_env import ACTION_DELTAS
+
+
+def random_episode(env, seed: int, policy_seed: int = 0):
+    """Run one mission with uniformly random valid actions; return per-step (reward, info)."""
+    rng = np.random.default_rng(policy_seed)
+    obs, _ = env.reset(seed=seed)
+    history = []
+    while env.agents:
+        actions = {a: int(rng.choice(np.flatnonzero(obs[a][layout.KEY_MASK]))) for a in env.agents}
+        obs, rewards, terms, truncs, infos = env.step(actions)
+        history.append((rewards["uav_0"], infos["uav_0"], obs))
+    return history
+
+
+@pytest.fixture(scope="module")
+def env():
+    return envs.make_env("env1", n_uavs=4, budget=15)
+
+
+def test_pettingzoo_parallel_api():
+    parallel_api_test(envs.make_env("env1", budget=5), num_cycles=12)
+
+
+def test_observation_layout(env):
+    obs, infos = env.reset(seed=0)
+    assert set(obs) == set(env.possible_agents) == {f"uav_{i}" for i in range(4)}
+    o = obs["uav_0"]
+    assert o[layout.KEY_LOCAL].shape == (7, 11, 11)
+    assert o[layout.KEY_RECEIVED].shape == (4, 44, 44)
+    assert o[layout.KEY_RECEIVED_VALID].shape == (4,)
+    assert o[layout.KEY_STATE].shape == (3, 11, 11)
+    assert o[layout.KEY_MASK].shape == (6,)
+    for agent in env.possible_agents:
+        assert env.observation_space(agent).contains(obs[agent])
+    # channels: budget ratio, id ratio, footprint 1 at own cell
+    assert np.all(o[layout.KEY_LOCAL][layout.BUDGET] == 1.0)
+    assert np.allclose(obs["uav_2"][layout.KEY_LOCAL][layout.AGENT_ID], 3 / 4)
+    x, y = 2, 2  # default start (10 m, 10 m)
+    assert o[layout.KEY_LOCAL][layout.FOOTPRINT][y, x] == 1.0
+    assert o[layout.KEY_LOCAL][layout.ALTITUDE][y, x] == pytest.approx(1.0)
+    assert o[layout.KEY_RECEIVED_VALID][0] == 1.0
+
+
+def test_episode_length_budget_and_termination():
+    env = envs.make_env("env1", budget=7)
+    hist = random_episode(env, seed=1)
+    assert len(hist) == 7
+    assert env.agents == []
+    assert hist[-1][1]["budget_left"] == 0
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step({"uav_0": 0})
+
+
+def test_same_seed_identical_episode():
+    a = random_episode(envs.make_env("env1", budget=6), seed=3, policy_seed=5)
+    b = random_episode(envs.make_env("env1", budget=6), seed=3, policy_seed=5)
+    for (ra, ia, oa), (rb, ib, ob) in zip(a, b):
+        assert ra == rb and ia == ib
+        for agent in oa:
+            for key in oa[agent]:
+                np.testing.assert_array_equal(oa[agent][key], ob[agent][key])
+    c = random_episode(envs.make_env("env1", budget=6), seed=4, policy_seed=5)
+    assert [r for r, _, _ in a] != [r for r, _, _ in c]
+
+
+@pytest.mark.parametrize("level,expected", [(0, 57), (1, 114), (2, 171)])
+def test_footprint_side_per_altitude(level, expected):
+    geo = envs.make_env("env1").geometry
+    side_m = 2 * [5.0, 10.0, 15.0][level] * math.tan(math.radians(30))
+    assert abs(geo.footprint_side_cells(level) - side_m / geo.cell) <= 1.0
+    assert abs(geo.footprint_side_cells(level) - expected) <= 1
+
+
+def test_footprint_clipped_at_field_border():
+    geo = envs.make_env("env1").geometry
+    fp = geo.footprint(0, 0, 2)
+    assert fp.r0 == 0 and fp.c0 == 0
+    assert fp.shape[0] == pytest.approx(171 / 2, abs=2)
+
+
+def _kernel_call(logodds, truth, inc, threshold, seed=7):
+    n = truth.shape[0]
+    z2 = np.zeros((2, 2))
+    idx = np.zeros(n, dtype=np.int64)
+    measured = np.zeros_like(truth)
+    comm_sum = np.zeros((1, 1), np.float32)
+    comm_cnt = np.zeros((1, 1), np.float32)
+    state = np.array([seed], dtype=np.uint64)
+    out = kernels.measure_global(logodds, truth, measured, 0, n, 0, n, inc, threshold, state,
+                                 kernels.build_table(), idx, idx, z2, z2.copy(), z2.copy(), comm_sum, comm_cnt)
+    return out, comm_sum[0, 0], comm_cnt[0, 0]
+
+
+def test_belief_update_matches_closed_form():
+    """Readings without flips move log-odds by exactly +-log((1-q)/q) per reading."""
+    q = 0.265
+    inc = kernels.fixed_point_increment(q)
+    truth = (np.arange(100).reshape(10, 10) % 3 == 0).astype(np.uint8)
+    logodds = np.zeros((10, 10), np.int16)
+    for k in range(1, 4):
+        _kernel_call(logodds, truth, inc, threshold=0)
+        expected = np.where(truth == 1, 1.0, -1.0) * k * math.log((1 - q) / q)
+        p_expected = 1 / (1 + np.exp(-expected))
+        p = 1 / (1 + np.exp(-logodds / kernels.SCALE))
+        np.testing.assert_allclose(p, p_expected, atol=2e-4)
+    # always-flipping readings undo it
+    for _ in range(3):
+        _kernel_call(logodds, truth, inc, threshold=65536)
+    assert np.all(logodds == 0)
+
+
+def test_sensor_flip_rate_matches_altitude_table():
+    for q in (0.01, 0.265, 0.375):
+        truth = np.ones((200, 200), np.uint8)
+        logodds = np.zeros((200, 200), np.int16)
+        (_, _, _, _), read_sum, count = _kernel_call(logodds, truth, kernels.fixed_point_increment(q),
+                                                     kernels.flip_threshold(q), seed=11)
+        flips = 1 - read_sum / count
+        assert abs(flips - q) < 4 * math.sqrt(q * (1 - q) / count) + 1e-4
+
+
+def test_incremental_bookkeeping_matches_full_recompute():
+    env = envs.make_env("env1", budget=10)
+    hist = random_episode(env, seed=2)
+    info, obs = hist[-1][1], hist[-1][2]
+    truth = env.ground_truth.valuable
+    p = env.global_belief().astype(np.float64)
+    pred = p > 0.5
+    tp = np.sum(pred & truth)
+    f1 = 2 * tp / (pred.sum() + truth.sum())
+    assert info["f1"] == pytest.approx(f1, abs=1e-9)
+    assert info["entropy"] == pytest.approx(kernels.binary_entropy(p[truth]).mean(), abs=1e-4)
+    assert info["weighted_entropy"] == pytest.approx(kernels.weighted_entropy(p).sum(), rel=1e-4)
+    geo = env.geometry
+    state = obs["uav_0"][layout.KEY_STATE]
+    blocks = np.zeros((11, 11))
+    np.add.at(blocks, (geo.block_of_cell[:, None], geo.block_of_cell[None, :]), p)
+    np.testing.assert_allclose(state[layout.GLOBAL_BELIEF], blocks / geo.block_area, atol=1e-4)
+    # local 11x11 channels equal the block means of the comm-grid maps they summarise
+    local = obs["uav_1"][layout.KEY_LOCAL]
+    np.testing.assert_allclose(local[layout.BELIEF], geo.to_lattice(env.local_beliefs()[1]), atol=1e-4)
+    np.testing.assert_allclose(local[layout.SENSOR], np.clip(geo.to_lattice(env.sensor_maps()[1]), 0, 1), atol=1e-4)
+
+
+def test_metrics_on_hand_made_map(tmp_path):
+    """A left-half-valuable image: F1 and entropy computed from first principles."""
+    import cv2
+
+    img = np.zeros((100, 100), np.uint8)
+    img[:, :50] = 255
+    path = tmp_path / "half.png"
+    cv2.imwrite(str(path), img)
+    env = envs.make_env("mine", map_path=str(path), valuable="threshold:0.5", n_uavs=1,
+                        flip_probability={5.0: 1e-9, 10.0: 1e-9, 15.0: 1e-9}, budget=1)
+    env.reset(seed=0)
+    truth = env.ground_truth.valuable
+    assert truth[:, :240].all() and not truth[:, 260:].any()
+    m = env.metrics()
+    # start at (10, 10, 15): a perfect sensor sees 171x171 cells (clipped) all on the valuable side
+    seen = env._measured.astype(bool)
+    tp = np.sum(seen & truth)
+    assert m["f1"] == pytest.approx(2 * tp / (tp + truth.sum()), abs=1e-9)
+    assert m["entropy"] == pytest.approx(1.0 - tp / truth.sum(), abs=1e-3)
+
+
+def test_reward_sign_and_scale():
+    env = envs.make_env("env1", budget=3)
+    env.reset(seed=0)
+    h0 = env.metrics()["weighted_entropy"]
+    _, rewards, _, _, infos = env.step({a: 5 for a in env.agents})  # all descend: fresh cells
+    h1 = infos["uav_0"]["weighted_entropy"]
+    expected = 10.0 * (h0 - h1) / h0 - 0.17
+    assert all(r == pytest.approx(expected) for r in rewards.values())
+    assert h1 < h0 and rewards["uav_0"] > -0.17
+    # the relative reduction is a fraction of the map: one step's reward stays well inside alpha
+    assert -1.0 < rewards["uav_0"] < 10.0
+
+
+def test_masks_at_border_altitude_and_conflicts():
+    env = envs.make_env("env1", n_uavs=2, start_positions=[(0, 0, 15), (5, 0, 5)], budget=3)
+    env.reset(seed=0)
+    m = env.action_masks()
+    # uav_0 at the corner, top altitude: no up, no -x, no -y, no +x (uav_1 there); down and +y ok
+    np.testing.assert_array_equal(m[0], [0, 0, 0, 1, 0, 1])
+    # uav_1 at the bottom altitude: no down, no -y, no -x (uav_0 there)
+    np.testing.assert_array_equal(m[1], [1, 0, 0, 1, 1, 0])
+
+
+def test_invalid_action_hovers_and_bad_action_raises():
+    env = envs.make_env("env1", n_uavs=2, start_positions=[(0, 0, 15), (5, 0, 5)], budget=3)
+    env.reset(seed=0)
+    before = env._pos.copy()
+    env.step({"uav_0": 1, "uav_1": 5})  # -x off the field; down below the lowest altitude
+    np.testing.assert_array_equal(env._pos, before)
+    with pytest.raises(ValueError, match="0..5"):
+        env.step({"uav_0": 7, "uav_1": 0})
+    with pytest.raises(ValueError, match="0..5"):
+        env.step({"uav_0": "up", "uav_1": 0})
+    with pytest.raises(ValueError, match="missing"):
+        env.step({"uav_0": 0})
+    with pytest.raises(ValueError, match="unknown agent"):
+        env.step({"uav_0": 0, "uav_1": 0, "uav_9": 0})
+
+
+def test_simultaneous_moves_never_share_a_column():
+    env = envs.make_env("env1", n_uavs=2, start_positions=[(0, 0, 15), (10, 0, 15)], budget=3)
+    env.reset(seed=0)
+    env.step({"uav_0": 4, "uav_1": 1})  # both aim at (5, 0)
+    cols = {tuple(p[:2]) for p in env._pos}
+    assert len(cols) == 2
+
+
+@pytest.mark.parametrize("preset", ["none", "moderate", "loud"])
+def test_channel_noise_statistics(preset):
+    lo_bound, sigma = envs.NOISE_PRESETS[preset]
+    R, n = 44, 2
+    fresh = np.ones((R, R), np.float32)
+    mask = np.ones((R, R), np.bool_)
+    received = np.full((n, n, R, R), 0.5, np.float32)
+    valid = np.zeros((n, n), np.float32)
+    local = np.zeros((n, R, R), np.float32)
+    prob = np.full((n, R, R), 0.5, np.float32)
+    ent = np.ones((n, R, R), np.float32)
+    agg = np.zeros((n, 3, 11, 11))
+    geo = envs.make_env("env1").geometry
+    slots = np.array([[0, 1], [1, 0]])
+    comm_range = 25.0
+    kernels.communicate(0, fresh, mask, 0, R, 0, R, 1.0, np.array([True, True]), np.array([0.0, comm_range]),
+                        comm_range, lo_bound, sigma, slots, received, valid, local, prob, ent, agg,
+                        geo.comm_blocks, geo.comm_weights, np.array([99], np.uint64))
+    own = received[0, 0]
+    assert np.all(own == 1.0)  # the sender's own data is never noised
+    got = received[1, 1].astype(np.float64)
+    mean_expected = (1 + lo_bound) / 2
+    std_expected = math.sqrt((1 - lo_bound) ** 2 / 12 + sigma ** 2)
+    assert got.mean() == pytest.approx(mean_expected, abs=4 * std_expected / R + 1e-9)
+    assert got.std() == pytest.approx(std_expected, rel=0.1, abs=1e-9)
+    assert valid[1, 1] == 1.0
+
+
+def test_global_map_never_sees_channel_noise():
+    quiet = random_episode(envs.make_env("env1", noise="none", budget=5), seed=9)
+    loud = random_episode(envs.make_env("env1", noise="loud", budget=5), seed=9)
+    # identical global metrics and state channels; only the received maps differ
+    for (rq, iq, oq), (rl, il, ol) in zip(quiet, loud):
+        assert iq["f1"] == il["f1"] and rq == rl
+        np.testing.assert_array_equal(oq["uav_0"][layout.KEY_STATE], ol["uav_0"][layout.KEY_STATE])
+
+
+def test_comm_range_zero_isolates_uavs():
+    env = envs.make_env("env1", comm_range=0.0, budget=2)
+    obs, _ = env.reset(seed=0)
+    assert np.all(obs["uav_0"][layout.KEY_RECEIVED_VALID] == [1, 0, 0, 0])
+    assert np.all(obs["uav_0"][layout.KEY_RECEIVED][1:] == 0.5)
+
+
+def test_drop_probability_one_drops_everything():
+    env = envs.make_env("env1", drop_probability=1.0, comm_range=1e9, budget=2)
+    obs, _ = env.reset(seed=0)
+    assert np.all(obs["uav_3"][layout.KEY_RECEIVED_VALID] == [1, 0, 0, 0])
+
+
+def test_random_starts_are_seeded_and_distinct():
+    env = envs.make_env("env1", start="random", n_uavs=6)
+    env.reset(seed=5)
+    a = env._pos.copy()
+    env.reset(seed=5)
+    np.testing.assert_array_equal(a, env._pos)
+    assert len({tuple(p[:2]) for p in a}) == 6
+
+
+def test_render_modes():
+    env = envs.make_env("env1", render_mode="rgb_array", budget=2)
+    env.reset(seed=0)
+    img = env.render()
+    assert img.shape == (493, 493, 3) and img.dtype == np.uint8
+    text = envs.make_env("env1", render_mode="ansi")
+    text.reset(seed=0)
+    assert "f1=" in text.render()
+
+
+BAD_OPTIONS = [
+    ({"budget": -1}, "budget"),
+    ({"budget": 0}, "budget"),
+    ({"n_uavs": 0}, "n_uavs"),
+    ({"n_uavs": 500}, "n_uavs"),
+    ({"noise": "deafening"}, "noise"),
+    ({"start_altitude": 12.0}, "start_altitude"),
+    ({"altitudes": [5.0, 10.0]}, "start_altitude"),
+    ({"flip_probability": {5.0: 0.6, 10.0: 0.2, 15.0: 0.3}}, "flip_probability"),
+    ({"flip_probability": {5.0: 0.1}}, "flip_probability"),
+    ({"comm_range": -3}, "comm_range"),
+    ({"drop_probability": 1.5}, "drop_probability"),
+    ({"comm_grid": 45}, "comm_grid"),
+    ({"start": "anywhere"}, "start"),
+    ({"start_positions": [(10, 10, 15)]}, "start_positions"),
+    ({"n_uavs": 2, "start_positions": [(10, 10, 15), (10, 10, 5)]}, "start_positions"),
+    ({"n_uavs": 1, "start_positions": [(12, 10, 15)]}, "start_positions"),
+    ({"render_mode": "human"}, "render_mode"),
+    ({"colour": "blue"}, "colour"),
+    ({"lattice": 1}, "lattice"),
+]
+
+
+@pytest.mark.parametrize("options,option_name", BAD_OPTIONS)
+def test_bad_options_raise_clear_errors(options, option_name):
+    with pytest.raises(ConfigError, match=option_name):
+        envs.make_env("env1", **options)
+
+
+def test_unknown_map_is_clear_error():
+    with pytest.raises(envs.MapError, match="env9"):
+        envs.make_env("env9")
+
+
+def test_action_deltas_match_documented_meaning():
+    # 0 up(+z), 1 -x, 2 -y, 3 +y, 4 +x, 5 down(-z)
+    np.testing.assert_array_equal(ACTION_DELTAS, [[0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 1, 0], [1, 0, 0], [0, 0, -1]])
