@@ -64,4 +64,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    # Re-import under the package name so commands and this entry point share one UserError class.
+    from sb3_coma.cli import main as _package_main
+
+    sys.exit(_package_main())

@@ -1,0 +1,51 @@
+"""Non-learned planners with the same ``predict`` interface as a trained COMA model.
+
+``make_planner(name, venv, seed=..., **kwargs)`` builds one of :data:`PLANNERS`:
+
+* ``random``: uniform over valid actions;
+* ``lawnmower``: the paper's NL, a non-adaptive boustrophedon strip sweep;
+* ``ag``: adaptive gain, greedy expected class-weighted information gain with a discount on cells
+  that other UAVs are about to cover.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from stable_baselines3.common.vec_env import VecEnv
+
+from .adaptive_gain import AdaptiveGainPlanner, choose_actions
+from .base import Planner
+from .lawnmower import LawnmowerPlanner
+from .random_planner import RandomPlanner
+
+PLANNERS: dict[str, type[Planner]] = {
+    RandomPlanner.name: RandomPlanner,
+    LawnmowerPlanner.name: LawnmowerPlanner,
+    AdaptiveGainPlanner.name: AdaptiveGainPlanner,
+}
+#: Other spellings users reach for (the paper's labels).
+ALIASES: dict[str, str] = {"nl": "lawnmower", "adaptive_gain": "ag", "adaptive-gain": "ag"}
+
+
+def planner_class(name: str) -> type[Planner]:
+    """The planner class of a name or alias; ``ValueError`` listing the choices otherwise."""
+    key = str(name).strip().lower()
+    key = ALIASES.get(key, key)
+    if key not in PLANNERS:
+        raise ValueError(f"unknown baseline {name!r}; choose one of {sorted(PLANNERS)}")
+    return PLANNERS[key]
+
+
+def make_planner(name: str, venv: VecEnv, seed: int | None = None, **kwargs: Any) -> Planner:
+    """Build the named planner for ``venv`` (an ``envs.make_vec_env`` vec env)."""
+    cls = planner_class(name)
+    try:
+        return cls(venv, seed=seed, **kwargs)
+    except TypeError as exc:
+        if "unexpected keyword" in str(exc):
+            raise ValueError(f"baseline {cls.name!r}: {exc}") from None
+        raise
+
+
+__all__ = ["ALIASES", "AdaptiveGainPlanner", "LawnmowerPlanner", "PLANNERS", "Planner", "RandomPlanner",
+           "choose_actions", "make_planner", "planner_class"]

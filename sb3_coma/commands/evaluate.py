@@ -1,0 +1,194 @@
+"""``sb3-coma evaluate``: the paper's Table I, per-step curves, planning times and mission plots.
+
+Example::
+
+    sb3-coma evaluate --env env1,env2 --methods ag,lawnmower,random --model runs/env1/final.zip \
+        --noise moderate --trials 10 --seed 0 --out results/
+
+writes into ``--out``: ``table.md`` / ``table.csv`` (F1 and entropy at 33/67/100 % of the budget,
+mean +- std over trials, best in bold), ``per_step.csv``, ``planning_time.md`` / ``.csv`` (mean
+ms per UAV decision), ``curves_<env>.png`` (Figures 4/5), ``mission_<env>_<method>.png`` and
+``.gif``, and ``training_reward.png`` (Figure 3) when ``--training-log`` is given.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+NAME = "evaluate"
+HELP = "evaluate trained models and baselines (AG, lawnmower, random) as in the paper's Table I"
+DESCRIPTION = (
+    "Fly N seeded missions per method (trial k uses env seed SEED+k, identical for every method), print "
+    "F1 and entropy at 33/67/100 %% of the budget as mean +- std, and write tables, per-step curves, "
+    "planning times and plots to --out."
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--env", default=None,
+                        help="map name(s), comma separated: env1, env2, env3 or gymnasium ids (default env3; "
+                             "with --map-path the image's name)")
+    parser.add_argument("--methods", default="ag,lawnmower,random",
+                        help="comma-separated baselines (ag, lawnmower, random) and/or model paths "
+                             "(default: ag,lawnmower,random; '' for models only)")
+    parser.add_argument("--model", action="append", default=[], metavar="[LABEL=]PATH_OR_NAME",
+                        help="a trained COMA model: .zip path or shipped name (env1/env2/env3); repeatable; "
+                             "evaluated before the baselines, labelled LABEL (default 'coma')")
+    parser.add_argument("--fusion", default=None, choices=("mean", "sendfuse"),
+                        help="fusion of received maps for models (default sendfuse; baselines always use mean)")
+    parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud (default moderate)")
+    parser.add_argument("--trials", type=int, default=10, help="missions per method (default 10)")
+    parser.add_argument("--seed", type=int, default=0, help="base seed: trial k uses SEED+k (default 0)")
+    parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
+    parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
+    parser.add_argument("--map-path", default=None, help="your own map image (with --valuable)")
+    parser.add_argument("--valuable", default=None, help="rule that marks valuable pixels of --map-path")
+    parser.add_argument("--n-envs", type=int, default=None, help="missions flown at once (default: all trials)")
+    parser.add_argument("--out", default="results", help="output folder (default results/)")
+    parser.add_argument("--training-log", action="append", default=[], metavar="[LABEL=]PATH",
+                        help="training log for the reward-vs-episode plot (metrics.csv, monitor CSV or "
+                             "TensorBoard dir); repeatable")
+    parser.add_argument("--agents-per-episode", type=int, default=1,
+                        help="rows per mission in a VecMonitor CSV training log (n UAVs), averaged")
+    parser.add_argument("--no-plots", action="store_true", help="skip all figures")
+    parser.add_argument("--no-gif", action="store_true", help="skip the mission GIFs")
+
+
+def _labelled(spec: str, default: str) -> tuple[str, str]:
+    """``"label=path"`` -> (label, path); a bare path gets ``default`` (or its own name for baselines)."""
+    if "=" in spec:
+        label, value = spec.split("=", 1)
+        if label.strip() and value.strip():
+            return label.strip(), value.strip()
+    return default, spec.strip()
+
+
+def _methods(args: argparse.Namespace) -> list[tuple[str | None, str]]:
+    """(label or None for the default, method) in table order: models first, then baselines."""
+    from sb3_coma.cli import UserError
+
+    out: list[tuple[str | None, str]] = []
+    for k, spec in enumerate(args.model):
+        label, value = _labelled(spec, "coma" if len(args.model) == 1 else f"coma{k + 1}")
+        out.append((label, value))
+    for name in [m.strip() for m in args.methods.split(",") if m.strip()]:
+        out.append((None, name))
+    if not out:
+        raise UserError("nothing to evaluate: give --methods and/or --model")
+    labels = [lab or name for lab, name in out]
+    if len(set(labels)) != len(labels):
+        raise UserError(f"duplicate method labels {labels}; name models with --model LABEL=PATH")
+    return out
+
+
+def _env_options(args: argparse.Namespace) -> dict[str, Any]:
+    options: dict[str, Any] = {"noise": args.noise}
+    if args.uavs is not None:
+        options["n_uavs"] = args.uavs
+    if args.budget is not None:
+        options["budget"] = args.budget
+    if args.map_path is not None:
+        if not Path(args.map_path).is_file():
+            raise FileNotFoundError(f"map image not found: {args.map_path!r}")
+        options["map_path"] = args.map_path
+    if args.valuable is not None:
+        options["valuable"] = args.valuable
+    return options
+
+
+def _env_names(args: argparse.Namespace) -> list[str]:
+    from sb3_coma.cli import UserError
+
+    if args.env is None:
+        return [Path(args.map_path).stem if args.map_path else "env3"]
+    names = [e.strip() for e in args.env.split(",") if e.strip()]
+    if not names:
+        raise UserError("--env is empty")
+    return names
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    from sb3_coma.cli import UserError
+
+    for flag, value, low in (("--trials", args.trials, 1), ("--seed", args.seed, 0),
+                             ("--agents-per-episode", args.agents_per_episode, 1)):
+        if value < low:
+            raise UserError(f"{flag} must be >= {low}, got {value}")
+    if args.n_envs is not None and args.n_envs < 1:
+        raise UserError(f"--n-envs must be >= 1, got {args.n_envs}")
+
+
+def run(args: argparse.Namespace) -> int:
+    from sb3_coma import evaluation as ev
+    from sb3_coma.cli import UserError
+
+    _check_args(args)
+    methods = _methods(args)
+    env_names = _env_names(args)
+    options = _env_options(args)
+    for _, method in methods:  # fail on a typo before minutes of missions
+        try:
+            ev.check_policy(method)
+        except (ValueError, TypeError) as exc:
+            raise UserError(str(exc)) from None
+    logs = [_labelled(spec, Path(_labelled(spec, "")[1]).stem or "reward") for spec in args.training_log]
+    for _, path in logs:
+        if not Path(path).exists():
+            raise FileNotFoundError(f"training log not found: {path!r}")
+    out = Path(args.out)
+    results: list[ev.EvaluationResult] = []
+    for env_name in env_names:
+        for label, method in methods:
+            print(f"evaluating {label or method} on {env_name} ({args.trials} trials, noise {args.noise}) ...", flush=True)
+            fusion = args.fusion if ev.is_model(method) else None
+            try:
+                results.append(ev.evaluate(method, env=env_name, n_trials=args.trials, seed=args.seed, fusion=fusion,
+                                           n_envs=args.n_envs, label=label, **options))
+            except (ValueError, TypeError) as exc:
+                raise UserError(f"{label or method} on {env_name}: {exc}") from None
+    rows = ev.rows_for(results)
+    written = [ev.write_table_csv(rows, out / "table.csv"), ev.write_per_step_csv(rows, out / "per_step.csv"),
+               ev.write_planning_time_csv(rows, out / "planning_time.csv")]
+    markdown = ev.table_markdown(rows)
+    timing = ev.planning_time_markdown(rows)
+    (out / "table.md").write_text(
+        f"F1-score and entropy at 33/67/100 % of the budget, mean ± std over {args.trials} trials "
+        f"(seeds {args.seed}..{args.seed + args.trials - 1}), noise {args.noise}; best in bold.\n\n{markdown}")
+    (out / "planning_time.md").write_text(timing)
+    written += [out / "table.md", out / "planning_time.md"]
+    if not args.no_plots:
+        written += _plots(results, env_names, logs, args, out)
+    print()
+    print(markdown)
+    print("Planning time (wall time of predict per UAV decision):")
+    print(timing)
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+def _plots(results: list[Any], env_names: list[str], logs: list[tuple[str, str]], args: argparse.Namespace,
+           out: Path) -> list[Path]:
+    from sb3_coma import plots
+    from sb3_coma.cli import UserError
+
+    written = []
+    for env_name in env_names:
+        group = [r for r in results if r.env == env_name]
+        written.append(plots.plot_metric_curves(group, out / f"curves_{env_name}.png"))
+        for r in group:
+            stem = f"mission_{env_name}_{_safe(r.method)}"
+            written.append(plots.plot_mission(r, out / f"{stem}.png"))
+            if not args.no_gif:
+                written.append(plots.animate_mission(r, out / f"{stem}.gif"))
+    if logs:
+        try:
+            written.append(plots.plot_training_reward(dict(logs), out / "training_reward.png",
+                                                      agents_per_episode=args.agents_per_episode))
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+    return written
+
+
+def _safe(label: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in label)

@@ -1,0 +1,519 @@
+"""The paper's evaluation protocol: seeded missions, per-step F1 and entropy, Table I.
+
+``evaluate(policy_or_name, env="env3", n_trials=10, seed=0)`` flies ``n_trials`` missions with a
+trained model (object, ``.zip`` path or shipped name) or a baseline (``"random"``,
+``"lawnmower"``, ``"ag"``). Trial ``k`` resets its env copy with seed ``seed + k``, so every method
+faces the same maps, start positions and random streams. Metrics are read after the reset
+measurement (step 0) and after each of the ``budget`` joint steps, giving arrays of shape
+``(n_trials, budget + 1)``; the table reads them at 33 %, 67 % and 100 % of the budget
+(steps ``round(f * budget)``: 5, 10, 15 for the default budget) as mean +- std over trials
+(population std, ``ddof=0``).
+
+Planning time is the wall time of the ``predict`` call of each joint step divided by the
+number of UAV decisions it produced (all trials of a batch decide in one call).
+"""
+from __future__ import annotations
+
+import csv
+import functools
+import inspect
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+#: Budget fractions of the paper's Table I and their column labels.
+FRACTIONS: tuple[float, ...] = (1 / 3, 2 / 3, 1.0)
+FRACTION_LABELS: tuple[str, ...] = ("33%", "67%", "100%")
+#: Metric -> (title, whether higher is better).
+METRICS: dict[str, tuple[str, bool]] = {"f1": ("F1-Score", True), "entropy": ("Entropy", False)}
+#: Label of a trained model in tables when the caller gives none (the paper's "Ours").
+MODEL_LABEL = "coma"
+
+
+# ---------------------------------------------------------------------------------------------
+# results
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class EvaluationResult:
+    """Per-step metrics of ``n_trials`` seeded missions of one method on one env setting.
+
+    Arrays: ``f1`` and ``entropy`` (n_trials, budget + 1), step 0 = after the reset measurement;
+    ``returns`` (n_trials,) team return; ``planning_time_ms`` (budget,) mean wall time per UAV
+    decision at each step; ``trajectories`` (n_trials, budget + 1, n_agents, 3) positions in
+    metres. For the first ``recorded`` trials the final global belief is kept (``final_beliefs``,
+    (recorded, grid, grid)) and, for trial 0, the belief after every step (``belief_frames``,
+    float16) for the mission GIF.
+    """
+
+    method: str
+    env: str
+    seed: int
+    n_trials: int
+    budget: int
+    n_agents: int
+    fusion: str
+    env_options: dict[str, Any]
+    f1: np.ndarray
+    entropy: np.ndarray
+    returns: np.ndarray
+    planning_time_ms: np.ndarray
+    trajectories: np.ndarray
+    ground_truth: np.ndarray | None = None
+    no_fly: np.ndarray | None = None
+    field_size: float = 50.0
+    altitudes: tuple[float, ...] = (5.0, 10.0, 15.0)
+    final_beliefs: np.ndarray | None = None
+    belief_frames: np.ndarray | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def step_of(self, fraction: float) -> int:
+        """Step index at a fraction of the budget (0 = the reset measurement)."""
+        if not 0.0 <= fraction <= 1.0:
+            raise ValueError(f"fraction must be in [0, 1], got {fraction}")
+        return int(round(fraction * self.budget))
+
+    def metric(self, name: str) -> np.ndarray:
+        if name not in METRICS:
+            raise ValueError(f"unknown metric {name!r}; choose one of {sorted(METRICS)}")
+        return getattr(self, name)
+
+    def at(self, name: str, fraction: float) -> np.ndarray:
+        """(n_trials,) values of a metric at a fraction of the budget."""
+        return self.metric(name)[:, self.step_of(fraction)]
+
+    def mean_std(self, name: str, fraction: float) -> tuple[float, float]:
+        values = self.at(name, fraction)
+        return float(values.mean()), float(values.std())
+
+    def summary(self) -> dict[str, float]:
+        """Flat dict of Table I's numbers, e.g. ``f1_100_mean``, plus return and planning time."""
+        out: dict[str, float] = {}
+        for name in METRICS:
+            for frac, label in zip(FRACTIONS, FRACTION_LABELS):
+                mean, std = self.mean_std(name, frac)
+                out[f"{name}_{label[:-1]}_mean"] = mean
+                out[f"{name}_{label[:-1]}_std"] = std
+        out["return_mean"] = float(self.returns.mean())
+        out["return_std"] = float(self.returns.std())
+        out["planning_ms_per_decision"] = float(self.planning_time_ms.mean())
+        return out
+
+    def __repr__(self) -> str:
+        f1, ent = self.mean_std("f1", 1.0), self.mean_std("entropy", 1.0)
+        return (f"EvaluationResult(method={self.method!r}, env={self.env!r}, n_trials={self.n_trials}, "
+                f"f1@100%={f1[0]:.4f}+-{f1[1]:.4f}, entropy@100%={ent[0]:.4f}+-{ent[1]:.4f})")
+
+
+# ---------------------------------------------------------------------------------------------
+# resolving what to evaluate
+# ---------------------------------------------------------------------------------------------
+def baseline_names() -> list[str]:
+    from sb3_coma.baselines import PLANNERS
+
+    return sorted(PLANNERS)
+
+
+def _is_baseline(name: str) -> bool:
+    from sb3_coma.baselines import planner_class
+
+    try:
+        planner_class(name)
+        return True
+    except ValueError:
+        return False
+
+
+def _looks_like_path(name: str) -> bool:
+    return name.endswith(".zip") or os.sep in name or "/" in name or name.startswith(".")
+
+
+def _load_model_file(path: Path, venv: Any) -> Any:
+    from sb3_coma import COMA
+
+    try:
+        return COMA.load(str(path), env=venv, device="cpu")
+    except (ValueError, KeyError, AssertionError) as exc:
+        raise ValueError(f"cannot load model {str(path)!r} for this environment: {exc} (was it trained with "
+                         f"another number of UAVs or observation layout?)") from exc
+
+
+def _load_pretrained(name: str, venv: Any) -> Any:
+    try:
+        from sb3_coma.pretrained import load_pretrained
+    except ModuleNotFoundError as exc:
+        if exc.name not in ("sb3_coma.pretrained",):
+            raise
+        raise ValueError(f"{name!r} is neither a baseline ({', '.join(baseline_names())}) nor an existing model "
+                         f"file, and shipped models are not available in this install (sb3_coma.pretrained "
+                         f"is missing): pass the path of a saved COMA .zip") from None
+    try:
+        if "env" in inspect.signature(load_pretrained).parameters:
+            return load_pretrained(name, env=venv)
+        return load_pretrained(name)
+    except (KeyError, ValueError) as exc:
+        raise ValueError(f"unknown method {name!r}: not a baseline ({', '.join(baseline_names())}), not a model "
+                         f"file, and not a shipped model ({exc})") from exc
+
+
+def is_model(policy_or_name: Any) -> bool:
+    """Whether this names/is a learned model (not a baseline): decides the default fusion."""
+    if isinstance(policy_or_name, (str, os.PathLike)):
+        return not (isinstance(policy_or_name, str) and _is_baseline(policy_or_name))
+    from sb3_coma.baselines import Planner
+
+    return not isinstance(policy_or_name, Planner)
+
+
+def check_policy(policy_or_name: Any) -> None:
+    """Fail early, before any env is built, on names and paths that cannot resolve."""
+    if isinstance(policy_or_name, os.PathLike) or (isinstance(policy_or_name, str) and not _is_baseline(policy_or_name)):
+        text = os.fspath(policy_or_name)
+        path = Path(text)
+        if path.is_file() or Path(text + ".zip").is_file():
+            return
+        if isinstance(policy_or_name, os.PathLike) or _looks_like_path(text):
+            raise FileNotFoundError(f"model file not found: {text!r}")
+        if not text.strip():
+            raise ValueError("empty method name")
+        try:
+            import sb3_coma.pretrained  # noqa: F401
+        except ModuleNotFoundError as exc:
+            if exc.name != "sb3_coma.pretrained":
+                raise
+            raise ValueError(f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a model "
+                             f"file, and shipped models are unavailable (sb3_coma.pretrained is missing)") from None
+    elif not isinstance(policy_or_name, str) and not callable(getattr(policy_or_name, "predict", None)):
+        raise TypeError(f"cannot evaluate {type(policy_or_name).__name__}: pass a baseline name, a model path "
+                        f"or an object with SB3's predict(observation, deterministic=...)")
+
+
+def resolve_policy(policy_or_name: Any, venv: Any, seed: int | None,
+                   planner_kwargs: Mapping[str, Any] | None = None) -> tuple[Any, str]:
+    """(predictor with SB3's ``predict``, label) for a baseline name, model path/name or object."""
+    from sb3_coma.baselines import Planner, make_planner, planner_class
+
+    check_policy(policy_or_name)
+    if isinstance(policy_or_name, str) and _is_baseline(policy_or_name):
+        cls = planner_class(policy_or_name)
+        return make_planner(cls.name, venv, seed=seed, **dict(planner_kwargs or {})), cls.name
+    if isinstance(policy_or_name, (str, os.PathLike)):
+        text = os.fspath(policy_or_name)
+        path = Path(text) if Path(text).is_file() else Path(text + ".zip")
+        if path.is_file():
+            return _load_model_file(path, venv), path.stem
+        return _load_pretrained(text, venv), text
+    if isinstance(policy_or_name, Planner):
+        if policy_or_name.uses_env_state and policy_or_name.venv is not venv:
+            raise ValueError(f"a {policy_or_name.name!r} planner reads its own vec env's state: pass its name "
+                             f"({policy_or_name.name!r}) so that evaluate builds it on the evaluation env")
+        return policy_or_name, policy_or_name.name
+    return policy_or_name, MODEL_LABEL
+
+
+# ---------------------------------------------------------------------------------------------
+# running missions
+# ---------------------------------------------------------------------------------------------
+class _FinalSnapshots:
+    """Keeps what the env forgets at SuperSuit's auto-reset: the finished mission's final state.
+
+    SuperSuit resets a copy inside the step that ends its mission, so the final global belief and
+    the last positions are gone when ``step`` returns. Shadowing ``reset`` on our own env copies
+    (built by and private to this evaluation) snapshots them first.
+    """
+
+    def __init__(self, copies: Sequence[Any], keep_belief: Sequence[bool]) -> None:
+        self.copies = list(copies)
+        self.trajectory: list[np.ndarray | None] = [None] * len(self.copies)
+        self.belief: list[np.ndarray | None] = [None] * len(self.copies)
+        for c, env in enumerate(self.copies):
+            env.reset = functools.partial(self._snapshot_then_reset, c, type(env).reset.__get__(env), keep_belief[c])
+
+    def _snapshot_then_reset(self, c: int, reset: Callable[..., Any], keep_belief: bool, *args: Any, **kwargs: Any) -> Any:
+        env = self.copies[c]
+        if self.trajectory[c] is None:
+            self.trajectory[c] = env.trajectory()
+            if keep_belief:
+                self.belief[c] = env.global_belief()
+        return reset(*args, **kwargs)
+
+    def remove(self) -> None:
+        for env in self.copies:
+            env.__dict__.pop("reset", None)
+
+
+def _env_copies(venv: Any) -> list[Any] | None:
+    copies = getattr(getattr(venv, "unwrapped", venv), "copies", None)
+    return list(copies) if copies is not None else None
+
+
+def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int, frames: bool
+               ) -> dict[str, Any]:
+    """Fly one mission in every copy of ``venv`` (already seeded) and collect the metrics."""
+    n_agents = int(venv.n_agents)
+    copies = venv.num_envs // n_agents
+    rows = [c * n_agents for c in range(copies)]
+    from sb3_coma.baselines import Planner
+
+    obs = venv.reset()
+    truth = venv.get_attr("ground_truth", indices=[0])[0]  # now: env1 without map seed redraws at reset
+    if isinstance(predictor, Planner):
+        predictor.reset()
+    start = venv.env_method("metrics", indices=rows)
+    budget = int(venv.get_attr("config", indices=[0])[0].budget)
+    f1 = np.zeros((copies, budget + 1))
+    ent = np.zeros((copies, budget + 1))
+    f1[:, 0] = [m["f1"] for m in start]
+    ent[:, 0] = [m["entropy"] for m in start]
+    returns = np.zeros(copies)
+    plan_ms = np.zeros(budget)
+    env_copies = _env_copies(venv)
+    snaps = _FinalSnapshots(env_copies, [c < keep_beliefs for c in range(copies)]) if env_copies else None
+    belief_frames = [venv.env_method("global_belief", indices=[0])[0].astype(np.float16)] if frames else []
+    episode_start = np.ones(venv.num_envs, dtype=bool)
+    try:
+        for t in range(1, budget + 1):
+            tic = time.perf_counter()
+            actions, _ = predictor.predict(obs, episode_start=episode_start, deterministic=deterministic)
+            plan_ms[t - 1] = (time.perf_counter() - tic) * 1e3 / venv.num_envs
+            episode_start[:] = False
+            obs, rewards, dones, infos = venv.step(np.asarray(actions).reshape(-1))
+            returns += rewards[rows]
+            f1[:, t] = [infos[r]["f1"] for r in rows]
+            ent[:, t] = [infos[r]["entropy"] for r in rows]
+            if t < budget:
+                if dones.any():
+                    raise RuntimeError(f"a mission ended after {t} of {budget} steps")
+                if frames:
+                    belief_frames.append(venv.env_method("global_belief", indices=[0])[0].astype(np.float16))
+        if not dones.all():
+            raise RuntimeError(f"missions did not end after the budget of {budget} steps")
+    finally:
+        if snaps is not None:
+            snaps.remove()
+    if snaps is not None and all(tr is not None for tr in snaps.trajectory):
+        trajectories = np.stack(snaps.trajectory)
+        final_beliefs = [b for b in snaps.belief[:keep_beliefs]]
+    else:  # an env without our copies: the last positions are unknown, keep what was seen
+        trajectories = np.full((copies, budget + 1, n_agents, 3), np.nan)
+        final_beliefs = []
+    if frames and final_beliefs and final_beliefs[0] is not None:
+        belief_frames.append(final_beliefs[0].astype(np.float16))
+    return {"f1": f1, "entropy": ent, "returns": returns, "truth": truth, "plan_ms": plan_ms, "trajectories": trajectories,
+            "final_beliefs": [b for b in final_beliefs if b is not None],
+            "belief_frames": np.stack(belief_frames) if frames and len(belief_frames) == budget + 1 else None}
+
+
+def _check_int(name: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name}={value!r}: must be an integer >= {minimum}")
+    return int(value)
+
+
+def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int = 10, seed: int = 0,
+             fusion: str | None = None, deterministic: bool = True, n_envs: int | None = None,
+             record: int = 1, label: str | None = None, planner_kwargs: Mapping[str, Any] | None = None,
+             **env_options: Any) -> EvaluationResult:
+    """Run a trained model or a baseline for ``n_trials`` seeded missions (see module docstring).
+
+    :param policy_or_name: ``"random"``, ``"lawnmower"``, ``"ag"`` (or ``"nl"``); a COMA model
+        object, a path to a saved ``.zip``, or a shipped model name (``"env1"`` ...,
+        via ``sb3_coma.load_pretrained``); or any object with SB3's ``predict``
+    :param env: map name or gymnasium id
+    :param n_trials: missions; trial ``k`` uses env seed ``seed + k``
+    :param seed: base seed (env and the planner's own random stream)
+    :param fusion: ``"mean"`` or ``"sendfuse"``; ``None``: ``"sendfuse"`` for models (the paper's
+        method), ``"mean"`` for baselines (they do not read the fused channel)
+    :param deterministic: passed to the model's ``predict``
+    :param n_envs: env copies flown at once (default: all trials in one batch); results are
+        reproducible for the same ``seed`` and ``n_envs``
+    :param record: how many trials keep their final global belief (trial 0 also keeps a belief
+        per step for the GIF when ``record >= 1``)
+    :param label: method name in tables (default: the baseline name, model file stem or "coma")
+    :param planner_kwargs: options of the baseline (e.g. ``{"altitude": 5.0}`` for the lawnmower)
+    :param env_options: environment options (``noise``, ``n_uavs``, ``budget``, ``map_path``,
+        ``valuable``, ...)
+    """
+    import envs
+
+    n_trials = _check_int("n_trials", n_trials, 1)
+    seed = _check_int("seed", seed, 0)
+    record = _check_int("record", record, 0)
+    n_envs = n_trials if n_envs is None else min(_check_int("n_envs", n_envs, 1), n_trials)
+    check_policy(policy_or_name)
+    if fusion is None:
+        fusion = "sendfuse" if is_model(policy_or_name) else "mean"
+    predictor: Any = None
+    name = label
+    parts: list[dict[str, Any]] = []
+    venv = None
+    first_truth: Any = None
+    config: Any = None
+    for start in range(0, n_trials, n_envs):
+        size = min(n_envs, n_trials - start)
+        try:
+            venv = envs.make_vec_env(env, n_envs=size, fusion=fusion, seed=None, **env_options)
+        except ValueError as exc:
+            if fusion == "sendfuse" and "sendfuse" in str(exc):
+                raise ValueError(f"{exc}; evaluate a model trained without SenDFuse with fusion='mean'") from exc
+            raise
+        venv.seed(seed + start)
+        if predictor is None or getattr(predictor, "uses_env_state", False):
+            predictor, default_label = resolve_policy(policy_or_name, venv, seed + start, planner_kwargs)
+            name = name or default_label
+        if config is None:
+            config = venv.get_attr("config", indices=[0])[0]
+        parts.append(_run_batch(predictor, venv, deterministic, max(record - start, 0), record >= 1 and start == 0))
+        if first_truth is None:
+            first_truth = parts[0]["truth"]
+        venv.close()
+    finals = [b for p in parts for b in p["final_beliefs"]][:record]
+    return EvaluationResult(
+        method=str(name), env=str(env), seed=seed, n_trials=n_trials, budget=int(config.budget),
+        n_agents=int(config.n_uavs), fusion=fusion, env_options=dict(env_options),
+        f1=np.concatenate([p["f1"] for p in parts]), entropy=np.concatenate([p["entropy"] for p in parts]),
+        returns=np.concatenate([p["returns"] for p in parts]),
+        planning_time_ms=np.average(np.stack([p["plan_ms"] for p in parts]), axis=0,
+                                    weights=[len(p["returns"]) for p in parts]),
+        trajectories=np.concatenate([p["trajectories"] for p in parts]),
+        ground_truth=np.asarray(first_truth.valuable, dtype=bool), no_fly=np.asarray(first_truth.no_fly, dtype=bool),
+        field_size=float(config.field_size), altitudes=tuple(float(a) for a in config.altitudes),
+        final_beliefs=np.stack(finals) if finals else None, belief_frames=parts[0]["belief_frames"],
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Table I
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TableRow:
+    """One line of a Table-I style table: a group (env or noise level), a method and its result."""
+
+    group: str
+    method: str
+    result: EvaluationResult
+
+
+def _cell_values(result: EvaluationResult) -> list[tuple[float, float]]:
+    return [result.mean_std(name, frac) for name in METRICS for frac in FRACTIONS]
+
+
+def _best_flags(rows: Sequence[TableRow], digits: int) -> list[list[bool]]:
+    """Per row and column, whether the mean is the best of its group (ties share the bold)."""
+    flags = [[False] * (len(METRICS) * len(FRACTIONS)) for _ in rows]
+    higher = [METRICS[name][1] for name in METRICS for _ in FRACTIONS]
+    groups: dict[str, list[int]] = {}
+    for i, row in enumerate(rows):
+        groups.setdefault(row.group, []).append(i)
+    values = [_cell_values(r.result) for r in rows]
+    for members in groups.values():
+        if len(members) < 2:
+            continue
+        for col, up in enumerate(higher):
+            means = [round(values[i][col][0], digits) for i in members]
+            best = max(means) if up else min(means)
+            for i, m in zip(members, means):
+                flags[i][col] = m == best
+    return flags
+
+
+def table_markdown(rows: Sequence[TableRow], group_title: str = "Env", digits: int = 4) -> str:
+    """The paper's Table I as Markdown: mean +- std, best mean of each group in bold."""
+    head = [group_title, "Method"] + [f"{METRICS[n][0]} {'↑' if METRICS[n][1] else '↓'} {lab}"
+                                       for n in METRICS for lab in FRACTION_LABELS]
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join([" --- "] * 2 + [" ---: "] * (len(head) - 2)) + "|"]
+    flags = _best_flags(rows, digits)
+    previous = None
+    for row, bold in zip(rows, flags):
+        cells = []
+        for (mean, std), b in zip(_cell_values(row.result), bold):
+            m = f"{mean:.{digits}f}"
+            cells.append(f"**{m}** ± {std:.{digits}f}" if b else f"{m} ± {std:.{digits}f}")
+        group = row.group if row.group != previous else ""
+        previous = row.group
+        lines.append("| " + " | ".join([group, row.method] + cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def table_text(rows: Sequence[TableRow], group_title: str = "Env", digits: int = 4) -> str:
+    """Plain-text Table I for terminals: the best mean of each group marked with ``*``."""
+    head = [group_title, "Method"] + [f"{n} {lab}" for n in METRICS for lab in FRACTION_LABELS]
+    flags = _best_flags(rows, digits)
+    body = []
+    for row, bold in zip(rows, flags):
+        cells = [f"{'*' if b else ' '}{mean:.{digits}f}±{std:.{digits}f}"
+                 for (mean, std), b in zip(_cell_values(row.result), bold)]
+        body.append([row.group, row.method] + cells)
+    widths = [max(len(str(r[i])) for r in [head] + body) for i in range(len(head))]
+
+    def fmt(r: list[str]) -> str:
+        return "  ".join(str(c).ljust(w) if i < 2 else str(c).rjust(w) for i, (c, w) in enumerate(zip(r, widths)))
+
+    return "\n".join([fmt(head), "  ".join("-" * w for w in widths)] + [fmt(r) for r in body]) + "\n"
+
+
+def table_columns() -> list[str]:
+    return [f"{name}_{lab[:-1]}_{stat}" for name in METRICS for lab in FRACTION_LABELS for stat in ("mean", "std")]
+
+
+def write_table_csv(rows: Sequence[TableRow], path: str | os.PathLike, group_title: str = "env") -> Path:
+    """Wide CSV of Table I: one line per (group, method), ``f1_33_mean, f1_33_std, ...``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow([group_title, "method", "n_trials", "budget"] + table_columns()
+                        + ["return_mean", "return_std", "planning_ms_per_decision"])
+        for row in rows:
+            s = row.result.summary()
+            writer.writerow([row.group, row.method, row.result.n_trials, row.result.budget]
+                            + [f"{s[c]:.6f}" for c in table_columns()]
+                            + [f"{s['return_mean']:.6f}", f"{s['return_std']:.6f}",
+                               f"{s['planning_ms_per_decision']:.6f}"])
+    return path
+
+
+def write_per_step_csv(rows: Sequence[TableRow], path: str | os.PathLike, group_title: str = "env") -> Path:
+    """Long CSV of the curves behind the plots: mean and std of both metrics at every step."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow([group_title, "method", "step", "f1_mean", "f1_std", "entropy_mean", "entropy_std"])
+        for row in rows:
+            r = row.result
+            for t in range(r.budget + 1):
+                writer.writerow([row.group, row.method, t, f"{r.f1[:, t].mean():.6f}", f"{r.f1[:, t].std():.6f}",
+                                 f"{r.entropy[:, t].mean():.6f}", f"{r.entropy[:, t].std():.6f}"])
+    return path
+
+
+def planning_time_markdown(rows: Sequence[TableRow]) -> str:
+    """Per-method planning time: mean and worst step, ms per UAV decision."""
+    lines = ["| Env | Method | ms per UAV decision (mean) | slowest step (ms) |", "| --- | --- | ---: | ---: |"]
+    for row in rows:
+        t = row.result.planning_time_ms
+        lines.append(f"| {row.group} | {row.method} | {t.mean():.4f} | {t.max():.4f} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_planning_time_csv(rows: Sequence[TableRow], path: str | os.PathLike) -> Path:
+    """Per-step planning time of each method (ms per UAV decision)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    budget = max(r.result.budget for r in rows) if rows else 0
+    with path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["env", "method", "mean_ms"] + [f"step_{t}" for t in range(1, budget + 1)])
+        for row in rows:
+            t = row.result.planning_time_ms
+            writer.writerow([row.group, row.method, f"{t.mean():.6f}"] + [f"{v:.6f}" for v in t])
+    return path
+
+
+def rows_for(results: Iterable[EvaluationResult], group: Callable[[EvaluationResult], str] | None = None) -> list[TableRow]:
+    """Table rows grouped by env (or by ``group(result)``), in the given order."""
+    return [TableRow(group(r) if group else r.env, r.method, r) for r in results]

@@ -1,0 +1,398 @@
+"""The paper's figures as PNG/GIF files (matplotlib, Agg backend: no display needed).
+
+* :func:`plot_metric_curves` - F1 and entropy vs sampling step, mean with a +-std band per method
+  (Figures 4 and 5); :func:`plot_metric_grid` - the same per noise level (ablation);
+* :func:`plot_training_reward` - team reward vs training episode (Figure 3) from a run's logs,
+  read by :func:`load_training_log`;
+* :func:`plot_mission` - ground truth, final global belief and the UAVs' 3-D trajectories
+  coloured by altitude; :func:`animate_mission` - the same mission step by step as a GIF;
+* :func:`plot_ablation` - final F1 / entropy of the ablation variants per noise level.
+
+Training logs understood by :func:`load_training_log` (first match wins):
+
+1. a CSV with columns ``episode`` and ``reward`` (``sb3-coma train``'s ``metrics.csv``; other
+   columns are ignored; without ``episode`` the row number is the episode);
+2. an SB3 ``monitor.csv`` / VecMonitor CSV (a ``#{...}`` JSON line, then ``r,l,t``): ``r`` is the
+   reward. VecMonitor over the multi-agent vec env writes one row per agent of a mission; pass
+   ``agents_per_episode=n_agents`` to average each mission's rows into one point;
+3. a TensorBoard event file or directory: scalar ``mission/reward`` (one point per mission),
+   else ``rollout/ep_rew_mean``, else the first tag containing "reward"; or name ``tag=``.
+
+A directory is searched for ``metrics.csv``, then ``*monitor.csv``, then event files.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Mapping, Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib import cm, colors  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
+
+if TYPE_CHECKING:  # pragma: no cover
+    from sb3_coma.evaluation import EvaluationResult
+
+PathLike = str | os.PathLike
+#: Preferred TensorBoard reward tags, in order.
+REWARD_TAGS = ("mission/reward", "episode/reward", "rollout/ep_rew_mean")
+ALTITUDE_CMAP = "viridis"
+UAV_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:grey")
+METHOD_COLOURS = {"coma": "tab:red", "ours": "tab:red", "ag": "tab:blue", "lawnmower": "tab:green", "nl": "tab:green",
+                  "random": "tab:grey"}
+
+
+def _save(fig: plt.Figure, path: PathLike, **kwargs) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, **kwargs)
+    plt.close(fig)
+    return path
+
+
+def _colour(label: str, k: int) -> str:
+    return METHOD_COLOURS.get(label.lower(), f"C{k % 10}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Figures 4 / 5: metrics vs step
+# ---------------------------------------------------------------------------------------------
+def _curves(ax: plt.Axes, results: Sequence["EvaluationResult"], metric: str, labels: Sequence[str]) -> None:
+    for k, (res, label) in enumerate(zip(results, labels)):
+        values = res.metric(metric)
+        steps = np.arange(values.shape[1])
+        mean, std = values.mean(axis=0), values.std(axis=0)
+        colour = _colour(label, k)
+        ax.plot(steps, mean, color=colour, label=label, lw=1.8)
+        ax.fill_between(steps, mean - std, mean + std, color=colour, alpha=0.2, lw=0)
+    ax.set_xlabel("sampling step")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.grid(alpha=0.3)
+
+
+def plot_metric_curves(results: Sequence["EvaluationResult"], path: PathLike, title: str | None = None,
+                       labels: Sequence[str] | None = None) -> Path:
+    """F1 (left) and entropy (right) vs step, mean +- std over trials, one line per result."""
+    if not results:
+        raise ValueError("plot_metric_curves needs at least one result")
+    labels = list(labels) if labels is not None else [r.method for r in results]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for ax, metric, name in zip(axes, ("f1", "entropy"), ("F1-score", "Entropy (bits, valuable cells)")):
+        _curves(ax, results, metric, labels)
+        ax.set_ylabel(name)
+    axes[0].set_ylim(0, 1)
+    axes[1].set_ylim(0, 1.05)
+    axes[0].legend(loc="lower right")
+    r = results[0]
+    fig.suptitle(title or f"{r.env}: F1 and entropy vs step ({r.n_trials} trials, mean ± std)")
+    fig.tight_layout()
+    return _save(fig, path, dpi=120)
+
+
+def plot_metric_grid(results: Mapping[str, Sequence["EvaluationResult"]], path: PathLike,
+                     title: str | None = None, labels: Mapping[str, Sequence[str]] | None = None) -> Path:
+    """F1 (top) and entropy (bottom) vs step, one column per group (e.g. noise level)."""
+    groups = [g for g in results if results[g]]
+    if not groups:
+        raise ValueError("plot_metric_grid needs at least one non-empty group")
+    fig, axes = plt.subplots(2, len(groups), figsize=(4.2 * len(groups), 7), squeeze=False)
+    for j, group in enumerate(groups):
+        labs = list(labels[group]) if labels and group in labels else [r.method for r in results[group]]
+        for i, metric in enumerate(("f1", "entropy")):
+            _curves(axes[i, j], results[group], metric, labs)
+            axes[i, j].set_ylim(0, 1.05)
+        axes[0, j].set_title(group)
+    axes[0, 0].set_ylabel("F1-score")
+    axes[1, 0].set_ylabel("Entropy")
+    axes[0, 0].legend(loc="lower right", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path, dpi=110)
+
+
+# ---------------------------------------------------------------------------------------------
+# Figure 3: training reward
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class TrainingCurve:
+    """Team reward per training episode read from a log, and where it came from."""
+
+    episodes: np.ndarray
+    rewards: np.ndarray
+    source: str
+
+
+def _read_csv(path: Path, agents_per_episode: int) -> TrainingCurve:
+    text = path.read_text()
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
+    reader = csv.DictReader(io.StringIO("\n".join(lines)))
+    fields = [f.strip() for f in (reader.fieldnames or [])]
+    rows = list(reader)
+    key = "reward" if "reward" in fields else "r" if "r" in fields else None
+    if key is None:
+        raise ValueError(f"{path}: no 'reward' (or monitor 'r') column; columns are {fields}")
+    rewards = np.array([float(r[key]) for r in rows], dtype=np.float64)
+    if "episode" in fields and agents_per_episode == 1:
+        episodes = np.array([float(r["episode"]) for r in rows])
+    else:
+        episodes = np.arange(1, len(rewards) + 1, dtype=np.float64)
+    if agents_per_episode > 1:
+        n = len(rewards) // agents_per_episode
+        rewards = rewards[: n * agents_per_episode].reshape(n, agents_per_episode).mean(axis=1)
+        episodes = np.arange(1, n + 1, dtype=np.float64)
+    return TrainingCurve(episodes, rewards, str(path))
+
+
+def _read_tensorboard(path: Path, tag: str | None) -> TrainingCurve:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(path), size_guidance={"scalars": 0})
+    acc.Reload()
+    tags = acc.Tags().get("scalars", [])
+    if tag is None:
+        tag = next((t for t in REWARD_TAGS if t in tags), None) or next((t for t in tags if "reward" in t.lower()), None)
+    if tag is None or tag not in tags:
+        raise ValueError(f"{path}: no reward scalar{'' if tag is None else f' {tag!r}'} in the TensorBoard log; "
+                         f"scalars are {sorted(tags)}")
+    events = acc.Scalars(tag)
+    rewards = np.array([e.value for e in events], dtype=np.float64)
+    return TrainingCurve(np.arange(1, len(rewards) + 1, dtype=np.float64), rewards, f"{path}:{tag}")
+
+
+def load_training_log(path: PathLike, agents_per_episode: int = 1, tag: str | None = None) -> TrainingCurve:
+    """Team reward per episode from a CSV, a monitor CSV or a TensorBoard log (module docstring)."""
+    path = Path(path)
+    if isinstance(agents_per_episode, bool) or int(agents_per_episode) != agents_per_episode or agents_per_episode < 1:
+        raise ValueError(f"agents_per_episode={agents_per_episode!r}: must be an integer >= 1")
+    if not path.exists():
+        raise FileNotFoundError(f"training log not found: {str(path)!r}")
+    if path.is_dir():
+        for pattern in ("metrics.csv", "*monitor.csv", "**/metrics.csv", "**/*monitor.csv"):
+            found = sorted(path.glob(pattern))
+            if found:
+                return _read_csv(found[0], int(agents_per_episode))
+        if sorted(path.glob("**/events.out.tfevents.*")):
+            events = sorted(path.glob("**/events.out.tfevents.*"))
+            return _read_tensorboard(events[0].parent, tag)
+        raise ValueError(f"{path}: no metrics.csv, monitor CSV or TensorBoard event file inside")
+    if path.name.startswith("events.out.tfevents"):
+        return _read_tensorboard(path, tag)
+    return _read_csv(path, int(agents_per_episode))
+
+
+def _rolling_mean(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing mean over up to ``window`` points (shorter at the start, no lag padding)."""
+    csum = np.concatenate([[0.0], np.cumsum(values)])
+    idx = np.arange(1, len(values) + 1)
+    lo = np.maximum(idx - window, 0)
+    return (csum[idx] - csum[lo]) / (idx - lo)
+
+
+def plot_training_reward(logs: PathLike | TrainingCurve | Mapping[str, PathLike | TrainingCurve], path: PathLike,
+                         window: int = 20, agents_per_episode: int = 1, title: str | None = None) -> Path:
+    """Team reward vs training episode (Figure 3): raw values faint, a trailing mean on top."""
+    if isinstance(logs, (str, os.PathLike, TrainingCurve)):
+        logs = {"reward": logs}
+    if not logs:
+        raise ValueError("plot_training_reward needs at least one log")
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for k, (label, log) in enumerate(logs.items()):
+        curve = log if isinstance(log, TrainingCurve) else load_training_log(log, agents_per_episode)
+        if len(curve.rewards) == 0:
+            raise ValueError(f"training log {curve.source} has no episodes")
+        colour = f"C{k % 10}"
+        ax.plot(curve.episodes, curve.rewards, color=colour, alpha=0.2, lw=0.8)
+        ax.plot(curve.episodes, _rolling_mean(curve.rewards, max(int(window), 1)), color=colour, lw=1.8, label=label)
+    ax.set_xlabel("training episode")
+    ax.set_ylabel("team reward")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    ax.set_title(title or f"Training reward (trailing mean over {window} episodes)")
+    fig.tight_layout()
+    return _save(fig, path, dpi=120)
+
+
+# ---------------------------------------------------------------------------------------------
+# missions
+# ---------------------------------------------------------------------------------------------
+def _no_fly_overlay(ax: plt.Axes, no_fly: np.ndarray | None, field_size: float) -> None:
+    """Hatch the no-fly lattice columns (5 m blocks around each lattice point)."""
+    if no_fly is None or not np.any(no_fly):
+        return
+    lat = no_fly.shape[0]
+    half = field_size / (lat - 1) / 2
+    for iy, ix in zip(*np.nonzero(no_fly)):
+        x, y = ix * field_size / (lat - 1), iy * field_size / (lat - 1)
+        ax.add_patch(plt.Rectangle((max(x - half, 0), max(y - half, 0)), 2 * half, 2 * half, fill=True,
+                                   facecolor=(0.85, 0.2, 0.2, 0.35), edgecolor="tab:red", hatch="//", lw=0.5))
+
+
+def _trail_2d(ax: plt.Axes, traj: np.ndarray, norm: colors.Normalize, upto: int | None = None) -> None:
+    """Each UAV's path so far, segments coloured by altitude; a marker at its current position."""
+    upto = traj.shape[0] if upto is None else upto
+    cmap = plt.get_cmap(ALTITUDE_CMAP)
+    for u in range(traj.shape[1]):
+        pts = traj[:upto, u]
+        if len(pts) > 1:
+            segs = np.stack([pts[:-1, :2], pts[1:, :2]], axis=1)
+            ax.add_collection(LineCollection(segs, colors=cmap(norm(pts[1:, 2])), lw=2.5))
+        ax.plot(pts[0, 0], pts[0, 1], "o", ms=5, mfc="none", mec=UAV_COLOURS[u % len(UAV_COLOURS)])
+        ax.plot(pts[-1, 0], pts[-1, 1], "^", ms=8, color=UAV_COLOURS[u % len(UAV_COLOURS)], mec="k")
+
+
+def _check_recorded(result: "EvaluationResult", trial: int) -> None:
+    if not 0 <= trial < result.n_trials:
+        raise ValueError(f"trial {trial} out of range: the result has {result.n_trials} trials")
+    if np.isnan(result.trajectories[trial]).any():
+        raise ValueError("this result has no trajectories (evaluated on an env without recorded copies)")
+
+
+def plot_mission(result: "EvaluationResult", path: PathLike, trial: int = 0) -> Path:
+    """Ground truth, final global belief, and the UAVs' 3-D trajectories coloured by altitude."""
+    _check_recorded(result, trial)
+    if result.final_beliefs is None or trial >= len(result.final_beliefs):
+        raise ValueError(f"trial {trial} has no recorded final belief: evaluate(..., record={trial + 1})")
+    size = result.field_size
+    traj = result.trajectories[trial]
+    norm = colors.Normalize(min(result.altitudes), max(result.altitudes))
+    extent = (0, size, 0, size)
+    fig = plt.figure(figsize=(15, 4.8))
+    ax1 = fig.add_subplot(1, 3, 1)
+    ax1.imshow(result.ground_truth, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=1)
+    _no_fly_overlay(ax1, result.no_fly, size)
+    ax1.set_title("ground truth (black: valuable, red: no-fly)")
+    ax2 = fig.add_subplot(1, 3, 2)
+    im = ax2.imshow(result.final_beliefs[trial], origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=1)
+    _trail_2d(ax2, traj, norm)
+    f1, ent = result.f1[trial, -1], result.entropy[trial, -1]
+    ax2.set_title(f"final global belief (F1 {f1:.3f}, entropy {ent:.3f})")
+    fig.colorbar(im, ax=ax2, fraction=0.046, pad=0.04, label="P(valuable)")
+    for ax in (ax1, ax2):
+        ax.set_xlim(0, size)
+        ax.set_ylim(0, size)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    ax3 = fig.add_subplot(1, 3, 3, projection="3d")
+    small = _block_mean(result.ground_truth, 32)  # a coarse floor keeps the 3-D draw fast
+    gy, gx = np.mgrid[0:small.shape[0], 0:small.shape[1]] * (size / small.shape[0])
+    ax3.plot_surface(gx, gy, np.zeros_like(gx), facecolors=plt.get_cmap("Greys")(0.15 + 0.6 * small),
+                     shade=False, rstride=1, cstride=1, linewidth=0)
+    cmap = plt.get_cmap(ALTITUDE_CMAP)
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    for u in range(traj.shape[1]):
+        pts = traj[:, u]
+        segs = np.stack([pts[:-1], pts[1:]], axis=1)
+        ax3.add_collection3d(Line3DCollection(segs, colors=cmap(norm(pts[1:, 2])), lw=2.5))
+        ax3.scatter(*pts[0], marker="o", s=25, color=UAV_COLOURS[u % len(UAV_COLOURS)])
+        ax3.scatter(*pts[-1], marker="^", s=45, color=UAV_COLOURS[u % len(UAV_COLOURS)], edgecolor="k")
+        ax3.text(*pts[0], f" {u}", fontsize=8)
+    ax3.set_xlim(0, size)
+    ax3.set_ylim(0, size)
+    ax3.set_zlim(0, max(result.altitudes) * 1.1)
+    ax3.set_xlabel("x (m)")
+    ax3.set_ylabel("y (m)")
+    ax3.set_zlabel("z (m)")
+    ax3.set_title("trajectories (o start, ^ end)")
+    fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax3, fraction=0.03, pad=0.1, label="altitude (m)")
+    fig.suptitle(f"{result.env}, {result.method}: trial {trial} (seed {result.seed + trial})")
+    fig.tight_layout()
+    return _save(fig, path, dpi=110)
+
+
+def _block_mean(image: np.ndarray, side: int) -> np.ndarray:
+    """Block means of a square image down to about ``side`` x ``side`` (fraction valuable per block)."""
+    k = max(1, image.shape[0] // side)
+    n = image.shape[0] // k
+    return image[: n * k, : n * k].reshape(n, k, n, k).mean(axis=(1, 3))
+
+
+def _figure_rgb(fig: plt.Figure) -> np.ndarray:
+    fig.canvas.draw()
+    return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+
+
+def animate_mission(result: "EvaluationResult", path: PathLike, fps: float = 2.0, max_side: int = 247) -> Path:
+    """GIF of trial 0 step by step: the global belief, each UAV's path (coloured by altitude) and
+    its position, with F1 and entropy in the title."""
+    from PIL import Image
+
+    _check_recorded(result, 0)
+    frames = result.belief_frames
+    if frames is None:
+        raise ValueError("this result has no per-step beliefs: evaluate(..., record=1) keeps them for trial 0")
+    size = result.field_size
+    stride = max(1, int(np.ceil(frames.shape[-1] / max_side)))
+    norm = colors.Normalize(min(result.altitudes), max(result.altitudes))
+    traj = result.trajectories[0]
+    fig, ax = plt.subplots(figsize=(4.6, 4.6), dpi=80)
+    images = []
+    for t in range(frames.shape[0]):
+        ax.clear()
+        ax.imshow(frames[t, ::stride, ::stride].astype(np.float32), origin="lower", extent=(0, size, 0, size),
+                  cmap="Greys", vmin=0, vmax=1)
+        _no_fly_overlay(ax, result.no_fly, size)
+        _trail_2d(ax, traj, norm, upto=t + 1)
+        ax.set_xlim(0, size)
+        ax.set_ylim(0, size)
+        ax.set_title(f"{result.method} step {t}/{result.budget}  F1 {result.f1[0, t]:.3f}  H {result.entropy[0, t]:.3f}",
+                     fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        fig.tight_layout()
+        images.append(Image.fromarray(_figure_rgb(fig)))
+    plt.close(fig)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    duration = int(round(1000.0 / fps))
+    images[0].save(path, save_all=True, append_images=images[1:], duration=[duration] * (len(images) - 1) + [3 * duration],
+                   loop=0, optimize=True)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# ablation
+# ---------------------------------------------------------------------------------------------
+def plot_ablation(results: Mapping[tuple[str, str], "EvaluationResult"], path: PathLike,
+                  title: str | None = None) -> Path:
+    """Grouped bars: final F1 (left) and entropy (right) +- std per noise level and variant.
+
+    ``results`` maps (variant label, noise level) to its result.
+    """
+    if not results:
+        raise ValueError("plot_ablation needs at least one result")
+    variants = list(dict.fromkeys(v for v, _ in results))
+    noises = list(dict.fromkeys(n for _, n in results))
+    width = 0.8 / len(variants)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for ax, metric, name in zip(axes, ("f1", "entropy"), ("F1-score at 100 %", "Entropy at 100 %")):
+        for k, variant in enumerate(variants):
+            xs, means, stds = [], [], []
+            for j, noise in enumerate(noises):
+                res = results.get((variant, noise))
+                if res is None:
+                    continue
+                m, s = res.mean_std(metric, 1.0)
+                xs.append(j + (k - (len(variants) - 1) / 2) * width)
+                means.append(m)
+                stds.append(s)
+            ax.bar(xs, means, width * 0.95, yerr=stds, capsize=3, label=variant, color=f"C{k % 10}")
+        ax.set_xticks(range(len(noises)), noises)
+        ax.set_xlabel("channel noise")
+        ax.set_ylabel(name)
+        ax.set_ylim(0, 1.05)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend(loc="lower left", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path, dpi=120)

@@ -1,0 +1,222 @@
+"""Baseline planners: random, lawnmower (NL) and adaptive gain (AG)."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+import envs
+from envs import layout
+from envs.ipp_env import ACTION_DELTAS
+from sb3_coma.baselines import PLANNERS, choose_actions, make_planner, planner_class
+from sb3_coma.baselines.gain import axis_counts, footprint_fraction, footprint_gains, gain_density
+from sb3_coma.baselines.lawnmower import axis_ranges, best_lanes, union_length
+from sb3_coma.baselines.navigation import best_move, distance_field
+
+
+@pytest.fixture(scope="module")
+def geometry():
+    return envs.make_env("env1").geometry
+
+
+@pytest.fixture(scope="module")
+def gain_setup(geometry):
+    cfg = geometry.config
+    flips = np.array([cfg.flip_probability[a] for a in cfg.altitudes])
+    return axis_counts(geometry), geometry.comm_cell_area.astype(np.float64), flips
+
+
+def _comm_centres(geometry):
+    c = (np.arange(geometry.comm_grid) + 0.5) * geometry.config.field_size / geometry.comm_grid
+    return np.meshgrid(c, c)  # X, Y in metres, indexed [row=y, col=x]
+
+
+def _fly(method, name="env1", n_envs=1, seed=0, **options):
+    """Fly one batch of missions; return the planner, every (mask, action) pair and the last infos."""
+    venv = envs.make_vec_env(name, n_envs=n_envs, fusion="mean", seed=seed, **options)
+    planner = make_planner(method, venv, seed=seed)
+    obs = venv.reset()
+    pairs, infos = [], None
+    budget = venv.get_attr("config", indices=[0])[0].budget
+    for _ in range(budget):
+        actions, state = planner.predict(obs, deterministic=True)
+        assert state is None and actions.shape == (venv.num_envs,)
+        pairs.append((obs[layout.KEY_MASK].copy(), actions))
+        obs, _, _, infos = venv.step(actions)
+    venv.close()
+    return planner, pairs, infos
+
+
+def _all_valid(pairs):
+    return all(mask[np.arange(len(a)), a].all() for mask, a in pairs)
+
+
+# ------------------------------------------------------------------ registry
+def test_registry_and_errors():
+    assert set(PLANNERS) == {"random", "lawnmower", "ag"}
+    assert planner_class("NL").name == "lawnmower"
+    venv = envs.make_vec_env("env1", n_envs=1, budget=2)
+    with pytest.raises(ValueError, match="unknown baseline 'greedy'.*ag.*lawnmower.*random"):
+        make_planner("greedy", venv)
+    with pytest.raises(ValueError, match="altitude"):
+        make_planner("lawnmower", venv, altitude=7.0)
+    with pytest.raises(ValueError, match="discount"):
+        make_planner("ag", venv, discount=2.0)
+    with pytest.raises(ValueError, match="unexpected keyword"):
+        make_planner("random", venv, speed=3)
+    planner = make_planner("ag", venv)
+    with pytest.raises(ValueError, match="whole"):
+        planner.predict({k: v[:0] for k, v in venv.reset().items()} | {layout.KEY_MASK: np.ones((8, 6), np.int8)})
+
+
+# ------------------------------------------------------------------ random
+def test_random_is_valid_uniform_and_seeded():
+    venv = envs.make_vec_env("env1", n_envs=1, budget=2)
+    obs = venv.reset()
+    mask = np.tile(np.array([[1, 0, 1, 1, 0, 1]], np.int8), (4, 1))
+    obs = dict(obs, action_mask=mask)
+    a = make_planner("random", venv, seed=3)
+    b = make_planner("random", venv, seed=3)
+    draws = np.concatenate([a.predict(obs)[0] for _ in range(500)])
+    assert np.array_equal(draws, np.concatenate([b.predict(obs)[0] for _ in range(500)]))
+    counts = np.bincount(draws, minlength=6)
+    assert counts[[1, 4]].sum() == 0
+    assert counts[[0, 2, 3, 5]].min() > 0.2 * len(draws)  # 0.25 each in expectation
+
+
+# ------------------------------------------------------------------ lawnmower
+def test_best_lanes_is_optimal(geometry):
+    for level in range(3):
+        ranges = axis_ranges(geometry, level)
+        for n in (1, 2, 4):
+            best = max(union_length(ranges, c) for c in itertools.combinations(range(len(ranges)), n))
+            assert union_length(ranges, best_lanes(ranges, n)) == best
+
+
+def test_lawnmower_covers_field_within_budget(geometry):
+    planner, pairs, infos = _fly("lawnmower")
+    assert _all_valid(pairs)
+    assert planner.altitude == 10.0 and planner.lanes_per_uav == 1  # footprint 11.5 m vs strip 12.5 m
+    ranges = planner.ranges
+    best_x = union_length(ranges, planner.lanes) / geometry.grid  # best possible with 4 lanes at 10 m
+    assert best_x == max(union_length(ranges, c) for c in itertools.combinations(range(11), 4)) / geometry.grid
+    # each lane is swept end to end (the sweep covers y fully), so coverage reaches the lanes' best
+    assert infos[0]["coverage"] >= best_x - 0.01
+
+
+def test_lawnmower_reaches_lanes_at_sweep_altitude():
+    venv = envs.make_vec_env("env1", n_envs=1, seed=0)
+    planner = make_planner("lawnmower", venv)
+    obs = venv.reset()
+    for _ in range(6):
+        obs, *_ = venv.step(planner.predict(obs)[0])
+    pos = venv.env_method("positions_m", indices=[0])[0]
+    lanes_m = {x * 5.0 for x in planner.lanes}
+    assert set(pos[:, 0]) == lanes_m and np.all(pos[:, 2] == planner.altitude)
+
+
+def test_navigation_avoids_no_fly_and_masks():
+    no_fly = np.zeros((11, 11), dtype=bool)
+    no_fly[5, 0:10] = True  # a wall along y = 25 m with a gap at x = 50 m
+    field = distance_field(no_fly, 3, (0, 10, 1))
+    assert np.isinf(field[:, 5, :10]).all()
+    assert field[1, 0, 0] == 10 + 10 + 10  # around the wall through the gap at x index 10
+    pos = np.array([0, 0, 1])
+    assert best_move(pos, field, np.ones(6, bool)) == 4  # +x towards the gap
+    mask = np.ones(6, bool)
+    mask[4] = False  # the planned move is masked: take the valid move that gets closest
+    assert best_move(pos, field, mask) == 3  # +y: as close to the plan as +x was
+
+
+def test_lawnmower_respects_masks_and_keeps_moving_on_env3():
+    """env3 has no-fly columns: UAVs detour around them and around each other, never deadlock."""
+    from sb3_coma.evaluation import evaluate
+
+    _, pairs, _ = _fly("lawnmower", "env3", budget=8)
+    assert _all_valid(pairs)
+    traj = evaluate("lawnmower", env="env3", n_trials=1, seed=0).trajectories[0]
+    for u in range(traj.shape[1]):
+        columns = {tuple(p) for p in traj[:, u, :2]}
+        assert len(columns) >= traj.shape[0] // 2  # mostly new columns: sweeping, not waiting
+
+
+# ------------------------------------------------------------------ adaptive gain
+def test_gain_density_matches_definition():
+    p, q = np.array([0.5, 0.7, 0.3]), 0.265
+
+    def h(x):
+        return -(x * np.log2(x) + (1 - x) * np.log2(1 - x))
+
+    p1 = p * (1 - q) / (p * (1 - q) + (1 - p) * q)
+    p0 = p * q / (p * q + (1 - p) * (1 - q))
+    mi = h(p) - ((p * (1 - q) + (1 - p) * q) * h(p1) + (p * q + (1 - p) * (1 - q)) * h(p0))
+    assert np.allclose(gain_density(p, q, "none"), mi)
+    assert np.all(gain_density(p, q, "none") > 0)
+    # class weighting: unknown (0.5) is worth half, believed-not-valuable cells can cost
+    assert np.isclose(gain_density(0.5, q, "class"), 0.5 - 0.5 * h(1 - q))
+    assert gain_density(0.3, 0.01, "class") < 0
+    per_alt = gain_density(np.full((2, 4, 4), 0.5), [0.01, 0.265, 0.375])
+    assert per_alt.shape == (2, 3, 4, 4) and np.all(np.diff(per_alt[0, :, 0, 0]) < 0)  # low = more informative
+
+
+def test_footprint_gains_match_brute_force(geometry, gain_setup):
+    counts, area, flips = gain_setup
+    rng = np.random.default_rng(0)
+    belief = rng.uniform(0.2, 0.8, (geometry.comm_grid, geometry.comm_grid))
+    density = gain_density(belief, flips)  # (A, R, R)
+    targets = np.array([[[0, 0, 0], [5, 5, 1], [10, 3, 2], [7, 10, 0]]])
+    fast = footprint_gains(density[None], counts, targets)[0]
+    cell = geometry.comm_of_cell
+    for k, (ix, iy, lev) in enumerate(targets[0]):
+        fp = geometry.footprint(ix, iy, lev)
+        per_cell = density[lev][cell[fp.r0:fp.r1, None], cell[None, fp.c0:fp.c1]]  # every belief cell
+        assert np.isclose(fast[k], per_cell.sum(), rtol=1e-9)
+    frac = footprint_fraction(counts, area, targets[0, 1:2])[0]
+    assert frac.max() == 1.0 and frac.min() == 0.0
+
+
+def test_ag_picks_highest_gain_action(geometry, gain_setup):
+    counts, area, flips = gain_setup
+    X, Y = _comm_centres(geometry)
+    belief = np.full(X.shape, 0.5)
+    belief[(np.abs(X - 35) < 5) & (np.abs(Y - 25) < 5)] = 0.7  # a likely-valuable patch east
+    belief[X < 20] = 0.3  # believed not valuable west: reading it only costs
+    pos = np.array([[[5, 5, 1]]])  # (25, 25) at 10 m
+    mask = np.ones((1, 1, 6), bool)
+    actions, scores = choose_actions(belief[None, None], pos, mask, counts, area, flips)
+    targets = pos[0, 0] + ACTION_DELTAS
+    gains = footprint_gains(gain_density(belief, flips)[None], counts, targets[None])[0]
+    assert actions[0, 0] == int(np.argmax(gains)) == 4  # +x, towards the patch
+    assert np.isclose(scores[0, 0].max(), 1.0)  # normalised per UAV
+    mask[0, 0, 4] = False
+    actions, _ = choose_actions(belief[None, None], pos, mask, counts, area, flips)
+    assert actions[0, 0] == int(np.argmax(np.where(mask[0, 0], gains, -np.inf)))
+
+
+def test_ag_discount_separates_two_uavs(geometry, gain_setup):
+    counts, area, flips = gain_setup
+    X, Y = _comm_centres(geometry)
+    belief = np.full(X.shape, 0.5)
+    belief[(np.abs(X - 25) < 4) & (np.abs(Y - 25) < 4)] = 0.7  # one valuable-looking patch between them
+    beliefs = np.stack([belief, belief])[None]
+    pos = np.array([[[4, 5, 1], [6, 5, 1]]])  # x = 20 m and 30 m at 10 m, both next to the patch
+    mask = np.ones((1, 2, 6), bool)
+
+    def overlap(discount):
+        actions, _ = choose_actions(beliefs, pos, mask, counts, area, flips, discount=discount)
+        assert actions[0, 0] == 4  # the first UAV takes the patch (+x)
+        assert actions[0, 1] != 1  # ... and its column is never taken again (would hover)
+        frac = footprint_fraction(counts, area, pos[0] + ACTION_DELTAS[actions[0]])
+        return (frac[0] * frac[1] * area).sum()
+
+    assert overlap(0.0) > 0
+    assert overlap(1.0) < 0.5 * overlap(0.0)
+
+
+def test_ag_end_to_end_valid_and_seeded():
+    _, pairs_a, infos_a = _fly("ag", n_envs=2, budget=5)
+    _, pairs_b, infos_b = _fly("ag", n_envs=2, budget=5)
+    assert _all_valid(pairs_a)
+    assert all(np.array_equal(a[1], b[1]) for a, b in zip(pairs_a, pairs_b))
+    assert infos_a[0]["f1"] == infos_b[0]["f1"]

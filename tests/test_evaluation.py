@@ -1,0 +1,176 @@
+"""The evaluation protocol, Table I output, the ``evaluate`` / ``ablation`` commands and their errors."""
+from __future__ import annotations
+
+import csv
+import importlib.util
+import re
+import shutil
+
+import numpy as np
+import pytest
+
+import envs
+from envs.config import ConfigError
+from sb3_coma import ablation
+from sb3_coma import evaluate as evaluate_export
+from sb3_coma.cli import main
+from sb3_coma.evaluation import FRACTIONS, evaluate, rows_for, table_markdown, write_table_csv
+
+SMALL = dict(env="env1", budget=3, noise="moderate")
+
+
+@pytest.fixture(scope="module")
+def results():
+    return [evaluate(m, n_trials=3, seed=0, **SMALL) for m in ("ag", "lawnmower", "random")]
+
+
+def test_exported_and_shapes(results):
+    assert evaluate_export is evaluate
+    for r in results:
+        assert r.f1.shape == r.entropy.shape == (3, 4)
+        assert r.returns.shape == (3,) and r.planning_time_ms.shape == (3,)
+        assert r.trajectories.shape == (3, 4, 4, 3)
+        assert np.all(r.planning_time_ms > 0)
+        assert r.final_beliefs.shape == (1, 493, 493) and r.belief_frames.shape == (4, 493, 493)
+        assert np.all((r.entropy > 0) & (r.entropy <= 1)) and np.all((r.f1 >= 0) & (r.f1 <= 1))
+    assert results[0].trajectories[0, 0].tolist() == [[10, 10, 15], [40, 10, 15], [40, 40, 15], [10, 40, 15]]
+
+
+def test_final_snapshot_matches_infos():
+    """The final belief kept at SuperSuit's auto-reset is the mission's end state (its F1 is the
+    F1 the env reported after the last step)."""
+    r = evaluate("lawnmower", n_trials=2, seed=4, record=2, **SMALL)
+    assert r.final_beliefs.shape[0] == 2
+    for k in range(2):
+        belief, truth = r.final_beliefs[k] > 0.5, r.ground_truth
+        f1 = 2 * (belief & truth).sum() / (belief.sum() + truth.sum())
+        assert np.isclose(f1, r.f1[k, -1], atol=1e-9)
+
+
+def test_deterministic_by_seed_and_trial_seeds():
+    a = evaluate("random", n_trials=2, seed=5, **SMALL)
+    b = evaluate("random", n_trials=2, seed=5, **SMALL)
+    assert np.array_equal(a.f1, b.f1) and np.array_equal(a.entropy, b.entropy)
+    assert np.array_equal(a.returns, b.returns) and np.array_equal(a.trajectories, b.trajectories)
+    c = evaluate("random", n_trials=2, seed=6, **SMALL)
+    assert not np.array_equal(a.trajectories, c.trajectories)
+    # trial k uses env seed seed + k: a deterministic planner gives the same mission either way
+    both = evaluate("lawnmower", n_trials=2, seed=7, **SMALL)
+    second = evaluate("lawnmower", n_trials=1, seed=8, **SMALL)
+    assert np.array_equal(both.f1[1], second.f1[0]) and np.array_equal(both.entropy[1], second.entropy[0])
+    one_by_one = evaluate("lawnmower", n_trials=2, seed=7, n_envs=1, **SMALL)
+    assert np.array_equal(both.f1, one_by_one.f1)
+
+
+def _numbers(cell: str) -> tuple[float, float]:
+    mean, std = re.findall(r"[-\d.]+", cell.replace("**", ""))
+    return float(mean), float(std)
+
+
+def test_table_numbers_equal_mean_and_std(results, tmp_path):
+    rows = rows_for(results)
+    lines = table_markdown(rows).strip().splitlines()
+    assert len(lines) == 2 + len(results)
+    for line, r in zip(lines[2:], results):
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        assert cells[1] == r.method
+        values = [_numbers(c) for c in cells[2:]]
+        expected = [(r.metric(m)[:, r.step_of(f)].mean(), r.metric(m)[:, r.step_of(f)].std())
+                    for m in ("f1", "entropy") for f in FRACTIONS]
+        assert np.allclose(values, expected, atol=5e-5)
+    assert [r.step_of(f) for f in FRACTIONS] == [1, 2, 3]
+    # bold = best mean per column: F1 highest, entropy lowest
+    for col, (metric, frac) in enumerate([(m, f) for m in ("f1", "entropy") for f in FRACTIONS]):
+        means = [round(r.mean_std(metric, frac)[0], 4) for r in results]
+        best = max(means) if metric == "f1" else min(means)
+        bold = ["**" in line.strip("|").split("|")[2 + col] for line in lines[2:]]
+        assert bold == [m == best for m in means]
+    path = write_table_csv(rows, tmp_path / "t.csv")
+    with path.open() as fh:
+        data = list(csv.DictReader(fh))
+    for row, r in zip(data, results):
+        assert row["method"] == r.method
+        assert np.isclose(float(row["f1_100_mean"]), r.f1[:, -1].mean(), atol=1e-6)
+        assert np.isclose(float(row["entropy_33_std"]), r.entropy[:, 1].std(), atol=1e-6)
+
+
+def test_clear_errors():
+    with pytest.raises(ValueError, match="unknown method 'greedy'.*ag, lawnmower, random|neither a baseline"):
+        evaluate("greedy", n_trials=1, **SMALL)
+    with pytest.raises(FileNotFoundError, match="model file not found"):
+        evaluate("runs/missing.zip", n_trials=1, **SMALL)
+    with pytest.raises(ConfigError, match="noise"):
+        evaluate("random", n_trials=1, env="env1", noise="deafening")
+    with pytest.raises(ConfigError, match="unknown environment option"):
+        evaluate("random", n_trials=1, env="env1", wind=3)
+    with pytest.raises(ValueError, match="n_trials"):
+        evaluate("random", n_trials=0, env="env1")
+    with pytest.raises(TypeError, match="predict"):
+        evaluate(42, n_trials=1, **SMALL)
+
+
+def test_cli_errors(capsys):
+    assert main(["evaluate", "--env", "env1", "--methods", "ag,greedy", "--trials", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "greedy" in err[0]
+    assert main(["evaluate", "--env", "env1", "--methods", "", "--model", "nowhere/x.zip"]) == 2
+    assert "model file not found" in capsys.readouterr().err
+    assert main(["evaluate", "--env", "env1", "--noise", "deafening", "--trials", "1", "--methods", "random"]) == 2
+    assert "noise" in capsys.readouterr().err
+    assert main(["evaluate", "--trials", "0"]) == 2
+
+
+@pytest.mark.skipif(importlib.util.find_spec("sb3_coma.pretrained") is not None, reason="shipped models exist")
+def test_pretrained_name_without_pretrained_module(capsys):
+    assert main(["evaluate", "--env", "env1", "--methods", "", "--model", "env3"]) == 2
+    assert "sb3_coma.pretrained" in capsys.readouterr().err
+
+
+def test_cli_writes_table_and_plots(tmp_path, capsys):
+    out = tmp_path / "res"
+    code = main(["evaluate", "--env", "env1", "--methods", "ag,nl", "--trials", "2", "--budget", "3",
+                 "--out", str(out), "--no-gif"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "| env1 | ag |" in printed and "lawnmower" in printed and "ms per UAV decision" in printed
+    for name in ("table.md", "table.csv", "per_step.csv", "planning_time.md", "planning_time.csv",
+                 "curves_env1.png", "mission_env1_ag.png", "mission_env1_lawnmower.png"):
+        assert (out / name).stat().st_size > 0
+    assert "**" in (out / "table.md").read_text()
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    """One small untrained COMA model saved once (building one costs seconds)."""
+    coma = pytest.importorskip("sb3_coma.coma")
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", budget=3)
+    path = tmp_path_factory.mktemp("models") / "model.zip"
+    coma.COMA("CnnPolicy", venv, seed=0, device="cpu").save(str(path))
+    return path
+
+
+def test_evaluates_saved_model(model_path):
+    r = evaluate(str(model_path), n_trials=2, seed=0, fusion="mean", **SMALL)
+    assert r.method == "model" and r.f1.shape == (2, 4) and r.fusion == "mean"
+    assert np.all(r.planning_time_ms > 0)
+
+
+def test_ablation_finds_models_and_skips_missing_fusion(model_path, tmp_path, monkeypatch):
+    for name in ("mean_cnn.zip", "sendfuse_cbam.zip"):
+        shutil.copy(model_path, tmp_path / name)
+    (tmp_path / "notes.txt").write_text("ignored")
+    assert list(ablation.find_models(tmp_path)) == [("mean", "cnn"), ("sendfuse", "cbam")]
+    with pytest.raises(ValueError, match="fusion must be one of"):
+        ablation.find_models({"median_cnn": tmp_path / "mean_cnn.zip"})
+    with pytest.raises(FileNotFoundError):
+        ablation.find_models(tmp_path / "nope")
+    real = ablation.fusion_unavailable
+    monkeypatch.setattr(ablation, "fusion_unavailable",
+                        lambda env, fusion, **kw: "not built yet" if fusion == "sendfuse" else real(env, fusion, **kw))
+    messages = []
+    result = ablation.run_ablation(tmp_path, env="env1", noises=("none", "loud"), n_trials=1, budget=2,
+                                   log=messages.append)
+    assert set(result.results) == {("Base", "none"), ("Base", "loud")}
+    assert "SenDFuse+CBAM" in result.skipped and any("skipping SenDFuse+CBAM" in m for m in messages)
+    md = result.markdown()
+    assert "| none | Base |" in md and "| loud | Base |" in md
