@@ -31,6 +31,21 @@ def _command_modules() -> list[ModuleType]:
     return mods
 
 
+def _user_error_types() -> tuple[type[BaseException], ...]:
+    """Exception types that mean "the user gave a bad value": printed as one line, exit 2."""
+    import importlib as _il
+
+    found: list[type[BaseException]] = [UserError, FileNotFoundError]
+    for module, name in (("envs.config", "ConfigError"), ("envs.maps", "MapError"),
+                         ("sb3_coma.training", "TrainingError"), ("sb3_coma.checkpoints", "CheckpointError"),
+                         ("sb3_coma.sendfuse.weights", "SenDFuseWeightsError")):
+        try:
+            found.append(getattr(_il.import_module(module), name))
+        except (ImportError, AttributeError):  # pragma: no cover - optional parts not installed
+            continue
+    return tuple(found)
+
+
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, ModuleType]]:
     parser = argparse.ArgumentParser(prog="sb3-coma", description="COMA + SenDFuse + CBAM for multi-UAV IPP")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -48,11 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    # Known user-facing error types across the package, rendered as one line.
-    from envs.config import ConfigError
-    from envs.maps import MapError
-
-    user_errors: tuple[type[BaseException], ...] = (UserError, ConfigError, MapError, FileNotFoundError)
+    user_errors = _user_error_types()
     try:
         return int(table[args.command].run(args) or 0)
     except user_errors as exc:

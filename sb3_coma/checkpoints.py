@@ -1,0 +1,248 @@
+"""Checkpoint files: atomic writes, validation and discovery.
+
+A model is written to a temporary file in the destination folder, flushed to disk, checked, and
+only then moved over the destination with :func:`os.replace` (atomic on POSIX and Windows). A
+crash or a full disk in the middle of a save therefore leaves the previous file untouched and at
+worst a stray ``.*.tmp`` file, never a half-written ``model.zip``.
+
+:func:`validate_checkpoint` tells a user *which* file is wrong and *why* (missing, not a zip,
+truncated or corrupt, an SB3 model of another algorithm) before SB3's loader fails with a
+traceback from inside ``zipfile`` or ``torch``.
+
+Checkpoint names follow rl-zoo3 (``rl_model_<joint steps>_steps.zip``), so rl-zoo3's
+``enjoy --load-checkpoint N`` / ``--load-last-checkpoint`` find them.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+import warnings
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "CheckpointError",
+    "CheckpointInfo",
+    "CHECKPOINT_PREFIX",
+    "atomic_save",
+    "atomic_write_text",
+    "checkpoint_name",
+    "find_checkpoints",
+    "last_checkpoint",
+    "load_checkpoint",
+    "validate_checkpoint",
+]
+
+#: rl-zoo3's checkpoint prefix: ``rl_model_<steps>_steps.zip``.
+CHECKPOINT_PREFIX = "rl_model"
+_CHECKPOINT_RE = re.compile(r"^(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip$")
+#: Members every SB3 model zip holds.
+_REQUIRED_MEMBERS = ("data", "policy.pth")
+#: Saved attributes that only a COMA model has (see ``sb3_coma.coma.COMA``).
+_COMA_ATTRIBUTES = ("n_agents", "td_lambda", "critic_learning_rate")
+
+
+class CheckpointError(ValueError):
+    """A checkpoint or model file that cannot be used; the message names the file and the reason."""
+
+
+@dataclass(frozen=True)
+class CheckpointInfo:
+    """What :func:`validate_checkpoint` learned about a model zip without loading its networks."""
+
+    path: Path
+    num_timesteps: int
+    n_agents: int | None
+    policy: str
+    sb3_version: str | None
+
+
+def checkpoint_name(num_timesteps: int, prefix: str = CHECKPOINT_PREFIX) -> str:
+    """``rl_model_<num_timesteps>_steps.zip`` (rl-zoo3's and SB3's ``CheckpointCallback`` naming)."""
+    return f"{prefix}_{int(num_timesteps)}_steps.zip"
+
+
+# --------------------------------------------------------------------------- atomic writes
+def _fsync_dir(folder: Path) -> None:
+    """Make a rename durable (best effort: not every platform can open a folder)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def atomic_save(model: Any, path: str | os.PathLike[str], validate: bool = True) -> Path:
+    """Save an SB3 model to ``path`` atomically; return the final path.
+
+    The model is written to a hidden temporary file next to ``path`` (same file system, so the
+    final :func:`os.replace` is atomic), flushed and fsynced, optionally re-opened as a zip to
+    check it, then moved into place. On any error the temporary file is removed and ``path``
+    keeps its previous content.
+
+    :param model: anything with SB3's ``save(file_object)``
+    :param path: destination; ``.zip`` is appended when it has no suffix (as SB3 does)
+    :param validate: re-read the written zip before replacing ``path``
+    """
+    final = Path(path)
+    if final.suffix == "":
+        final = final.with_suffix(".zip")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
+    tmp = Path(tmp_name)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            model.save(handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+        if validate:
+            _check_zip(tmp, display=final)
+        os.replace(tmp, final)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_dir(final.parent)
+    return final
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
+    """Write a text file atomically (temporary file + :func:`os.replace`)."""
+    final = Path(path)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp_name, final)
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    return final
+
+
+# --------------------------------------------------------------------------- validation
+def _check_zip(path: Path, display: Path | None = None) -> dict[str, Any]:
+    """Open ``path`` as an SB3 model zip; return its parsed ``data`` member.
+
+    :raises CheckpointError: not a zip, truncated, a corrupt member, or not an SB3 model
+    """
+    shown = display or path
+    if not zipfile.is_zipfile(path):
+        size = path.stat().st_size
+        why = "it is empty" if size == 0 else f"it is not a zip archive ({size} bytes; truncated or another format)"
+        raise CheckpointError(f"checkpoint {shown} is unusable: {why}")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+            missing = [m for m in _REQUIRED_MEMBERS if m not in names]
+            if missing:
+                raise CheckpointError(
+                    f"checkpoint {shown} is not a Stable-Baselines3 model: it lacks {missing} (it holds {sorted(names)})"
+                )
+            bad = archive.testzip()
+            if bad is not None:
+                raise CheckpointError(f"checkpoint {shown} is corrupt: member {bad!r} fails its CRC check")
+            raw = archive.read("data").decode("utf-8")
+    except (zipfile.BadZipFile, EOFError, OSError) as exc:
+        raise CheckpointError(f"checkpoint {shown} is truncated or corrupt: {exc}") from exc
+    try:
+        data = json.loads(raw)
+    except json.JSONDecodeError as exc:
+        raise CheckpointError(f"checkpoint {shown} has an unreadable 'data' member: {exc}") from exc
+    if not isinstance(data, dict):
+        raise CheckpointError(f"checkpoint {shown} has an unreadable 'data' member (not a JSON object)")
+    return data
+
+
+def _describe_policy(data: dict[str, Any]) -> tuple[str, str]:
+    """``(module, qualified name)`` of the saved policy class, as far as the JSON says."""
+    entry = data.get("policy_class")
+    if isinstance(entry, dict):
+        module = str(entry.get("__module__", ""))
+        type_name = str(entry.get(":type:", ""))
+        qualname = str(entry.get("__qualname__", entry.get("__name__", ""))) or type_name
+        return module, qualname
+    return "", str(entry or "")
+
+
+def validate_checkpoint(path: str | os.PathLike[str]) -> CheckpointInfo:
+    """Check that ``path`` is a complete COMA model zip (without building networks).
+
+    :raises FileNotFoundError: ``path`` does not exist
+    :raises CheckpointError: ``path`` is a folder, not a zip, truncated/corrupt, or a model of
+        another algorithm
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"checkpoint {p} does not exist")
+    if p.is_dir():
+        raise CheckpointError(f"checkpoint {p} is a folder, not a model zip")
+    data = _check_zip(p)
+    module, policy = _describe_policy(data)
+    missing = [key for key in _COMA_ATTRIBUTES if key not in data]
+    if not module.startswith("sb3_coma") or missing:
+        what = f"a model with policy {policy or '?'} from {module or 'an unknown module'}"
+        raise CheckpointError(f"checkpoint {p} is not a COMA checkpoint: it holds {what}")
+    version = None
+    try:
+        with zipfile.ZipFile(p) as archive:
+            if "_stable_baselines3_version" in archive.namelist():
+                version = archive.read("_stable_baselines3_version").decode().strip()
+    except (zipfile.BadZipFile, OSError):  # already checked above; keep validation total
+        version = None
+    n_agents = data.get("n_agents")
+    return CheckpointInfo(
+        path=p,
+        num_timesteps=int(data.get("num_timesteps", 0) or 0),
+        n_agents=int(n_agents) if isinstance(n_agents, int) else None,
+        policy=policy,
+        sb3_version=version,
+    )
+
+
+# --------------------------------------------------------------------------- discovery
+def find_checkpoints(folder: str | os.PathLike[str], prefix: str = CHECKPOINT_PREFIX) -> list[tuple[int, Path]]:
+    """``(joint steps, path)`` of every ``<prefix>_<steps>_steps.zip`` in ``folder``, oldest first."""
+    root = Path(folder)
+    if not root.is_dir():
+        return []
+    found = []
+    for entry in root.iterdir():
+        match = _CHECKPOINT_RE.match(entry.name)
+        if match and match.group("prefix") == prefix and entry.is_file():
+            found.append((int(match.group("steps")), entry))
+    return sorted(found)
+
+
+def last_checkpoint(folder: str | os.PathLike[str], prefix: str = CHECKPOINT_PREFIX) -> Path | None:
+    """The newest checkpoint in ``folder`` that validates; broken ones are skipped with a warning."""
+    for _, path in reversed(find_checkpoints(folder, prefix)):
+        try:
+            validate_checkpoint(path)
+        except CheckpointError as exc:
+            warnings.warn(f"skipping {exc}", stacklevel=2)
+            continue
+        return path
+    return None
+
+
+def load_checkpoint(path: str | os.PathLike[str], env: Any = None, **kwargs: Any):
+    """Validate, then ``COMA.load(path, env=env, **kwargs)``; errors name the file."""
+    from sb3_coma.coma import COMA
+
+    validate_checkpoint(path)
+    try:
+        return COMA.load(str(path), env=env, **kwargs)
+    except (KeyError, ValueError, RuntimeError, zipfile.BadZipFile, EOFError) as exc:
+        raise CheckpointError(f"checkpoint {path} could not be loaded: {exc}") from exc

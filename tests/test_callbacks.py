@@ -1,0 +1,187 @@
+"""Callbacks: mission metrics equal the env's infos, checkpoints, stop-on-target, atomic writes."""
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+from stable_baselines3.common.logger import KVWriter, Logger, make_output_format
+from stable_baselines3.common.vec_env import VecEnvWrapper
+
+import envs
+from sb3_coma.callbacks import (
+    EpisodeMetricsCallback,
+    JointCheckpointCallback,
+    MissionEvalCallback,
+    StopOnTargetCallback,
+    truncate_metrics_csv,
+)
+from sb3_coma.checkpoints import CheckpointError, atomic_save, find_checkpoints, validate_checkpoint
+from sb3_coma.coma import COMA
+
+N_AGENTS, BUDGET = 2, 3
+
+
+
+@pytest.fixture(autouse=True)
+def _single_thread_and_tmp_cwd(tmp_path, monkeypatch):
+    """Tiny networks run fastest on one thread; nothing may land in the repository's folder."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    monkeypatch.chdir(tmp_path)
+    yield
+    torch.set_num_threads(threads)
+
+class Recorder(VecEnvWrapper):
+    """Keeps (dones, infos) of every step, as the learner receives them."""
+
+    def __init__(self, venv):
+        super().__init__(venv)
+        self.n_agents = venv.n_agents
+        self.steps: list[tuple[np.ndarray, list[dict]]] = []
+
+    def reset(self):
+        return self.venv.reset()
+
+    def step_wait(self):
+        obs, rewards, dones, infos = self.venv.step_wait()
+        kept = [{k: v for k, v in info.items() if k != "terminal_observation"} for info in infos]
+        self.steps.append((np.array(dones), kept))
+        return obs, rewards, dones, infos
+
+    def missions(self) -> list[dict]:
+        """Expected records: one per env copy whose mission ended, from its first agent's info."""
+        out = []
+        for dones, infos in self.steps:
+            for row in range(0, len(infos), self.n_agents):
+                if dones[row]:
+                    info = infos[row]
+                    out.append({"env_copy": row // self.n_agents, "reward": info["episode"]["r"],
+                                "length": info["episode"]["l"], "f1": info["f1"], "entropy": info["entropy"]})
+        return out
+
+
+class Capture(KVWriter):
+    def __init__(self):
+        self.dumps: list[tuple[int, dict]] = []
+
+    def write(self, key_values, key_excluded, step=0):
+        self.dumps.append((step, dict(key_values)))
+
+    def close(self):
+        pass
+
+
+def make_env(n_envs: int = 2, seed: int = 0) -> Recorder:
+    venv = envs.make_vec_env("env1", n_envs=n_envs, fusion="mean", seed=seed, n_uavs=N_AGENTS, budget=BUDGET)
+    return Recorder(venv)
+
+
+def make_model(env, batch_size: int = 6) -> COMA:
+    # 2 copies, batch 6 -> 3 steps per copy per rollout = 6 joint steps = one mission per copy.
+    return COMA("CnnPolicy", env, batch_size=batch_size, learning_rate=1e-4, critic_learning_rate=1e-3, seed=0,
+                device="cpu", policy_kwargs={"features_extractor_kwargs": {"features_dim": 16, "channels": (8, 8, 8)}})
+
+
+def test_mission_metrics_equal_env_infos(tmp_path):
+    env = make_env()
+    model = make_model(env)
+    capture = Capture()
+    model.set_logger(Logger(folder=None, output_formats=[capture, make_output_format("tensorboard", str(tmp_path / "tb"))]))
+    eval_env = make_env(n_envs=1, seed=5)
+    metrics = EpisodeMetricsCallback(csv_path=tmp_path / "metrics.csv")
+    evaluation = MissionEvalCallback(eval_env, eval_freq=12, n_eval_missions=2, verbose=0)
+    model.learn(18, callback=[metrics, evaluation])
+    model.logger.close()
+
+    expected = env.missions()
+    assert len(expected) == 6  # 18 joint steps / 3 per mission, one value per env copy (not per agent)
+    got = [{k: r[k] for k in ("env_copy", "reward", "length", "f1", "entropy")} for r in metrics.history]
+    assert got == pytest.approx(expected)
+    assert [r["timesteps"] for r in metrics.history] == [6, 6, 12, 12, 18, 18]
+
+    # CSV: same rows
+    with (tmp_path / "metrics.csv").open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(r["episode"]) for r in rows] == list(range(1, 7))
+    assert [float(r["f1"]) for r in rows] == pytest.approx([e["f1"] for e in expected])
+    assert [float(r["reward"]) for r in rows] == pytest.approx([e["reward"] for e in expected])
+
+    # SB3 logger: means over the window at each dump
+    last = [values for _, values in capture.dumps if "mission/reward_mean" in values][-1]
+    assert last["mission/missions"] == 6
+    for key in ("reward", "f1", "entropy"):
+        assert last[f"mission/{key}_mean"] == pytest.approx(np.mean([e[key] for e in expected]))
+        assert last[f"mission/{key}_last"] == pytest.approx(expected[-1][key])
+
+    # TensorBoard: one point per mission
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(tmp_path / "tb"))
+    acc.Reload()
+    assert [e.value for e in acc.Scalars("mission/entropy")] == pytest.approx([e["entropy"] for e in expected])
+    assert [e.step for e in acc.Scalars("mission/f1")] == [6, 6, 12, 12, 18, 18]
+
+    # Evaluation: 2 missions at 12 joint steps, F1 / entropy from the eval env's infos
+    eval_expected = eval_env.missions()
+    assert len(eval_expected) == 2
+    eval_dump = [values for _, values in capture.dumps if "eval/mean_reward" in values][0]
+    assert eval_dump["eval/mean_f1"] == pytest.approx(np.mean([e["f1"] for e in eval_expected]))
+    assert eval_dump["eval/mean_entropy"] == pytest.approx(np.mean([e["entropy"] for e in eval_expected]))
+    assert eval_dump["eval/mean_reward"] == pytest.approx(np.mean([e["reward"] for e in eval_expected]))
+
+    # Rows after a resume point are dropped
+    assert truncate_metrics_csv(tmp_path / "metrics.csv", 12) == 4
+
+
+def test_checkpoints_at_rollout_boundaries(tmp_path):
+    model = make_model(make_env())
+    ckpt = JointCheckpointCallback(save_freq=6, save_path=tmp_path / "ck", keep_last=1)
+    model.learn(24, callback=ckpt)
+    # at the start of each later rollout, and at the end (after the last complete rollout)
+    assert [p.name for p in ckpt.saved] == [f"rl_model_{s}_steps.zip" for s in (6, 12, 18, 24)]
+    assert [s for s, _ in find_checkpoints(tmp_path / "ck")] == [24]  # keep_last=1
+    assert validate_checkpoint(ckpt.saved[-1]).num_timesteps == 24
+    # A stop in the middle of a rollout is not a boundary: no checkpoint then.
+    stop_early = JointCheckpointCallback(save_freq=1, save_path=tmp_path / "ck2")
+    model.learn(24, callback=[stop_early, StopOnTargetCallback("entropy", 2.0, window=1, verbose=0)])
+    assert model.num_timesteps == 6 and stop_early.saved == []
+    assert not list((tmp_path / "ck").glob("*.tmp"))
+    with pytest.raises(ValueError, match="save_freq"):
+        JointCheckpointCallback(save_freq=0, save_path=tmp_path)
+
+
+def test_stop_on_target():
+    model = make_model(make_env())
+    stop = StopOnTargetCallback("entropy", threshold=2.0, window=2, verbose=0)  # any mission meets it
+    model.learn(60, callback=stop)
+    assert stop.reached and stop.reached_at == 6 and model.num_timesteps == 6
+    never = StopOnTargetCallback("f1", threshold=2.0, window=2, verbose=0)
+    assert never.mode == "above"
+    model.learn(12, callback=never)
+    assert not never.reached and model.num_timesteps == 12
+    with pytest.raises(ValueError, match="metric"):
+        StopOnTargetCallback("loss", 1.0)
+
+
+class _Partial:
+    def __init__(self, payload: bytes, fail: bool):
+        self.payload, self.fail = payload, fail
+
+    def save(self, handle):
+        handle.write(self.payload)
+        if self.fail:
+            raise OSError("disk full")
+
+
+def test_atomic_save_keeps_previous_file(tmp_path):
+    dest = tmp_path / "model.zip"
+    dest.write_bytes(b"previous")
+    with pytest.raises(OSError, match="disk full"):
+        atomic_save(_Partial(b"PK\x03\x04half", fail=True), dest)
+    with pytest.raises(CheckpointError, match="model.zip is unusable"):
+        atomic_save(_Partial(b"junk", fail=False), dest)
+    assert dest.read_bytes() == b"previous"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.zip"]
