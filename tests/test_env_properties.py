@@ -43,7 +43,7 @@ def _check_state(env) -> None:
     belief = env.global_belief()
     assert np.all(np.isfinite(belief)) and np.all((belief >= 0) & (belief <= 1))
     local = env.local_beliefs()
-    assert np.all(np.isfinite(local)) and np.all((local > 0) & (local < 1))
+    assert np.all(np.isfinite(local)) and np.all((local >= 0) & (local <= 1))
 
 
 @PROPERTY_SETTINGS

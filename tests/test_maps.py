@@ -1,101 +1,216 @@
-"""Ground-truth maps: shipped images, the synthetic star, user images and their rules."""
+"""Ground-truth maps: the shipped images, the env1 star, user images with every rule, and errors."""
 from __future__ import annotations
+
+import time
 
 import cv2
 import numpy as np
 import pytest
 
-from envs.maps import MapError, available_maps, block_fraction, load_ground_truth
+from envs.maps import MapError, available_maps, block_fraction, block_index, load_ground_truth, parse_rule
+
+STARTS = [(2, 2), (8, 2), (8, 8), (2, 8)]  # default start columns, lattice (x, y)
+
+
+# ------------------------------------------------------------------ shipped maps
+def test_available_maps():
+    assert available_maps() == ("env1", "env2", "env3")
 
 
 @pytest.mark.parametrize("name", available_maps())
-def test_shipped_maps_shapes_and_fractions(name):
+def test_shipped_maps_shapes_dtypes_and_fractions(name):
     g = load_ground_truth(name)
-    assert g.valuable.shape == (493, 493) and g.valuable.dtype == bool
-    assert g.no_fly.shape == (11, 11) and g.no_fly.dtype == bool
-    assert 0.15 <= g.valuable.mean() <= 0.5
-    assert g.source
+    assert g.name == name and isinstance(g.source, str) and g.source and "\n" not in g.source
+    assert g.valuable.shape == (493, 493) and g.valuable.dtype == np.bool_
+    assert g.no_fly.shape == (11, 11) and g.no_fly.dtype == np.bool_
+    assert 0.2 <= g.valuable.mean() <= 0.45
+    assert not g.valuable.flags.writeable and not g.no_fly.flags.writeable
 
 
-def test_env3_no_fly_columns_and_free_starts():
+def test_env2_hottest_fraction_and_no_no_fly():
+    g = load_ground_truth("env2")
+    assert g.valuable.mean() == pytest.approx(0.3, abs=0.01)
+    assert not g.no_fly.any()
+    # structure, not one blob: several separate hot patches
+    n_labels, _ = cv2.connectedComponents(g.valuable.astype(np.uint8))
+    assert n_labels - 1 >= 5
+
+
+def test_env3_vegetation_no_fly_and_free_starts():
     g = load_ground_truth("env3")
+    assert 0.2 <= g.valuable.mean() <= 0.5
     assert 0.05 <= g.no_fly.mean() <= 0.2
-    for x, y in [(2, 2), (8, 2), (8, 8), (2, 8)]:
-        assert not g.no_fly[y, x]
+    for x, y in STARTS:
+        assert not g.no_fly[y, x], (x, y)
 
 
-def test_env1_seeded_star():
-    a, b, c = (load_ground_truth("env1", seed=s).valuable for s in (3, 3, 4))
-    np.testing.assert_array_equal(a, b)
-    assert (a != c).mean() > 0.05
-    fractions = [load_ground_truth("env1", seed=s).valuable.mean() for s in range(20)]
-    assert 0.18 <= min(fractions) and max(fractions) <= 0.4
-
-
-def test_grid_and_lattice_sizes():
+def test_env3_other_sizes_and_override():
     g = load_ground_truth("env3", grid=100, lattice=6)
     assert g.valuable.shape == (100, 100) and g.no_fly.shape == (6, 6)
+    exg = load_ground_truth("env3", valuable="excess-green")
+    assert 0.05 < exg.valuable.mean() < 0.95
+    assert np.array_equal(exg.no_fly, load_ground_truth("env3").no_fly)  # rule never moves buildings
+    hot = load_ground_truth("Env2", valuable="hottest:0.1")                 # names are case-insensitive
+    assert hot.valuable.mean() == pytest.approx(0.1, abs=0.01)
 
 
-def test_block_fraction_of_full_mask_is_one():
+# ------------------------------------------------------------------ env1
+def test_env1_seed_determinism_and_variety():
+    a, b = (load_ground_truth("env1", seed=3).valuable for _ in range(2))
+    np.testing.assert_array_equal(a, b)
+    others = [load_ground_truth("env1", seed=s).valuable for s in range(4, 9)]
+    assert all((a != o).mean() > 0.05 for o in others)
+    fresh = [load_ground_truth("env1", seed=None).valuable for _ in range(2)]
+    assert (fresh[0] != fresh[1]).any()
+
+
+def test_env1_fraction_range_and_speed():
+    fractions = [load_ground_truth("env1", seed=s).valuable.mean() for s in range(60)]
+    assert 0.2 <= min(fractions) and max(fractions) <= 0.45
+    t0 = time.perf_counter()
+    for s in range(50):
+        load_ground_truth("env1", seed=1000 + s)
+    assert (time.perf_counter() - t0) / 50 < 0.01
+    assert not load_ground_truth("env1").no_fly.any()
+
+
+def test_env1_override_reads_star_as_black_drawing():
+    star = load_ground_truth("env1", seed=5).valuable
+    np.testing.assert_array_equal(load_ground_truth("env1", seed=5, valuable="dark:0.5").valuable, star)
+    np.testing.assert_array_equal(load_ground_truth("env1", seed=5, valuable="threshold:0.5").valuable, ~star)
+
+
+# ------------------------------------------------------------------ blocks
+def test_block_index_and_fraction():
+    k = block_index(493, 11)
+    assert k[0] == 0 and k[-1] == 10 and np.all(np.diff(k) >= 0)
+    counts = np.bincount(k)
+    assert counts[0] < counts[5] and counts[10] < counts[5]          # half squares at the borders
+    centres = (np.arange(493) + 0.5) * 50 / 493
+    np.testing.assert_array_equal(k, np.argmin(np.abs(centres[:, None] - 5.0 * np.arange(11)), axis=1))
     np.testing.assert_allclose(block_fraction(np.ones((493, 493), bool), 11), 1.0)
+    m = np.zeros((493, 493), bool)
+    m[k == 3] = True
+    bf = block_fraction(m, 11)
+    assert np.all(bf[3] == 1.0) and bf.sum() == 11.0
 
 
+# ------------------------------------------------------------------ user images
 @pytest.fixture
 def images(tmp_path):
-    gray = np.tile(np.linspace(0, 255, 64, dtype=np.uint8), (64, 1))
-    colour = np.zeros((64, 64, 3), np.uint8)
-    colour[:, :32] = (40, 200, 40)     # green (BGR)
-    colour[:, 32:] = (128, 128, 128)   # grey
+    gray = np.tile(np.linspace(0, 255, 64).round().astype(np.uint8), (48, 1))   # left dark, right bright
+    colour = np.zeros((40, 80, 3), np.uint8)
+    colour[:, :30] = (40, 200, 40)                                                 # green (BGR)
+    colour[:, 30:] = (150, 140, 160)                                               # greyish
+    drawing = np.full((70, 50), 255, np.uint8)
+    cv2.circle(drawing, (25, 35), 15, 0, -1)                                       # black disc on white
+    gray16 = (np.tile(np.linspace(0, 65535, 64), (64, 1))).astype(np.uint16)
     paths = {}
-    for name, img in (("gray.png", gray), ("colour.png", colour)):
+    for name, img in (("gray.png", gray), ("colour.png", colour), ("drawing.png", drawing), ("gray16.png", gray16)):
         paths[name] = tmp_path / name
-        cv2.imwrite(str(paths[name]), img)
+        assert cv2.imwrite(str(paths[name]), img)
     return paths
 
 
 @pytest.mark.parametrize("rule,expected", [
-    ("threshold:0.5", 0.5), ("dark:0.25", 0.25), ("hottest:0.3", 0.3), ("coldest:0.2", 0.2), (None, 0.5),
+    ("threshold:0.5", 0.5), ("threshold", 0.5), (None, 0.5), ("dark:0.25", 0.25), ("dark", 0.5),
+    ("hottest:0.3", 0.3), ("coldest:0.2", 0.2),
 ])
-def test_user_image_gray_rules(images, rule, expected):
+def test_user_gray_rules(images, rule, expected):
     g = load_ground_truth("mine", map_path=images["gray.png"], valuable=rule, grid=64, lattice=5)
-    assert g.name == "mine"
+    assert g.name == "mine" and g.valuable.shape == (64, 64) and g.no_fly.shape == (5, 5)
+    assert not g.no_fly.any()
     assert g.valuable.mean() == pytest.approx(expected, abs=0.04)
+    bright = rule is None or rule.startswith(("threshold", "hottest"))
+    assert g.valuable[:, -1].all() == bright and g.valuable[:, 0].all() != bright
 
 
-def test_user_image_excess_green(images):
-    g = load_ground_truth("veg", map_path=images["colour.png"], valuable="excess-green", grid=64, lattice=5)
-    assert g.valuable[:, :30].all() and not g.valuable[:, 34:].any()
+def test_user_16bit_and_resize(images):
+    g = load_ground_truth("x", map_path=images["gray16.png"], valuable="threshold:0.75", grid=32, lattice=4)
+    assert g.valuable.shape == (32, 32) and g.valuable.mean() == pytest.approx(0.25, abs=0.05)
 
 
+@pytest.mark.parametrize("rule", ["excess-green", "excess-green:0.2", "exg"])
+def test_user_excess_green(images, rule):
+    g = load_ground_truth("veg", map_path=images["colour.png"], valuable=rule, grid=80, lattice=5)
+    # the 80 x 40 image is stretched to 80 x 80; the green left 30 columns stay green
+    assert g.valuable[:, :29].all() and not g.valuable[:, 31:].any()
+
+
+def test_user_dark_drawing_and_name_from_stem(images):
+    g = load_ground_truth("env3", map_path=images["drawing.png"], valuable="dark:0.5", grid=100, lattice=11)
+    assert g.name == "drawing"                       # a built-in name next to map_path is only a default
+    assert g.valuable[50, 50] and not g.valuable[2, 2]
+    assert g.valuable.mean() == pytest.approx(np.pi * 15 ** 2 / (70 * 50), abs=0.03)
+    assert "drawing.png" in g.source
+
+
+# ------------------------------------------------------------------ errors
 @pytest.mark.parametrize("kwargs,match", [
     ({"name": "env7"}, "env7"),
-    ({"map_path": "/nonexistent/map.png"}, "does not exist"),
+    ({"name": "env7"}, "env1"),                                   # lists what is allowed
+    ({"name": "my_map.png"}, "map_path"),
+    ({"name": 3}, "3"),
+    ({"map_path": "/nonexistent/map.png"}, "/nonexistent/map.png"),
     ({"valuable": "hottest:abc", "name": "env2"}, "abc"),
-    ({"valuable": "hottest:1.5", "name": "env2"}, "fraction"),
-    ({"valuable": "magic", "name": "env2"}, "magic"),
+    ({"valuable": "hottest:1.5", "name": "env2"}, "1.5"),
+    ({"valuable": "hottest:0", "name": "env2"}, "between 0 and 1"),
     ({"valuable": "hottest", "name": "env2"}, "fraction"),
-    ({"lattice": 1}, "lattice"),
-    ({"grid": 5}, "grid"),
-    ({"seed": -1}, "seed"),
+    ({"valuable": "hottest:", "name": "env2"}, "hottest:"),
+    ({"valuable": "magic:0.3", "name": "env2"}, "magic"),
+    ({"valuable": "magic:0.3", "name": "env2"}, "excess-green"),  # lists what is allowed
+    ({"valuable": "threshold:nan", "name": "env2"}, "nan"),
+    ({"valuable": "threshold:2", "name": "env2"}, "2"),
+    ({"valuable": 0.3, "name": "env2"}, "0.3"),
+    ({"valuable": "ndvi", "name": "env2"}, "near-infrared"),
+    ({"lattice": 1}, "lattice=1"),
+    ({"lattice": 2.5}, "lattice=2.5"),
+    ({"grid": 5}, "grid=5"),
+    ({"grid": True}, "grid=True"),
+    ({"grid": 100_000}, "grid=100000"),
+    ({"seed": -1}, "seed=-1"),
+    ({"seed": "abc"}, "seed='abc'"),
 ])
-def test_bad_inputs(kwargs, match):
-    with pytest.raises(MapError, match=match):
+def test_bad_inputs_raise_map_error(kwargs, match):
+    with pytest.raises(MapError, match=match.replace(".", r"\.").replace("(", r"\(")):
         load_ground_truth(**{"name": "env1", **kwargs})
 
 
-def test_unreadable_and_empty_images(tmp_path, images):
+def test_map_error_is_value_error():
+    assert issubclass(MapError, ValueError)
+
+
+def test_bad_files(tmp_path, images):
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"not an image at all")
-    with pytest.raises(MapError, match="not a readable image"):
-        load_ground_truth("x", map_path=bad)
-    with pytest.raises(MapError, match="directory"):
-        load_ground_truth("x", map_path=tmp_path)
+    with pytest.raises(MapError, match="bad.png"):
+        load_ground_truth(map_path=bad)
+    empty = tmp_path / "empty.png"
+    empty.write_bytes(b"")
+    with pytest.raises(MapError, match="empty.png.*empty"):
+        load_ground_truth(map_path=empty)
+    with pytest.raises(MapError, match="not a file"):
+        load_ground_truth(map_path=tmp_path)
+    with pytest.raises(MapError, match="map_path"):
+        load_ground_truth(map_path=12)
+
+
+def test_degenerate_masks(tmp_path, images):
     flat = tmp_path / "flat.png"
     cv2.imwrite(str(flat), np.full((10, 10), 255, np.uint8))
-    with pytest.raises(MapError, match="every cell"):
-        load_ground_truth("x", map_path=flat, valuable="threshold:0.1", grid=10, lattice=2)
-    with pytest.raises(MapError, match="no cell"):
-        load_ground_truth("x", map_path=flat, valuable="dark:0.5", grid=10, lattice=2)
+    with pytest.raises(MapError, match="threshold:0.1.*every pixel"):
+        load_ground_truth(map_path=flat, valuable="threshold:0.1", grid=10, lattice=2)
+    with pytest.raises(MapError, match="dark:0.5.*no pixel"):
+        load_ground_truth(map_path=flat, valuable="dark:0.5", grid=10, lattice=2)
+    with pytest.raises(MapError, match="no pixel"):
+        load_ground_truth(map_path=flat, grid=10, lattice=2)        # Otsu on a constant image
     with pytest.raises(MapError, match="colour"):
-        load_ground_truth("x", map_path=images["gray.png"], valuable="excess-green", grid=64, lattice=5)
+        load_ground_truth(map_path=images["gray.png"], valuable="excess-green", grid=64, lattice=5)
+    with pytest.raises(MapError, match="near-infrared"):
+        load_ground_truth(map_path=images["colour.png"], valuable="ndvi:0.3", grid=64, lattice=5)
+
+
+def test_parse_rule_round_trip():
+    assert str(parse_rule(" Hottest:0.25 ")) == "hottest:0.25"
+    assert str(parse_rule("excess_green")) == "excess-green"
+    assert parse_rule("dark").value is None

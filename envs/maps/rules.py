@@ -1,114 +1,257 @@
-"""``valuable=`` rules that turn an image into a boolean mask of valuable ground.
+"""Turning an image into a binary "valuable" mask: image reading, resizing and the rule strings.
 
-A rule is a short string ``name`` or ``name:parameter``; each rule documents its parameter.
+A rule is a short string so that it fits on a command line and in an rl-zoo YAML file:
+
+=====================  ==========================================================================
+``threshold[:T]``      grayscale (in [0, 1]) ``> T``; Otsu's threshold when ``T`` is omitted
+``dark[:T]``           grayscale ``< T`` (a black-on-white drawing); Otsu's complement when omitted
+``hottest:F``          the brightest fraction ``F`` of pixels (white-hot thermal images)
+``coldest:F``          the darkest fraction ``F`` of pixels (black-hot thermal images)
+``excess-green[:T]``   ExG = 2g - r - b on chromatic coordinates ``> T``; Otsu when omitted
+``ndvi[:T]``           NDVI ``> T`` (default 0.5); only maps that ship a near-infrared band (env3)
+=====================  ==========================================================================
+
+Images are resized to the belief grid *before* the rule is applied, so quantile rules hit their
+fraction on the grid the environment actually scores, and the mask is binary at that resolution.
 """
 from __future__ import annotations
 
-from typing import Callable
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 
+from .errors import MapError
 
-class MapError(ValueError):
-    """A map name, file or rule is unusable; the message names the value and what is allowed."""
+__all__ = [
+    "RULE_NAMES", "MapImage", "Rule", "apply_rule", "otsu_threshold", "parse_rule", "read_image",
+    "resize_to_grid",
+]
 
-
-def grayscale(image: np.ndarray) -> np.ndarray:
-    """[0, 1] float grayscale of an 8/16-bit gray or BGR(A) image."""
-    img = image.astype(np.float32)
-    scale = 65535.0 if image.dtype == np.uint16 else 255.0 if image.dtype == np.uint8 else max(float(img.max()), 1e-9)
-    img = img / scale
-    if img.ndim == 3:
-        img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
-    return img
-
-
-def _otsu(values: np.ndarray) -> float:
-    u8 = np.clip(values * 255.0, 0, 255).astype(np.uint8)
-    threshold, _ = cv2.threshold(u8, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    return float(threshold) / 255.0
-
-
-def _fraction(param: str | None, rule: str) -> float:
-    if param is None:
-        raise MapError(f"valuable rule {rule!r} needs a fraction, e.g. '{rule}:0.3'")
-    f = _number(param, rule)
-    if not 0.0 < f < 1.0:
-        raise MapError(f"valuable rule {rule}:{param}: the fraction must be in (0, 1)")
-    return f
+#: Canonical rule names, in the order error messages list them.
+RULE_NAMES: tuple[str, ...] = ("threshold", "dark", "hottest", "coldest", "excess-green", "ndvi")
+_ALIASES = {"excess_green": "excess-green", "exg": "excess-green", "otsu": "threshold"}
+#: Rules whose parameter is a pixel fraction and therefore mandatory (no sensible default).
+_FRACTION_RULES = ("hottest", "coldest")
+#: Allowed closed ranges of a rule's threshold; ExG = 3g - 1 lies in [-1, 2], NDVI in [-1, 1].
+_THRESHOLD_RANGE = {"threshold": (0.0, 1.0), "dark": (0.0, 1.0), "excess-green": (-1.0, 2.0),
+                    "ndvi": (-1.0, 1.0)}
+#: The NDVI threshold used when ``ndvi`` comes without one: a common "dense green vegetation" cut.
+DEFAULT_NDVI_THRESHOLD = 0.5
+_RULE_HELP = ("allowed rules: 'threshold[:T]', 'dark[:T]', 'hottest:F', 'coldest:F', "
+              "'excess-green[:T]', 'ndvi[:T]' (T a number, F a fraction in (0, 1))")
 
 
-def _number(param: str, rule: str) -> float:
+@dataclass(frozen=True)
+class Rule:
+    """A parsed rule: canonical ``kind`` and its number (``None`` = Otsu / the rule's default)."""
+
+    kind: str
+    value: float | None = None
+
+    def __str__(self) -> str:
+        return self.kind if self.value is None else f"{self.kind}:{self.value:g}"
+
+
+@dataclass(frozen=True)
+class MapImage:
+    """An image already resized to the grid, in the forms the rules need.
+
+    ``gray`` is always present (float32 in [0, 1]); ``rgb`` (H, W, 3, RGB order, float32 in [0, 1])
+    only for colour images; ``ndvi`` (float32 in [-1, 1]) only for maps that ship a near-infrared
+    band. Keeping the derived forms here lets the rules stay one-liners and lets a missing form
+    become a clear error instead of a silent fallback.
+    """
+
+    gray: np.ndarray
+    rgb: np.ndarray | None = None
+    ndvi: np.ndarray | None = None
+
+
+def parse_rule(rule: object) -> Rule:
+    """Parse a rule string such as ``"hottest:0.3"``; raise :class:`MapError` naming what is wrong."""
+    if not isinstance(rule, str):
+        raise MapError(f"valuable rule must be a string, got {rule!r} ({type(rule).__name__}); {_RULE_HELP}")
+    text = rule.strip().lower()
+    name, sep, arg = text.partition(":")
+    name = _ALIASES.get(name.strip(), name.strip())
+    if name not in RULE_NAMES:
+        raise MapError(f"unknown valuable rule {rule!r}; {_RULE_HELP}")
+    arg = arg.strip()
+    if not sep or arg == "":
+        if sep:  # "hottest:" with nothing after the colon is a typo, not a request for a default
+            raise MapError(f"valuable rule {rule!r} has a ':' but no number after it; {_RULE_HELP}")
+        if name in _FRACTION_RULES:
+            raise MapError(f"valuable rule {rule!r} needs a fraction, e.g. '{name}:0.3'; {_RULE_HELP}")
+        return Rule(name, None)
     try:
-        return float(param)
+        value = float(arg)
     except ValueError:
-        raise MapError(f"valuable rule {rule}:{param}: {param!r} is not a number") from None
+        raise MapError(f"valuable rule {rule!r}: {arg!r} is not a number; {_RULE_HELP}") from None
+    if not math.isfinite(value):
+        raise MapError(f"valuable rule {rule!r}: {arg!r} is not a finite number; {_RULE_HELP}")
+    if name in _FRACTION_RULES:
+        if not 0.0 < value < 1.0:
+            raise MapError(f"valuable rule {rule!r}: the fraction {value:g} must lie strictly between 0 and 1")
+    else:
+        lo, hi = _THRESHOLD_RANGE[name]
+        if not lo <= value <= hi:
+            raise MapError(f"valuable rule {rule!r}: the threshold {value:g} must lie in [{lo:g}, {hi:g}] "
+                           f"for '{name}'")
+    return Rule(name, value)
 
 
-def _threshold(gray: np.ndarray, param: str | None, rule: str) -> float:
-    if param is None:
-        return _otsu(gray)
-    t = _number(param, rule)
-    if not 0.0 <= t <= 1.0:
-        raise MapError(f"valuable rule {rule}:{param}: the threshold must be in [0, 1]")
-    return t
+def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
+    """Otsu's threshold of a float array: the cut that maximises the between-class variance.
+
+    Written on a histogram of the data's own range (not cv2's 8-bit Otsu) so that it works on
+    16-bit, float and ExG/NDVI values alike. ``values > t`` is the upper class. A constant array
+    has no split; its own value is returned, which makes the upper class empty and lets the caller
+    report "no valuable pixels".
+    """
+    v = np.asarray(values, dtype=np.float64).ravel()
+    lo, hi = float(v.min()), float(v.max())
+    if not hi > lo:
+        return lo
+    hist, edges = np.histogram(v, bins=bins, range=(lo, hi))
+    p = hist / hist.sum()
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    w0 = np.cumsum(p)                      # weight of the lower class for a cut after bin i
+    m0 = np.cumsum(p * centres)            # its un-normalised mean
+    mt = m0[-1]
+    w1 = 1.0 - w0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        between = (mt * w0 - m0) ** 2 / (w0 * w1)
+    between[~np.isfinite(between)] = -1.0
+    return float(edges[int(np.argmax(between)) + 1])
 
 
-def rule_threshold(image: np.ndarray, param: str | None) -> np.ndarray:
-    """``threshold[:T]``: grayscale > T (Otsu when T is omitted)."""
-    gray = grayscale(image)
-    return gray > _threshold(gray, param, "threshold")
+def _chromatic_exg(rgb: np.ndarray) -> np.ndarray:
+    """Excess green 2g - r - b on chromatic coordinates; black pixels (r+g+b = 0) score 0."""
+    total = rgb.sum(axis=2)
+    safe = np.where(total > 0, total, 1.0)
+    r, g, b = (rgb[..., k] / safe for k in range(3))
+    return np.where(total > 0, 2.0 * g - r - b, 0.0).astype(np.float32)
 
 
-def rule_dark(image: np.ndarray, param: str | None) -> np.ndarray:
-    """``dark[:T]``: grayscale < T, e.g. a black-on-white drawing (Otsu when T is omitted)."""
-    gray = grayscale(image)
-    return gray < _threshold(gray, param, "dark")
+def apply_rule(rule: Rule, image: MapImage, label: str) -> np.ndarray:
+    """The boolean mask the rule selects on ``image``; ``label`` names the map in error messages.
+
+    Raises :class:`MapError` when the image lacks what the rule needs (colour, near-infrared) and
+    when the result is degenerate (no cell, or every cell, valuable): an all-or-nothing truth makes
+    every reward and metric of the environment meaningless, so it must not reach training.
+    """
+    kind, value = rule.kind, rule.value
+    gray = image.gray
+    if kind == "threshold":
+        mask = gray > (otsu_threshold(gray) if value is None else value)
+    elif kind == "dark":
+        mask = ~(gray > otsu_threshold(gray)) if value is None else gray < value
+    elif kind == "hottest":
+        mask = gray > np.quantile(gray, 1.0 - value)
+    elif kind == "coldest":
+        mask = gray < np.quantile(gray, value)
+    elif kind == "excess-green":
+        if image.rgb is None:
+            raise MapError(f"valuable rule '{rule}' needs a colour image, but map {label!r} is grayscale; "
+                           "use 'threshold', 'dark', 'hottest' or 'coldest'")
+        exg = _chromatic_exg(image.rgb)
+        mask = exg > (otsu_threshold(exg) if value is None else value)
+    elif kind == "ndvi":
+        if image.ndvi is None:
+            raise MapError(f"valuable rule '{rule}' needs a near-infrared band, which only env3 ships; "
+                           f"map {label!r} has none (try 'excess-green')")
+        mask = image.ndvi > (DEFAULT_NDVI_THRESHOLD if value is None else value)
+    else:  # parse_rule only produces RULE_NAMES; this guards future edits
+        raise MapError(f"unknown valuable rule {kind!r}; {_RULE_HELP}")
+    n = int(mask.sum())
+    if n == 0:
+        raise MapError(f"valuable rule '{rule}' marks no pixel of map {label!r} valuable; "
+                       "choose another rule or threshold")
+    if n == mask.size:
+        raise MapError(f"valuable rule '{rule}' marks every pixel of map {label!r} valuable; "
+                       "choose another rule or threshold")
+    return mask
 
 
-def rule_hottest(image: np.ndarray, param: str | None) -> np.ndarray:
-    """``hottest:F``: the brightest fraction F of pixels (white-hot thermal images)."""
-    gray = grayscale(image)
-    return gray > np.quantile(gray, 1.0 - _fraction(param, "hottest"))
+def resize_to_grid(image: np.ndarray, grid: int) -> np.ndarray:
+    """Resize (any size and aspect) to ``grid`` x ``grid`` with area averaging, as float32.
+
+    INTER_AREA averages the pixels a grid cell covers, which is what a downward camera sees of a
+    cell; the aspect ratio is not kept because the field is square by definition.
+    """
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    if img.shape[0] == grid and img.shape[1] == grid:
+        return img
+    return cv2.resize(img, (grid, grid), interpolation=cv2.INTER_AREA)
 
 
-def rule_coldest(image: np.ndarray, param: str | None) -> np.ndarray:
-    """``coldest:F``: the darkest fraction F of pixels."""
-    gray = grayscale(image)
-    return gray < np.quantile(gray, _fraction(param, "coldest"))
+def _normalise(img: np.ndarray, path: str) -> np.ndarray:
+    """Pixel values to float32 in [0, 1] according to their storage type."""
+    if img.dtype == np.uint8:
+        return img.astype(np.float32) / 255.0
+    if img.dtype == np.uint16:
+        return img.astype(np.float32) / 65535.0
+    out = img.astype(np.float32)
+    if not np.isfinite(out).all():
+        raise MapError(f"map_path {path!r} contains NaN or infinite pixel values")
+    if np.issubdtype(img.dtype, np.floating) and out.min() >= 0.0 and out.max() <= 1.0:
+        return out
+    # signed integers or floats outside [0, 1] (e.g. a float32 TIFF of temperatures): stretch
+    lo, hi = float(out.min()), float(out.max())
+    return (out - lo) / (hi - lo) if hi > lo else np.zeros_like(out)
 
 
-def rule_excess_green(image: np.ndarray, param: str | None) -> np.ndarray:
-    """``excess-green[:T]``: ExG = 2g - r - b on chromatic coordinates > T (Otsu if omitted)."""
-    if image.ndim != 3 or image.shape[2] < 3:
-        raise MapError("valuable rule 'excess-green' needs a colour image (3 channels)")
-    bgr = image[..., :3].astype(np.float32)
-    total = np.maximum(bgr.sum(axis=2), 1e-6)
-    b, g, r = (bgr[..., k] / total for k in range(3))
-    exg = 2 * g - r - b  # in [-1, 2]
-    scaled = (exg + 1.0) / 3.0
-    if param is None:
-        return scaled > _otsu(scaled)
-    return exg > _number(param, "excess-green")
+def read_image(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read any image cv2 can decode: ``(gray, rgb)`` as float32 in [0, 1] at the file's own size.
+
+    ``rgb`` is ``None`` for single-channel files. Transparent pixels are composited onto white,
+    so that a drawing with a transparent background reads as "nothing drawn" rather than black.
+    Bytes are decoded with ``cv2.imdecode`` (not ``imread``) so paths with non-ASCII characters
+    work and a non-image file is an error we phrase, not an empty return.
+    """
+    p = Path(path)
+    shown = os.fspath(path)
+    if not p.exists():
+        raise MapError(f"map_path {shown!r} does not exist")
+    if not p.is_file():
+        raise MapError(f"map_path {shown!r} is not a file")
+    try:
+        data = np.fromfile(p, dtype=np.uint8)
+    except OSError as exc:
+        raise MapError(f"map_path {shown!r} cannot be read: {exc.strerror or exc}") from None
+    if data.size == 0:
+        raise MapError(f"map_path {shown!r} is empty (0 bytes, no pixels)")
+    try:
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        img = None
+    if img is None:
+        raise MapError(f"map_path {shown!r} is not an image cv2 can decode "
+                       "(use PNG, JPEG, TIFF, BMP or another format OpenCV reads)")
+    if img.size == 0 or img.ndim < 2 or img.shape[0] == 0 or img.shape[1] == 0:
+        raise MapError(f"map_path {shown!r} is an empty image (0 pixels)")
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    img = _normalise(img, shown)
+    if img.ndim == 2:
+        return img, None
+    channels = img.shape[2]
+    if channels == 2:  # gray + alpha
+        alpha = img[:, :, 1]
+        return img[:, :, 0] * alpha + (1.0 - alpha), None
+    if channels == 4:  # BGRA
+        alpha = img[:, :, 3:4]
+        img = img[:, :, :3] * alpha + (1.0 - alpha)
+    elif channels != 3:
+        raise MapError(f"map_path {shown!r} has {channels} channels; expected 1 (gray), 3 (colour) or 4 (with alpha)")
+    rgb = np.ascontiguousarray(img[:, :, ::-1])
+    return rgb_to_gray(rgb), rgb
 
 
-RULES: dict[str, Callable[[np.ndarray, str | None], np.ndarray]] = {
-    "threshold": rule_threshold,
-    "dark": rule_dark,
-    "hottest": rule_hottest,
-    "coldest": rule_coldest,
-    "excess-green": rule_excess_green,
-}
-
-
-def apply_rule(image: np.ndarray, rule: str | None) -> np.ndarray:
-    """Boolean mask of valuable pixels; ``None`` means ``threshold`` at Otsu."""
-    if rule is None:
-        rule = "threshold"
-    if not isinstance(rule, str) or not rule.strip():
-        raise MapError(f"valuable rule {rule!r} is not a rule string; allowed: {sorted(RULES)}")
-    name, _, param = rule.strip().partition(":")
-    if name not in RULES:
-        raise MapError(f"unknown valuable rule {name!r}; allowed: {sorted(RULES)} (as 'name' or 'name:parameter')")
-    return RULES[name](image, param or None)
+def rgb_to_gray(rgb: np.ndarray) -> np.ndarray:
+    """ITU-R BT.601 luma, the grayscale every common image tool shows for a colour image."""
+    return (0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]).astype(np.float32)

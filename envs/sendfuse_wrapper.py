@@ -1,0 +1,54 @@
+"""``fusion="sendfuse"``: the fused channel from the pre-trained SenDFuse network.
+
+The only place where ``envs`` reaches into ``sb3_coma``, and only into its SenDFuse network
+package (network + weight file reader), as DESIGN section 2 allows. One batched forward pass
+fuses the received maps of every agent of every env copy at a step.
+"""
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium.vector import VectorEnv
+
+from .fusion import FusionWrapper, register_fusion
+
+
+class SenDFuseFusionWrapper(FusionWrapper):
+    """Fuses ``received`` with SenDFuse (denoise + attention fusion) into the 8th local channel.
+
+    :param weights: a safetensors file from ``sb3-coma pretrain-sendfuse``; ``None`` = the
+        weights shipped with the package for this communication grid.
+    :param network: an already built ``SenDFuseNet`` (overrides ``weights``; used by tools that
+        evaluate a network being trained).
+    :param alpha: channel- vs spatial-attention weight of the fusion (None = the network's).
+    """
+
+    name = "sendfuse"
+
+    def __init__(self, env: VectorEnv, weights: str | os.PathLike | None = None, network: Any = None,
+                 alpha: float | None = None) -> None:
+        super().__init__(env)
+        grid = self.raw_observation_space["received"].shape[-1]
+        if network is None:
+            from sb3_coma.sendfuse.weights import default_weights_path, load_weights
+
+            path = weights if weights is not None else default_weights_path(grid)
+            network = load_weights(path)
+        if network.grid_size != grid:
+            raise ValueError(f"SenDFuse network was built for a {network.grid_size} x {network.grid_size} "
+                             f"communication grid, but the env uses comm_grid={grid}")
+        self.network = network.eval()
+        self.alpha = alpha
+
+    def fuse(self, received: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            maps = torch.from_numpy(np.ascontiguousarray(received, dtype=np.float32))
+            mask = torch.from_numpy(np.asarray(valid) > 0.5)
+            fused = self.network.fuse(maps, mask, alpha=self.alpha)
+        return fused.numpy()
+
+
+register_fusion("sendfuse", SenDFuseFusionWrapper)
