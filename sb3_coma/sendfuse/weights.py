@@ -1,0 +1,253 @@
+"""SenDFuse weight files: safetensors (no pickle, so loading a file cannot run code).
+
+A file holds the network's ``state_dict`` plus string metadata that describes the architecture
+(format version, layer layout, R, channel widths), so :func:`load_weights` rebuilds the right
+network without the caller knowing how it was trained, and a SHA-256 of the tensors, because
+safetensors itself only validates the header: a flipped bit inside the tensor data would otherwise
+load silently as slightly wrong weights. Every problem with a file is reported as
+:class:`SenDFuseWeightsError` (a ``ValueError``) whose message says what is wrong and what to do.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Mapping
+
+import torch
+from torch import Tensor
+
+from .network import ARCHITECTURE, DEFAULT_GRID_SIZE, SenDFuseConfig, SenDFuseNet
+
+__all__ = [
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "SenDFuseWeightsError",
+    "default_weights_path",
+    "load_weights",
+    "read_metadata",
+    "save_weights",
+]
+
+#: Value of the ``format`` metadata key: tells our files from other safetensors files.
+FORMAT_NAME = "sb3_coma.sendfuse"
+#: Bumped whenever the meaning of the stored tensors or metadata changes.
+FORMAT_VERSION = 1
+_PREFIX = "sendfuse."
+_KEY_FORMAT = "format"
+_KEY_VERSION = _PREFIX + "format_version"
+_KEY_ARCH = _PREFIX + "architecture"
+_KEY_GRID = _PREFIX + "grid_size"
+_KEY_CHANNELS = _PREFIX + "channels"
+_KEY_SHA = _PREFIX + "sha256"
+_HOW_TO_CREATE = "create it with `sb3-coma pretrain-sendfuse` (add --help for the output path and options)"
+
+
+class SenDFuseWeightsError(ValueError):
+    """A SenDFuse weight file is missing, unreadable, corrupt, or does not fit the expected network."""
+
+
+def default_weights_path(grid_size: int = DEFAULT_GRID_SIZE) -> Path:
+    """Where the shipped pre-trained weights for an R x R grid live (inside the package).
+
+    The file may not exist (e.g. in a source checkout before pre-training); :func:`load_weights`
+    then says how to create it.
+    """
+    return Path(__file__).resolve().parent.parent / "pretrained" / f"sendfuse_r{int(grid_size)}.safetensors"
+
+
+def _digest(tensors: Mapping[str, Tensor]) -> str:
+    """SHA-256 over names, dtypes, shapes and raw bytes, in sorted-name order (order-independent)."""
+    h = hashlib.sha256()
+    for name in sorted(tensors):
+        t = tensors[name].detach().to("cpu").contiguous()
+        h.update(f"{name}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return h.hexdigest()
+
+
+def _config_metadata(config: SenDFuseConfig) -> dict[str, str]:
+    return {
+        _KEY_FORMAT: FORMAT_NAME,
+        _KEY_VERSION: str(FORMAT_VERSION),
+        _KEY_ARCH: ARCHITECTURE,
+        _KEY_GRID: str(config.grid_size),
+        _KEY_CHANNELS: ",".join(str(c) for c in config.channels),
+    }
+
+
+def save_weights(model: SenDFuseNet, path: str | os.PathLike[str], metadata: Mapping[str, str] | None = None) -> Path:
+    """Write ``model``'s weights and architecture to a safetensors file; returns the path.
+
+    Args:
+        model: the network to save.
+        path: target file (parent folders are created). Written to a temporary file first and
+            renamed, so an interrupted save never leaves a truncated file behind.
+        metadata: extra provenance strings (e.g. the command, seed, noise level, final loss);
+            keys ``format`` and ``sendfuse.*`` are reserved for the architecture record.
+    """
+    from safetensors.torch import save_file
+
+    if not isinstance(model, SenDFuseNet):
+        raise TypeError(f"save_weights expects a SenDFuseNet, got {type(model).__name__}")
+    extra = dict(metadata or {})
+    for key, value in extra.items():
+        if not isinstance(key, str) or not isinstance(value, str):
+            raise ValueError(f"metadata keys and values must be str (safetensors stores strings), got {key!r}: {value!r}")
+        if key == _KEY_FORMAT or key.startswith(_PREFIX):
+            raise ValueError(f"metadata key {key!r} is reserved for the architecture record; pick another name")
+    # Contiguous copies: the model keeps its parameters channels-last, safetensors needs plain
+    # row-major tensors; the values (and hence a reload) are bit-identical.
+    tensors = {name: t.detach().to("cpu").contiguous() for name, t in model.state_dict().items()}
+    record = {**extra, **_config_metadata(model.config), _KEY_SHA: _digest(tensors)}
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=target.parent)
+    os.close(fd)
+    try:
+        save_file(tensors, tmp_name, metadata=record)
+        os.replace(tmp_name, target)
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    return target
+
+
+def _resolve(path: str | os.PathLike[str] | None) -> Path:
+    target = default_weights_path() if path is None else Path(path)
+    if not target.exists():
+        which = "the shipped pre-trained SenDFuse weights" if path is None else "SenDFuse weights"
+        raise SenDFuseWeightsError(f"{which} not found at {target}; {_HOW_TO_CREATE}")
+    if not target.is_file():
+        raise SenDFuseWeightsError(f"SenDFuse weights path {target} is not a file")
+    return target
+
+
+def read_metadata(path: str | os.PathLike[str] | None = None) -> dict[str, str]:
+    """The string metadata of a weight file (architecture record plus provenance), unvalidated."""
+    from safetensors import safe_open
+
+    target = _resolve(path)
+    try:
+        with safe_open(str(target), framework="pt") as handle:
+            return dict(handle.metadata() or {})
+    except Exception as exc:  # SafetensorError, OSError, UnicodeDecodeError, ...
+        raise SenDFuseWeightsError(
+            f"{target} is not a readable safetensors file (truncated or corrupt?): {exc}; "
+            f"re-download or {_HOW_TO_CREATE}"
+        ) from exc
+
+
+def _config_from_metadata(meta: Mapping[str, str], target: Path) -> SenDFuseConfig:
+    if meta.get(_KEY_FORMAT) != FORMAT_NAME:
+        raise SenDFuseWeightsError(
+            f"{target} is a safetensors file but not a SenDFuse weight file "
+            f"(metadata 'format' is {meta.get(_KEY_FORMAT)!r}, expected {FORMAT_NAME!r})"
+        )
+    version_text = meta.get(_KEY_VERSION, "")
+    if not version_text.isdigit():
+        raise SenDFuseWeightsError(f"{target}: bad or missing {_KEY_VERSION!r} in metadata: {version_text!r}")
+    version = int(version_text)
+    if version != FORMAT_VERSION:
+        hint = "upgrade sb3-coma" if version > FORMAT_VERSION else "re-create the file"
+        raise SenDFuseWeightsError(
+            f"{target} has SenDFuse format version {version}, this sb3-coma reads version {FORMAT_VERSION}; {hint}"
+        )
+    if meta.get(_KEY_ARCH) != ARCHITECTURE:
+        raise SenDFuseWeightsError(
+            f"{target} stores architecture {meta.get(_KEY_ARCH)!r}, this sb3-coma builds {ARCHITECTURE!r}"
+        )
+    try:
+        grid_size = int(meta[_KEY_GRID])
+        channels = tuple(int(c) for c in meta[_KEY_CHANNELS].split(","))
+        return SenDFuseConfig(grid_size=grid_size, channels=channels)  # type: ignore[arg-type]
+    except (KeyError, ValueError) as exc:
+        raise SenDFuseWeightsError(f"{target}: bad architecture record in metadata ({exc})") from exc
+
+
+def _check_expected(config: SenDFuseConfig, expected: SenDFuseConfig | Mapping[str, Any] | None, target: Path) -> None:
+    if expected is None:
+        return
+    wanted = expected.as_dict() if isinstance(expected, SenDFuseConfig) else dict(expected)
+    known = set(config.as_dict())
+    unknown = set(wanted) - known
+    if unknown:
+        raise ValueError(f"expected_config has unknown keys {sorted(unknown)}; known: {sorted(known)}")
+    actual = config.as_dict()
+    diffs = []
+    for key, value in wanted.items():
+        value = tuple(value) if key == "channels" else value
+        if actual[key] != value:
+            diffs.append(f"{key}: file has {actual[key]!r}, expected {value!r}")
+    if diffs:
+        raise SenDFuseWeightsError(
+            f"{target} does not match the expected SenDFuse configuration ({'; '.join(diffs)}); "
+            f"use weights trained for this setting or {_HOW_TO_CREATE}"
+        )
+
+
+def load_weights(
+    path: str | os.PathLike[str] | None = None,
+    expected_config: SenDFuseConfig | Mapping[str, Any] | None = None,
+) -> SenDFuseNet:
+    """Rebuild a :class:`SenDFuseNet` from a weight file and load its weights (CPU, eval mode).
+
+    Args:
+        path: the file; ``None`` means :func:`default_weights_path` (the shipped weights).
+        expected_config: a :class:`SenDFuseConfig`, or a dict with some of its fields (e.g.
+            ``{"grid_size": 44}`` from the environment's ``comm_grid``); a mismatch is an error
+            rather than a network that silently expects another grid.
+
+    Raises:
+        SenDFuseWeightsError: missing file, not safetensors / truncated / corrupt (checksum),
+            not a SenDFuse file, unsupported version, missing or unexpected tensors, wrong
+            shapes or dtypes, non-finite values, or a config mismatch.
+    """
+    from safetensors import safe_open
+
+    target = _resolve(path)
+    try:
+        with safe_open(str(target), framework="pt") as handle:
+            meta = dict(handle.metadata() or {})
+            tensors = {name: handle.get_tensor(name) for name in handle.keys()}
+    except Exception as exc:  # SafetensorError, OSError, ...: the header or the layout is broken
+        raise SenDFuseWeightsError(
+            f"{target} is not a readable safetensors file (truncated or corrupt?): {exc}; "
+            f"re-download or {_HOW_TO_CREATE}"
+        ) from exc
+    config = _config_from_metadata(meta, target)
+    _check_expected(config, expected_config, target)
+
+    model = SenDFuseNet.from_config(config)
+    reference = model.state_dict()
+    missing = sorted(set(reference) - set(tensors))
+    unexpected = sorted(set(tensors) - set(reference))
+    if missing or unexpected:
+        raise SenDFuseWeightsError(
+            f"{target} does not hold the tensors of a {ARCHITECTURE} network with {config.as_dict()}: "
+            f"missing {missing or 'none'}, unexpected {unexpected or 'none'}"
+        )
+    for name, tensor in tensors.items():
+        if tuple(tensor.shape) != tuple(reference[name].shape):
+            raise SenDFuseWeightsError(
+                f"{target}: tensor {name!r} has shape {tuple(tensor.shape)}, "
+                f"the architecture record implies {tuple(reference[name].shape)}"
+            )
+        if tensor.dtype != reference[name].dtype:
+            raise SenDFuseWeightsError(
+                f"{target}: tensor {name!r} has dtype {tensor.dtype}, expected {reference[name].dtype}"
+            )
+    stored_digest = meta.get(_KEY_SHA)
+    if stored_digest is None:
+        raise SenDFuseWeightsError(f"{target}: metadata lacks the {_KEY_SHA!r} checksum; {_HOW_TO_CREATE}")
+    if _digest(tensors) != stored_digest:
+        raise SenDFuseWeightsError(
+            f"{target}: tensor data does not match its checksum (corrupt file); re-download or {_HOW_TO_CREATE}"
+        )
+    for name, tensor in tensors.items():
+        if not bool(torch.isfinite(tensor).all()):
+            raise SenDFuseWeightsError(f"{target}: tensor {name!r} holds NaN or inf (diverged training?)")
+    model.load_state_dict(tensors)
+    model.weights_metadata = meta
+    return model.eval()
