@@ -63,6 +63,7 @@ class IppConfig:
     comm_grid: int = 44
     alpha: float = 10.0
     beta: float = -0.17
+    reward_entropy: str = "plain"
     render_mode: str | None = None
 
     # ------------------------------------------------------------------ derived values
@@ -165,6 +166,8 @@ class IppConfig:
             _fail("comm_grid", self.comm_grid, f"a multiple of 4 between 4 and grid ({self.grid})")
         if not math.isfinite(self.alpha) or not math.isfinite(self.beta):
             _fail("alpha/beta", (self.alpha, self.beta), "finite reward scale and offset")
+        if self.reward_entropy not in ("plain", "weighted"):
+            _fail("reward_entropy", self.reward_entropy, "'plain' (binary entropy of every cell) or 'weighted' (ipp-marl's class weighting)")
         if self.render_mode not in (None, "rgb_array", "ansi"):
             _fail("render_mode", self.render_mode, "None, 'rgb_array' or 'ansi'")
         if self.map_seed is not None and (not is_int(self.map_seed) or self.map_seed < 0):

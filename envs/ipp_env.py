@@ -57,7 +57,7 @@ class UavIppEnv(ParallelEnv):
         self.possible_agents = [f"uav_{i}" for i in range(cfg.n_uavs)]
         self.agents: list[str] = []
         self.geometry = FieldGeometry(cfg)
-        self._lut = _table()
+        self._lut = _table(cfg.reward_entropy)
         self._alt_levels = len(cfg.altitudes)
         self._increments = np.array([kernels.fixed_point_increment(cfg.flip_probability[a]) for a in cfg.altitudes])
         self._local_increments = self._increments / kernels.SCALE
@@ -197,7 +197,7 @@ class UavIppEnv(ParallelEnv):
         self._block_prob = 0.5 * geo.block_area
         self._block_ent = geo.block_area.copy()
         self._block_cov = np.zeros((L, L), dtype=np.float64)
-        self._went_total = float(kernels.weighted_entropy(np.array(0.5))) * G * G
+        self._went_total = float(kernels.reward_entropy(np.array(0.5), cfg.reward_entropy)) * G * G
         self._ent_true = float(self._n_valuable)
         self._tp = 0
         self._pp = 0
@@ -347,7 +347,7 @@ class UavIppEnv(ParallelEnv):
         return {
             "f1": float(f1),
             "entropy": float(max(entropy, 0.0)),
-            "weighted_entropy": float(self._went_total),
+            "reward_entropy": float(self._went_total),
             "coverage": float(self._block_cov.sum() / self.config.grid ** 2),
             "budget_left": int(self._budget_left),
         }
@@ -385,6 +385,6 @@ class UavIppEnv(ParallelEnv):
         pass
 
 
-@functools.lru_cache(maxsize=1)
-def _table() -> np.ndarray:
-    return kernels.build_table()
+@functools.lru_cache(maxsize=2)
+def _table(kind: str) -> np.ndarray:
+    return kernels.build_table(kind)

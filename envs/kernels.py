@@ -54,16 +54,28 @@ def weighted_entropy(p: np.ndarray) -> np.ndarray:
     return class_weight(p) * binary_entropy(pc)
 
 
-def build_table() -> np.ndarray:
+REWARD_ENTROPIES = ("plain", "weighted")
+
+
+def reward_entropy(p: np.ndarray, kind: str = "plain") -> np.ndarray:
+    """Per-cell entropy that the reward sums: ``plain`` binary entropy or ipp-marl's ``weighted``."""
+    if kind == "weighted":
+        return weighted_entropy(p)
+    if kind == "plain":
+        return binary_entropy(p)
+    raise ValueError(f"unknown reward entropy {kind!r}; choose one of {REWARD_ENTROPIES}")
+
+
+def build_table(kind: str = "plain") -> np.ndarray:
     """Packed look-up table over every int16 log-odds value.
 
-    Row ``v + 32768`` holds (class-weighted entropy, entropy in bits, probability, 0) of the
-    log-odds ``v / SCALE``; float32 keeps the table at 1 MiB, sums are accumulated in float64.
+    Row ``v + 32768`` holds (reward entropy, entropy in bits, probability, 0) of the log-odds
+    ``v / SCALE``; float32 keeps the table at 1 MiB, sums are accumulated in float64.
     """
     values = (np.arange(LUT_SIZE, dtype=np.float64) - LUT_OFFSET) / SCALE
     p = 1.0 / (1.0 + np.exp(-values))
     table = np.zeros((LUT_SIZE, 4), dtype=np.float32)
-    table[:, 0] = weighted_entropy(p)
+    table[:, 0] = reward_entropy(p, kind)
     table[:, 1] = binary_entropy(p)
     table[:, 2] = p
     return table
@@ -101,9 +113,9 @@ def measure_global(logodds, truth, measured, r0, r1, c0, c1, increment, threshol
                    block_of_cell, comm_of_cell, block_prob, block_ent, block_cov, comm_sum, comm_cnt):
     """Take one noisy measurement over a footprint and fold it into the global belief.
 
-    ``lut`` is the packed (65536, 4) float32 table of (weighted entropy, entropy, probability, 0)
+    ``lut`` is the packed (65536, 4) float32 table of (reward entropy, entropy, probability, 0)
     per fixed-point log-odds value: one cache line serves all three look-ups of a cell.
-    Returns (change of the class-weighted entropy total, change of the entropy summed over
+    Returns (change of the reward-entropy total, change of the entropy summed over
     valuable cells, change of true positives, change of predicted positives). Block sums and the
     footprint's readings per comm-grid cell are accumulated in place; per-cell sums are flushed
     once per run of cells that share a block and a comm cell, so no store-to-load chain

@@ -15,6 +15,7 @@ _EXPORTS: dict[str, str] = {
     "COMA": "sb3_coma.coma",
     "CBAMPolicy": "sb3_coma.coma",
     "CnnPolicy": "sb3_coma.coma",
+    "COMAPolicy": "sb3_coma.coma",
     "CBAMExtractor": "sb3_coma.extractors",
     "CnnExtractor": "sb3_coma.extractors",
     "SenDFuseNet": "sb3_coma.sendfuse",

@@ -143,7 +143,11 @@ def test_incremental_bookkeeping_matches_full_recompute():
     f1 = 2 * tp / (pred.sum() + truth.sum())
     assert info["f1"] == pytest.approx(f1, abs=1e-9)
     assert info["entropy"] == pytest.approx(kernels.binary_entropy(p[truth]).mean(), abs=1e-4)
-    assert info["weighted_entropy"] == pytest.approx(kernels.weighted_entropy(p).sum(), rel=1e-4)
+    assert info["reward_entropy"] == pytest.approx(kernels.binary_entropy(p).sum(), rel=1e-4)
+    weighted = envs.make_env("env1", budget=10, reward_entropy="weighted")
+    info_w = random_episode(weighted, seed=2)[-1][1]
+    p_w = weighted.global_belief().astype(np.float64)
+    assert info_w["reward_entropy"] == pytest.approx(kernels.weighted_entropy(p_w).sum(), rel=1e-4)
     geo = env.geometry
     state = obs["uav_0"][layout.KEY_STATE]
     blocks = np.zeros((11, 11))
@@ -179,9 +183,9 @@ def test_metrics_on_hand_made_map(tmp_path):
 def test_reward_sign_and_scale():
     env = envs.make_env("env1", budget=3)
     env.reset(seed=0)
-    h0 = env.metrics()["weighted_entropy"]
+    h0 = env.metrics()["reward_entropy"]
     _, rewards, _, _, infos = env.step({a: 5 for a in env.agents})  # all descend: fresh cells
-    h1 = infos["uav_0"]["weighted_entropy"]
+    h1 = infos["uav_0"]["reward_entropy"]
     expected = 10.0 * (h0 - h1) / h0 - 0.17
     assert all(r == pytest.approx(expected) for r in rewards.values())
     assert h1 < h0 and rewards["uav_0"] > -0.17
@@ -310,6 +314,7 @@ BAD_OPTIONS = [
     ({"n_uavs": 2, "start_positions": [(10, 10, 15), (10, 10, 5)]}, "start_positions"),
     ({"n_uavs": 1, "start_positions": [(12, 10, 15)]}, "start_positions"),
     ({"render_mode": "human"}, "render_mode"),
+    ({"reward_entropy": "fancy"}, "reward_entropy"),
     ({"colour": "blue"}, "colour"),
     ({"lattice": 1}, "lattice"),
 ]

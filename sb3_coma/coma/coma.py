@@ -1,0 +1,494 @@
+"""COMA (Foerster et al. 2018) as a Stable-Baselines3 on-policy algorithm.
+
+One vec env row per agent, ``N`` agents per env copy (agent ``a`` of copy ``e`` at row
+``e * N + a``). Each rollout is regrouped into joint steps ``(T, E, N)``; the centralised critic
+learns ``Q(s, u_-i, .)`` from TD(lambda) targets of a target critic; the shared actor follows
+``-log pi(u_i | o_i) * A_i`` with COMA's counterfactual advantage over valid actions.
+
+Time is counted in **joint steps**: ``num_timesteps`` grows by one per env copy per step (not
+per agent), so ``learn(total_timesteps)`` means joint steps. The paper trains 1200 missions of
+15 steps: ``total_timesteps=18_000``. ``n_steps`` is per env copy, ``batch_size`` in joint steps.
+
+Choices the paper leaves open, as implemented here:
+
+* Rollouts end mid-mission; the last TD(lambda) target is bootstrapped with the target critic's
+  expected value under the current policy, ``sum_u pi(u|o_i) Q_target(s, (u_-i, u))``, where
+  ``u_-i`` are drawn from the current policy (no exploration). Episode ends cut the return;
+  a time-limit truncation (``TimeLimit.truncated``) adds ``gamma * V(terminal state)`` instead.
+* Per rollout: ``n_critic_epochs`` passes of critic minibatch updates, then one pass of actor
+  updates (on-policy, so no more). The advantages use the critic's Q as scored in its last
+  epoch, just before each minibatch's own update, which saves a forward pass over the rollout.
+* An epoch's last minibatch holds the remainder when the rollout is not a multiple of it.
+* Exploration mixes the policy with the uniform distribution over *valid* actions; the actor
+  loss uses the policy's own log-probabilities.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import (
+    FloatSchedule,
+    LinearSchedule,
+    explained_variance,
+    safe_mean,
+    update_learning_rate,
+)
+from stable_baselines3.common.vec_env import VecEnv
+from torch.nn import functional as F
+
+from envs import layout
+from sb3_coma.coma.buffer import JointRolloutBuffer
+from sb3_coma.coma.policies import CBAMPolicy, CnnPolicy, COMAPolicy
+from sb3_coma.coma.progress import JointStepProgressBar
+from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
+from sb3_coma.coma.validation import (
+    check_batch_fits_rollout,
+    check_positive_int,
+    check_positive_rate,
+    check_spaces,
+    check_unit_interval,
+    resolve_n_agents,
+)
+
+SelfCOMA = TypeVar("SelfCOMA", bound="COMA")
+
+__all__ = ["COMA"]
+
+#: Joint steps per forward pass when the target critic scores a whole rollout (bounds memory).
+_SCORING_CHUNK = 1024
+
+
+class COMA(OnPolicyAlgorithm):
+    """Counterfactual multi-agent policy gradients with a shared actor and a centralised critic.
+
+    :param policy: ``"CBAMPolicy"`` (paper), ``"CnnPolicy"`` (ablation) or a ``COMAPolicy`` subclass
+    :param env: an SB3 ``VecEnv`` with one row per agent and an ``n_agents`` attribute
+        (``envs.make_vec_env``); may be ``None`` only when loading for prediction
+    :param learning_rate: actor learning rate (Adam), float or schedule; paper 1e-5
+    :param critic_learning_rate: critic learning rate (Adam), float or schedule; paper 1e-4
+    :param n_steps: steps per env copy per rollout; ``None`` picks the smallest count that holds
+        ``batch_size`` joint steps (``ceil(batch_size / n_copies)``)
+    :param batch_size: minibatch size in joint steps (all agents of a step stay together); paper 512
+    :param n_critic_epochs: passes of critic minibatch updates over each rollout
+    :param gamma: discount factor
+    :param td_lambda: TD(lambda) trace decay for the critic targets
+    :param ent_coef: entropy bonus weight in the actor loss
+    :param max_grad_norm: gradient-norm clip for actor and critic
+    :param normalize_advantage: standardise advantages per actor minibatch
+    :param target_update_interval: critic updates between target-critic synchronisations
+    :param tau: ``None`` for a hard copy at each synchronisation, else the Polyak coefficient
+    :param exploration_initial_eps: initial weight of uniform-over-valid-actions exploration
+    :param exploration_final_eps: final weight
+    :param exploration_fraction: fraction of training over which epsilon anneals linearly
+    :param stats_window_size: episodes averaged in the rollout/ logs
+    :param tensorboard_log: TensorBoard log folder (``None``: no TensorBoard)
+    :param policy_kwargs: extra arguments for the policy (extractor classes and kwargs, ...)
+    :param verbose: 0 silent, 1 info, 2 debug
+    :param seed: seed for torch, numpy, python and the env
+    :param device: torch device
+    :param _init_setup_model: build networks now (SB3's ``load`` passes ``False``)
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "CBAMPolicy": CBAMPolicy,
+        "CnnPolicy": CnnPolicy,
+        "COMAPolicy": COMAPolicy,
+    }
+    policy: COMAPolicy
+    rollout_buffer: JointRolloutBuffer  # type: ignore[assignment]
+
+    def __init__(
+        self,
+        policy: str | type[COMAPolicy],
+        env: GymEnv | None,
+        learning_rate: float | Schedule = 1e-5,
+        critic_learning_rate: float | Schedule = 1e-4,
+        n_steps: int | None = None,
+        batch_size: int = 512,
+        n_critic_epochs: int = 1,
+        gamma: float = 0.99,
+        td_lambda: float = 0.8,
+        ent_coef: float = 0.0,
+        max_grad_norm: float = 10.0,
+        normalize_advantage: bool = False,
+        target_update_interval: int = 1,
+        tau: float | None = None,
+        exploration_initial_eps: float = 0.0,
+        exploration_final_eps: float = 0.0,
+        exploration_fraction: float = 0.5,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        policy_class = self._resolve_policy(policy)
+        n_agents: int | None = None
+        if env is not None:
+            n_agents = resolve_n_agents(env)  # type: ignore[arg-type]
+            check_spaces(env.observation_space, env.action_space)
+        check_positive_rate("learning_rate", learning_rate)
+        check_positive_rate("critic_learning_rate", critic_learning_rate)
+        check_unit_interval("gamma", gamma)
+        check_unit_interval("td_lambda", td_lambda)
+        check_positive_int("batch_size", batch_size)
+        check_positive_int("n_critic_epochs", n_critic_epochs)
+        check_positive_int("target_update_interval", target_update_interval)
+        if n_steps is not None:
+            check_positive_int("n_steps", n_steps)
+        if tau is not None:
+            check_unit_interval("tau", tau, low_open=True)
+        check_unit_interval("exploration_initial_eps", exploration_initial_eps)
+        check_unit_interval("exploration_final_eps", exploration_final_eps)
+        check_unit_interval("exploration_fraction", exploration_fraction, low_open=True)
+        if not ent_coef >= 0:
+            raise ValueError(f"ent_coef must be >= 0, got {ent_coef!r}")
+        if not max_grad_norm > 0:
+            raise ValueError(f"max_grad_norm must be positive, got {max_grad_norm!r}")
+        if env is not None and n_steps is not None:
+            assert n_agents is not None
+            check_batch_fits_rollout(batch_size, n_steps, env.num_envs // n_agents)
+
+        super().__init__(
+            policy_class,
+            env,
+            learning_rate=learning_rate,
+            n_steps=n_steps or 1,  # resolved in _setup_model
+            gamma=gamma,
+            gae_lambda=td_lambda,
+            ent_coef=ent_coef,
+            vf_coef=1.0,
+            max_grad_norm=max_grad_norm,
+            use_sde=False,
+            sde_sample_freq=-1,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+            supported_action_spaces=(spaces.Discrete,),
+        )
+        self.n_agents = n_agents
+        self.n_steps_requested = n_steps
+        self.critic_learning_rate = critic_learning_rate
+        self.batch_size = batch_size
+        self.n_critic_epochs = n_critic_epochs
+        self.td_lambda = td_lambda
+        self.normalize_advantage = normalize_advantage
+        self.target_update_interval = target_update_interval
+        self.tau = tau
+        self.exploration_initial_eps = exploration_initial_eps
+        self.exploration_final_eps = exploration_final_eps
+        self.exploration_fraction = exploration_fraction
+        self.exploration_rate = exploration_initial_eps
+        self._n_critic_updates = 0
+        self._n_target_updates = 0
+        if _init_setup_model:
+            self._setup_model()
+
+    # ------------------------------------------------------------ set-up
+    @classmethod
+    def _resolve_policy(cls, policy: str | type[COMAPolicy]) -> type[COMAPolicy]:
+        """Map an alias to its class here (SB3's base refuses "CnnPolicy" on Dict spaces)."""
+        if isinstance(policy, str):
+            if policy not in cls.policy_aliases:
+                raise ValueError(f"unknown policy alias {policy!r}; COMA knows {sorted(cls.policy_aliases)}")
+            return cls.policy_aliases[policy]  # type: ignore[return-value]
+        if not (isinstance(policy, type) and issubclass(policy, COMAPolicy)):
+            raise TypeError(f"policy must be an alias or a COMAPolicy subclass, got {policy!r}")
+        return policy
+
+    def _setup_model(self) -> None:
+        """Build schedules, buffer and policy from attributes alone (``load`` relies on that)."""
+        self._setup_lr_schedule()
+        self.critic_lr_schedule = FloatSchedule(self.critic_learning_rate)
+        self.exploration_schedule = LinearSchedule(
+            self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
+        )
+        if self.env is not None:
+            check_spaces(self.observation_space, self.action_space)
+            self.n_agents = resolve_n_agents(self.env)
+            self.n_envs = self.env.num_envs
+        if self.n_agents is None:
+            raise ValueError("n_agents is unknown: pass an env built by envs.make_vec_env")
+        self.n_copies = self.n_envs // self.n_agents
+        if self.n_steps_requested is None:
+            self.n_steps = math.ceil(self.batch_size / self.n_copies)
+        else:
+            self.n_steps = self.n_steps_requested
+        check_batch_fits_rollout(self.batch_size, self.n_steps, self.n_copies)
+        self.set_random_seed(self.seed)
+
+        self.rollout_buffer = JointRolloutBuffer(
+            self.n_steps,
+            self.n_copies,
+            self.n_agents,
+            self.observation_space,  # type: ignore[arg-type]
+            device=self.device,
+        )
+        self.policy = self.policy_class(  # type: ignore[assignment]
+            self.observation_space,
+            self.action_space,
+            self.lr_schedule,
+            critic_lr_schedule=self.critic_lr_schedule,
+            **self.policy_kwargs,
+        )
+        self.policy = self.policy.to(self.device)
+        self._ep_metrics: dict[str, deque] = {
+            "f1": deque(maxlen=self._stats_window_size),
+            "entropy": deque(maxlen=self._stats_window_size),
+        }
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        """The policy holds actor, critic and target critic; both optimizers are saved too."""
+        return ["policy", "policy.optimizer", "policy.critic_optimizer"], []
+
+    # ----------------------------------------------------------- helpers
+    def _obs_tensors(self, obs: dict[str, np.ndarray], grouped: bool) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """``local``, ``state``, ``mask`` as tensors; ``grouped`` reshapes rows to ``(E, N, ...)``."""
+        out = []
+        for key in (layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK):
+            x = th.as_tensor(obs[key], device=self.device).float()
+            if grouped:
+                x = x.view(-1, self.n_agents, *x.shape[1:])
+            out.append(x)
+        return out[0], out[1], out[2]
+
+    @th.no_grad()
+    def _expected_target_values(self, obs: dict[str, np.ndarray]) -> th.Tensor:
+        """``V_i(s) = sum_u pi(u|o_i) Q_target(s, (u_-i, u))`` per agent of every copy in ``obs``.
+
+        The other agents' actions ``u_-i`` are drawn from the current policy (no exploration),
+        so this is the on-policy value of the state the rollout stopped in.
+        """
+        local, state, mask = self._obs_tensors(obs, grouped=True)
+        flat_local, flat_mask = local.flatten(0, 1), mask.flatten(0, 1)
+        probs = self.policy.action_probs(flat_local, flat_mask)
+        actions = th.multinomial(probs, 1).view(local.shape[:2])
+        q = self.policy.q_values(local, state, actions, target=True)
+        return (probs.view(q.shape) * q).sum(-1)
+
+    def _bootstrap_truncations(self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]) -> np.ndarray:
+        """Add ``gamma * V(terminal state)`` where an episode was cut by a time limit, not ended."""
+        truncated = [
+            i for i, done in enumerate(dones) if done and infos[i].get("TimeLimit.truncated", False)
+            and infos[i].get("terminal_observation") is not None
+        ]
+        if not truncated:
+            return rewards
+        rewards = np.array(rewards, dtype=np.float32, copy=True)
+        copies = sorted({i // self.n_agents for i in truncated})
+        rows = [c * self.n_agents + a for c in copies for a in range(self.n_agents)]
+        terminal = {
+            key: np.stack([infos[r]["terminal_observation"][key] for r in rows])
+            for key in (layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK)
+        }
+        values = self._expected_target_values(terminal).flatten().cpu().numpy()
+        for row, value in zip(rows, values):
+            if row in truncated:
+                rewards[row] += self.gamma * value
+        return rewards
+
+    def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
+        """Record each mission once (from its first agent's row), with its final F1 and entropy."""
+        assert self.ep_info_buffer is not None
+        for row in range(0, len(infos), self.n_agents or 1):
+            info = infos[row]
+            episode = info.get("episode")
+            if episode is not None:
+                self.ep_info_buffer.append(episode)
+            if dones is not None and dones[row]:
+                for key in ("f1", "entropy"):
+                    if key in info:
+                        self._ep_metrics[key].append(float(info[key]))
+
+    # ---------------------------------------------------------- rollouts
+    def collect_rollouts(
+        self,
+        env: VecEnv,
+        callback: BaseCallback,
+        rollout_buffer: RolloutBuffer,  # type: ignore[override]
+        n_rollout_steps: int,
+    ) -> bool:
+        """Act with all agents of all copies in one forward pass per step; store joint steps."""
+        assert self._last_obs is not None, "No previous observation was provided"
+        buffer: JointRolloutBuffer = rollout_buffer  # type: ignore[assignment]
+        self.policy.set_training_mode(False)
+        buffer.reset()
+        callback.on_rollout_start()
+
+        new_obs = self._last_obs
+        while buffer.pos < n_rollout_steps:
+            self.exploration_rate = self.exploration_schedule(
+                1.0 - float(self.num_timesteps) / float(max(self._total_timesteps, 1))
+            )
+            with th.no_grad():
+                local, _, mask = self._obs_tensors(self._last_obs, grouped=False)  # type: ignore[arg-type]
+                actions = self.policy.act(local, mask, epsilon=self.exploration_rate).cpu().numpy()
+
+            new_obs, rewards, dones, infos = env.step(actions)
+            self.num_timesteps += self.n_copies  # joint steps, not agent steps
+
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return False
+            self._update_info_buffer(infos, dones)
+            rewards = self._bootstrap_truncations(rewards, dones, infos)
+            buffer.add(self._last_obs, actions, rewards, dones)  # type: ignore[arg-type]
+            self._last_obs = new_obs  # type: ignore[assignment]
+            self._last_episode_starts = dones
+
+        buffer.set_bootstrap(self._expected_target_values(new_obs).cpu().numpy())  # type: ignore[arg-type]
+        callback.update_locals(locals())
+        callback.on_rollout_end()
+        return True
+
+    # ---------------------------------------------------------- training
+    @th.no_grad()
+    def _td_targets(self) -> th.Tensor:
+        """TD(lambda) targets ``(T * E, N)`` from the target critic's Q at the taken joint actions."""
+        data = self.rollout_buffer.time_major()
+        T, E, N = data["actions"].shape
+        flat = {k: data[k].flatten(0, 1) for k in ("local", "state", "actions")}
+        q_taken = th.cat(
+            [
+                self.policy.q_values(flat["local"][idx], flat["state"][idx], flat["actions"][idx], target=True)
+                .gather(-1, flat["actions"][idx].unsqueeze(-1))
+                .squeeze(-1)
+                for idx in th.arange(T * E).split(_SCORING_CHUNK)
+            ]
+        ).view(T, E, N)
+        next_values = th.cat([q_taken[1:], data["bootstrap"][None]], dim=0)
+        targets = td_lambda_targets(data["rewards"], data["dones"], next_values, self.gamma, self.td_lambda)
+        return targets.flatten(0, 1)
+
+    def _critic_step(self, loss: th.Tensor) -> None:
+        opt = self.policy.critic_optimizer
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        th.nn.utils.clip_grad_norm_(self.policy.critic.parameters(), self.max_grad_norm)
+        opt.step()
+        self._n_critic_updates += 1
+        if self._n_critic_updates % self.target_update_interval == 0:
+            self.policy.sync_target(self.tau)
+            self._n_target_updates += 1
+
+    def train(self) -> None:
+        """Critic on TD(lambda) targets (``n_critic_epochs``), then one actor pass, per rollout.
+
+        The advantages use the critic's Q from its last epoch (each minibatch as scored just
+        before its own update), which saves a full extra forward pass over the rollout.
+        """
+        self.policy.set_training_mode(True)
+        progress = self._current_progress_remaining
+        update_learning_rate(self.policy.optimizer, self.lr_schedule(progress))
+        update_learning_rate(self.policy.critic_optimizer, self.critic_lr_schedule(progress))
+
+        targets = self._td_targets()
+        data = self.rollout_buffer.joint_steps()
+        local, state, mask, actions = data["local"], data["state"], data["mask"], data["actions"]
+        n_joint = actions.shape[0]
+        q_all = th.zeros(*actions.shape, self.policy.n_actions, device=self.device)
+
+        critic_losses = []
+        for epoch in range(self.n_critic_epochs):
+            for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
+                q = self.policy.q_values(local[idx], state[idx], actions[idx])
+                q_taken = q.gather(-1, actions[idx].unsqueeze(-1)).squeeze(-1)
+                loss = F.mse_loss(q_taken, targets[idx])
+                self._critic_step(loss)
+                critic_losses.append(loss.item())
+                if epoch == self.n_critic_epochs - 1:
+                    q_all[idx] = q.detach()
+
+        actor_losses, entropies, advantages, q_taken_all = [], [], [], []
+        for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
+            b_local, b_mask, b_actions = local[idx].flatten(0, 1), mask[idx].flatten(0, 1), actions[idx].flatten()
+            logits = self.policy.masked_logits(b_local, b_mask)
+            log_probs = th.log_softmax(logits, dim=-1)
+            probs = log_probs.exp()
+            advantage, _, q_taken = counterfactual_advantage(q_all[idx].flatten(0, 1), b_actions, probs.detach())
+            advantages.append(advantage)
+            q_taken_all.append(q_taken)
+            if self.normalize_advantage and advantage.numel() > 1:
+                advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
+            log_prob_taken = log_probs.gather(-1, b_actions.unsqueeze(-1)).squeeze(-1)
+            entropy = -(probs * log_probs).sum(-1).mean()
+            loss = -(log_prob_taken * advantage).mean() - self.ent_coef * entropy
+
+            self.policy.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            th.nn.utils.clip_grad_norm_(self.policy.actor.parameters(), self.max_grad_norm)
+            self.policy.optimizer.step()
+            actor_losses.append(loss.item())
+            entropies.append(entropy.item())
+        self._n_updates += 1
+
+        adv = th.cat(advantages)
+        q_taken_flat = q_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+        self.logger.record("train/critic_loss", float(np.mean(critic_losses)))
+        self.logger.record("train/actor_loss", float(np.mean(actor_losses)))
+        self.logger.record("train/q_mean", float(q_taken_flat.mean()))
+        self.logger.record("train/advantage_mean", float(adv.mean()))
+        self.logger.record("train/advantage_std", float(adv.std()) if adv.numel() > 1 else 0.0)
+        self.logger.record(
+            "train/explained_variance",
+            float(explained_variance(q_taken_flat.flatten().cpu().numpy(), targets.flatten().cpu().numpy())),
+        )
+        self.logger.record("train/epsilon", self.exploration_rate)
+        self.logger.record("train/entropy", float(np.mean(entropies)))
+        self.logger.record("train/target_updates", self._n_target_updates)
+        self.logger.record("train/critic_updates", self._n_critic_updates)
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/learning_rate", self.lr_schedule(progress))
+        self.logger.record("train/critic_learning_rate", self.critic_lr_schedule(progress))
+
+    # ----------------------------------------------------------- logging
+    def dump_logs(self, iteration: int = 0) -> None:
+        """SB3's rollout/time logs plus the mission's final F1 and entropy."""
+        if len(self._ep_metrics["f1"]) > 0:
+            self.logger.record("rollout/ep_f1", safe_mean(self._ep_metrics["f1"]))
+        if len(self._ep_metrics["entropy"]) > 0:
+            self.logger.record("rollout/ep_entropy", safe_mean(self._ep_metrics["entropy"]))
+        super().dump_logs(iteration)
+
+    def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
+        """SB3's callback set-up, with a progress bar that counts joint steps."""
+        callback = super()._init_callback(callback, progress_bar=False)
+        if progress_bar:
+            callback = CallbackList([callback, JointStepProgressBar()])
+            callback.init_callback(self)
+        return callback
+
+    def learn(
+        self: SelfCOMA,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 1,
+        tb_log_name: str = "COMA",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfCOMA:
+        """Train for ``total_timesteps`` **joint** steps (one per env copy per step)."""
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )

@@ -1,0 +1,247 @@
+"""COMA's policy: a shared masked actor, a centralised critic and its target, in one SB3 policy.
+
+Keeping critic, target critic and the critic's optimizer inside the policy (an ``nn.Module``)
+means SB3's ``save``/``load`` store and restore all of them with no special casing: the policy's
+``state_dict`` holds the three networks and ``policy.optimizer`` / ``policy.critic_optimizer``
+are listed in :meth:`COMA._get_torch_save_params`.
+
+Shapes: the actor works per agent on ``(B, ...)``; the critic works on whole joint steps,
+``(B, N, ...)`` with ``N`` agents, because agent ``i``'s critic input depends on the other agents'
+actions.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from functools import partial
+from typing import Any
+
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from torch import nn
+
+from envs import layout
+from sb3_coma.coma.masking import behaviour_probs, mask_logits, sample_actions
+from sb3_coma.extractors import CBAMExtractor, CnnExtractor
+
+__all__ = ["other_actions_map", "critic_input", "COMAPolicy", "CBAMPolicy", "CnnPolicy"]
+
+#: FOOTPRINT marks the current cell with 1.0 and earlier visits with 0.5; anything above this
+#: threshold is "here" (equivalent to ``== 1`` for those values, but immune to float round-off).
+_HERE_THRESHOLD = 0.75
+
+
+def other_actions_map(footprint: th.Tensor, actions: th.Tensor, n_actions: int = layout.N_ACTIONS) -> th.Tensor:
+    """The critic's 12th channel: for agent ``i``, ``(u_j + 1) / A`` at each other agent ``j``'s cell.
+
+    Agent ``j``'s cell is read from its own FOOTPRINT channel (1.0 at the current cell). Agent
+    ``i``'s own action never enters its map, which is what makes ``Q(s, u_-i, .)`` a function of
+    the other agents' actions only; the ``+ 1`` keeps action 0 distinguishable from "no UAV".
+
+    :param footprint: ``(B, N, H, W)``, each agent's FOOTPRINT channel
+    :param actions: ``(B, N)`` integer actions
+    :return: ``(B, N, H, W)``; if two UAVs ever shared a column the larger value wins
+    """
+    batch, n_agents = actions.shape
+    here = (footprint > _HERE_THRESHOLD).to(footprint.dtype)
+    contrib = here * ((actions.to(footprint.dtype) + 1.0) / n_actions)[:, :, None, None]  # (B, N, H, W)
+    others = 1.0 - th.eye(n_agents, dtype=footprint.dtype, device=footprint.device)  # [i, j] = j != i
+    # (B, 1, N, H, W) * (1, N, N, 1, 1) -> (B, N_i, N_j, H, W), then the max over j.
+    return (contrib[:, None] * others[None, :, :, None, None]).amax(dim=2)
+
+
+def critic_input(local: th.Tensor, state: th.Tensor, actions: th.Tensor) -> th.Tensor:
+    """Stack ``local`` (8) + ``state`` (3) + other agents' actions (1) into ``(B, N, 12, H, W)``."""
+    action_map = other_actions_map(local[:, :, layout.FOOTPRINT], actions)
+    return th.cat([local, state, action_map[:, :, None]], dim=2)
+
+
+class _Head(nn.Module):
+    """A features extractor followed by one linear layer to one output per action."""
+
+    def __init__(
+        self, features_extractor: BaseFeaturesExtractor, n_actions: int, gain: float, ortho_init: bool = True
+    ) -> None:
+        super().__init__()
+        self.features_extractor = features_extractor
+        self.head = nn.Linear(features_extractor.features_dim, n_actions)
+        if ortho_init:
+            # As SB3 does for A2C/PPO: PyTorch's default init shrinks activations through the
+            # ReLU trunk until features barely vary between inputs and the actor cannot learn.
+            features_extractor.apply(partial(BasePolicy.init_weights, gain=math.sqrt(2)))
+        nn.init.orthogonal_(self.head.weight, gain=gain)
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        return self.head(self.features_extractor(x))
+
+
+class COMAPolicy(BasePolicy):
+    """Shared actor ``pi(u | o_i)`` over ``obs["local"]`` + mask, centralised critic ``Q(s, u_-i, .)``.
+
+    :param observation_space: the per-agent ``Dict`` (``local``, ``state``, ``action_mask``)
+    :param action_space: ``Discrete(6)``
+    :param lr_schedule: actor learning-rate schedule (SB3 convention)
+    :param critic_lr_schedule: critic learning-rate schedule; defaults to ``lr_schedule``
+    :param features_extractor_class: the actor's trunk
+    :param features_extractor_kwargs: its keyword arguments
+    :param critic_features_extractor_class: the critic's trunk (defaults to the actor's class)
+    :param critic_features_extractor_kwargs: its keyword arguments (default: the actor's)
+    :param optimizer_class: optimizer for both networks (Adam, as in the paper)
+    :param optimizer_kwargs: extra optimizer arguments, shared by both
+    :param ortho_init: orthogonal initialisation (gain sqrt 2 in the trunks, 0.01 on the actor's
+        output so the first policy is near-uniform, 1 on the critic's), as SB3's A2C/PPO do
+    :param normalize_images: unused (all maps are float in [0, 1]); kept for SB3's signature
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Dict,
+        action_space: spaces.Discrete,
+        lr_schedule: Schedule,
+        critic_lr_schedule: Schedule | None = None,
+        features_extractor_class: type[BaseFeaturesExtractor] = CBAMExtractor,
+        features_extractor_kwargs: dict[str, Any] | None = None,
+        critic_features_extractor_class: type[BaseFeaturesExtractor] | None = None,
+        critic_features_extractor_kwargs: dict[str, Any] | None = None,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_kwargs: dict[str, Any] | None = None,
+        ortho_init: bool = True,
+        normalize_images: bool = False,
+    ) -> None:
+        super().__init__(
+            observation_space,
+            action_space,
+            features_extractor_class=features_extractor_class,
+            features_extractor_kwargs=features_extractor_kwargs,
+            normalize_images=normalize_images,
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+        )
+        self.critic_features_extractor_class = critic_features_extractor_class or features_extractor_class
+        self.critic_features_extractor_kwargs = (
+            dict(self.features_extractor_kwargs)
+            if critic_features_extractor_kwargs is None
+            else dict(critic_features_extractor_kwargs)
+        )
+        self.n_actions = int(action_space.n)
+        self.ortho_init = ortho_init
+        self._build(lr_schedule, critic_lr_schedule or lr_schedule)
+
+    def _build(self, lr_schedule: Schedule, critic_lr_schedule: Schedule) -> None:
+        local = self.observation_space[layout.KEY_LOCAL]
+        state = self.observation_space[layout.KEY_STATE]
+        channels = local.shape[0] + state.shape[0] + 1
+        critic_space = spaces.Box(0.0, 1.0, (channels, *local.shape[1:]), dtype=local.dtype)
+        actor_space = spaces.Box(0.0, 1.0, local.shape, dtype=local.dtype)
+
+        # Small output gain: a near-uniform initial policy explores every valid action.
+        self.actor = _Head(
+            self.features_extractor_class(actor_space, **self.features_extractor_kwargs),
+            self.n_actions,
+            gain=0.01,
+            ortho_init=self.ortho_init,
+        )
+        self.critic = _Head(
+            self.critic_features_extractor_class(critic_space, **self.critic_features_extractor_kwargs),
+            self.n_actions,
+            gain=1.0,
+            ortho_init=self.ortho_init,
+        )
+        self.critic_target = copy.deepcopy(self.critic)
+        self.critic_target.requires_grad_(False)
+        self.critic_target.train(False)
+
+        self.optimizer = self.optimizer_class(self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+        self.critic_optimizer = self.optimizer_class(
+            self.critic.parameters(), lr=critic_lr_schedule(1), **self.optimizer_kwargs
+        )
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            lr_schedule=self._dummy_schedule,
+            critic_lr_schedule=self._dummy_schedule,
+            features_extractor_class=self.features_extractor_class,
+            features_extractor_kwargs=self.features_extractor_kwargs,
+            critic_features_extractor_class=self.critic_features_extractor_class,
+            critic_features_extractor_kwargs=self.critic_features_extractor_kwargs,
+            optimizer_class=self.optimizer_class,
+            optimizer_kwargs=self.optimizer_kwargs,
+            ortho_init=self.ortho_init,
+        )
+        return data
+
+    def set_training_mode(self, mode: bool) -> None:
+        """Train/eval mode for actor and critic; the target critic always stays in eval mode."""
+        self.actor.train(mode)
+        self.critic.train(mode)
+        self.training = mode
+
+    # ----------------------------------------------------------------- actor
+    def masked_logits(self, local: th.Tensor, mask: th.Tensor) -> th.Tensor:
+        """Actor logits with invalid actions pushed to a large negative value. ``(B, A)``."""
+        return mask_logits(self.actor(local), mask)
+
+    def action_probs(self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0) -> th.Tensor:
+        """Behaviour probabilities (policy mixed with uniform-over-valid by ``epsilon``)."""
+        return behaviour_probs(self.masked_logits(local, mask), mask, epsilon)
+
+    def act(self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0, deterministic: bool = False) -> th.Tensor:
+        """One action per agent row; all agents of all env copies in a single forward pass."""
+        if deterministic:
+            return sample_actions(self.masked_logits(local, mask), deterministic=True)
+        return sample_actions(self.action_probs(local, mask, epsilon))
+
+    def forward(self, obs: PyTorchObs, deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
+        return self._predict(obs, deterministic)
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
+        assert isinstance(observation, dict)
+        local = observation[layout.KEY_LOCAL].float()
+        mask = observation[layout.KEY_MASK].float()
+        return self.act(local, mask, deterministic=deterministic)
+
+    # ---------------------------------------------------------------- critic
+    def q_values(self, local: th.Tensor, state: th.Tensor, actions: th.Tensor, target: bool = False) -> th.Tensor:
+        """``Q(s, u_-i, .)`` for every agent of every joint step: ``(B, N, A)`` in one pass.
+
+        :param local: ``(B, N, 8, H, W)``
+        :param state: ``(B, N, 3, H, W)``
+        :param actions: ``(B, N)`` joint actions (agent ``i``'s own entry does not matter for row ``i``)
+        :param target: use the target critic
+        """
+        batch, n_agents = actions.shape
+        x = critic_input(local, state, actions).flatten(0, 1)
+        net = self.critic_target if target else self.critic
+        return net(x).view(batch, n_agents, self.n_actions)
+
+    @th.no_grad()
+    def sync_target(self, tau: float | None = None) -> None:
+        """Copy the critic into the target (``tau=None``) or move it by Polyak averaging."""
+        if tau is None:
+            self.critic_target.load_state_dict(self.critic.state_dict())
+            return
+        for target_param, param in zip(self.critic_target.parameters(), self.critic.parameters()):
+            target_param.mul_(1.0 - tau).add_(param, alpha=tau)
+        for target_buf, buf in zip(self.critic_target.buffers(), self.critic.buffers()):
+            target_buf.copy_(buf)
+
+
+class CBAMPolicy(COMAPolicy):
+    """CBAM actor + CBAM critic: the paper's networks."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("features_extractor_class", CBAMExtractor)
+        super().__init__(*args, **kwargs)
+
+
+class CnnPolicy(COMAPolicy):
+    """Plain-CNN actor + plain-CNN critic: the ablation without attention."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("features_extractor_class", CnnExtractor)
+        super().__init__(*args, **kwargs)

@@ -1,0 +1,126 @@
+"""Argument and environment checks for COMA, raising errors that name the bad value.
+
+They run before any network is built, so a wrong env or hyperparameter fails at construction
+with a message saying what was expected, instead of a shape error deep inside a rollout.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from gymnasium import spaces
+from stable_baselines3.common.vec_env import VecEnv
+
+from envs import layout
+
+__all__ = [
+    "resolve_n_agents",
+    "check_spaces",
+    "check_positive_rate",
+    "check_unit_interval",
+    "check_positive_int",
+    "check_batch_fits_rollout",
+]
+
+
+def resolve_n_agents(env: VecEnv) -> int:
+    """Agents per env copy, read from the vec env (wrappers forward the attribute).
+
+    :raises TypeError: ``env`` is not an SB3 ``VecEnv``
+    :raises ValueError: no usable ``n_agents``, or ``num_envs`` not a multiple of it
+    """
+    if not isinstance(env, VecEnv):
+        raise TypeError(
+            f"COMA needs an SB3 VecEnv whose rows are agents (e.g. envs.make_vec_env(...)), got {type(env).__name__}"
+        )
+    n_agents: Any = getattr(env, "n_agents", None)
+    if n_agents is None:
+        try:
+            values = env.get_attr("n_agents")
+            n_agents = values[0] if values else None
+        except Exception:  # noqa: BLE001 -- any failure means "the env does not say"
+            n_agents = None
+    if n_agents is None:
+        raise ValueError(
+            "the vec env does not expose `n_agents` (agents per env copy); COMA cannot regroup its "
+            "rows into joint steps. Build it with envs.make_vec_env(...) or set `n_agents` on it."
+        )
+    if isinstance(n_agents, bool) or not isinstance(n_agents, int) or n_agents < 1:
+        raise ValueError(f"`n_agents` must be a positive int, got {n_agents!r}")
+    if env.num_envs % n_agents != 0:
+        raise ValueError(
+            f"num_envs={env.num_envs} is not a multiple of n_agents={n_agents}: the vec env must hold "
+            "whole env copies (agent a of copy e at index e * n_agents + a)"
+        )
+    return n_agents
+
+
+def _check_box(obs_space: spaces.Dict, key: str, shape: tuple[int, ...] | None, what: str) -> spaces.Box:
+    if key not in obs_space.spaces:
+        raise ValueError(f"observation space lacks the key {key!r} ({what}); it has {list(obs_space.spaces)}")
+    box = obs_space.spaces[key]
+    if not isinstance(box, spaces.Box):
+        raise ValueError(f"observation[{key!r}] must be a Box ({what}), got {box}")
+    if shape is not None and tuple(box.shape) != shape:
+        raise ValueError(f"observation[{key!r}] ({what}) must have shape {shape}, got {tuple(box.shape)}")
+    return box
+
+
+def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) -> None:
+    """The per-agent spaces COMA is built for (see ``envs.layout``).
+
+    ``local`` must hold the 8 channels of the fusion wrapper's output (a raw env has 7: wrap it
+    with a fusion wrapper first), ``state`` the 3 global channels on the same grid, and
+    ``action_mask`` one entry per action of ``Discrete(6)``.
+
+    :raises TypeError: wrong space types
+    :raises ValueError: missing keys or wrong shapes
+    """
+    if not isinstance(action_space, spaces.Discrete) or int(action_space.n) != layout.N_ACTIONS:
+        raise ValueError(f"COMA needs the action space Discrete({layout.N_ACTIONS}), got {action_space}")
+    if not isinstance(observation_space, spaces.Dict):
+        raise ValueError(
+            "COMA needs a Dict observation space with keys "
+            f"{layout.KEY_LOCAL!r}, {layout.KEY_STATE!r}, {layout.KEY_MASK!r}; got {observation_space}"
+        )
+    local = _check_box(observation_space, layout.KEY_LOCAL, None, f"{layout.LOCAL_CHANNELS} x H x W actor maps")
+    if len(local.shape) != 3 or local.shape[0] != layout.LOCAL_CHANNELS:
+        raise ValueError(
+            f"observation[{layout.KEY_LOCAL!r}] must have shape ({layout.LOCAL_CHANNELS}, H, W), got "
+            f"{tuple(local.shape)}" + (" (a raw env: add a fusion wrapper)" if local.shape[:1] == (7,) else "")
+        )
+    if local.shape[1] < 4 or local.shape[2] < 4:
+        raise ValueError(f"observation[{layout.KEY_LOCAL!r}] maps must be at least 4 x 4, got {tuple(local.shape)}")
+    _check_box(observation_space, layout.KEY_STATE, (layout.STATE_CHANNELS, *local.shape[1:]), "critic's global maps")
+    _check_box(observation_space, layout.KEY_MASK, (layout.N_ACTIONS,), "valid-action mask")
+
+
+def check_positive_rate(name: str, value: float | Callable[[float], float]) -> None:
+    """A learning rate: a positive number, or a schedule whose starting value is positive."""
+    start = value(1.0) if callable(value) else value
+    if isinstance(start, bool) or not isinstance(start, (int, float)) or not start > 0:
+        raise ValueError(f"{name} must be positive, got {value!r}")
+
+
+def check_unit_interval(name: str, value: float, low_open: bool = False) -> None:
+    """A number in [0, 1] (or (0, 1] with ``low_open``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{name} must be a number, got {value!r}")
+    if not (0.0 < value <= 1.0 if low_open else 0.0 <= value <= 1.0):
+        raise ValueError(f"{name} must lie in {'(0, 1]' if low_open else '[0, 1]'}, got {value!r}")
+
+
+def check_positive_int(name: str, value: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{name} must be an int, got {value!r}")
+    if value < 1:
+        raise ValueError(f"{name} must be >= 1, got {value!r}")
+
+
+def check_batch_fits_rollout(batch_size: int, n_steps: int, n_copies: int) -> None:
+    """A minibatch of joint steps cannot be larger than what one rollout collects."""
+    if batch_size > n_steps * n_copies:
+        raise ValueError(
+            f"batch_size={batch_size} joint steps is larger than one rollout (n_steps={n_steps} x "
+            f"{n_copies} env copies = {n_steps * n_copies} joint steps); raise n_steps or lower batch_size"
+        )

@@ -1,0 +1,182 @@
+"""Convolutional features extractors for the 11 x 11 observation maps.
+
+The paper's actor and critic share one trunk shape: conv 5x5 -> CBAM -> conv 4x4 -> CBAM ->
+conv 4x4 -> FC. ``CBAMExtractor`` is that trunk; ``CnnExtractor`` is the same trunk without the
+attention blocks (the ablation's "cnn" arm), so the two differ in CBAM only.
+
+Geometry on an 11 x 11 map (default widths 32/64/64):
+
+====================  =========================  ==========
+layer                 kernel / stride / padding  output
+====================  =========================  ==========
+conv1 + ReLU          5 / 1 / 2                  32 x 11 x 11
+CBAM                                             32 x 11 x 11
+conv2 + ReLU          4 / 2 / 1                  64 x 5 x 5
+CBAM                                             64 x 5 x 5
+conv3 + ReLU          4 / 1 / 1                  64 x 4 x 4
+flatten, FC + ReLU                               features_dim
+====================  =========================  ==========
+
+The first convolution keeps full resolution, so the attention sees every lattice cell; the
+stride-2 second convolution keeps the trunk cheap on a CPU (about 3 M multiply-adds per map),
+which matters because COMA's critic runs on every agent of every joint step.
+
+Both extractors accept either a ``Box(C, H, W)`` space or a ``Dict`` space plus ``key`` (the
+actor reads ``obs["local"]``), so they plug into SB3 policies as ``features_extractor_class``.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from torch import nn
+
+__all__ = ["ChannelGate", "SpatialGate", "CBAM", "CBAMExtractor", "CnnExtractor"]
+
+
+class ChannelGate(nn.Module):
+    """CBAM's channel attention: which feature maps matter for this input.
+
+    Average- and max-pooled channel descriptors go through one shared two-layer MLP; their sum
+    through a sigmoid gives one weight in [0, 1] per channel.
+    """
+
+    def __init__(self, channels: int, reduction: int = 8) -> None:
+        super().__init__()
+        hidden = max(1, channels // reduction)
+        self.mlp = nn.Sequential(nn.Linear(channels, hidden), nn.ReLU(), nn.Linear(hidden, channels))
+
+    def gate(self, x: th.Tensor) -> th.Tensor:
+        """Channel weights, shape (B, C, 1, 1), each in [0, 1]."""
+        avg = x.mean(dim=(2, 3))
+        mx = x.amax(dim=(2, 3))
+        return th.sigmoid(self.mlp(avg) + self.mlp(mx))[:, :, None, None]
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        return x * self.gate(x)
+
+
+class SpatialGate(nn.Module):
+    """CBAM's spatial attention: where in the map to look.
+
+    The channel-wise mean and max maps are stacked and convolved by a single 7x7 kernel; a
+    sigmoid gives one weight in [0, 1] per cell.
+    """
+
+    def __init__(self, kernel_size: int = 7) -> None:
+        super().__init__()
+        self.conv = nn.Conv2d(2, 1, kernel_size, padding=kernel_size // 2)
+
+    def gate(self, x: th.Tensor) -> th.Tensor:
+        """Cell weights, shape (B, 1, H, W), each in [0, 1]."""
+        pooled = th.cat([x.mean(dim=1, keepdim=True), x.amax(dim=1, keepdim=True)], dim=1)
+        return th.sigmoid(self.conv(pooled))
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        return x * self.gate(x)
+
+
+class CBAM(nn.Module):
+    """Convolutional Block Attention Module: channel gate, then spatial gate (Woo et al. 2018)."""
+
+    def __init__(self, channels: int, reduction: int = 8, spatial_kernel: int = 7) -> None:
+        super().__init__()
+        self.channel = ChannelGate(channels, reduction)
+        self.spatial = SpatialGate(spatial_kernel)
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        return self.spatial(self.channel(x))
+
+
+def _map_space(observation_space: spaces.Space, key: str | None) -> spaces.Box:
+    """The (C, H, W) Box the trunk reads, from a Box or from ``observation_space[key]``."""
+    if isinstance(observation_space, spaces.Dict):
+        if key is None or key not in observation_space.spaces:
+            raise ValueError(
+                f"a Dict observation space needs `key` naming one of {list(observation_space.spaces)}, got key={key!r}"
+            )
+        observation_space = observation_space.spaces[key]
+    if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 3:
+        raise ValueError(f"expected a (C, H, W) Box observation space, got {observation_space}")
+    return observation_space
+
+
+class _Trunk(BaseFeaturesExtractor):
+    """Shared body of both extractors; ``use_cbam`` is the only difference between them."""
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        features_dim: int = 256,
+        key: str | None = "local",
+        channels: Sequence[int] = (32, 64, 64),
+        use_cbam: bool = True,
+        reduction: int = 8,
+    ) -> None:
+        box = _map_space(observation_space, key if isinstance(observation_space, spaces.Dict) else None)
+        super().__init__(observation_space, features_dim)
+        if len(channels) != 3:
+            raise ValueError(f"channels must hold three widths (conv1, conv2, conv3), got {channels!r}")
+        self.key = key if isinstance(observation_space, spaces.Dict) else None
+        in_ch, height, width = box.shape
+        c1, c2, c3 = (int(c) for c in channels)
+        attend: type[nn.Module] | None = CBAM if use_cbam else None
+        self.cnn = nn.Sequential(
+            nn.Conv2d(in_ch, c1, kernel_size=5, stride=1, padding=2),
+            nn.ReLU(),
+            attend(c1, reduction) if attend else nn.Identity(),
+            nn.Conv2d(c1, c2, kernel_size=4, stride=2, padding=1),
+            nn.ReLU(),
+            attend(c2, reduction) if attend else nn.Identity(),
+            nn.Conv2d(c2, c3, kernel_size=4, stride=1, padding=1),
+            nn.ReLU(),
+            nn.Flatten(),
+        )
+        with th.no_grad():
+            n_flat = self.cnn(th.zeros(1, in_ch, height, width)).shape[1]
+        self.linear = nn.Sequential(nn.Linear(n_flat, features_dim), nn.ReLU())
+
+    def forward(self, observations: th.Tensor | dict[str, th.Tensor]) -> th.Tensor:
+        x = observations[self.key] if isinstance(observations, dict) else observations
+        return self.linear(self.cnn(x))
+
+    @property
+    def cbams(self) -> list[CBAM]:
+        """The attention blocks in order (empty for the plain CNN); handy for inspecting gates."""
+        return [m for m in self.cnn if isinstance(m, CBAM)]
+
+
+class CBAMExtractor(_Trunk):
+    """Paper trunk with attention: conv 5x5 -> CBAM -> conv 4x4 -> CBAM -> conv 4x4 -> FC.
+
+    :param observation_space: a ``Box(C, H, W)`` or a ``Dict`` holding one under ``key``
+    :param features_dim: width of the final fully connected layer
+    :param key: which entry of a ``Dict`` observation to read (ignored for a ``Box``)
+    :param channels: widths of the three convolutions
+    :param reduction: channel-gate MLP reduction ratio
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        features_dim: int = 256,
+        key: str | None = "local",
+        channels: Sequence[int] = (32, 64, 64),
+        reduction: int = 8,
+    ) -> None:
+        super().__init__(observation_space, features_dim, key, channels, use_cbam=True, reduction=reduction)
+
+
+class CnnExtractor(_Trunk):
+    """The same trunk without CBAM, for the ablation (``CnnPolicy``)."""
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        features_dim: int = 256,
+        key: str | None = "local",
+        channels: Sequence[int] = (32, 64, 64),
+    ) -> None:
+        super().__init__(observation_space, features_dim, key, channels, use_cbam=False)

@@ -1,0 +1,254 @@
+"""COMA as an SB3 algorithm: joint-step counting, logging, save/load, seeding, argument errors."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch as th
+from coma_fakes import FakeUavVecEnv, capture_logger, make_fake_vec_env, obs_space
+from coma_fakes import one_torch_thread  # noqa: F401 (autouse fixture)
+from gymnasium import spaces
+
+from sb3_coma.coma import COMA, CBAMPolicy, CnnPolicy
+
+SMALL = dict(features_extractor_kwargs=dict(channels=(8, 16, 16), features_dim=32))
+FAST = dict(batch_size=16, n_steps=8, learning_rate=1e-3, critic_learning_rate=1e-3, policy_kwargs=SMALL)
+
+
+def make(policy: str = "CnnPolicy", seed: int = 0, n_envs: int = 2, n_agents: int = 2, **kwargs) -> COMA:
+    args = {**FAST, **kwargs}
+    return COMA(policy, make_fake_vec_env(n_envs=n_envs, n_agents=n_agents, seed=seed), seed=seed, **args)
+
+
+def test_timesteps_are_joint_steps_and_logs_are_written() -> None:
+    model = make(exploration_initial_eps=0.5, exploration_final_eps=0.1, exploration_fraction=0.5)
+    logger, out = capture_logger()
+    model.set_logger(logger)
+    model.learn(3 * 16)  # 3 rollouts of 8 steps x 2 copies
+    assert model.n_copies == 2 and model.n_agents == 2 and model.env.num_envs == 4
+    assert model.num_timesteps == 48  # not 96 agent steps
+    assert model.rollout_buffer.local.shape[:3] == (8, 2, 2)
+    last = out.dumps[-1]
+    for key in (
+        "train/critic_loss", "train/actor_loss", "train/q_mean", "train/advantage_mean",
+        "train/advantage_std", "train/explained_variance", "train/epsilon", "train/entropy",
+        "train/target_updates", "rollout/ep_rew_mean", "rollout/ep_f1", "rollout/ep_entropy",
+    ):
+        assert key in last, key
+    assert last["time/total_timesteps"] == 48
+    assert last["rollout/ep_len_mean"] == 6  # budget of the fake env, counted once per mission
+    eps = out.series("train/epsilon")
+    assert eps[0] > eps[-1] >= 0.1
+    # SB3 dumps before each train(): the last dump shows the previous update.
+    assert 0 < last["train/target_updates"] == model._n_target_updates - 1
+    assert np.isfinite(last["train/critic_loss"]) and np.isfinite(last["train/actor_loss"])
+
+
+def test_default_n_steps_fills_one_batch_per_rollout() -> None:
+    model = COMA("CBAMPolicy", make_fake_vec_env(n_envs=3, n_agents=2), batch_size=10, policy_kwargs=SMALL)
+    assert model.n_steps == 4  # ceil(10 / 3 copies)
+    assert isinstance(model.policy, CBAMPolicy)
+    assert model.learning_rate == 1e-5 and model.critic_learning_rate == 1e-4
+    assert model.gamma == 0.99 and model.td_lambda == 0.8
+    assert COMA("CnnPolicy", make_fake_vec_env(n_envs=1), policy_kwargs=SMALL).n_steps == 512
+
+
+def test_target_update_interval_is_honoured() -> None:
+    model = make(n_critic_epochs=3, target_update_interval=2)  # 1 minibatch x 3 epochs per rollout
+    model.learn(32)
+    assert model._n_critic_updates == 6 and model._n_target_updates == 3
+
+
+def test_predict_is_per_agent_and_masked() -> None:
+    model = make()
+    venv = model.env
+    obs = venv.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        obs["action_mask"] = (rng.random((4, 6)) < 0.3).astype(np.float32)
+        obs["action_mask"][np.arange(4), rng.integers(0, 6, 4)] = 1.0
+        for deterministic in (True, False):
+            actions, _ = model.predict(obs, deterministic=deterministic)
+            assert actions.shape == (4,)
+            assert (obs["action_mask"][np.arange(4), actions] == 1).all()
+    single = {k: v[0] for k, v in obs.items()}
+    action, _ = model.predict(single, deterministic=True)
+    assert np.ndim(action) == 0
+
+
+def test_training_never_sends_invalid_actions() -> None:
+    model = make(exploration_initial_eps=0.5, exploration_final_eps=0.5)
+    model.learn(64)
+    assert model.env.venv.invalid_actions == 0
+
+
+def test_same_seed_same_training_curve() -> None:
+    runs = []
+    for _ in range(2):
+        model = make(seed=7, exploration_initial_eps=0.3, ent_coef=0.01)
+        logger, out = capture_logger()
+        model.set_logger(logger)
+        model.learn(64)
+        losses = (out.series("train/critic_loss"), out.series("train/actor_loss"))
+        runs.append((*losses, model.policy.parameters_to_vector()))
+    assert runs[0][0] == runs[1][0] and runs[0][1] == runs[1][1]
+    assert np.array_equal(runs[0][2], runs[1][2])
+    other = make(seed=8)
+    other.learn(64)
+    assert not np.array_equal(other.policy.parameters_to_vector(), runs[0][2])
+
+
+def test_save_load_round_trip_and_continue(tmp_path: Path) -> None:
+    model = make("CBAMPolicy", n_critic_epochs=2, target_update_interval=3)
+    model.learn(48)
+    path = tmp_path / "coma.zip"
+    model.save(path)
+
+    env = make_fake_vec_env(seed=1)
+    loaded = COMA.load(path, env=env)
+    assert type(loaded.policy) is CBAMPolicy
+    assert loaded.n_agents == 2 and loaded.batch_size == 16 and loaded.target_update_interval == 3
+    assert loaded._n_critic_updates == model._n_critic_updates
+
+    obs = env.reset()
+    a1, _ = model.predict(obs, deterministic=True)
+    a2, _ = loaded.predict(obs, deterministic=True)
+    assert np.array_equal(a1, a2)
+    local, state, _ = model._obs_tensors(obs, grouped=True)
+    actions = th.as_tensor(a1).view(2, 2)
+    with th.no_grad():
+        for target in (False, True):
+            assert th.equal(
+                model.policy.q_values(local, state, actions, target=target),
+                loaded.policy.q_values(local, state, actions, target=target),
+            )
+    for name in ("optimizer", "critic_optimizer"):
+        saved = getattr(model.policy, name).state_dict()
+        restored = getattr(loaded.policy, name).state_dict()
+        assert saved["param_groups"][0]["lr"] == restored["param_groups"][0]["lr"]
+        for key, st in saved["state"].items():
+            assert th.equal(st["exp_avg"], restored["state"][key]["exp_avg"])
+
+    before = loaded.policy.parameters_to_vector()
+    loaded.learn(32, reset_num_timesteps=False)
+    assert loaded.num_timesteps == 48 + 32
+    assert not np.array_equal(before, loaded.policy.parameters_to_vector())
+
+    # Prediction-only load without an env.
+    bare = COMA.load(path)
+    a3, _ = bare.predict(obs, deterministic=True)
+    assert np.array_equal(a1, a3)
+
+
+def test_policy_save_load(tmp_path: Path) -> None:
+    model = make("CnnPolicy")
+    model.policy.save(tmp_path / "policy.pt")
+    policy = CnnPolicy.load(tmp_path / "policy.pt")
+    obs = model.env.reset()
+    assert np.array_equal(model.predict(obs, deterministic=True)[0], policy.predict(obs, deterministic=True)[0])
+
+
+class TestErrors:
+    def test_env_without_n_agents(self) -> None:
+        with pytest.raises(ValueError, match="n_agents"):
+            COMA("CBAMPolicy", FakeUavVecEnv(n_agents=None))
+
+    def test_num_envs_not_a_multiple(self) -> None:
+        with pytest.raises(ValueError, match="num_envs=5 is not a multiple of n_agents=2"):
+            COMA("CBAMPolicy", FakeUavVecEnv(n_envs=2, n_agents=2, num_envs=5))
+
+    def test_not_a_vec_env(self) -> None:
+        with pytest.raises(TypeError, match="VecEnv"):
+            COMA("CBAMPolicy", "UavIpp-Env1-v0")
+
+    @pytest.mark.parametrize(
+        ("space", "match"),
+        [
+            (obs_space(drop_key="state"), "lacks the key 'state'"),
+            (obs_space(drop_key="action_mask"), "lacks the key 'action_mask'"),
+            (obs_space(local_shape=(7, 11, 11)), r"shape \(8, H, W\), got \(7, 11, 11\).*fusion"),
+            (obs_space(state_shape=(3, 9, 9)), r"'state'.*\(3, 11, 11\), got \(3, 9, 9\)"),
+            (spaces.Box(0.0, 1.0, (8, 11, 11)), "Dict observation space"),
+        ],
+    )
+    def test_bad_observation_space(self, space: spaces.Space, match: str) -> None:
+        with pytest.raises(ValueError, match=match):
+            COMA("CBAMPolicy", FakeUavVecEnv(observation_space=space))
+
+    @pytest.mark.parametrize("action_space", [spaces.Discrete(5), spaces.Box(-1.0, 1.0, (6,))])
+    def test_bad_action_space(self, action_space: spaces.Space) -> None:
+        with pytest.raises(ValueError, match=r"Discrete\(6\)"):
+            COMA("CBAMPolicy", FakeUavVecEnv(action_space=action_space))
+
+    @pytest.mark.parametrize(
+        ("kwargs", "error", "match"),
+        [
+            (dict(batch_size=64, n_steps=8), ValueError, r"batch_size=64 .*\(n_steps=8 x 2 env copies = 16"),
+            (dict(learning_rate=0.0), ValueError, "learning_rate must be positive, got 0.0"),
+            (dict(critic_learning_rate=-1e-4), ValueError, "critic_learning_rate must be positive"),
+            (dict(learning_rate=lambda _: 0.0), ValueError, "learning_rate must be positive"),
+            (dict(gamma=1.5), ValueError, r"gamma must lie in \[0, 1\], got 1.5"),
+            (dict(td_lambda=-0.1), ValueError, r"td_lambda must lie in \[0, 1\], got -0.1"),
+            (dict(batch_size=0), ValueError, "batch_size must be >= 1, got 0"),
+            (dict(n_steps=2.5), TypeError, "n_steps must be an int"),
+            (dict(target_update_interval=0), ValueError, "target_update_interval"),
+            (dict(tau=0.0), ValueError, r"tau must lie in \(0, 1\]"),
+            (dict(exploration_initial_eps=2.0), ValueError, "exploration_initial_eps"),
+            (dict(exploration_fraction=0.0), ValueError, "exploration_fraction"),
+            (dict(ent_coef=-1.0), ValueError, "ent_coef"),
+            (dict(max_grad_norm=0.0), ValueError, "max_grad_norm"),
+        ],
+    )
+    def test_bad_hyperparameters(self, kwargs: dict, error: type, match: str) -> None:
+        args = {"batch_size": 8, "n_steps": 8, **kwargs}
+        with pytest.raises(error, match=match):
+            COMA("CBAMPolicy", FakeUavVecEnv(), **args)
+
+    def test_unknown_policy_alias(self) -> None:
+        with pytest.raises(ValueError, match="unknown policy alias 'MlpPolicy'.*CBAMPolicy"):
+            COMA("MlpPolicy", FakeUavVecEnv())
+        with pytest.raises(TypeError, match="COMAPolicy subclass"):
+            COMA(dict, FakeUavVecEnv())
+
+
+@pytest.mark.parametrize("truncate", [False, True])
+def test_time_limit_truncation_is_bootstrapped(truncate: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A truncated mission adds gamma * V(terminal state) to its last reward; a terminated one does not."""
+    venv = FakeUavVecEnv(n_envs=2, n_agents=2, budget=3, truncate=truncate)
+    model = COMA("CnnPolicy", venv, batch_size=12, n_steps=6, gamma=0.5, seed=0, policy_kwargs=SMALL)
+    rewards_seen: list[np.ndarray] = []
+    original_step = venv.step_wait
+
+    def recording_step():
+        out = original_step()
+        rewards_seen.append(out[1].copy())
+        return out
+
+    monkeypatch.setattr(venv, "step_wait", recording_step)
+    monkeypatch.setattr(model, "_expected_target_values", lambda obs: th.full((len(obs["local"]) // 2, 2), 3.0))
+    monkeypatch.setattr(model, "train", lambda: None)
+    model.learn(12)
+    stored = model.rollout_buffer.rewards.reshape(6, 4)
+    env_rewards = np.stack(rewards_seen)
+    bonus = np.zeros_like(env_rewards)
+    if truncate:
+        bonus[[2, 5]] = 0.5 * 3.0  # missions end after steps 3 and 6
+    assert np.allclose(stored, env_rewards + bonus)
+    assert model.rollout_buffer.dones.reshape(6, 4)[[2, 5]].all()
+
+
+@pytest.mark.filterwarnings("ignore:rich is experimental")
+def test_progress_bar_counts_joint_steps(monkeypatch: pytest.MonkeyPatch) -> None:
+    from sb3_coma.coma.progress import JointStepProgressBar
+
+    bars: list[JointStepProgressBar] = []
+    original = JointStepProgressBar._on_training_end
+
+    def keep(self: JointStepProgressBar) -> None:
+        bars.append(self)
+        original(self)
+
+    monkeypatch.setattr(JointStepProgressBar, "_on_training_end", keep)
+    make().learn(32, progress_bar=True)
+    assert bars and bars[0].pbar.n == bars[0].pbar.total == 32  # not 64 agent steps

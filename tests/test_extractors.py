@@ -1,0 +1,73 @@
+"""CBAM and plain-CNN extractors: shapes on the 11 x 11 maps, gates in [0, 1], clear errors."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+
+from sb3_coma.extractors import CBAM, CBAMExtractor, CnnExtractor
+
+LOCAL = spaces.Box(0.0, 1.0, (8, 11, 11), dtype=np.float32)
+CRITIC = spaces.Box(0.0, 1.0, (12, 11, 11), dtype=np.float32)
+DICT = spaces.Dict({"local": LOCAL, "action_mask": spaces.Box(0.0, 1.0, (6,), dtype=np.float32)})
+
+
+@pytest.mark.parametrize("cls", [CBAMExtractor, CnnExtractor])
+@pytest.mark.parametrize("space", [LOCAL, CRITIC])
+@pytest.mark.parametrize("features_dim", [128, 256])
+def test_box_shapes(cls: type, space: spaces.Box, features_dim: int) -> None:
+    ext = cls(space, features_dim=features_dim)
+    out = ext(th.rand(5, *space.shape))
+    assert out.shape == (5, features_dim)
+    assert ext.features_dim == features_dim
+    assert th.isfinite(out).all()
+
+
+@pytest.mark.parametrize("cls", [CBAMExtractor, CnnExtractor])
+def test_dict_space_reads_the_local_key(cls: type) -> None:
+    th.manual_seed(0)
+    ext = cls(DICT, features_dim=64)
+    local = th.rand(3, 8, 11, 11)
+    from_dict = ext({"local": local, "action_mask": th.ones(3, 6)})
+    assert from_dict.shape == (3, 64)
+    # The mask is not a map: changing it must not change the features.
+    assert th.equal(from_dict, ext({"local": local, "action_mask": th.zeros(3, 6)}))
+
+
+def test_cbam_is_the_only_difference() -> None:
+    cbam, cnn = CBAMExtractor(LOCAL), CnnExtractor(LOCAL)
+    assert len(cbam.cbams) == 2 and len(cnn.cbams) == 0
+    n_cbam = sum(p.numel() for p in cbam.parameters())
+    n_cnn = sum(p.numel() for p in cnn.parameters())
+    n_attention = sum(p.numel() for block in cbam.cbams for p in block.parameters())
+    assert n_cbam - n_cnn == n_attention > 0
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3])
+def test_cbam_gates_lie_in_unit_interval(scale: float) -> None:
+    th.manual_seed(1)
+    block = CBAM(32)
+    x = (th.randn(4, 32, 11, 11) * scale).relu()
+    channel = block.channel.gate(x)
+    spatial = block.spatial.gate(block.channel(x))
+    assert channel.shape == (4, 32, 1, 1) and spatial.shape == (4, 1, 11, 11)
+    for gate in (channel, spatial):
+        assert (gate >= 0).all() and (gate <= 1).all()
+    # The block only rescales: output = x * channel gate * spatial gate.
+    assert th.allclose(block(x), x * channel * spatial, rtol=1e-5, atol=1e-6)
+
+
+def test_gradients_reach_every_parameter() -> None:
+    ext = CBAMExtractor(CRITIC, features_dim=32)
+    ext(th.rand(6, 12, 11, 11)).square().sum().backward()
+    assert all(p.grad is not None for p in ext.parameters())
+
+
+def test_bad_spaces_raise() -> None:
+    with pytest.raises(ValueError, match="key"):
+        CBAMExtractor(DICT, key="state")
+    with pytest.raises(ValueError, match="C, H, W"):
+        CnnExtractor(spaces.Box(0.0, 1.0, (6,), dtype=np.float32))
+    with pytest.raises(ValueError, match="three widths"):
+        CBAMExtractor(LOCAL, channels=(8, 16))
