@@ -94,12 +94,18 @@ class IppConfig:
         if "map_name" in options:
             raise ConfigError("pass the map as the first argument (name=...), not as map_name=")
         if "altitudes" in options and options["altitudes"] is not None:
-            options["altitudes"] = tuple(float(a) for a in options["altitudes"])
+            try:
+                options["altitudes"] = tuple(float(a) for a in options["altitudes"])
+            except (TypeError, ValueError):
+                _fail("altitudes", options["altitudes"], "a non-empty list of positive altitudes in metres")
         if "flip_probability" in options and options["flip_probability"] is not None:
             fp = options["flip_probability"]
             if not isinstance(fp, Mapping):
                 _fail("flip_probability", fp, "a mapping altitude -> flip probability")
-            options["flip_probability"] = {float(k): float(v) for k, v in fp.items()}
+            try:
+                options["flip_probability"] = {float(k): float(v) for k, v in fp.items()}
+            except (TypeError, ValueError):
+                _fail("flip_probability", fp, "a mapping altitude (m) -> flip probability (numbers)")
         if options.get("start_positions") is not None:
             try:
                 options["start_positions"] = tuple(tuple(float(c) for c in p) for p in options["start_positions"])
@@ -121,6 +127,9 @@ class IppConfig:
         def is_int(v: Any) -> bool:
             return isinstance(v, int) and not isinstance(v, bool)
 
+        def is_number(v: Any) -> bool:
+            return isinstance(v, (int, float)) and not isinstance(v, bool)
+
         if not is_int(self.lattice) or self.lattice < 2:
             _fail("lattice", self.lattice, "an integer >= 2")
         if not is_int(self.grid) or self.grid < self.lattice:
@@ -141,6 +150,8 @@ class IppConfig:
             steps = {round(b - a, 9) for a, b in zip(self.altitudes, self.altitudes[1:])}
             if len(steps) != 1:
                 _fail("altitudes", self.altitudes, "equally spaced altitudes (up/down move one level)")
+        if not isinstance(self.flip_probability, Mapping):
+            _fail("flip_probability", self.flip_probability, "a mapping altitude (m) -> flip probability")
         missing = [a for a in self.altitudes if a not in self.flip_probability]
         if missing:
             _fail("flip_probability", dict(self.flip_probability), f"an entry for every altitude; missing {missing}")
@@ -148,7 +159,7 @@ class IppConfig:
             if not (0.0 < q < 0.5):
                 _fail("flip_probability", dict(self.flip_probability),
                       f"probabilities strictly between 0 and 0.5 (altitude {alt} has {q})")
-        if not (0 < self.fov_deg < 180):
+        if not (is_number(self.fov_deg) and 0 < self.fov_deg < 180):
             _fail("fov_deg", self.fov_deg, "an angle in (0, 180) degrees")
         if self.start not in ("fixed", "random"):
             _fail("start", self.start, "'fixed' or 'random'")
@@ -156,15 +167,15 @@ class IppConfig:
             _fail("start_altitude", self.start_altitude, f"one of the altitudes {list(self.altitudes)}")
         if self.start_positions is not None:
             self._validate_start_positions(self.start_positions)
-        if self.noise not in NOISE_PRESETS:
+        if not isinstance(self.noise, str) or self.noise not in NOISE_PRESETS:
             _fail("noise", self.noise, f"one of {sorted(NOISE_PRESETS)}")
         if not (isinstance(self.comm_range, (int, float)) and self.comm_range >= 0 and not math.isnan(self.comm_range)):
             _fail("comm_range", self.comm_range, "a distance >= 0 in metres (inf for unlimited)")
-        if not (0.0 <= self.drop_probability <= 1.0):
+        if not (is_number(self.drop_probability) and 0.0 <= self.drop_probability <= 1.0):
             _fail("drop_probability", self.drop_probability, "a probability in [0, 1]")
         if not is_int(self.comm_grid) or self.comm_grid < 4 or self.comm_grid % 4 or self.comm_grid > self.grid:
             _fail("comm_grid", self.comm_grid, f"a multiple of 4 between 4 and grid ({self.grid})")
-        if not math.isfinite(self.alpha) or not math.isfinite(self.beta):
+        if not (is_number(self.alpha) and is_number(self.beta) and math.isfinite(self.alpha) and math.isfinite(self.beta)):
             _fail("alpha/beta", (self.alpha, self.beta), "finite reward scale and offset")
         if self.reward_entropy not in ("plain", "weighted"):
             _fail("reward_entropy", self.reward_entropy, "'plain' (binary entropy of every cell) or 'weighted' (ipp-marl's class weighting)")

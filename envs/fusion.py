@@ -11,6 +11,7 @@ auto-reset mode and would leave those observations unfused, so these wrappers su
 """
 from __future__ import annotations
 
+import inspect
 from typing import Any, Callable
 
 import numpy as np
@@ -18,6 +19,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv, VectorWrapper
 
 from . import layout
+from .config import ConfigError
 from .geometry import overlap_matrix
 
 
@@ -128,4 +130,10 @@ def wrap_fusion(env: VectorEnv, fusion: str, **kwargs: Any) -> FusionWrapper | V
             raise ValueError(f"fusion='sendfuse' is unavailable: {exc}") from exc
     if fusion not in FUSION_WRAPPERS:
         raise ValueError(f"unknown fusion {fusion!r}; choose one of {sorted(FUSION_WRAPPERS) + ['none']}")
-    return FUSION_WRAPPERS[fusion](env, **kwargs)
+    factory = FUSION_WRAPPERS[fusion]
+    accepted = [n for n in list(inspect.signature(factory).parameters)[1:] if n not in ("args", "kwargs")]
+    unknown = sorted(set(kwargs) - set(accepted))
+    if unknown:
+        raise ConfigError(f"invalid option fusion_kwargs={kwargs!r}: fusion {fusion!r} does not take {unknown}; "
+                          f"it takes {accepted or 'no options'}")
+    return factory(env, **kwargs)

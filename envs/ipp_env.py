@@ -258,7 +258,7 @@ class UavIppEnv(ParallelEnv):
             value = actions[agent]
             try:
                 a = int(np.asarray(value).item())
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):  # OverflowError: an infinite float
                 raise ValueError(f"action for {agent} must be an integer in 0..5, got {value!r}") from None
             if a != np.asarray(value).item() or not 0 <= a < layout.N_ACTIONS:
                 raise ValueError(f"action for {agent} must be an integer in 0..5, got {value!r}")

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 from gymnasium.vector import VectorEnv
 
+from .config import ConfigError
 from .fusion import FusionWrapper, register_fusion
 
 
@@ -30,6 +31,10 @@ class SenDFuseFusionWrapper(FusionWrapper):
 
     def __init__(self, env: VectorEnv, weights: str | os.PathLike | None = None, network: Any = None,
                  alpha: float | None = None) -> None:
+        if alpha is not None and (isinstance(alpha, bool) or not isinstance(alpha, (int, float))
+                                  or not 0.0 <= alpha <= 1.0):
+            raise ConfigError(f"invalid option fusion_kwargs alpha={alpha!r}: a number in [0, 1] "
+                              "(weight of channel vs spatial attention), or None for the network's own")
         super().__init__(env)
         grid = self.raw_observation_space["received"].shape[-1]
         if network is None:

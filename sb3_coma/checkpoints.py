@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import re
 import tempfile
 import warnings
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -146,15 +148,18 @@ def _check_zip(path: Path, display: Path | None = None) -> dict[str, Any]:
         with zipfile.ZipFile(path) as archive:
             names = set(archive.namelist())
             missing = [m for m in _REQUIRED_MEMBERS if m not in names]
-            if missing:
+            if missing:  # a cut-off SB3 zip can expose the zip nested in policy.pth: say "truncated" too
+                held = sorted(names)
+                listing = ", ".join(held[:4]) + (f", ... ({len(held)} members)" if len(held) > 4 else "")
                 raise CheckpointError(
-                    f"checkpoint {shown} is not a Stable-Baselines3 model: it lacks {missing} (it holds {sorted(names)})"
+                    f"checkpoint {shown} is truncated or not a Stable-Baselines3 model: it lacks {missing} "
+                    f"(it holds {listing or 'nothing'})"
                 )
             bad = archive.testzip()
             if bad is not None:
                 raise CheckpointError(f"checkpoint {shown} is corrupt: member {bad!r} fails its CRC check")
             raw = archive.read("data").decode("utf-8")
-    except (zipfile.BadZipFile, EOFError, OSError) as exc:
+    except (zipfile.BadZipFile, EOFError, OSError, zlib.error, NotImplementedError) as exc:
         raise CheckpointError(f"checkpoint {shown} is truncated or corrupt: {exc}") from exc
     try:
         data = json.loads(raw)
@@ -171,7 +176,10 @@ def _describe_policy(data: dict[str, Any]) -> tuple[str, str]:
     if isinstance(entry, dict):
         module = str(entry.get("__module__", ""))
         type_name = str(entry.get(":type:", ""))
-        qualname = str(entry.get("__qualname__", entry.get("__name__", ""))) or type_name
+        qualname = str(entry.get("__qualname__", entry.get("__name__", "")))
+        if not qualname:  # SB3 stores the class's dict: read its name off a method's repr
+            match = re.match(r"<function (\w+)\.", str(entry.get("__init__", "")))
+            qualname = match.group(1) if match else type_name
         return module, qualname
     return "", str(entry or "")
 
@@ -244,5 +252,8 @@ def load_checkpoint(path: str | os.PathLike[str], env: Any = None, **kwargs: Any
     validate_checkpoint(path)
     try:
         return COMA.load(str(path), env=env, **kwargs)
+    except pickle.UnpicklingError as exc:  # torch's "Weights only load failed ..." on a damaged member
+        raise CheckpointError(f"checkpoint {path} is corrupt: a network or optimizer member is not a readable "
+                              "PyTorch file") from exc
     except (KeyError, ValueError, RuntimeError, zipfile.BadZipFile, EOFError) as exc:
         raise CheckpointError(f"checkpoint {path} could not be loaded: {exc}") from exc

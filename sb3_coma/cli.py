@@ -35,7 +35,7 @@ def _user_error_types() -> tuple[type[BaseException], ...]:
     """Exception types that mean "the user gave a bad value": printed as one line, exit 2."""
     import importlib as _il
 
-    found: list[type[BaseException]] = [UserError, FileNotFoundError]
+    found: list[type[BaseException]] = [UserError, FileNotFoundError, FloatingPointError]
     for module, name in (("envs.config", "ConfigError"), ("envs.maps", "MapError"),
                          ("sb3_coma.training", "TrainingError"), ("sb3_coma.checkpoints", "CheckpointError"),
                          ("sb3_coma.sendfuse.weights", "SenDFuseWeightsError")):

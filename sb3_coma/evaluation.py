@@ -132,11 +132,18 @@ def _looks_like_path(name: str) -> bool:
 
 
 def _load_model_file(path: Path, venv: Any) -> Any:
-    from sb3_coma import COMA
+    import pickle
 
+    from sb3_coma import COMA
+    from sb3_coma.checkpoints import validate_checkpoint
+
+    validate_checkpoint(path)  # truncated / corrupt / another algorithm: CheckpointError naming the file
     try:
         return COMA.load(str(path), env=venv, device="cpu")
-    except (ValueError, KeyError, AssertionError) as exc:
+    except pickle.UnpicklingError as exc:  # torch's "Weights only load failed ..." on a damaged member
+        raise ValueError(f"cannot load model {str(path)!r}: it is corrupt (a network or optimizer member is not "
+                         "a readable PyTorch file)") from exc
+    except (ValueError, KeyError, AssertionError, RuntimeError, EOFError) as exc:
         raise ValueError(f"cannot load model {str(path)!r} for this environment: {exc} (was it trained with "
                          f"another number of UAVs or observation layout?)") from exc
 
@@ -180,12 +187,19 @@ def check_policy(policy_or_name: Any) -> None:
         if not text.strip():
             raise ValueError("empty method name")
         try:
-            import sb3_coma.pretrained  # noqa: F401
+            import sb3_coma.pretrained as pretrained
         except ModuleNotFoundError as exc:
             if exc.name != "sb3_coma.pretrained":
                 raise
             raise ValueError(f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a model "
                              f"file, and shipped models are unavailable (sb3_coma.pretrained is missing)") from None
+        model_info = getattr(pretrained, "model_info", None)
+        if model_info is not None:  # an unknown name fails here, not after building the env
+            try:
+                model_info(text)
+            except ValueError as exc:
+                raise ValueError(f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a "
+                                 f"model file, and not a shipped model ({exc})") from None
     elif not isinstance(policy_or_name, str) and not callable(getattr(policy_or_name, "predict", None)):
         raise TypeError(f"cannot evaluate {type(policy_or_name).__name__}: pass a baseline name, a model path "
                         f"or an object with SB3's predict(observation, deterministic=...)")

@@ -116,6 +116,10 @@ class _Trunk(BaseFeaturesExtractor):
         reduction: int = 8,
     ) -> None:
         box = _map_space(observation_space, key if isinstance(observation_space, spaces.Dict) else None)
+        if isinstance(features_dim, bool) or not isinstance(features_dim, int) or features_dim < 1:
+            raise ValueError(f"features_dim must be an integer >= 1, got {features_dim!r}")
+        if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in channels):
+            raise ValueError(f"channels must be three integers >= 1, got {channels!r}")
         super().__init__(observation_space, features_dim)
         if len(channels) != 3:
             raise ValueError(f"channels must hold three widths (conv1, conv2, conv3), got {channels!r}")

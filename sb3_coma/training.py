@@ -491,9 +491,45 @@ def make_training_env(cfg: TrainConfig, n_envs: int | None = None, seed: int | N
         env = envs.make_vec_env(cfg.map_name, n_envs=n_envs or cfg.n_envs, fusion=fusion, seed=seed, **kwargs)
     except ValueError as exc:  # envs.ConfigError, an unavailable fusion, ...
         raise TrainingError(f"cannot build {cfg.env_id} (fusion={fusion!r}, options {options}): {exc}") from exc
-    for wrapper, wkwargs in _named_objects(cfg.entry.get("vec_env_wrapper"), "vec_env_wrapper"):
-        env = wrapper(env, **wkwargs)
+    try:
+        for wrapper, wkwargs in _named_objects(cfg.entry.get("vec_env_wrapper"), "vec_env_wrapper"):
+            env = _construct(wrapper, wkwargs, "vec_env_wrapper", env)
+    except BaseException:
+        env.close()
+        raise
     return env
+
+
+def _construct(target: Any, kwargs: dict[str, Any], what: str, *args: Any) -> Any:
+    """``target(*args, **kwargs)`` for a config's ``callback`` / ``vec_env_wrapper``; bad arguments
+    become a :class:`TrainingError` naming the class and its arguments."""
+    try:
+        return target(*args, **kwargs)
+    except (TypeError, ValueError) as exc:
+        name = getattr(target, "__qualname__", repr(target))
+        raise TrainingError(f"{what} {name} with arguments {kwargs!r}: {exc}") from exc
+
+
+def _check_device(device: Any) -> None:
+    """Refuse a device string torch cannot parse before anything is built."""
+    import torch as th
+
+    if device == "auto":
+        return
+    try:
+        th.device(device)
+    except (RuntimeError, TypeError, ValueError) as exc:
+        raise TrainingError(f"device {device!r} is not a torch device: use auto, cpu, cuda or cuda:<index>") from exc
+
+
+def _assertion_site(exc: BaseException) -> str:
+    """``"AssertionError in <file>:<line>"`` for a bare ``assert`` without a message."""
+    import traceback
+
+    text = str(exc).strip()
+    frames = traceback.extract_tb(exc.__traceback__)
+    where = f" in {Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else ""
+    return f"AssertionError{where}" + (f": {text}" if text else "")
 
 
 # =========================================================================== run folders
@@ -710,6 +746,7 @@ def train(
         n_envs = _positive_int("train()", "n_envs", n_envs)
     if seed is not None and not _is_int(seed):
         raise TrainingError(f"seed must be an integer, got {seed!r}")
+    _check_device(device)
 
     # ----------------------------------------------------------- config and run folder
     resume_model: Path | None = None
@@ -762,10 +799,13 @@ def train(
             try:
                 model = COMA(env=venv, tensorboard_log=None, seed=seed, verbose=model_verbose, device=device,
                              **coma_kwargs(cfg.entry))
-            except (TypeError, ValueError) as exc:
+            except (TypeError, ValueError, AssertionError) as exc:
                 if isinstance(exc, TrainingError):
                     raise
                 where = f"config {cfg.source} [{cfg.env_id}" + (f", variant {cfg.variant}]" if cfg.variant else "]")
+                if isinstance(exc, AssertionError):  # e.g. SB3's bare `assert features_dim > 0`
+                    raise TrainingError(f"{where}: COMA rejected a setting ({_assertion_site(exc)}); check "
+                                        f"policy_kwargs={cfg.entry.get('policy_kwargs')!r}") from exc
                 raise TrainingError(f"{where}: {exc}") from exc
         if run_path is None:
             run_path = new_run_dir(run_dir, cfg.env_id, cfg.variant, runs_root)
@@ -807,7 +847,7 @@ def train(
     stopper = SignalStopCallback(verbose=verbose)
     cb_list: list = [metrics, checkpoints]
     for cls, kwargs in _named_objects(cfg.entry.get("callback"), "callback"):
-        cb_list.append(cls(**kwargs) if isinstance(cls, type) else cls)
+        cb_list.append(_construct(cls, kwargs, "callback") if isinstance(cls, type) else cls)
     eval_env = None
     if eval_freq and eval_freq > 0:
         eval_env = make_training_env(cfg, n_envs=1, seed=seed + 1)

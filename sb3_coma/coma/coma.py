@@ -53,6 +53,7 @@ from sb3_coma.coma.progress import JointStepProgressBar
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
     check_batch_fits_rollout,
+    check_non_negative,
     check_positive_int,
     check_positive_rate,
     check_spaces,
@@ -153,10 +154,12 @@ class COMA(OnPolicyAlgorithm):
         check_unit_interval("exploration_initial_eps", exploration_initial_eps)
         check_unit_interval("exploration_final_eps", exploration_final_eps)
         check_unit_interval("exploration_fraction", exploration_fraction, low_open=True)
-        if not ent_coef >= 0:
-            raise ValueError(f"ent_coef must be >= 0, got {ent_coef!r}")
-        if not max_grad_norm > 0:
+        check_non_negative("ent_coef", ent_coef)
+        if isinstance(max_grad_norm, bool) or not isinstance(max_grad_norm, (int, float)) or not max_grad_norm > 0:
             raise ValueError(f"max_grad_norm must be positive, got {max_grad_norm!r}")
+        check_positive_int("stats_window_size", stats_window_size)
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+            raise ValueError(f"seed must be None or an integer >= 0, got {seed!r}")
         if env is not None and n_steps is not None:
             assert n_agents is not None
             check_batch_fits_rollout(batch_size, n_steps, env.num_envs // n_agents)
@@ -376,7 +379,17 @@ class COMA(OnPolicyAlgorithm):
         targets = td_lambda_targets(data["rewards"], data["dones"], next_values, self.gamma, self.td_lambda)
         return targets.flatten(0, 1)
 
+    def _check_finite(self, name: str, loss: th.Tensor) -> None:
+        """Stop before a non-finite loss reaches the weights: a NaN would silently spread to
+        every parameter and the run would then save a broken model."""
+        if not th.isfinite(loss).all():
+            raise FloatingPointError(
+                f"{name} loss is {loss.item()} at update {self._n_updates} (num_timesteps={self.num_timesteps}); "
+                "training stopped before the weights were changed. Lower the learning rates or check the inputs."
+            )
+
     def _critic_step(self, loss: th.Tensor) -> None:
+        self._check_finite("critic", loss)
         opt = self.policy.critic_optimizer
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -429,6 +442,7 @@ class COMA(OnPolicyAlgorithm):
             log_prob_taken = log_probs.gather(-1, b_actions.unsqueeze(-1)).squeeze(-1)
             entropy = -(probs * log_probs).sum(-1).mean()
             loss = -(log_prob_taken * advantage).mean() - self.ent_coef * entropy
+            self._check_finite("actor", loss)
 
             self.policy.optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -484,6 +498,8 @@ class COMA(OnPolicyAlgorithm):
         progress_bar: bool = False,
     ) -> SelfCOMA:
         """Train for ``total_timesteps`` **joint** steps (one per env copy per step)."""
+        if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, (int, np.integer)) or total_timesteps < 1:
+            raise ValueError(f"total_timesteps must be an integer >= 1 (joint steps), got {total_timesteps!r}")
         return super().learn(
             total_timesteps=total_timesteps,
             callback=callback,
