@@ -327,8 +327,23 @@ def _check_int(name: str, value: Any, minimum: int) -> int:
     return int(value)
 
 
+def _shipped_info(policy_or_name: Any) -> dict[str, Any]:
+    """Manifest entry of a shipped model (by name or loaded object); empty for anything else."""
+    info = getattr(policy_or_name, "pretrained_info", None)
+    if isinstance(info, dict):
+        return info
+    if isinstance(policy_or_name, str) and not policy_or_name.endswith(".zip"):
+        try:
+            from sb3_coma.pretrained import model_info
+
+            return model_info(policy_or_name)
+        except (ImportError, ValueError, KeyError, OSError):
+            return {}
+    return {}
+
+
 def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int = 10, seed: int = 0,
-             fusion: str | None = None, deterministic: bool = True, n_envs: int | None = None,
+             fusion: str | None = None, deterministic: bool | None = None, n_envs: int | None = None,
              record: int = 1, label: str | None = None, planner_kwargs: Mapping[str, Any] | None = None,
              **env_options: Any) -> EvaluationResult:
     """Run a trained model or a baseline for ``n_trials`` seeded missions (see module docstring).
@@ -341,7 +356,8 @@ def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int = 10, seed: i
     :param seed: base seed (env and the planner's own random stream)
     :param fusion: ``"mean"`` or ``"sendfuse"``; ``None``: ``"sendfuse"`` for models (the paper's
         method), ``"mean"`` for baselines (they do not read the fused channel)
-    :param deterministic: passed to the model's ``predict``
+    :param deterministic: passed to the model's ``predict``; ``None``: what a shipped model's
+        manifest records (its results were measured that way), else ``True``
     :param n_envs: env copies flown at once (default: all trials in one batch); results are
         reproducible for the same ``seed`` and ``n_envs``
     :param record: how many trials keep their final global belief (trial 0 also keeps a belief
@@ -358,8 +374,11 @@ def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int = 10, seed: i
     record = _check_int("record", record, 0)
     n_envs = n_trials if n_envs is None else min(_check_int("n_envs", n_envs, 1), n_trials)
     check_policy(policy_or_name)
+    shipped = _shipped_info(policy_or_name)
     if fusion is None:
-        fusion = "sendfuse" if is_model(policy_or_name) else "mean"
+        fusion = shipped.get("fusion") or ("sendfuse" if is_model(policy_or_name) else "mean")
+    if deterministic is None:
+        deterministic = bool(shipped.get("deterministic", True))
     predictor: Any = None
     name = label
     parts: list[dict[str, Any]] = []

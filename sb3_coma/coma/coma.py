@@ -229,10 +229,11 @@ class COMA(OnPolicyAlgorithm):
         if self.n_agents is None:
             raise ValueError("n_agents is unknown: pass an env built by envs.make_vec_env")
         self.n_copies = self.n_envs // self.n_agents
-        if self.n_steps_requested is None:
-            self.n_steps = math.ceil(self.batch_size / self.n_copies)
-        else:
-            self.n_steps = self.n_steps_requested
+        # A rollout must hold at least one minibatch of joint steps. The constructor rejects an
+        # explicit n_steps that is too short; a model loaded onto an env with fewer copies (e.g.
+        # evaluation on 2 copies of a model trained on 8) stretches its rollouts instead.
+        min_steps = math.ceil(self.batch_size / self.n_copies)
+        self.n_steps = max(self.n_steps_requested or 0, min_steps)
         check_batch_fits_rollout(self.batch_size, self.n_steps, self.n_copies)
         self.set_random_seed(self.seed)
 

@@ -1,0 +1,86 @@
+"""``sb3-coma reproduce``: the paper's Table I, generalisation and latency from the shipped models.
+
+Examples::
+
+    sb3-coma reproduce                       # shipped models + baselines, env1-3, 10 trials -> results/, docs/RESULTS.md
+    sb3-coma reproduce --train               # retrain each env through zoo_configs/coma.yml first
+    sb3-coma reproduce --quick --out /tmp/r  # smoke run: 2 trials (and a tiny training with --train)
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+NAME = "reproduce"
+HELP = "reproduce Table I, generalisation and latency (shipped models or --train) into results/ and docs/RESULTS.md"
+DESCRIPTION = (
+    "Evaluate the shipped COMA models (or retrain them with --train through zoo_configs/coma.yml) against AG, "
+    "lawnmower and random on env1-env3 under moderate noise, 10 seeded trials each, and write Table I "
+    "(33/67/100 %% of the budget, mean +- std), an acceptance table, generalisation to other maps, deployment "
+    "latency, figures and RESULTS.md."
+)
+
+
+def _repo_docs() -> Path | None:
+    """docs/RESULTS.md of a source checkout, or None for an installed package."""
+    root = Path(__file__).resolve().parents[2]
+    docs = root / "docs"
+    return docs / "RESULTS.md" if docs.is_dir() and (root / "zoo_configs").is_dir() else None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="results", help="output folder (default results/)")
+    parser.add_argument("--env", default="env1,env2,env3", help="comma-separated maps (default env1,env2,env3)")
+    parser.add_argument("--trials", type=int, default=10, help="missions per method (default 10; --quick: 2)")
+    parser.add_argument("--seed", type=int, default=0, help="base evaluation seed: trial k uses SEED+k (default 0)")
+    parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud (default moderate)")
+    parser.add_argument("--train", action="store_true", help="retrain each env's model through the zoo config first")
+    parser.add_argument("--timesteps", type=int, default=None, help="with --train: joint steps (default: the config's)")
+    parser.add_argument("--fusion", default=None, choices=("mean", "sendfuse"),
+                        help="with --train: fusion (default: the shipped model's; sendfuse needs its weights)")
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run (< 60 s): 2 trials, tiny training with --train; docs are not rewritten")
+    parser.add_argument("--ship", action="store_true",
+                        help="with --train: replace the shipped zips and models.json with the retrained models")
+    parser.add_argument("--record", action="store_true",
+                        help="store the measured metrics of the shipped models in sb3_coma/pretrained/models.json")
+    parser.add_argument("--sampled", dest="deterministic", action="store_const", const=False, default=None,
+                        help="evaluate COMA with seeded draws from its policy (default: as recorded per model)")
+    parser.add_argument("--argmax", dest="deterministic", action="store_const", const=True,
+                        help="evaluate COMA with argmax actions")
+    parser.add_argument("--docs", default=None, metavar="PATH",
+                        help="where to write RESULTS.md (default docs/RESULTS.md of a source checkout; not with --quick)")
+    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/RESULTS.md")
+    parser.add_argument("--no-plots", action="store_true", help="skip the figures")
+    parser.add_argument("--no-generalisation", action="store_true", help="skip the generalisation section")
+
+
+def run(args: argparse.Namespace) -> int:
+    from sb3_coma.cli import UserError
+    from sb3_coma.reproduce import reproduce
+
+    envs = [e.strip() for e in args.env.split(",") if e.strip()]
+    if not envs:
+        raise UserError("--env is empty")
+    if args.trials < 1:
+        raise UserError(f"--trials must be >= 1, got {args.trials}")
+    if args.seed < 0:
+        raise UserError(f"--seed must be >= 0, got {args.seed}")
+    if args.ship and (not args.train or args.quick):
+        raise UserError("--ship needs --train (and not --quick)")
+    if args.timesteps is not None and args.timesteps < 1:
+        raise UserError(f"--timesteps must be >= 1, got {args.timesteps}")
+    docs = None
+    if not args.no_docs:
+        if args.docs is not None:
+            docs = Path(args.docs)
+        elif not args.quick:
+            docs = _repo_docs()
+    try:
+        reproduce(out=args.out, env_names=envs, trials=args.trials, seed=args.seed, noise=args.noise, train=args.train,
+                  quick=args.quick, timesteps=args.timesteps, fusion=args.fusion, docs=docs,
+                  plots=not args.no_plots, ship=args.ship, generalisation=not args.no_generalisation,
+                  deterministic=args.deterministic, record=args.record and not args.quick)
+    except ValueError as exc:  # unknown/missing/corrupt shipped model, bad env options
+        raise UserError(str(exc)) from None
+    return 0

@@ -1,0 +1,133 @@
+"""Shipped COMA models: ``load_pretrained("env1" | "env2" | "env3")``.
+
+The models live in ``sb3_coma/pretrained/`` next to ``models.json``, which records for each name
+the zip's file name, its SHA-256 checksum and size, the exact command that retrains it, the
+training wall-clock, the fusion it was trained with and the metrics measured by
+``sb3-coma reproduce`` (see ``MODELS.md`` there).
+
+Security: an SB3 ``.zip`` is loaded with ``torch.load`` and may contain pickled Python objects,
+so loading a zip from an untrusted source can run code. :func:`load_pretrained` therefore checks
+the file's SHA-256 against ``models.json`` *before* loading it; a missing file or a checksum
+mismatch raises :class:`PretrainedError` and nothing is loaded. This checked route is the
+verified one: loading a zip by path (``COMA.load``, ``sb3-coma evaluate --model PATH``) trusts
+the file as it is.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+__all__ = ["PretrainedError", "load_pretrained", "available", "model_info", "pretrained_dir",
+           "model_path", "sha256_file", "read_manifest", "write_manifest", "MANIFEST"]
+
+#: File name of the manifest inside the pretrained folder.
+MANIFEST = "models.json"
+
+
+class PretrainedError(ValueError):
+    """A shipped model that cannot be used: unknown name, missing file, checksum mismatch."""
+
+
+def pretrained_dir() -> Path:
+    """The folder that holds the shipped models (``sb3_coma/pretrained``)."""
+    return Path(__file__).resolve().parent / "pretrained"
+
+
+def sha256_file(path: str | os.PathLike[str]) -> str:
+    """Hex SHA-256 of a file, read in 1 MiB blocks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def read_manifest(directory: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+    """The parsed ``models.json`` (``{"format": 1, "models": {name: entry}}``)."""
+    path = Path(directory or pretrained_dir()) / MANIFEST
+    if not path.is_file():
+        raise PretrainedError(f"no shipped models: {path} is missing (this install has no sb3_coma/pretrained "
+                              f"data; retrain with `sb3-coma reproduce --train`)")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise PretrainedError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("models"), dict):
+        raise PretrainedError(f"{path} has no 'models' mapping")
+    return data
+
+
+def write_manifest(data: dict[str, Any], directory: str | os.PathLike[str] | None = None) -> Path:
+    """Write ``models.json`` atomically (temporary file + ``os.replace``)."""
+    path = Path(directory or pretrained_dir()) / MANIFEST
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def available(directory: str | os.PathLike[str] | None = None) -> list[str]:
+    """Names of the shipped models, e.g. ``["env1", "env2", "env3"]``."""
+    return sorted(read_manifest(directory)["models"])
+
+
+def _canonical(name: str) -> str:
+    text = str(name).strip()
+    low = text.lower()
+    # accept the gymnasium id too: UavIpp-Env3-v0 -> env3
+    if low.startswith("uavipp-") and low.endswith("-v0"):
+        low = low[len("uavipp-"):-len("-v0")]
+    return low
+
+
+def model_info(name: str, directory: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+    """The manifest entry of a shipped model (file, sha256, command, wall-clock, metrics ...)."""
+    models = read_manifest(directory)["models"]
+    key = _canonical(name)
+    if key not in models:
+        raise PretrainedError(f"unknown shipped model {name!r}; available: {', '.join(sorted(models)) or 'none'}")
+    return dict(models[key])
+
+
+def model_path(name: str, directory: str | os.PathLike[str] | None = None, verify: bool = True) -> Path:
+    """Path of a shipped model's zip, checked against its SHA-256 unless ``verify=False``."""
+    info = model_info(name, directory)
+    path = Path(directory or pretrained_dir()) / info["file"]
+    if not path.is_file():
+        raise PretrainedError(f"shipped model {name!r}: file {path} is missing (reinstall sb3-coma or retrain "
+                              f"with: {info.get('command', 'sb3-coma reproduce --train')})")
+    if verify:
+        actual = sha256_file(path)
+        expected = str(info.get("sha256", "")).lower()
+        if actual != expected:
+            raise PretrainedError(f"shipped model {name!r}: checksum mismatch for {path} (sha256 {actual}, "
+                                  f"models.json expects {expected}); the file was modified or corrupted and "
+                                  f"is NOT loaded (an SB3 zip can run code when loaded)")
+    return path
+
+
+def load_pretrained(name: str, env: Any = None, device: str = "cpu",
+                    directory: str | os.PathLike[str] | None = None) -> Any:
+    """Load a shipped COMA model after verifying its checksum.
+
+    :param name: ``"env1"``, ``"env2"``, ``"env3"`` (or the gymnasium id ``"UavIpp-Env3-v0"``)
+    :param env: optional vec env (``envs.make_vec_env(name, fusion=model.fusion)``) to attach;
+        ``None`` is enough for ``predict``
+    :param device: torch device (default cpu)
+    :param directory: folder holding ``models.json`` and the zips (default: the shipped one)
+    :raises PretrainedError: unknown name, missing file, checksum mismatch (a ``ValueError``)
+
+    The returned model carries ``pretrained_info`` (its manifest entry); evaluate it with the
+    fusion it was trained with: ``sb3_coma.evaluate(model, env="env3",
+    fusion=model.pretrained_info["fusion"])``.
+    """
+    from sb3_coma import COMA
+
+    info = model_info(name, directory)
+    path = model_path(name, directory, verify=True)
+    model = COMA.load(str(path), env=env, device=device)
+    model.pretrained_info = info
+    return model

@@ -1,0 +1,85 @@
+"""Shipped models: load_pretrained verifies the checksum, returns a COMA that honours masks."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import envs
+from sb3_coma import COMA
+from sb3_coma import load_pretrained as exported
+from sb3_coma import pretrained as pt
+from sb3_coma.pretrained import PretrainedError, load_pretrained
+
+pytestmark = pytest.mark.skipif(not (pt.pretrained_dir() / pt.MANIFEST).is_file(), reason="no shipped models")
+
+
+def test_manifest_records_checksums_commands_metrics():
+    data = pt.read_manifest()
+    assert set(pt.available()) >= {"env1", "env2", "env3"}
+    for name, entry in data["models"].items():
+        path = pt.pretrained_dir() / entry["file"]
+        assert path.is_file() and path.stat().st_size == entry["size_bytes"]
+        assert pt.sha256_file(path) == entry["sha256"]
+        assert entry["command"].startswith(f"sb3-coma train --env {name}")
+        assert entry["train_wall_s"] > 0 and entry["timesteps"] > 0
+        assert {"f1_100_mean", "entropy_100_mean"} <= set(entry["metrics"])
+
+
+def test_load_pretrained_predict_honours_masks():
+    assert exported is load_pretrained
+    model = load_pretrained("env3")
+    assert isinstance(model, COMA) and model.pretrained_info["env"] == "env3"
+    assert pt.model_info("UavIpp-Env3-v0")["file"] == model.pretrained_info["file"]
+    venv = envs.make_vec_env("env3", n_envs=2, fusion=model.pretrained_info["fusion"], seed=0)
+    obs = venv.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(2):
+        mask = np.zeros_like(obs["action_mask"])
+        allowed = rng.integers(0, mask.shape[1], size=mask.shape[0])
+        mask[np.arange(mask.shape[0]), allowed] = 1.0
+        obs = dict(obs, action_mask=mask)
+        for deterministic in (True, False):
+            actions, _ = model.predict(obs, deterministic=deterministic)
+            assert np.array_equal(actions, allowed)
+        obs, *_ = venv.step(model.predict(obs, deterministic=True)[0])
+    venv.close()
+
+
+def test_unknown_name_is_a_clear_error():
+    with pytest.raises(PretrainedError, match=r"unknown shipped model 'env9'; available: env1, env2, env3"):
+        load_pretrained("env9")
+    assert issubclass(PretrainedError, ValueError)
+
+
+def _copy(tmp_path):
+    src = pt.pretrained_dir()
+    entry = pt.model_info("env1")
+    shutil.copyfile(src / pt.MANIFEST, tmp_path / pt.MANIFEST)
+    shutil.copyfile(src / entry["file"], tmp_path / entry["file"])
+    return tmp_path / entry["file"]
+
+
+def test_checksum_mismatch_refuses_to_load(tmp_path):
+    path = _copy(tmp_path)
+    assert isinstance(load_pretrained("env1", directory=tmp_path), COMA)
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(PretrainedError, match="checksum mismatch.*NOT loaded"):
+        load_pretrained("env1", directory=tmp_path)
+
+
+def test_missing_file_and_manifest(tmp_path):
+    path = _copy(tmp_path)
+    path.unlink()
+    with pytest.raises(PretrainedError, match="is missing"):
+        load_pretrained("env1", directory=tmp_path)
+    (tmp_path / pt.MANIFEST).unlink()
+    with pytest.raises(PretrainedError, match="models.json is missing"):
+        load_pretrained("env1", directory=tmp_path)
+    (tmp_path / pt.MANIFEST).write_text(json.dumps({"nothing": 1}))
+    with pytest.raises(PretrainedError, match="no 'models' mapping"):
+        load_pretrained("env1", directory=tmp_path)

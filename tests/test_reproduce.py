@@ -1,0 +1,60 @@
+"""``sb3-coma reproduce --quick`` end to end into a temporary folder."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from sb3_coma import pretrained as pt
+from sb3_coma.cli import main
+from sb3_coma.reproduce import acceptance
+
+pytestmark = pytest.mark.skipif(not (pt.pretrained_dir() / pt.MANIFEST).is_file(), reason="no shipped models")
+
+
+def test_reproduce_quick_end_to_end(tmp_path, capsys):
+    out = tmp_path / "res"
+    docs = tmp_path / "docs" / "RESULTS.md"
+    assert main(["reproduce", "--quick", "--env", "env1", "--out", str(out), "--docs", str(docs)]) == 0
+    for name in ("table.md", "table.csv", "acceptance.md", "generalisation.md", "latency.md", "summary.json",
+                 "RESULTS.md", "figures/table1_curves.png", "figures/training_reward.png"):
+        assert (out / name).is_file(), name
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["trials"] == 2 and summary["models"]["env1"]["source"] == "shipped"
+    assert set(summary["table"]) == {"env1/coma", "env1/ag", "env1/lawnmower", "env1/random"}
+    assert {g["target"] for g in summary["generalisation"] if g["model"] == "env1"} >= {"env1 (map_seed=7)"}
+    text = docs.read_text()
+    assert "## Table I" in text and "## Generalisation" in text and "## Deployment latency" in text
+    assert "![table1_curves](figures/table1_curves.png)" in text and (docs.parent / "figures" / "table1_curves.png").is_file()
+    assert "sb3-coma reproduce --quick" in text
+
+
+def test_reproduce_refuses_bad_input(tmp_path, capsys):
+    assert main(["reproduce", "--quick", "--ship", "--out", str(tmp_path)]) == 2
+    assert "--ship needs --train" in capsys.readouterr().err
+    assert main(["reproduce", "--quick", "--env", "env9", "--out", str(tmp_path), "--no-docs"]) == 2
+    assert "unknown shipped model 'env9'" in capsys.readouterr().err
+
+
+def test_acceptance_logic():
+    class R:
+        def __init__(self, env, method, f1, ent):
+            self.env, self.method, self._v = env, method, {"f1": f1, "entropy": ent}
+
+        def mean_std(self, name, frac):
+            return self._v[name], 0.0
+
+    acc = acceptance([R("e", "coma", 0.8, 0.3), R("e", "ag", 0.7, 0.2), R("e", "random", 0.5, 0.7)])["e"]
+    assert acc["beats_f1"] and not acc["beats_entropy"] and not acc["beats_all"]
+    assert acc["best_entropy_baseline"] == "ag" and acc["best_f1_baseline"] == "ag"
+
+
+def test_reproduce_quick_train(tmp_path):
+    out = tmp_path / "res"
+    assert main(["reproduce", "--quick", "--train", "--env", "env1", "--out", str(out), "--no-docs", "--no-plots",
+                 "--no-generalisation"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    model = summary["models"]["env1"]
+    assert model["source"] == str(out / "runs" / "env1") and model["timesteps"] >= 32
+    assert model["command"].startswith("sb3-coma train --env env1 --variant fast-mean --seed 0 --timesteps 32")
+    assert (out / "runs" / "env1" / "model.zip").is_file() and summary["command"] == "sb3-coma reproduce --train --quick"
