@@ -71,8 +71,9 @@ def test_without_noise_and_in_range_it_is_close_to_the_mean() -> None:
         np.testing.assert_array_equal(obs_s[layout.KEY_LOCAL][:, raw], obs_m[layout.KEY_LOCAL][:, raw])
         diffs.append(np.abs(obs_s[layout.KEY_LOCAL][:, layout.FUSED] - obs_m[layout.KEY_LOCAL][:, layout.FUSED]))
     diffs = np.stack(diffs)
-    assert diffs.mean() < 0.02, diffs.mean()
-    assert diffs.max() < 0.2, diffs.max()
+    # shipped weights: mean 0.0012, max 0.0065 (lattice values live in [0, 1])
+    assert diffs.mean() < 0.01, diffs.mean()
+    assert diffs.max() < 0.08, diffs.max()
 
 
 def test_missing_weights_give_a_clear_error(tmp_path) -> None:
