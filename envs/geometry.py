@@ -14,17 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import IppConfig
-
-
-def block_index(n_cells: int, field_size: float, lattice: int) -> np.ndarray:
-    """Lattice block of every cell along one axis: the lattice point nearest to the cell centre.
-
-    Blocks are 5 m squares centred on lattice points (half squares at the borders), which is how
-    the 11 x 11 observation maps aggregate the fine grids.
-    """
-    centres = (np.arange(n_cells) + 0.5) * (field_size / n_cells)
-    spacing = field_size / (lattice - 1)
-    return np.clip(np.floor(centres / spacing + 0.5), 0, lattice - 1).astype(np.int64)
+from .maps import block_index
 
 
 def comm_index(n_cells: int, comm_grid: int) -> np.ndarray:
@@ -76,7 +66,7 @@ class FieldGeometry:
         half_fov = math.radians(config.fov_deg) / 2.0
         #: Half side of the square footprint per altitude level, metres.
         self.half_side = self.altitudes * math.tan(half_fov)
-        self.block_of_cell = block_index(self.grid, config.field_size, self.lattice)
+        self.block_of_cell = block_index(self.grid, self.lattice)
         self.comm_of_cell = comm_index(self.grid, self.comm_grid)
         self.cells_per_block = np.bincount(self.block_of_cell, minlength=self.lattice).astype(np.int64)
         self.block_area = np.outer(self.cells_per_block, self.cells_per_block).astype(np.float64)

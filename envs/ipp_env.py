@@ -212,7 +212,7 @@ class UavIppEnv(ParallelEnv):
         self._received_valid[:, 0] = 1.0
         self._visits = np.zeros((n, L, L), dtype=np.float32)
         self._links = np.eye(n, dtype=bool)
-        self._trajectory = [self.positions_m()]
+        self._trajectory: list[np.ndarray] = []
         self._measure_all()
         self._mark_visits()
         observations = self._observations()
@@ -229,7 +229,6 @@ class UavIppEnv(ParallelEnv):
         self._steps += 1
         self._measure_all()
         self._mark_visits()
-        self._trajectory.append(self.positions_m())
         cfg = self.config
         h_after = self._went_total
         reward = cfg.alpha * (h_before - h_after) / h_before + cfg.beta if h_before > 0 else cfg.beta
@@ -289,6 +288,7 @@ class UavIppEnv(ParallelEnv):
         fresh_mask = comm_cnt >= 0.5 * geo.comm_cell_area[None]
         fresh = comm_sum / np.maximum(comm_cnt, 1.0)
         pos_m = self.positions_m()
+        self._trajectory.append(pos_m)  # one position read per measurement serves both
         dist = np.linalg.norm(pos_m[:, None, :] - pos_m[None, :, :], axis=-1)
         links = dist <= cfg.comm_range
         if cfg.drop_probability > 0:

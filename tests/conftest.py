@@ -12,6 +12,14 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+import pytest  # noqa: E402
 import torch  # noqa: E402
 
 torch.set_num_threads(1)
+
+
+@pytest.fixture
+def tmp_cwd(tmp_path, monkeypatch):
+    """Run the test inside its tmp_path, so nothing it writes lands in the repository."""
+    monkeypatch.chdir(tmp_path)
+    return tmp_path

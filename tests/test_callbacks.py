@@ -23,16 +23,8 @@ N_AGENTS, BUDGET = 2, 3
 
 
 
-@pytest.fixture(autouse=True)
-def _single_thread_and_tmp_cwd(tmp_path, monkeypatch):
-    """Tiny networks run fastest on one thread; nothing may land in the repository's folder."""
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    monkeypatch.chdir(tmp_path)
-    yield
-    torch.set_num_threads(threads)
+# Runs write run folders and logs into the working directory: keep them in tmp_path.
+pytestmark = pytest.mark.usefixtures("tmp_cwd")
 
 class Recorder(VecEnvWrapper):
     """Keeps (dones, infos) of every step, as the learner receives them."""

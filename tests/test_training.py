@@ -44,16 +44,8 @@ TINY = {
 
 
 
-@pytest.fixture(autouse=True)
-def _single_thread_and_tmp_cwd(tmp_path, monkeypatch):
-    """Tiny networks run fastest on one thread; nothing may land in the repository's folder."""
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    monkeypatch.chdir(tmp_path)
-    yield
-    torch.set_num_threads(threads)
+# Runs write run folders and logs into the working directory: keep them in tmp_path.
+pytestmark = pytest.mark.usefixtures("tmp_cwd")
 
 def write_config(folder: Path, data: dict | None = None, text: str | None = None) -> Path:
     path = folder / "tiny.yml"
