@@ -21,6 +21,9 @@ NOISE_PRESETS: dict[str, tuple[float, float]] = {
     "loud": (0.6, 0.06),
 }
 
+#: ``reward`` options: the paper's relative entropy drop, or the change of the two Table I metrics.
+REWARDS = ("entropy", "metrics")
+
 DEFAULT_FLIP_PROBABILITY: dict[float, float] = {5.0: 0.01, 10.0: 0.265, 15.0: 0.375}
 DEFAULT_STARTS: tuple[tuple[float, float, float], ...] = (
     (10.0, 10.0, 15.0),
@@ -64,6 +67,8 @@ class IppConfig:
     alpha: float = 10.0
     beta: float = -0.17
     reward_entropy: str = "plain"
+    reward: str = "entropy"
+    action_gain: bool = True
     render_mode: str | None = None
 
     # ------------------------------------------------------------------ derived values
@@ -179,6 +184,10 @@ class IppConfig:
             _fail("alpha/beta", (self.alpha, self.beta), "finite reward scale and offset")
         if self.reward_entropy not in ("plain", "weighted"):
             _fail("reward_entropy", self.reward_entropy, "'plain' (binary entropy of every cell) or 'weighted' (ipp-marl's class weighting)")
+        if self.reward not in REWARDS:
+            _fail("reward", self.reward, "'entropy' (the paper's entropy-drop reward) or 'metrics' (the change of F1 and valuable-cell entropy)")
+        if not isinstance(self.action_gain, bool):
+            _fail("action_gain", self.action_gain, "True (observe each action's expected information gain) or False")
         if self.render_mode not in (None, "rgb_array", "ansi"):
             _fail("render_mode", self.render_mode, "None, 'rgb_array' or 'ansi'")
         if self.map_seed is not None and (not is_int(self.map_seed) or self.map_seed < 0):

@@ -23,15 +23,18 @@ from .config import ConfigError
 from .geometry import overlap_matrix
 
 
+#: Keys a fusion wrapper replaces by the 8th ``local`` channel.
+_CONSUMED = (layout.KEY_LOCAL, layout.KEY_RECEIVED, layout.KEY_RECEIVED_VALID)
+
+
 def fused_observation_space(raw: spaces.Dict) -> spaces.Dict:
-    """The per-agent space after fusion: ``local`` (8 ch), ``state``, ``action_mask``."""
+    """The per-agent space after fusion: ``local`` (8 ch), ``state``, ``action_mask`` and any other
+    key of the raw space (``action_gain``) as it is; the received maps are consumed."""
     local = raw[layout.KEY_LOCAL]
     channels, h, w = local.shape
-    return spaces.Dict({
-        layout.KEY_LOCAL: spaces.Box(0.0, 1.0, (channels + 1, h, w), np.float32),
-        layout.KEY_STATE: raw[layout.KEY_STATE],
-        layout.KEY_MASK: raw[layout.KEY_MASK],
-    })
+    entries = {layout.KEY_LOCAL: spaces.Box(0.0, 1.0, (channels + 1, h, w), np.float32)}
+    entries.update((key, space) for key, space in raw.spaces.items() if key not in _CONSUMED)
+    return spaces.Dict(entries)
 
 
 def mean_fusion(received: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -76,30 +79,28 @@ class FusionWrapper(VectorWrapper):
         a = self._to_lattice
         small = np.clip(np.matmul(np.matmul(a, fused), a.T), 0.0, 1.0).astype(np.float32)
         local = np.concatenate([observations[layout.KEY_LOCAL], small[:, None]], axis=1)
-        return {
-            layout.KEY_LOCAL: local,
-            layout.KEY_STATE: observations[layout.KEY_STATE],
-            layout.KEY_MASK: observations[layout.KEY_MASK],
-        }
-
-    def _fuse_terminal(self, infos: list[dict[str, Any]]) -> None:
-        idx = [i for i, info in enumerate(infos) if "terminal_observation" in info]
-        if not idx:
-            return
-        raw = [infos[i]["terminal_observation"] for i in idx]
-        batch = {key: np.stack([obs[key] for obs in raw]) for key in raw[0]}
-        fused = self.observations(batch)
-        for k, i in enumerate(idx):
-            infos[i]["terminal_observation"] = {key: value[k] for key, value in fused.items()}
+        out = {layout.KEY_LOCAL: local}
+        out.update((key, value) for key, value in observations.items() if key not in _CONSUMED)
+        return out
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         observations, infos = self.env.reset(seed=seed, options=options)
         return self.observations(observations), infos
 
     def step(self, actions):
+        """Fuse the step's observations and, where copies finished, their terminal observations, in
+        one call of :meth:`fuse` (one network pass for SenDFuse, even at episode ends)."""
         observations, rewards, terminations, truncations, infos = self.env.step(actions)
-        self._fuse_terminal(infos)
-        return self.observations(observations), rewards, terminations, truncations, infos
+        ended = [i for i, info in enumerate(infos) if "terminal_observation" in info]
+        if not ended:
+            return self.observations(observations), rewards, terminations, truncations, infos
+        raw = [infos[i]["terminal_observation"] for i in ended]
+        batch = {key: np.concatenate([observations[key], np.stack([obs[key] for obs in raw])]) for key in observations}
+        fused = self.observations(batch)
+        rows = len(observations[layout.KEY_LOCAL])
+        for k, i in enumerate(ended):
+            infos[i]["terminal_observation"] = {key: value[rows + k] for key, value in fused.items()}
+        return {key: value[:rows] for key, value in fused.items()}, rewards, terminations, truncations, infos
 
 
 class MeanFusionWrapper(FusionWrapper):

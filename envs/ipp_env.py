@@ -31,7 +31,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from . import kernels, layout
+from . import gain, kernels, layout
 from .config import ConfigError, IppConfig
 from .geometry import FieldGeometry
 from .maps import GroundTruth, load_ground_truth
@@ -74,19 +74,25 @@ class UavIppEnv(ParallelEnv):
         self._state = np.ones(1, dtype=np.uint64)       # sensor flips
         self._comm_state = np.ones(1, dtype=np.uint64)  # channel noise: its own stream, so the
         # noise preset never changes which cells flip (the global map must not see the channel)
+        if cfg.action_gain:
+            self._gain_counts = gain.axis_counts(self.geometry)
+            self._gain_flips = np.array([cfg.flip_probability[a] for a in cfg.altitudes], dtype=np.float64)
         self._build_spaces(n, r)
         self._steps = 0
 
     # ------------------------------------------------------------------ spaces
     def _build_spaces(self, n: int, r: int) -> None:
         L = self.config.lattice
-        self._observation_space = spaces.Dict({
+        entries = {
             layout.KEY_LOCAL: spaces.Box(0.0, 1.0, (layout.RAW_LOCAL_CHANNELS, L, L), np.float32),
             layout.KEY_RECEIVED: spaces.Box(*RECEIVED_RANGE, (n, r, r), np.float32),
             layout.KEY_RECEIVED_VALID: spaces.Box(0.0, 1.0, (n,), np.float32),
             layout.KEY_STATE: spaces.Box(0.0, 1.0, (layout.STATE_CHANNELS, L, L), np.float32),
             layout.KEY_MASK: spaces.Box(0, 1, (layout.N_ACTIONS,), np.int8),
-        })
+        }
+        if self.config.action_gain:
+            entries[layout.KEY_GAIN] = spaces.Box(-1.0, 1.0, (len(layout.GAIN_WEIGHTINGS), layout.N_ACTIONS), np.float32)
+        self._observation_space = spaces.Dict(entries)
         self._action_space = spaces.Discrete(layout.N_ACTIONS)
 
     @functools.lru_cache(maxsize=None)
@@ -224,6 +230,7 @@ class UavIppEnv(ParallelEnv):
             raise RuntimeError("step() called on a finished mission: call reset() first")
         acts = self._parse_actions(actions)
         h_before = self._went_total
+        scores_before = self._score()
         self._apply_actions(acts)
         self._budget_left -= 1
         self._steps += 1
@@ -231,10 +238,13 @@ class UavIppEnv(ParallelEnv):
         self._mark_visits()
         cfg = self.config
         h_after = self._went_total
-        reward = cfg.alpha * (h_before - h_after) / h_before + cfg.beta if h_before > 0 else cfg.beta
+        metrics = self.metrics()
+        if cfg.reward == "metrics":
+            reward = cfg.alpha * (self._score() - scores_before) + cfg.beta
+        else:
+            reward = cfg.alpha * (h_before - h_after) / h_before + cfg.beta if h_before > 0 else cfg.beta
         done = self._budget_left <= 0
         observations = self._observations()
-        metrics = self.metrics()
         rewards = {a: float(reward) for a in self.agents}
         terminations = {a: done for a in self.agents}
         truncations = {a: False for a in self.agents}
@@ -242,6 +252,12 @@ class UavIppEnv(ParallelEnv):
         if done:
             self.agents = []
         return observations, rewards, terminations, truncations, infos
+
+    def _score(self) -> float:
+        """F1 plus (1 - entropy over valuable cells): the quantity ``reward="metrics"`` pays the
+        change of, so a mission's return is ``alpha`` times the gain in both Table I metrics."""
+        m = self.metrics()
+        return m["f1"] - m["entropy"]
 
     def _parse_actions(self, actions: dict[str, Any]) -> np.ndarray:
         if not isinstance(actions, dict):
@@ -328,7 +344,7 @@ class UavIppEnv(ParallelEnv):
         masks = self.action_masks()
         received = self._received.copy()
         valid = self._received_valid.copy()
-        return {
+        observations = {
             agent: {
                 layout.KEY_LOCAL: local[i],
                 layout.KEY_RECEIVED: received[i],
@@ -338,6 +354,13 @@ class UavIppEnv(ParallelEnv):
             }
             for i, agent in enumerate(self.possible_agents)
         }
+        if cfg.action_gain:
+            gains = np.stack([gain.action_gains(self._local_prob, self._pos, masks, self._gain_counts,
+                                                self._gain_flips, ACTION_DELTAS, weighting)
+                              for weighting in layout.GAIN_WEIGHTINGS], axis=1)  # (N, 2, 6)
+            for i, agent in enumerate(self.possible_agents):
+                observations[agent][layout.KEY_GAIN] = gains[i]
+        return observations
 
     def metrics(self) -> dict[str, float]:
         """F1 of (global belief > 0.5) vs truth, mean entropy (bits) over valuable cells, and more."""

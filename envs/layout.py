@@ -31,3 +31,8 @@ KEY_RECEIVED = "received"
 KEY_RECEIVED_VALID = "received_valid"
 KEY_STATE = "state"
 KEY_MASK = "action_mask"
+#: Optional key (env option ``action_gain``): (2, 6) each action's normalised expected information
+#: gain, from the UAV's own local belief, under ipp-marl's class-weighted entropy (row 0) and
+#: plain binary entropy (row 1); COMA's actor can add it to its logits (``gain_prior``).
+KEY_GAIN = "action_gain"
+GAIN_WEIGHTINGS = ("class", "none")

@@ -46,6 +46,15 @@ def _user_error_types() -> tuple[type[BaseException], ...]:
     return tuple(found)
 
 
+def set_threads(threads: int) -> None:
+    """``--threads``: torch's CPU thread count for this command (must be >= 1)."""
+    if not isinstance(threads, int) or threads < 1:
+        raise UserError(f"--threads must be an integer >= 1, got {threads!r}")
+    import torch
+
+    torch.set_num_threads(threads)
+
+
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, ModuleType]]:
     parser = argparse.ArgumentParser(prog="sb3-coma", description="COMA + SenDFuse + CBAM for multi-UAV IPP")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")

@@ -132,6 +132,27 @@ def _evaluate_model(src: ModelSource, env: str, trials: int, seed: int, noise: s
                        deterministic=src.deterministic, noise=noise, **extra)
 
 
+def untrained_prior(model: Any) -> Any:
+    """The policy a gain-prior model starts from: its prior weights at their initial value and the
+    network's contribution removed (output layer zeroed; at initialisation it is ~0.01 of the
+    prior). ``None`` for a model without a gain prior. Evaluated with argmax actions, this is the
+    greedy planner on the untrained mix of the two information gains, so comparing it with the
+    trained model shows what COMA's training adds."""
+    import copy
+
+    import torch as th
+
+    actor = model.policy.actor
+    if getattr(actor, "prior_theta", None) is None:
+        return None
+    policy = copy.deepcopy(model.policy)
+    with th.no_grad():
+        policy.actor.head.weight.zero_()
+        policy.actor.head.bias.zero_()
+        policy.actor.prior_theta.fill_(policy.gain_prior / policy.gain_prior_speed)
+    return policy
+
+
 def _final(result: Any) -> dict[str, float]:
     f1, f1s = result.mean_std("f1", 1.0)
     en, ens = result.mean_std("entropy", 1.0)
@@ -171,15 +192,15 @@ def _time_fusion(fusion: str, n_agents: int, reps: int = 200) -> float | None:
         try:
             import torch as th
 
-            from sb3_coma.sendfuse.weights import load_default  # type: ignore[attr-defined]
+            from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 
-            net = load_default()
-            x = th.as_tensor(received)
+            net = load_weights(default_weights_path(received.shape[-1]))
+            x, v = th.as_tensor(received), th.as_tensor(valid)
 
             def fn() -> Any:
-                with th.no_grad():
-                    return net(x)
-        except Exception:  # noqa: BLE001 - the SenDFuse loader is another module's business
+                with th.inference_mode():
+                    return net.fuse(x, v)
+        except Exception:  # noqa: BLE001 - weights missing or unreadable: report n/a, not a crash
             return None
     fn()
     tic = time.perf_counter()
@@ -305,6 +326,20 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
             gen.append({"model": r.env, "target": r.env, **_final(r)})
     (out / "generalisation.md").write_text(_generalisation_markdown(gen, env_names, results))
 
+    # ---- what training adds over the untrained gain prior
+    prior_rows: list[dict[str, Any]] = []
+    for env, src in sources.items():
+        policy = untrained_prior(src.model)
+        if policy is None:
+            continue
+        say(f"evaluating the untrained gain prior of the {env} model ...")
+        r = ev.evaluate(policy, env=env, n_trials=trials, seed=seed, fusion=src.fusion, deterministic=True,
+                        noise=noise, label="prior")
+        trained = next(x for x in results if x.env == env and x.method == "coma")
+        prior_rows.append({"env": env, "prior": _final(r), "trained": _final(trained),
+                           "weights_start": [float(policy.gain_prior)] * 2,
+                           "weights_trained": [round(float(w), 3) for w in src.model.policy.actor.prior_weights.detach()]})
+
     # ---- latency
     latency = []
     for env, src in sources.items():
@@ -327,7 +362,7 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
         "models": {env: {"source": s.source, "fusion": s.fusion, "command": s.command, "train_wall_s": s.train_wall_s,
                          "timesteps": s.timesteps, "deterministic": s.deterministic} for env, s in sources.items()},
         "table": {f"{r.env}/{r.method}": r.summary() for r in results},
-        "acceptance": accept, "generalisation": gen, "latency": latency,
+        "acceptance": accept, "generalisation": gen, "latency": latency, "untrained_prior": prior_rows,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
 
@@ -432,6 +467,19 @@ def _generalisation_markdown(gen: list[dict[str, Any]], env_names: Sequence[str]
     return "\n".join(lines) + "\n"
 
 
+def _prior_markdown(rows: list[dict[str, Any]]) -> str:
+    lines = ["| Env | untrained prior F1 | trained F1 | untrained prior entropy | trained entropy | prior weights "
+             "(class, plain): start -> trained |", "| --- | ---: | ---: | ---: | ---: | --- |"]
+    for r in rows:
+        p, t = r["prior"], r["trained"]
+        lines.append(f"| {r['env']} | {p['f1']:.4f} ± {p['f1_std']:.4f} | {t['f1']:.4f} ± {t['f1_std']:.4f} | "
+                     f"{p['entropy']:.4f} ± {p['entropy_std']:.4f} | {t['entropy']:.4f} ± {t['entropy_std']:.4f} | "
+                     f"{r['weights_start']} -> {r['weights_trained']} |")
+    if not rows:
+        lines.append("| (no model with a gain prior) | | | | | |")
+    return "\n".join(lines) + "\n"
+
+
 def _latency_markdown(latency: list[dict[str, Any]]) -> str:
     lines = ["| Env | fusion | actor, one UAV (ms) | actor, batched (ms per UAV) | fusion (ms per UAV) | "
              "actor + fusion (ms) | AG (ms per UAV) |", "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
@@ -477,6 +525,11 @@ def results_markdown(summary: dict[str, Any], table: str, figures: Sequence[Path
                "environment.**") if verdict else
               "**Verdict: COMA does NOT beat every baseline on both metrics everywhere; see the NO cells above. "
               "What was tried and measured: `sb3_coma/pretrained/MODELS.md`.**", "",
+              "## What training adds: the untrained gain prior vs the trained model (100 % budget)", "",
+              "The shipped actor adds a learned mix of each action's expected information gain to its logits "
+              "(docs/training.md, \"Gain prior\"). \"untrained prior\" flies the same model with that mix at its "
+              "starting weights and the network's own term removed, argmax actions: the greedy planner the "
+              "training starts from.", "", _prior_markdown(summary.get("untrained_prior", [])), "",
               "## Generalisation (100 % budget)", "",
               "Each env's model flown on the other maps and on a fresh env1 star layout "
               f"(`map_seed={FRESH_ENV1_SEED}`; env1's default is 0), same trials and noise; baselines on the fresh layout "

@@ -115,7 +115,7 @@ def test_save_load_round_trip_and_continue(tmp_path: Path) -> None:
     a1, _ = model.predict(obs, deterministic=True)
     a2, _ = loaded.predict(obs, deterministic=True)
     assert np.array_equal(a1, a2)
-    local, state, _ = model._obs_tensors(obs, grouped=True)
+    local, state, _, _ = model._obs_tensors(obs, grouped=True)
     actions = th.as_tensor(a1).view(2, 2)
     with th.no_grad():
         for target in (False, True):

@@ -59,7 +59,8 @@ def model() -> COMA:
 
 def joint_obs(model: COMA) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     obs = model.env.reset()
-    return model._obs_tensors(obs, grouped=True)
+    local, state, mask, _ = model._obs_tensors(obs, grouped=True)
+    return local, state, mask
 
 
 def test_own_action_does_not_change_own_q_row(model: COMA) -> None:

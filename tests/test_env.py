@@ -315,6 +315,8 @@ BAD_OPTIONS = [
     ({"n_uavs": 1, "start_positions": [(12, 10, 15)]}, "start_positions"),
     ({"render_mode": "human"}, "render_mode"),
     ({"reward_entropy": "fancy"}, "reward_entropy"),
+    ({"reward": "money"}, "reward"),
+    ({"action_gain": "class"}, "action_gain"),
     ({"colour": "blue"}, "colour"),
     ({"lattice": 1}, "lattice"),
 ]

@@ -62,6 +62,12 @@ class Files:
         for folder in ("maps", "models", "weights"):
             (root / folder).mkdir(parents=True, exist_ok=True)
 
+    def folder(self, name: str) -> Path:
+        """An empty folder."""
+        p = self.path(name)
+        p.mkdir(parents=True, exist_ok=True)
+        return p
+
     def path(self, name: str) -> Path:
         return self.root / name
 
@@ -82,6 +88,10 @@ class Files:
     @functools.cached_property
     def raw_venv(self):
         return envs.make_vec_env("env1", n_envs=1, fusion="none", n_uavs=2, budget=4)
+
+    @functools.cached_property
+    def gainless_venv(self):
+        return envs.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4, action_gain=False)
 
     @functools.cached_property
     def env(self):
@@ -209,7 +219,7 @@ class Files:
         return p
 
     def close(self) -> None:
-        for name in ("venv", "raw_venv"):
+        for name in ("venv", "raw_venv", "gainless_venv"):
             if name in self.__dict__:
                 self.__dict__[name].close()
 
@@ -333,6 +343,10 @@ CASES: list[Case | CliCase] = [
          ConfigError, ("noise=['loud']",), "['loud', 'moderate', 'none']"),
     Case("env-unknown-option", E, 'make_env("env1", n_uav=3)', lambda f: envs.make_env("env1", n_uav=3),
          ConfigError, ("['n_uav']",), "allowed options"),
+    Case("env-reward-unknown", E, 'make_env("env1", reward="money")', lambda f: envs.make_env("env1", reward="money"),
+         ConfigError, ("reward='money'",), "'entropy'"),
+    Case("env-action_gain-not-bool", E, 'make_env("env1", action_gain="yes")',
+         lambda f: envs.make_env("env1", action_gain="yes"), ConfigError, ("action_gain='yes'",), "True"),
     Case("env-comm_range-negative", E, 'make_env("env1", comm_range=-1)',
          lambda f: envs.make_env("env1", comm_range=-1), ConfigError, ("comm_range=-1",), "a distance >= 0"),
     Case("env-comm_grid-not-multiple-of-4", E, 'make_env("env1", comm_grid=45)',
@@ -443,6 +457,11 @@ CASES: list[Case | CliCase] = [
          "envs.make_vec_env"),
     Case("coma-env-unfused", C, 'COMA("CnnPolicy", make_vec_env(..., fusion="none"))',
          lambda f: _coma(f, env=f.raw_venv), ValueError, ("(7, 11, 11)",), "add a fusion wrapper"),
+    Case("coma-gain_prior-negative", C, "COMA(..., policy_kwargs={'gain_prior': -1})",
+         lambda f: _coma(f, policy_kwargs={"gain_prior": -1}), ValueError, ("gain_prior=-1",), ">= 0"),
+    Case("coma-gain_prior-without-gain-key", C, 'COMA(..., policy_kwargs={"gain_prior": 5}) on action_gain=False',
+         lambda f: _coma(f, env=f.gainless_venv, policy_kwargs={"gain_prior": 5}), ValueError,
+         ("gain_prior=5.0", "'action_gain'"), "action_gain=True"),
     Case("coma-learning_rate-zero", C, "COMA(..., learning_rate=0)", lambda f: _coma(f, learning_rate=0),
          ValueError, ("learning_rate", "got 0"), "must be positive"),
     Case("coma-gamma-above-1", C, "COMA(..., gamma=2.0)", lambda f: _coma(f, gamma=2.0),
@@ -555,6 +574,8 @@ CASES: list[Case | CliCase] = [
          lambda f: _evaluate("lawnmower", n_uavs=2, budget=2, planner_kwargs={"altitude": 7.0}), ValueError,
          ("altitude=7.0",), "[5.0, 10.0, 15.0]"),
     # ------------------------------------------------------------------ CLI
+    CliCase("cli-train-threads-zero", "sb3-coma train --threads 0", lambda f: ["train", "--threads", "0"],
+            ("--threads", "0"), "an integer >= 1"),
     CliCase("cli-train-env-unknown", "sb3-coma train --env env9", lambda f: ["train", "--env", "env9"],
             ("'env9'",), "env1, env2, env3"),
     CliCase("cli-train-config-missing", "sb3-coma train --config <tmp>/missing.yml",
@@ -586,6 +607,9 @@ CASES: list[Case | CliCase] = [
             lambda f: ["train", "--resume", str(f.truncated_zip)], ("truncated.zip",), "truncated"),
     CliCase("cli-train-resume-other-algorithm", "sb3-coma train --resume <a PPO zip>",
             lambda f: ["train", "--resume", str(f.ppo_zip)], ("ppo.zip",), "not a COMA checkpoint"),
+    CliCase("cli-ablation-training-logs-empty", "sb3-coma ablation --models <tmp> --training-logs <tmp>/empty",
+            lambda f: ["ablation", "--models", str(f.root), "--training-logs", str(f.folder("empty"))],
+            ("empty",), "{fusion}_{extractor}"),
     CliCase("cli-evaluate-method-unknown", "sb3-coma evaluate --methods bogus",
             lambda f: ["evaluate", "--methods", "bogus", "--trials", "1"], ("'bogus'",), "ag, lawnmower, random"),
     CliCase("cli-evaluate-trials-zero", "sb3-coma evaluate --trials 0",

@@ -56,5 +56,13 @@ def test_reproduce_quick_train(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     model = summary["models"]["env1"]
     assert model["source"] == str(out / "runs" / "env1") and model["timesteps"] >= 32
-    assert model["command"].startswith("sb3-coma train --env env1 --variant fast-mean --seed 0 --timesteps 32")
+    assert model["command"].startswith("sb3-coma train --env env1 --variant fast --seed 0 --timesteps 32")
     assert (out / "runs" / "env1" / "model.zip").is_file() and summary["command"] == "sb3-coma reproduce --train --quick"
+
+
+def test_fusion_latency_is_measured_for_both_fusions():
+    from sb3_coma.reproduce import _time_fusion
+
+    for fusion in ("mean", "sendfuse"):
+        ms = _time_fusion(fusion, 4, reps=3)
+        assert ms is not None and 0 < ms < 1000

@@ -26,8 +26,14 @@ def _seed() -> None:
 
 
 def _net(grid: int = 44) -> SenDFuseNet:
+    """A fresh network whose (zero-initialised) residual head is randomised, so that its
+    correction is not identically 0 and the tests below see the network at work."""
     torch.manual_seed(0)
-    return SenDFuseNet(grid_size=grid).eval()
+    net = SenDFuseNet(grid_size=grid).eval()
+    with torch.no_grad():
+        net.head.weight.normal_(0.0, 0.05)
+        net.head.bias.normal_(0.0, 0.01)
+    return net
 
 
 def _sensor_maps(count: int, grid: int = 44, seed: int = 0) -> torch.Tensor:
@@ -81,7 +87,9 @@ def test_encode_decode_forward_shapes(grid: int) -> None:
     ]
     out = net(x)
     assert out.shape == (5, 1, grid, grid)
-    assert torch.equal(out, net.decode(feats))
+    # residual output: the decoder emits a correction, added where the map holds data, clipped
+    expected = torch.clamp(torch.where(x != 0.5, x + net.decode(feats), x), 0.0, 1.0)
+    assert torch.equal(out, expected)
     assert 10_000 <= net.num_parameters() <= 150_000
 
 
@@ -170,24 +178,79 @@ def test_fusion_is_stable_with_large_activations_and_ignores_garbage_in_masked_s
     assert ((spatial_w.max(1).values - 1).abs() < 1e-6).float().mean() > 0.9
 
 
-def test_fuse_with_one_valid_source_equals_autoencoding() -> None:
+def test_fuse_with_the_own_map_alone_returns_it_and_one_received_map_is_denoised() -> None:
     net = _net()
-    maps = _channel(_sensor_maps(8).view(2, 4, 44, 44))
+    maps = _channel(_sensor_maps(8).view(2, 4, 44, 44)).clamp(0.0, 1.0)
     with torch.inference_mode():
+        # Own map only: it bypasses the network and comes back exactly.
         single = net.fuse(maps[:, :1], torch.ones(2, 1, dtype=torch.bool))
-        torch.testing.assert_close(single, net(maps[:, :1])[:, 0], rtol=0, atol=1e-6)
-        # Other slots invalid (even if they hold NaN): same as autoencoding slot 0 alone.
+        assert torch.equal(single, maps[:, 0])
+        # Other slots invalid (even if they hold NaN): the same.
         garbage = maps.clone()
         garbage[:, 1:] = float("nan")
         valid = torch.tensor([[True, False, False, False]] * 2)
-        torch.testing.assert_close(net.fuse(garbage, valid), single, rtol=0, atol=1e-6)
-        # Identical sources fuse to the autoencoding of that source.
-        same = maps[:, :1].expand(2, 4, 44, 44)
-        torch.testing.assert_close(net.fuse(same, torch.ones(2, 4, dtype=torch.bool)), single, rtol=0, atol=1e-5)
+        assert torch.equal(net.fuse(garbage, valid), maps[:, 0])
+        # Own map + one received map: the mean of the own map and the denoised received map
+        # (where no clipping binds).
+        two = net.fuse(maps[:, :2], torch.ones(2, 2, dtype=torch.bool))
+        denoised = net(maps[:, 1:2])[:, 0]
+        expected = (maps[:, 0] + denoised) / 2
+        free = (denoised > 0) & (denoised < 1)
+        assert free.float().mean() > 0.5
+        torch.testing.assert_close(two[free], expected[free], rtol=0, atol=1e-5)
         # Dropping an invalid slot changes nothing.
         valid = torch.tensor([[True, True, False, True], [True, False, True, True]])
         full = net.fuse(maps, valid)
         torch.testing.assert_close(full[0], net.fuse(maps[:1, [0, 1, 3]], torch.ones(1, 3, dtype=torch.bool))[0])
+        torch.testing.assert_close(full[1], net.fuse(maps[1:, [0, 2, 3]], torch.ones(1, 3, dtype=torch.bool))[0])
+
+
+def test_the_clean_own_slot_passes_through_the_fusion_linearly() -> None:
+    """Slot 0 (the UAV's own map, never sent over the channel) is not denoised: changing it by
+    delta changes the fused map by exactly delta / n_valid, whatever the received maps hold."""
+    net = _net()
+    maps = _channel(_sensor_maps(12).view(3, 4, 44, 44)).clamp(0.2, 0.8)  # keep clear of the clip
+    valid = torch.tensor([[True, True, True, True], [True, True, False, True], [True, False, False, True]])
+    delta = 0.1 * torch.randn(3, 44, 44).clamp(-1.0, 1.0)
+    shifted = maps.clone()
+    shifted[:, 0] += delta
+    with torch.inference_mode():
+        base, moved = net.fuse(maps, valid), net.fuse(shifted, valid)
+    n_valid = valid.sum(1, dtype=torch.float32)[:, None, None]
+    torch.testing.assert_close(moved - base, delta / n_valid, rtol=0, atol=1e-5)
+    # ... while the received maps do go through the network (a nonlinear correction).
+    shifted = maps.clone()
+    shifted[:, 3] += delta
+    with torch.inference_mode():
+        moved = net.fuse(shifted, valid)
+    assert (moved - base - delta / n_valid).abs().max() > 1e-3
+
+
+def test_cells_where_nothing_arrived_get_no_correction() -> None:
+    """Received maps are exactly 0.5 where they hold no data: there the fusion is the plain mean,
+    and a map that holds no data anywhere only dilutes the mean like it does in ``mean``."""
+    net = _net()
+    maps = _channel(_sensor_maps(8).view(2, 4, 44, 44)).clamp(0.0, 1.0)
+    maps[:, 1:, :, :20] = 0.5  # left part: no received map holds data
+    maps[1, 2] = 0.5  # an empty (but valid) received map
+    valid = torch.ones(2, 4, dtype=torch.bool)
+    with torch.inference_mode():
+        fused = net.fuse(maps, valid)
+    torch.testing.assert_close(fused[:, :, :20], maps[:, :, :, :20].mean(1), rtol=0, atol=1e-6)
+    assert (fused[:, :, 20:] - maps[:, :, :, 20:].mean(1)).abs().max() > 1e-3  # elsewhere it works
+
+
+def test_an_untrained_network_is_the_mean_fusion() -> None:
+    """The residual head starts at zero: before training, fusion = the naive mean (clipped)."""
+    torch.manual_seed(0)
+    net = SenDFuseNet().eval()
+    maps = _channel(_sensor_maps(12).view(3, 4, 44, 44))
+    valid = torch.tensor([[True, True, True, True], [True, False, True, True], [True, False, False, False]])
+    with torch.inference_mode():
+        fused = net.fuse(maps, valid)
+    w = valid.float()[:, :, None, None]
+    expected = ((maps * w).sum(1) / w.sum(1)).clamp(0.0, 1.0)
+    torch.testing.assert_close(fused, expected, rtol=0, atol=1e-6)
 
 
 # --------------------------------------------------------------------------- argument checks
@@ -309,6 +372,22 @@ def test_weights_round_trip_bit_exactly(tmp_path: Path) -> None:
     assert meta["command"] == "unit test" and meta["sendfuse.grid_size"] == "32"
     assert loaded.weights_metadata == meta
     assert not list(tmp_path.glob("sub/*.tmp"))  # atomic write left nothing behind
+
+
+def test_saved_files_have_a_sorted_header_so_equal_weights_give_equal_bytes(tmp_path: Path) -> None:
+    import json
+    import struct
+
+    net = _net(32)
+    a = save_weights(net, tmp_path / "a.safetensors", {"zeta": "1", "alpha": "2", "mid": "3"})
+    b = save_weights(net, tmp_path / "b.safetensors", {"mid": "3", "alpha": "2", "zeta": "1"})
+    assert a.read_bytes() == b.read_bytes()
+    raw = a.read_bytes()
+    (length,) = struct.unpack("<Q", raw[:8])
+    assert length % 8 == 0
+    header = json.loads(raw[8 : 8 + length])
+    assert list(header) == sorted(header) and list(header["__metadata__"]) == sorted(header["__metadata__"])
+    load_weights(a)
 
 
 def test_save_rejects_reserved_or_non_string_metadata(tmp_path: Path) -> None:

@@ -89,6 +89,8 @@ def test_bad_pair_config_is_rejected() -> None:
 def test_rescale_encoder_keeps_the_autoencoder_and_changes_only_the_fusion() -> None:
     torch.manual_seed(0)
     net = SenDFuseNet().eval()
+    with torch.no_grad():
+        net.head.weight.normal_(0.0, 0.05)  # zero-initialised: make the correction non-trivial
     x = torch.rand(3, 1, 44, 44)
     maps, valid = torch.rand(2, 3, 44, 44), torch.ones(2, 3, dtype=torch.bool)
     with torch.no_grad():

@@ -27,12 +27,13 @@ def test_spaces_and_shapes(venv):
     assert venv.num_envs == 8 and venv.n_agents == 4
     assert venv.get_attr("n_agents") == [4] * 8
     space = venv.observation_space
-    assert set(space.spaces) == {layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK}
+    assert set(space.spaces) == {layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK, layout.KEY_GAIN}
     assert space[layout.KEY_LOCAL].shape == (8, 11, 11)
     obs = venv.reset()
     assert obs[layout.KEY_LOCAL].shape == (8, 8, 11, 11)
     assert obs[layout.KEY_STATE].shape == (8, 3, 11, 11)
     assert obs[layout.KEY_MASK].shape == (8, 6)
+    assert obs[layout.KEY_GAIN].shape == (8, 2, 6)
     for i in range(8):
         assert space.contains({k: v[i] for k, v in obs.items()})
 

@@ -47,6 +47,9 @@ class JointRolloutBuffer:
         self.local = np.zeros(lead + observation_space[layout.KEY_LOCAL].shape, dtype=np.float32)
         self.state = np.zeros(lead + observation_space[layout.KEY_STATE].shape, dtype=np.float32)
         self.mask = np.zeros(lead + observation_space[layout.KEY_MASK].shape, dtype=np.float32)
+        #: The actor's prior (``action_gain``); zeros when the observation has none.
+        gain = observation_space.spaces.get(layout.KEY_GAIN)
+        self.prior = np.zeros(lead + (tuple(gain.shape) if gain is not None else (1, self.mask.shape[-1])), dtype=np.float32)
         self.actions = np.zeros(lead, dtype=np.int64)
         self.rewards = np.zeros(lead, dtype=np.float32)
         #: 1.0 where the episode ended with this step (termination or truncation).
@@ -85,6 +88,8 @@ class JointRolloutBuffer:
         self.local[t] = self._grouped(obs[layout.KEY_LOCAL])
         self.state[t] = self._grouped(obs[layout.KEY_STATE])
         self.mask[t] = self._grouped(obs[layout.KEY_MASK])
+        if layout.KEY_GAIN in obs:
+            self.prior[t] = self._grouped(obs[layout.KEY_GAIN])
         self.actions[t] = self._grouped(actions)
         self.rewards[t] = self._grouped(rewards)
         self.dones[t] = self._grouped(dones)
@@ -102,6 +107,7 @@ class JointRolloutBuffer:
             "local": to(self.local),
             "state": to(self.state),
             "mask": to(self.mask),
+            "prior": to(self.prior),
             "actions": to(self.actions),
             "rewards": to(self.rewards),
             "dones": to(self.dones),

@@ -262,15 +262,20 @@ class COMA(OnPolicyAlgorithm):
         return ["policy", "policy.optimizer", "policy.critic_optimizer"], []
 
     # ----------------------------------------------------------- helpers
-    def _obs_tensors(self, obs: dict[str, np.ndarray], grouped: bool) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
-        """``local``, ``state``, ``mask`` as tensors; ``grouped`` reshapes rows to ``(E, N, ...)``."""
-        out = []
-        for key in (layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK):
+    def _obs_tensors(self, obs: dict[str, np.ndarray], grouped: bool
+                     ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor | None]:
+        """``local``, ``state``, ``mask`` and the actor's prior (``action_gain``, or ``None``) as
+        tensors; ``grouped`` reshapes rows to ``(E, N, ...)``."""
+        out: list[th.Tensor | None] = []
+        for key in (layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK, layout.KEY_GAIN):
+            if key not in obs:
+                out.append(None)
+                continue
             x = th.as_tensor(obs[key], device=self.device).float()
             if grouped:
                 x = x.view(-1, self.n_agents, *x.shape[1:])
             out.append(x)
-        return out[0], out[1], out[2]
+        return out[0], out[1], out[2], out[3]  # type: ignore[return-value]
 
     @th.no_grad()
     def _expected_target_values(self, obs: dict[str, np.ndarray]) -> th.Tensor:
@@ -279,9 +284,9 @@ class COMA(OnPolicyAlgorithm):
         The other agents' actions ``u_-i`` are drawn from the current policy (no exploration),
         so this is the on-policy value of the state the rollout stopped in.
         """
-        local, state, mask = self._obs_tensors(obs, grouped=True)
+        local, state, mask, prior = self._obs_tensors(obs, grouped=True)
         flat_local, flat_mask = local.flatten(0, 1), mask.flatten(0, 1)
-        probs = self.policy.action_probs(flat_local, flat_mask)
+        probs = self.policy.action_probs(flat_local, flat_mask, prior=None if prior is None else prior.flatten(0, 1))
         actions = th.multinomial(probs, 1).view(local.shape[:2])
         q = self.policy.q_values(local, state, actions, target=True)
         return (probs.view(q.shape) * q).sum(-1)
@@ -299,7 +304,8 @@ class COMA(OnPolicyAlgorithm):
         rows = [c * self.n_agents + a for c in copies for a in range(self.n_agents)]
         terminal = {
             key: np.stack([infos[r]["terminal_observation"][key] for r in rows])
-            for key in (layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK)
+            for key in (layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK, layout.KEY_GAIN)
+            if key in infos[rows[0]]["terminal_observation"]
         }
         values = self._expected_target_values(terminal).flatten().cpu().numpy()
         for row, value in zip(rows, values):
@@ -341,8 +347,8 @@ class COMA(OnPolicyAlgorithm):
                 1.0 - float(self.num_timesteps) / float(max(self._total_timesteps, 1))
             )
             with th.no_grad():
-                local, _, mask = self._obs_tensors(self._last_obs, grouped=False)  # type: ignore[arg-type]
-                actions = self.policy.act(local, mask, epsilon=self.exploration_rate).cpu().numpy()
+                local, _, mask, prior = self._obs_tensors(self._last_obs, grouped=False)  # type: ignore[arg-type]
+                actions = self.policy.act(local, mask, epsilon=self.exploration_rate, prior=prior).cpu().numpy()
 
             new_obs, rewards, dones, infos = env.step(actions)
             self.num_timesteps += self.n_copies  # joint steps, not agent steps
@@ -415,6 +421,7 @@ class COMA(OnPolicyAlgorithm):
         targets = self._td_targets()
         data = self.rollout_buffer.joint_steps()
         local, state, mask, actions = data["local"], data["state"], data["mask"], data["actions"]
+        prior = data["prior"]
         n_joint = actions.shape[0]
         q_all = th.zeros(*actions.shape, self.policy.n_actions, device=self.device)
 
@@ -432,7 +439,7 @@ class COMA(OnPolicyAlgorithm):
         actor_losses, entropies, advantages, q_taken_all = [], [], [], []
         for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
             b_local, b_mask, b_actions = local[idx].flatten(0, 1), mask[idx].flatten(0, 1), actions[idx].flatten()
-            logits = self.policy.masked_logits(b_local, b_mask)
+            logits = self.policy.masked_logits(b_local, b_mask, prior[idx].flatten(0, 1))
             log_probs = th.log_softmax(logits, dim=-1)
             probs = log_probs.exp()
             advantage, _, q_taken = counterfactual_advantage(q_all[idx].flatten(0, 1), b_actions, probs.detach())
@@ -467,6 +474,10 @@ class COMA(OnPolicyAlgorithm):
         self.logger.record("train/epsilon", self.exploration_rate)
         self.logger.record("train/entropy", float(np.mean(entropies)))
         self.logger.record("train/target_updates", self._n_target_updates)
+        weights = self.policy.actor.prior_weights
+        if weights is not None:
+            for name, w in zip(layout.GAIN_WEIGHTINGS, weights.tolist()):
+                self.logger.record(f"train/gain_prior_{name}", w)
         self.logger.record("train/critic_updates", self._n_critic_updates)
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/learning_rate", self.lr_schedule(progress))

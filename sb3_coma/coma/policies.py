@@ -79,6 +79,43 @@ class _Head(nn.Module):
         return self.head(self.features_extractor(x))
 
 
+class _Actor(_Head):
+    """The actor's head, plus an optional prior: ``logits = net(local) + sum_k beta_k * gain_k``.
+
+    With a prior, the observation's per-action information gains (``action_gain``: the one-step
+    look-ahead a UAV computes from its own belief, under K entropy weightings) are added to the
+    logits with learned weights ``beta``, so the first policy is a soft greedy planner and COMA
+    learns a correction to it instead of the whole planning skill from scratch
+    (docs/training.md, "gain prior"). ``beta = speed * theta`` with ``theta`` the parameter: Adam
+    moves a parameter by about the learning rate per step whatever its gradient's size, so the
+    ``speed`` factor lets the few mixing weights move as fast as they need to while the network
+    keeps the learning rate that keeps it stable.
+    """
+
+    def __init__(self, features_extractor: BaseFeaturesExtractor, n_actions: int, gain: float,
+                 ortho_init: bool = True, prior_rows: int = 0, prior_scale: float = 0.0,
+                 prior_speed: float = 1.0) -> None:
+        super().__init__(features_extractor, n_actions, gain, ortho_init)
+        self.prior_speed = float(prior_speed)
+        self.prior_theta: nn.Parameter | None = None
+        if prior_scale > 0:
+            self.prior_theta = nn.Parameter(th.full((prior_rows,), float(prior_scale) / self.prior_speed))
+
+    @property
+    def prior_weights(self) -> th.Tensor | None:
+        """``beta``: the weight of each gain row in the logits (``None`` without a prior)."""
+        return None if self.prior_theta is None else self.prior_speed * self.prior_theta
+
+    def forward(self, x: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:  # type: ignore[override]
+        logits = super().forward(x)
+        if self.prior_theta is not None:
+            if prior is None:
+                raise ValueError(f"this actor adds observation[{layout.KEY_GAIN!r}] to its logits (gain_prior > 0), "
+                                 "but the observation has no such key: make the env with action_gain=True")
+            logits = logits + th.einsum("k,bka->ba", self.prior_speed * self.prior_theta, prior)
+        return logits
+
+
 class COMAPolicy(BasePolicy):
     """Shared actor ``pi(u | o_i)`` over ``obs["local"]`` + mask, centralised critic ``Q(s, u_-i, .)``.
 
@@ -95,6 +132,10 @@ class COMAPolicy(BasePolicy):
     :param ortho_init: orthogonal initialisation (gain sqrt 2 in the trunks, 0.01 on the actor's
         output so the first policy is near-uniform, 1 on the critic's), as SB3's A2C/PPO do
     :param normalize_images: unused (all maps are float in [0, 1]); kept for SB3's signature
+    :param gain_prior: initial weight of each row of the per-action information-gain prior added to
+        the actor's logits (``0``: no prior, the paper's actor); needs the ``action_gain`` key
+    :param gain_prior_speed: how much faster than the network the prior's weights learn (see
+        ``_Actor``)
     """
 
     def __init__(
@@ -111,7 +152,22 @@ class COMAPolicy(BasePolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
         ortho_init: bool = True,
         normalize_images: bool = False,
+        gain_prior: float = 0.0,
+        gain_prior_speed: float = 100.0,
     ) -> None:
+        try:
+            gain_prior, gain_prior_speed = float(gain_prior), float(gain_prior_speed)
+        except (TypeError, ValueError):
+            raise ValueError(f"gain_prior={gain_prior!r}, gain_prior_speed={gain_prior_speed!r}: must be numbers") from None
+        if not (gain_prior >= 0.0 and math.isfinite(gain_prior)):
+            raise ValueError(f"gain_prior={gain_prior!r}: must be a finite number >= 0 (0 = no prior)")
+        if not (gain_prior_speed > 0.0 and math.isfinite(gain_prior_speed)):
+            raise ValueError(f"gain_prior_speed={gain_prior_speed!r}: must be a finite number > 0")
+        if gain_prior > 0 and layout.KEY_GAIN not in observation_space.spaces:
+            raise ValueError(f"gain_prior={gain_prior!r} needs observation[{layout.KEY_GAIN!r}]: make the env "
+                             "with action_gain=True (the default), or use gain_prior=0")
+        self.gain_prior = gain_prior
+        self.gain_prior_speed = gain_prior_speed
         super().__init__(
             observation_space,
             action_space,
@@ -139,11 +195,14 @@ class COMAPolicy(BasePolicy):
         actor_space = spaces.Box(0.0, 1.0, local.shape, dtype=local.dtype)
 
         # Small output gain: a near-uniform initial policy explores every valid action.
-        self.actor = _Head(
+        self.actor = _Actor(
             self.features_extractor_class(actor_space, **self.features_extractor_kwargs),
             self.n_actions,
             gain=0.01,
             ortho_init=self.ortho_init,
+            prior_rows=self.observation_space[layout.KEY_GAIN].shape[0] if self.gain_prior > 0 else 0,
+            prior_scale=self.gain_prior,
+            prior_speed=self.gain_prior_speed,
         )
         self.critic = _Head(
             self.critic_features_extractor_class(critic_space, **self.critic_features_extractor_kwargs),
@@ -172,6 +231,8 @@ class COMAPolicy(BasePolicy):
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,
             ortho_init=self.ortho_init,
+            gain_prior=self.gain_prior,
+            gain_prior_speed=self.gain_prior_speed,
         )
         return data
 
@@ -182,19 +243,23 @@ class COMAPolicy(BasePolicy):
         self.training = mode
 
     # ----------------------------------------------------------------- actor
-    def masked_logits(self, local: th.Tensor, mask: th.Tensor) -> th.Tensor:
-        """Actor logits with invalid actions pushed to a large negative value. ``(B, A)``."""
-        return mask_logits(self.actor(local), mask)
+    def masked_logits(self, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:
+        """Actor logits with invalid actions pushed to a large negative value. ``(B, A)``.
 
-    def action_probs(self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0) -> th.Tensor:
+        ``prior``: the ``action_gain`` rows, used when the actor has a gain prior."""
+        return mask_logits(self.actor(local, prior), mask)
+
+    def action_probs(self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0,
+                     prior: th.Tensor | None = None) -> th.Tensor:
         """Behaviour probabilities (policy mixed with uniform-over-valid by ``epsilon``)."""
-        return behaviour_probs(self.masked_logits(local, mask), mask, epsilon)
+        return behaviour_probs(self.masked_logits(local, mask, prior), mask, epsilon)
 
-    def act(self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0, deterministic: bool = False) -> th.Tensor:
+    def act(self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0, deterministic: bool = False,
+            prior: th.Tensor | None = None) -> th.Tensor:
         """One action per agent row; all agents of all env copies in a single forward pass."""
         if deterministic:
-            return sample_actions(self.masked_logits(local, mask), deterministic=True)
-        return sample_actions(self.action_probs(local, mask, epsilon))
+            return sample_actions(self.masked_logits(local, mask, prior), deterministic=True)
+        return sample_actions(self.action_probs(local, mask, epsilon, prior))
 
     def forward(self, obs: PyTorchObs, deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
         return self._predict(obs, deterministic)
@@ -203,7 +268,8 @@ class COMAPolicy(BasePolicy):
         assert isinstance(observation, dict)
         local = observation[layout.KEY_LOCAL].float()
         mask = observation[layout.KEY_MASK].float()
-        return self.act(local, mask, deterministic=deterministic)
+        prior = observation.get(layout.KEY_GAIN)
+        return self.act(local, mask, deterministic=deterministic, prior=None if prior is None else prior.float())
 
     # ---------------------------------------------------------------- critic
     def q_values(self, local: th.Tensor, state: th.Tensor, actions: th.Tensor, target: bool = False) -> th.Tensor:

@@ -57,7 +57,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("give the models: --models DIR or --model FUSION_EXTRACTOR=PATH")
     noises = [n.strip() for n in args.noises.split(",") if n.strip()]
     options = {k: v for k, v in (("n_uavs", args.uavs), ("budget", args.budget)) if v is not None}
-    logs = ablation.find_training_logs(args.training_logs) if args.training_logs else None
+    try:
+        logs = ablation.find_training_logs(args.training_logs) if args.training_logs else None
+    except (ValueError, FileNotFoundError) as exc:
+        raise UserError(str(exc)) from None
     try:
         result = ablation.run_ablation(source, env=args.env, noises=noises, n_trials=args.trials, seed=args.seed,
                                        **options)

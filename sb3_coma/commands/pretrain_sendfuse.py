@@ -1,7 +1,7 @@
 """``sb3-coma pretrain-sendfuse``: pre-train SenDFuse on env-generated pairs and write its weights.
 
 With the defaults this reproduces the weights shipped in ``sb3_coma/pretrained/`` (same seed and
-thread count -> the same file, byte for byte): a few minutes on two CPU cores.
+thread count -> the same file, byte for byte): a few minutes on one CPU core.
 """
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from sb3_coma.cli import UserError
-    from sb3_coma.sendfuse.pretrain import PretrainConfig, canonicalize_safetensors, pretrain
+    from sb3_coma.sendfuse.pretrain import PretrainConfig, pretrain
     from sb3_coma.sendfuse.weights import default_weights_path, save_weights
 
     try:
@@ -94,8 +94,7 @@ def run(args: argparse.Namespace) -> int:
         "numpy": np.__version__,
         "python": platform.python_version(),
     }
-    path = save_weights(result.model, out, metadata)
-    canonicalize_safetensors(path)  # byte-identical files for identical runs
+    path = save_weights(result.model, out, metadata)  # sorted header: identical runs, identical bytes
     print(f"final loss {final.total:.4f} (mse {final.mse:.3g}, mae {final.mae:.3g}, 1-ssim {final.ssim:.3g}); "
           f"validation MSE {final.val_mse:.3g} vs noisy input {result.identity_val_mse:.3g}; "
           f"fusion scale {result.scale:g}")

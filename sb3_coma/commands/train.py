@@ -30,6 +30,9 @@ def _parse_set(text: str) -> tuple[str, object]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch CPU threads (default 1: as fast as 2 for these small networks, and training "
+                             "gives the same model on any machine; float reductions differ with the thread count)")
     parser.add_argument("--env", default=None,
                         help="map: env1, env2, env3 or a gymnasium id (default env3; with --resume the run's own)")
     parser.add_argument("--config", default=None, metavar="YAML",
@@ -75,6 +78,9 @@ def _user_error() -> type[Exception]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_coma.cli import UserError, set_threads
+
+    set_threads(args.threads)
     from sb3_coma.checkpoints import CheckpointError
     from sb3_coma.training import TrainingError, TrainingInterrupted, default_config_path, list_variants, train
 

@@ -19,8 +19,9 @@ What the data covers, and why:
 * flights: 2-6 UAVs, fixed or random start columns, random valid actions, a few comm ranges (the
   attenuation's lower bound scales with distance / range, so the range changes the mix of noise
   levels); every step of the mission, including the measurement at reset, can contribute;
-* noise: a mix of ``moderate``, ``loud`` and some ``none`` missions, plus the receivers' own
-  (always clean) slot: at deployment SenDFuse sees clean maps too and must not smear them.
+* noise: a mix of ``moderate``, ``loud`` and some ``none`` missions: at deployment SenDFuse sees
+  clean received maps too and must not smear them. The receivers' own (always clean) slot is not
+  sampled by default (``own_take=0``), because the own map bypasses the network.
 
 Only valid slots are kept (an invalid slot is 0.5 everywhere in both runs and teaches nothing).
 Generation is seeded (one ``numpy`` generator drives maps, mission seeds, actions and sub-sampling)
@@ -219,8 +220,10 @@ class PairConfig:
     """What :func:`generate_pairs` draws from (defaults: the shipped weights' data).
 
     ``take``/``own_take`` sub-sample the candidate pairs of each step: consecutive steps share
-    most of a received map, so keeping every candidate would mostly add near-duplicates; the own
-    slot is clean and abundant, hence rarer.
+    most of a received map, so keeping every candidate would mostly add near-duplicates. The own
+    slot is off by default: :meth:`SenDFuseNet.fuse` never passes the own (clean) map through the
+    network, so the network only ever denoises received maps (clean ones too, in ``none``
+    missions, which is why ``none`` stays in the noise mix).
     """
 
     noise_mix: Mapping[str, float] = field(default_factory=lambda: {"none": 0.3, "moderate": 0.35, "loud": 0.35})
@@ -231,7 +234,7 @@ class PairConfig:
     comm_ranges: tuple[float, ...] = (20.0, 25.0, 30.0)
     random_start: float = 0.5
     take: float = 0.3
-    own_take: float = 0.25
+    own_take: float = 0.0  # the own map bypasses the network at deployment (SenDFuseNet.fuse)
     comm_grid: int = 44
 
     def validate(self) -> None:

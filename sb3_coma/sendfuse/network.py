@@ -4,11 +4,25 @@ A NestFuse-style autoencoder sized for the communication grid (R x R, R = 44 by 
 
 * encoder, three scales (R, R/2, R/4; 2x max-pool between them), one small conv block per scale;
 * nested decoder (UNet++-like dense skips): ``D1_1 = block(E1, up E2)``,
-  ``D2_1 = block(E2, up E3)``, ``D1_2 = block(E1, D1_1, up D2_1)``, then a 1 x 1 conv and a
-  sigmoid, so the output lives in ``[0, 1]`` like a clean sensor map;
-* pre-training (:meth:`SenDFuseNet.forward`): one map in, one map out, fusion off (a denoising AE);
-* deployment (:meth:`SenDFuseNet.fuse`): encode every received map of every UAV in one batched
-  pass, fuse each scale with :func:`fusion_strategy`, decode once per UAV.
+  ``D2_1 = block(E2, up E3)``, ``D1_2 = block(E1, D1_1, up D2_1)``, then a 1 x 1 conv that
+  outputs a *correction*, not a map (residual output, see below);
+* pre-training (:meth:`SenDFuseNet.forward`): one map in, one map out, fusion off (a denoising
+  AE): ``clamp(x + observed(x) * correction(x), 0, 1)``;
+* deployment (:meth:`SenDFuseNet.fuse`): the UAV's own map (slot 0, never sent over the channel,
+  hence always clean) bypasses the network; every valid *received* map of every UAV is encoded
+  in one batched pass, each scale is fused over the received maps with :func:`fusion_strategy`,
+  the fused features are decoded once per UAV into a correction, and the output is the plain
+  average of all valid maps plus that correction where received maps hold data.
+
+Why residual + own-map bypass (issue #4): a clean 10-15 m sensor map varies from comm cell to
+comm cell about as much as moderate channel noise does, so an autoencoder that has to
+*reconstruct* every map smooths clean maps too, and the first layout (``nestfuse3-v1``, sigmoid
+output of the fused features) lost to the plain mean at moderate noise on the comm grid. Now
+(1) the own map, known to be clean, is used exactly as it is, (2) the network only has to learn
+what to *change* in a received map (identity is the zero correction, and the head starts at
+zero, i.e. at the mean fusion), and (3) cells where a received map holds no data (exactly 0.5:
+the channel noises only delivered cells) get no correction from that map, so "nothing arrived"
+stays neutral.
 
 This module imports only torch and the standard library, because the environment package
 (``envs``) imports it for its observation wrapper and must not pull in the rest of ``sb3_coma``.
@@ -49,7 +63,7 @@ __all__ = [
 ]
 
 #: Name of the layer layout below; stored in weight files so a future layout change is detected.
-ARCHITECTURE = "nestfuse3-v1"
+ARCHITECTURE = "nestfuse3-residual-v2"
 #: Side of the communication grid the shipped weights are trained for (DESIGN section 3).
 DEFAULT_GRID_SIZE = 44
 #: Channel widths of the three encoder scales (full, half, quarter resolution); see SenDFuseNet.
@@ -58,6 +72,9 @@ DEFAULT_CHANNELS: tuple[int, int, int] = (8, 16, 32)
 DEFAULT_FUSION_ALPHA = 0.5
 #: Number of encoder scales (full, half, quarter resolution), hence R must be divisible by 4.
 N_SCALES = 3
+#: Value of a comm cell that holds no data (never observed / nothing received). The channel only
+#: noises delivered cells, so a received map is exactly 0.5 where nothing arrived.
+UNKNOWN = 0.5
 #: Conv layers per block (encoder scales 1-3; decoder nodes D1_1, D2_1, D1_2). One conv per
 #: block except the quarter-resolution encoder block: in a 600-step denoising comparison on
 #: env-like maps, (1,1,2)/(1,1,1) matched deeper variants ((1,2,2)/(1,1,1), 28k parameters;
@@ -298,11 +315,12 @@ class SenDFuseNet(nn.Module):
     """NestFuse-style denoising / fusion autoencoder for single-channel R x R sensor maps.
 
     Sizing (R = 44, channels (8, 16, 32): 26,033 parameters): the deployment budget is one fused
-    map per UAV per step in <= 2 ms on one CPU core, i.e. 4 fusions of 4 sources (16 encodes +
-    4 decodes) in <= 8 ms. Full-resolution layers dominate that cost, so widths stay small there
+    map per UAV per step in <= 2 ms on one CPU core, i.e. 4 fusions of 4 sources (12 encodes of
+    received maps, the own maps bypass the network, + 4 decodes) in <= 8 ms. Full-resolution layers dominate that cost, so widths stay small there
     and double at each coarser scale, where pixels are 4x cheaper (see ``ENCODER_DEPTHS``). The
     maps are simple (levels 0, 0.5, 1 plus channel noise), so this capacity suffices for
-    denoising. Measure with ``python -m sb3_coma.sendfuse.network [--tune-malloc]``.
+    denoising, and with the residual output it only has to model the *change* noise makes.
+    Measure with ``python -m sb3_coma.sendfuse.network [--tune-malloc]``.
 
     Parameters are kept channels-last (see the module docstring); ``state_dict`` values are the
     same numbers either way, and :mod:`sb3_coma.sendfuse.weights` stores them contiguous.
@@ -344,7 +362,12 @@ class SenDFuseNet(nn.Module):
         self.dec1_1 = _ConvBlock(c1 + c2, c1, d11)
         self.dec2_1 = _ConvBlock(c2 + c3, c2, d21)
         self.dec1_2 = _ConvBlock(c1 + c1 + c2, c1, d12)
+        # Residual output: the head emits a correction to the input map, not the map itself.
+        # Zero-initialised, so an untrained network is the identity (AE) / the mean (fusion) and
+        # training starts from the baseline it has to beat rather than from a random map.
         self.head = nn.Conv2d(c1, 1, 1)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
         self.to(memory_format=torch.channels_last)
 
     # ------------------------------------------------------------------ properties
@@ -395,14 +418,18 @@ class SenDFuseNet(nn.Module):
         return [e1, e2, e3]
 
     def decode(self, features: Sequence[Tensor]) -> Tensor:
-        """Three-scale features (from :meth:`encode`, or fused) -> ``(B, 1, R, R)`` in [0, 1]."""
+        """Three-scale features (from :meth:`encode`, or fused) -> ``(B, 1, R, R)`` correction.
+
+        The correction is what the network would add to a received map where it holds data
+        (unbounded; :meth:`forward` and :meth:`fuse` add it and clip the result to [0, 1]).
+        """
         if len(features) != N_SCALES:
             raise ValueError(f"decode expects {N_SCALES} feature maps (one per scale), got {len(features)}")
         e1, e2, e3 = features
         d1_1 = self.dec1_1(torch.cat((e1, _up(e2)), dim=1))
         d2_1 = self.dec2_1(torch.cat((e2, _up(e3)), dim=1))
         d1_2 = self.dec1_2(torch.cat((e1, d1_1, _up(d2_1)), dim=1))
-        return torch.sigmoid(self._head(d1_2))
+        return self._head(d1_2)
 
     def _head(self, x: Tensor) -> Tensor:
         """The 1x1 output conv, computed as a per-pixel linear map: same parameters and values as
@@ -414,19 +441,42 @@ class SenDFuseNet(nn.Module):
 
     # ------------------------------------------------------------------ public modes
     def forward(self, x: Tensor) -> Tensor:
-        """Plain (denoising) autoencoding, fusion off: ``(B, 1, R, R)`` -> ``(B, 1, R, R)``."""
-        return self.decode(self.encode(x))
+        """Denoise one received map, fusion off: ``(B, 1, R, R)`` -> ``(B, 1, R, R)`` in [0, 1].
+
+        ``clamp(x + observed(x) * correction(x), 0, 1)``, where ``observed`` is 0 on cells that
+        hold no data (exactly 0.5) and 1 elsewhere. This is what pre-training fits, and what
+        :meth:`fuse` computes for a UAV that received one map besides its own (up to the mean
+        with the own map).
+        """
+        self._check_maps(x, "forward", "(B, 1, R, R)")
+        x = x.to(self.head.weight.dtype)
+        correction = self.decode(self.encode(x))
+        return torch.clamp(torch.where(x != UNKNOWN, x + correction, x), 0.0, 1.0)
 
     def fuse(self, maps: Tensor, valid: Tensor | Any, alpha: float | None = None) -> Tensor:
-        """Fuse n received maps per UAV into one clean map: ``(B, n, R, R)`` -> ``(B, R, R)``.
+        """Fuse n maps per UAV into one clean map: ``(B, n, R, R)`` -> ``(B, R, R)`` in [0, 1].
 
-        All valid maps of all B fusions are encoded in one batched pass (slots without data are
-        not encoded at all, which saves time when UAVs are out of range), every scale is fused
-        with :func:`fusion_strategy`, and the B fused feature sets are decoded in one pass.
-        Gradients flow as usual; wrap the call in ``torch.inference_mode()`` at deployment.
+        Slot 0 is the UAV's own map (never sent over the channel, hence clean) and bypasses the
+        network; slots 1.. are received maps. The result is
+
+            clamp((sum_valid x_k + m(p) * D(fuse_k E(x_k))) / n_valid, 0, 1)
+
+        with E/D the encoder / decoder (D outputs a correction), the attention fusion of
+        :func:`fusion_strategy` over the valid *received* maps at every scale, ``n_valid`` the
+        number of valid slots (own included) and ``m(p)`` the number of valid received maps that
+        hold data at cell p (value != 0.5). So the correction estimates the average change a
+        received map needs where it holds data, weighted by the share of the maps at p it applies
+        to: with nothing received (or only empty cells) the result is exactly the mean, with the
+        own map alone it is the own map, with one received map it is the mean of the own map and
+        :meth:`forward` of the received one (where no clipping binds).
+
+        All valid received maps of all B fusions are encoded in one batched pass (empty slots,
+        and the own maps, are not encoded at all) and decoded in one pass over the B fusions
+        that received anything. Gradients flow as usual; wrap the call in
+        ``torch.inference_mode()`` at deployment.
 
         Args:
-            maps: ``(B, n, R, R)`` received maps (slot 0: the UAV's own, clean).
+            maps: ``(B, n, R, R)``: slot 0 the UAV's own map, slots 1.. the received maps.
             valid: ``(B, n)`` bool or 0/1 float; invalid slots are ignored whatever they hold.
             alpha: channel-attention weight in [0, 1]; defaults to ``self.fusion_alpha``.
         """
@@ -436,27 +486,51 @@ class SenDFuseNet(nn.Module):
         if n < 1:
             raise ValueError("fuse needs at least one source map per fusion (n >= 1)")
         mask = _as_bool_mask(valid, (b, n), maps.device)
-        flat_mask = mask.reshape(-1)
-        flat_maps = maps.reshape(b * n, 1, r, r)
-        all_valid = bool(flat_mask.all())
-        encoded = self.encode(flat_maps if all_valid else flat_maps[flat_mask])
+        maps = maps.to(self.head.weight.dtype)  # float64 observations: convert, don't fail
+        all_valid = bool(mask.all())
+        if not all_valid:
+            # Zero the invalid slots: they may hold anything (even NaN) and must not reach a sum.
+            maps = maps.masked_fill(~mask[:, :, None, None], 0.0)
+        count = mask.sum(dim=1, dtype=maps.dtype)[:, None, None]
+        total = maps.sum(dim=1)
+        received = mask[:, 1:]
+        rows = received.any(dim=1)
+        if n == 1 or not bool(rows.any()):
+            return torch.clamp(total / count, 0.0, 1.0)
+        every_row = bool(rows.all())
+        sub_maps = maps[:, 1:] if every_row else maps[rows, 1:]
+        sub_mask = received if every_row else received[rows]
+        rb, m = sub_mask.shape
+        flat_mask = sub_mask.reshape(-1)
+        flat_maps = sub_maps.reshape(rb * m, 1, r, r)
+        all_received = bool(flat_mask.all())
+        encoded = self.encode(flat_maps if all_received else flat_maps[flat_mask])
         fused: list[Tensor] = []
         for feat in encoded:
-            if not all_valid:
+            if not all_received:
                 # Put the encoded valid maps back in their slots; empty slots stay 0 (finite, as
                 # _fuse_scale requires) and get weight exactly 0.
                 full = torch.empty(
-                    (b * n,) + tuple(feat.shape[1:]),
+                    (rb * m,) + tuple(feat.shape[1:]),
                     dtype=feat.dtype,
                     device=feat.device,
                     memory_format=torch.channels_last,
                 ).zero_()
                 full[flat_mask] = feat
                 feat = full
-            per_source = feat.reshape((b, n) + tuple(feat.shape[1:]))
+            per_source = feat.reshape((rb, m) + tuple(feat.shape[1:]))
             # Encoder outputs are post-ReLU, hence >= 0: the L1 norm needs no abs().
-            fused.append(_fuse_scale(per_source, None if all_valid else mask, alpha, nonnegative=True))
-        return self.decode(fused)[:, 0]
+            fused.append(_fuse_scale(per_source, None if all_received else sub_mask, alpha, nonnegative=True))
+        correction = self.decode(fused)[:, 0]
+        observed = sub_maps != UNKNOWN
+        if not all_received:
+            observed = observed & sub_mask[:, :, None, None]
+        weight = observed.sum(dim=1, dtype=maps.dtype)  # m(p): received maps holding data at p
+        if every_row:
+            out = total + weight * correction
+        else:
+            out = total.index_put((rows.nonzero()[:, 0],), total[rows] + weight * correction)
+        return torch.clamp(out / count, 0.0, 1.0)
 
     def extra_repr(self) -> str:
         return f"grid_size={self.grid_size}, channels={self.channels}, fusion_alpha={self.fusion_alpha}"

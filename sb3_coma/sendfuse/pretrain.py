@@ -7,7 +7,7 @@ cosine learning-rate decay, because a short fixed budget (minutes on a laptop CP
 from annealing than from a longer constant rate.
 
 Reproducibility: numpy and torch are seeded from ``seed``, the data generator from ``seed`` too,
-and the number of torch threads is fixed (``threads``, default 2) because oneDNN's reduction
+and the number of torch threads is fixed (``threads``, default 1) because oneDNN's reduction
 order in the backward pass depends on it. Same command + same seed + same thread count -> the
 same weight file, byte for byte (checked by the tests on a tiny setting).
 
@@ -39,6 +39,7 @@ import torch
 from .data import NOISE_PRESETS, PairConfig, PairDataset, collect_fusions, generate_pairs
 from .loss import SenDFuseLoss
 from .network import SenDFuseNet
+from .weights import canonicalize_safetensors  # noqa: F401  (moved there; re-exported for callers)
 
 __all__ = [
     "EpochLog", "PretrainConfig", "PretrainResult", "canonicalize_safetensors", "dihedral", "pretrain",
@@ -56,11 +57,11 @@ class PretrainConfig:
     lr: float = 2e-3
     final_lr_fraction: float = 0.05
     seed: int = 0
-    threads: int = 2
+    threads: int = 1
     val_fraction: float = 0.05
     augment: bool = True
     calibrate: bool = True
-    calibration_scales: tuple[float, ...] = (1.0, 0.3, 0.1, 0.03, 0.01)
+    calibration_scales: tuple[float, ...] = (3.0, 1.0, 0.3, 0.1, 0.03, 0.01)
     calibration_fusions: int = 240
     loss_weights: tuple[float, float, float] | None = None  # None: SenDFuseLoss defaults
     grid_size: int = 44
@@ -151,32 +152,6 @@ def rescale_encoder(model: SenDFuseNet, scale: float) -> SenDFuseNet:
         convs(model.dec2_1)[0].weight.div_(scale)          # input: E2 ++ up(E3)
         convs(model.dec1_2)[0].weight[:, :c1].div_(scale)  # input: E1 ++ D1_1 ++ up(D2_1): only E1
     return model
-
-
-def canonicalize_safetensors(path: str | Path) -> None:
-    """Rewrite a safetensors header with sorted keys, so equal contents give equal bytes.
-
-    The safetensors writer serialises the header (tensor entries and ``__metadata__``) from a
-    hash map whose iteration order is randomised per process, so two runs that produce the same
-    tensors and metadata still write different bytes. Only the JSON header is rewritten (its
-    8-byte length prefix updated, padded with spaces to a multiple of 8 as safetensors does);
-    tensor bytes and their offsets, which are relative to the end of the header, are untouched.
-    """
-    import json
-    import os
-    import struct
-
-    target = Path(path)
-    raw = target.read_bytes()
-    (length,) = struct.unpack("<Q", raw[:8])
-    header = json.loads(raw[8:8 + length])
-    if "__metadata__" in header:
-        header["__metadata__"] = dict(sorted(header["__metadata__"].items()))
-    text = json.dumps(header, sort_keys=True, separators=(",", ":")).encode()
-    text += b" " * (-len(text) % 8)
-    tmp = target.with_name(target.name + ".canonical.tmp")
-    tmp.write_bytes(struct.pack("<Q", len(text)) + text + raw[8 + length:])
-    os.replace(tmp, target)
 
 
 def _batches(n: int, batch: int, rng: np.random.Generator) -> list[np.ndarray]:

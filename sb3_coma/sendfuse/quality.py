@@ -13,7 +13,8 @@ area-weighted downsampling). Per-cell channel noise partly averages out on the l
 attenuation bias does not, so the two can rank the methods differently.
 
 Only fusions with at least two valid sources are scored (with the own map alone, the mean is the
-own map, exact by construction); the own-only autoencoding error is reported separately.
+own map, exact by construction); the error of SenDFuse's fusion of the own map alone is reported
+separately (0 since the own map bypasses the network).
 Evaluation maps default to env3 and env2, which the pre-training never sees.
 """
 from __future__ import annotations
@@ -43,7 +44,7 @@ class QualityRow:
     sendfuse_mse: float          # SenDFuse fusion, comm grid
     mean_mse_lattice: float      # the same two after downsampling to the 11 x 11 lattice
     sendfuse_mse_lattice: float
-    own_only_mse: float          # SenDFuse autoencoding of the own map when nothing else arrived
+    own_only_mse: float          # SenDFuse fusion vs the own map when nothing else arrived
     own_only: int                # how many such cases
 
     @property
@@ -77,9 +78,9 @@ class _Accumulator:
             self.pending.setdefault(int(noisy.shape[1]), []).append((noisy[i], clean[i], valid[i]))
         alone = np.flatnonzero(n_valid < 2)
         if len(alone):
-            own = torch.from_numpy(noisy[alone, 0][:, None])
+            # what the wrapper gets when only the own map is there (exact with the own-map bypass)
             with torch.inference_mode():
-                out = self.network(own)[:, 0].numpy()
+                out = self.network.fuse(torch.from_numpy(noisy[alone]), torch.from_numpy(valid[alone])).numpy()
             self.own_sum += float(np.mean((out - noisy[alone, 0]) ** 2, axis=(1, 2)).sum())
             self.own_count += len(alone)
         for n, items in list(self.pending.items()):
@@ -184,7 +185,7 @@ def _fmt(value: float) -> str:
 def format_table(rows: Iterable[QualityRow], markdown: bool = False) -> str:
     """The quality table as aligned text or as Markdown (for SENDFUSE.md and reports)."""
     header = ["noise", "fusions", "mean MSE", "SenDFuse MSE", "ratio", "mean MSE 11x11",
-              "SenDFuse MSE 11x11", "ratio 11x11", "own-only AE MSE"]
+              "SenDFuse MSE 11x11", "ratio 11x11", "own-only MSE"]
     body = [[r.noise, str(r.fusions), f"{r.mean_mse:.3g}", f"{r.sendfuse_mse:.3g}", _fmt(r.ratio),
              f"{r.mean_mse_lattice:.3g}", f"{r.sendfuse_mse_lattice:.3g}", _fmt(r.ratio_lattice),
              f"{r.own_only_mse:.3g} (n={r.own_only})"] for r in rows]

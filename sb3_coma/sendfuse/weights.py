@@ -24,6 +24,7 @@ __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
     "SenDFuseWeightsError",
+    "canonicalize_safetensors",
     "default_weights_path",
     "load_weights",
     "read_metadata",
@@ -77,13 +78,41 @@ def _config_metadata(config: SenDFuseConfig) -> dict[str, str]:
     }
 
 
+def canonicalize_safetensors(path: str | os.PathLike[str]) -> None:
+    """Rewrite a safetensors header with sorted keys, so equal contents give equal bytes.
+
+    The safetensors writer serialises the header (tensor entries and ``__metadata__``) from a
+    hash map whose iteration order is randomised per process, so two runs that produce the same
+    tensors and metadata still write different bytes. Only the JSON header is rewritten (its
+    8-byte length prefix updated, padded with spaces to a multiple of 8 as safetensors does);
+    tensor bytes and their offsets, which are relative to the end of the header, are untouched.
+    :func:`save_weights` does this itself; exposed for files written by other tools.
+    """
+    import json
+    import struct
+
+    target = Path(path)
+    raw = target.read_bytes()
+    (length,) = struct.unpack("<Q", raw[:8])
+    header = json.loads(raw[8:8 + length])
+    if "__metadata__" in header:
+        header["__metadata__"] = dict(sorted(header["__metadata__"].items()))
+    text = json.dumps(header, sort_keys=True, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 8)
+    tmp = target.with_name(target.name + ".canonical.tmp")
+    tmp.write_bytes(struct.pack("<Q", len(text)) + text + raw[8 + length:])
+    os.replace(tmp, target)
+
+
 def save_weights(model: SenDFuseNet, path: str | os.PathLike[str], metadata: Mapping[str, str] | None = None) -> Path:
     """Write ``model``'s weights and architecture to a safetensors file; returns the path.
 
     Args:
         model: the network to save.
         path: target file (parent folders are created). Written to a temporary file first and
-            renamed, so an interrupted save never leaves a truncated file behind.
+            renamed, so an interrupted save never leaves a truncated file behind. The header is
+            written in sorted order (:func:`canonicalize_safetensors`), so the same weights and
+            metadata always give the same bytes.
         metadata: extra provenance strings (e.g. the command, seed, noise level, final loss);
             keys ``format`` and ``sendfuse.*`` are reserved for the architecture record.
     """
@@ -107,6 +136,7 @@ def save_weights(model: SenDFuseNet, path: str | os.PathLike[str], metadata: Map
     os.close(fd)
     try:
         save_file(tensors, tmp_name, metadata=record)
+        canonicalize_safetensors(tmp_name)  # the writer's header order is randomised per process
         os.replace(tmp_name, target)
     except BaseException:
         Path(tmp_name).unlink(missing_ok=True)

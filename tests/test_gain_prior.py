@@ -1,0 +1,157 @@
+"""The per-action information-gain observation, the ``metrics`` reward and COMA's gain prior.
+
+The env computes, for each UAV, the expected information gain of every action's footprint from
+the UAV's own local belief (``obs["action_gain"]``, two entropy weightings); the actor can add a
+learned mix of them to its logits (``policy_kwargs={"gain_prior": ...}``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch as th
+
+import envs
+from envs import layout
+from envs.gain import axis_counts
+from envs.ipp_env import ACTION_DELTAS
+from sb3_coma import COMA
+from sb3_coma.baselines.adaptive_gain import choose_actions
+
+SMALL = dict(n_uavs=2, budget=4)
+
+
+def _positions(env) -> np.ndarray:
+    return env._pos.copy()
+
+
+def test_action_gain_is_normalised_masked_and_matches_ag():
+    env = envs.make_env("env3")
+    geometry = env.geometry
+    counts = axis_counts(geometry)
+    cfg = geometry.config
+    flips = np.array([cfg.flip_probability[a] for a in cfg.altitudes])
+    rng = np.random.default_rng(3)
+    obs, _ = env.reset(seed=3)
+    for _ in range(5):
+        obs, *_ = env.step({a: int(rng.choice(np.flatnonzero(obs[a][layout.KEY_MASK]))) for a in env.agents})
+        masks = np.stack([obs[a][layout.KEY_MASK] for a in env.possible_agents]).astype(bool)
+        gains = np.stack([obs[a][layout.KEY_GAIN] for a in env.possible_agents])  # (N, 2, 6)
+        assert gains.shape == (4, 2, 6) and gains.dtype == np.float32
+        assert np.all(np.abs(gains) <= 1.0)
+        assert np.all(gains[~np.repeat(masks[:, None], 2, axis=1)] == 0.0)
+        np.testing.assert_allclose(np.abs(np.where(masks[:, None], gains, 0)).max(-1), 1.0, rtol=1e-6)
+        for row, weighting in enumerate(layout.GAIN_WEIGHTINGS):
+            _, scores = choose_actions(env.local_beliefs()[None].astype(np.float64), _positions(env)[None],
+                                       masks[None], counts, geometry.comm_cell_area.astype(np.float64), flips,
+                                       discount=0.0, weighting=weighting)
+            # UAV 0 decides first, so AG's normalised scores are exactly its own gains.
+            np.testing.assert_allclose(gains[0, row][masks[0]], scores[0, 0][masks[0]], rtol=1e-5, atol=1e-6)
+
+
+def test_action_gain_can_be_switched_off():
+    env = envs.make_env("env1", action_gain=False, **SMALL)
+    obs, _ = env.reset(seed=0)
+    assert layout.KEY_GAIN not in obs["uav_0"]
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", action_gain=False, **SMALL)
+    assert layout.KEY_GAIN not in venv.observation_space.spaces
+    venv.close()
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", **SMALL)
+    assert venv.observation_space[layout.KEY_GAIN].shape == (2, 6)
+    assert venv.reset()[layout.KEY_GAIN].shape == (2, 2, 6)
+    venv.close()
+
+
+def test_metrics_reward_pays_the_change_of_f1_and_entropy():
+    env = envs.make_env("env2", reward="metrics", budget=6)
+    rng = np.random.default_rng(1)
+    obs, _ = env.reset(seed=1)
+    m0 = env.metrics()
+    total = 0.0
+    for _ in range(6):
+        acts = {a: int(rng.choice(np.flatnonzero(obs[a][layout.KEY_MASK]))) for a in env.agents}
+        obs, rewards, _, _, infos = env.step(acts)
+        assert len(set(rewards.values())) == 1
+        total += rewards["uav_0"]
+    final = infos["uav_0"]
+    cfg = env.config
+    expected = cfg.alpha * ((final["f1"] - final["entropy"]) - (m0["f1"] - m0["entropy"])) + 6 * cfg.beta
+    assert total == pytest.approx(expected, rel=1e-9, abs=1e-9)
+
+
+def _small_model(**policy_kwargs):
+    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, **SMALL)
+    kwargs = dict(features_extractor_kwargs={"features_dim": 16}, **policy_kwargs)
+    return COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=kwargs), venv
+
+
+def test_gain_prior_starts_as_soft_greedy_planner():
+    model, venv = _small_model(gain_prior=5.0)
+    actor = model.policy.actor
+    np.testing.assert_allclose(actor.prior_weights.detach().numpy(), [5.0, 5.0])
+    obs = venv.reset()
+    mask = th.as_tensor(obs[layout.KEY_MASK]).float()
+    prior = th.as_tensor(obs[layout.KEY_GAIN])
+    with th.no_grad():
+        logits = model.policy.masked_logits(th.as_tensor(obs[layout.KEY_LOCAL]), mask, prior)
+    expected = 5.0 * prior.sum(1)
+    valid = mask.bool()
+    # The network's own term starts near zero (output gain 0.01): the prior decides.
+    assert th.allclose(logits[valid], expected[valid], atol=0.1)
+    greedy = th.where(valid, expected, th.tensor(-1e9)).argmax(-1).numpy()
+    actions, _ = model.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(actions, greedy)
+    venv.close()
+
+
+def test_gain_prior_learns_saves_and_loads(tmp_path: Path):
+    model, venv = _small_model(gain_prior=2.0, gain_prior_speed=50.0)
+    before = model.policy.actor.prior_weights.detach().clone()
+    model.learn(32)
+    after = model.policy.actor.prior_weights.detach().clone()
+    assert not th.allclose(before, after)  # the weights are trained
+    assert np.any(model.rollout_buffer.prior != 0)  # the buffer keeps what the actor acted on
+    model.save(tmp_path / "m.zip")
+    loaded = COMA.load(tmp_path / "m.zip", env=venv)
+    assert loaded.policy.gain_prior == 2.0 and loaded.policy.gain_prior_speed == 50.0
+    assert th.allclose(loaded.policy.actor.prior_weights, after)
+    obs = venv.reset()
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+    venv.close()
+
+
+def test_no_prior_ignores_the_gain_key():
+    model, venv = _small_model()
+    assert model.policy.actor.prior_weights is None
+    model.learn(16)
+    venv.close()
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"gain_prior": -1.0}, "gain_prior=-1.0"),
+    ({"gain_prior": float("nan")}, "gain_prior=nan"),
+    ({"gain_prior": 1.0, "gain_prior_speed": 0.0}, "gain_prior_speed=0.0"),
+    ({"gain_prior": "lots"}, "gain_prior='lots'"),
+])
+def test_bad_gain_prior_options(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        _small_model(**kwargs)
+
+
+def test_untrained_prior_is_the_greedy_mix_the_training_starts_from():
+    from sb3_coma.reproduce import untrained_prior
+
+    model, venv = _small_model(gain_prior=3.0)
+    model.learn(32)
+    policy = untrained_prior(model)
+    np.testing.assert_allclose(policy.actor.prior_weights.detach().numpy(), [3.0, 3.0], rtol=1e-6)
+    assert not th.allclose(model.policy.actor.prior_weights, policy.actor.prior_weights)  # the model is untouched
+    obs = venv.reset()
+    actions, _ = policy.predict(obs, deterministic=True)
+    greedy = np.where(obs[layout.KEY_MASK] > 0, obs[layout.KEY_GAIN].sum(1), -np.inf).argmax(-1)
+    np.testing.assert_array_equal(actions, greedy)
+    no_prior, venv2 = _small_model()
+    assert untrained_prior(no_prior) is None
+    venv.close()
+    venv2.close()
