@@ -62,20 +62,28 @@ def gain_density(belief: np.ndarray, flip_probability: float | Sequence[float], 
     be negative for cells believed not valuable (weight 0): a reading may make them look valuable
     again, exactly what the reward would charge.
     """
-    if weighting not in WEIGHTINGS:
-        raise ValueError(f"weighting={weighting!r}: choose one of {WEIGHTINGS}")
+    return gain_densities(belief, flip_probability, (weighting,))[0]
+
+
+def gain_densities(belief: np.ndarray, flip_probability: float | Sequence[float],
+                   weightings: Sequence[str]) -> list[np.ndarray]:
+    """:func:`gain_density` for several weightings, computing the reading's posteriors once."""
+    bad = [w for w in weightings if w not in WEIGHTINGS]
+    if bad:
+        raise ValueError(f"weighting={bad[0]!r}: choose one of {WEIGHTINGS}")
     p = np.clip(np.asarray(belief, dtype=np.float64), 0.0, 1.0)
     scalar = np.ndim(flip_probability) == 0
     qs = np.atleast_1d(np.asarray(flip_probability, dtype=np.float64))
-    prior = _entropy_term(p, weighting)
-    out = []
+    priors = [_entropy_term(p, w) for w in weightings]
+    out: list[list[np.ndarray]] = [[] for _ in weightings]
     for q in qs:  # one pass per altitude level (3), each vectorised over every cell
         p_one = p * (1.0 - q) + (1.0 - p) * q
         post_one = p * (1.0 - q) / np.maximum(p_one, 1e-300)
         post_zero = p * q / np.maximum(1.0 - p_one, 1e-300)
-        after = p_one * _entropy_term(post_one, weighting) + (1.0 - p_one) * _entropy_term(post_zero, weighting)
-        out.append(prior - after)
-    return out[0] if scalar else np.stack(out, axis=-3)
+        for k, w in enumerate(weightings):
+            after = p_one * _entropy_term(post_one, w) + (1.0 - p_one) * _entropy_term(post_zero, w)
+            out[k].append(priors[k] - after)
+    return [levels[0] if scalar else np.stack(levels, axis=-3) for levels in out]
 
 
 def footprint_gains(density: np.ndarray, counts: np.ndarray, targets: np.ndarray) -> np.ndarray:
@@ -102,7 +110,7 @@ def footprint_fraction(counts: np.ndarray, cell_area: np.ndarray, target: np.nda
 
 
 def action_gains(beliefs: np.ndarray, positions: np.ndarray, mask: np.ndarray, counts: np.ndarray,
-                 flips: np.ndarray, deltas: np.ndarray, weighting: str = "class") -> np.ndarray:
+                 flips: np.ndarray, deltas: np.ndarray, weightings: Sequence[str] = ("class",)) -> np.ndarray:
     """Each UAV's normalised expected gain of every action, from its OWN local belief.
 
     This is the one-step look-ahead a UAV can compute on board (no other UAV's data beyond what
@@ -116,14 +124,16 @@ def action_gains(beliefs: np.ndarray, positions: np.ndarray, mask: np.ndarray, c
     :param counts: (A, L, R) from :func:`axis_counts`
     :param flips: (A,) flip probability per altitude level
     :param deltas: (6, 3) lattice move of each action
-    :return: (N, 6) float32 in [-1, 1]
+    :param weightings: the entropy weightings, one output row each (posteriors computed once)
+    :return: (N, K, 6) float32 in [-1, 1], K = ``len(weightings)``
     """
     n_levels, lat = counts.shape[0], counts.shape[1]
-    density = gain_density(beliefs, flips, weighting)  # (N, A, R, R)
     targets = np.clip(positions[:, None, :] + deltas[None], 0, [lat - 1, lat - 1, n_levels - 1])  # (N, 6, 3)
-    gains = footprint_gains(density, counts, targets)
     valid = np.asarray(mask) != 0
-    gains = np.where(valid, gains, 0.0)
-    scale = np.abs(gains).max(axis=1, keepdims=True)
-    return (gains / np.where(scale > 0, scale, 1.0)).astype(np.float32)
+    rows = []
+    for density in gain_densities(beliefs, flips, weightings):  # each (N, A, R, R)
+        gains = np.where(valid, footprint_gains(density, counts, targets), 0.0)
+        scale = np.abs(gains).max(axis=1, keepdims=True)
+        rows.append(gains / np.where(scale > 0, scale, 1.0))
+    return np.stack(rows, axis=1).astype(np.float32)
 

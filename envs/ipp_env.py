@@ -230,7 +230,7 @@ class UavIppEnv(ParallelEnv):
             raise RuntimeError("step() called on a finished mission: call reset() first")
         acts = self._parse_actions(actions)
         h_before = self._went_total
-        scores_before = self._score()
+        score_before = _score(self.metrics()) if self.config.reward == "metrics" else 0.0
         self._apply_actions(acts)
         self._budget_left -= 1
         self._steps += 1
@@ -240,7 +240,7 @@ class UavIppEnv(ParallelEnv):
         h_after = self._went_total
         metrics = self.metrics()
         if cfg.reward == "metrics":
-            reward = cfg.alpha * (self._score() - scores_before) + cfg.beta
+            reward = cfg.alpha * (_score(metrics) - score_before) + cfg.beta
         else:
             reward = cfg.alpha * (h_before - h_after) / h_before + cfg.beta if h_before > 0 else cfg.beta
         done = self._budget_left <= 0
@@ -252,12 +252,6 @@ class UavIppEnv(ParallelEnv):
         if done:
             self.agents = []
         return observations, rewards, terminations, truncations, infos
-
-    def _score(self) -> float:
-        """F1 plus (1 - entropy over valuable cells): the quantity ``reward="metrics"`` pays the
-        change of, so a mission's return is ``alpha`` times the gain in both Table I metrics."""
-        m = self.metrics()
-        return m["f1"] - m["entropy"]
 
     def _parse_actions(self, actions: dict[str, Any]) -> np.ndarray:
         if not isinstance(actions, dict):
@@ -355,9 +349,8 @@ class UavIppEnv(ParallelEnv):
             for i, agent in enumerate(self.possible_agents)
         }
         if cfg.action_gain:
-            gains = np.stack([gain.action_gains(self._local_prob, self._pos, masks, self._gain_counts,
-                                                self._gain_flips, ACTION_DELTAS, weighting)
-                              for weighting in layout.GAIN_WEIGHTINGS], axis=1)  # (N, 2, 6)
+            gains = gain.action_gains(self._local_prob, self._pos, masks, self._gain_counts, self._gain_flips,
+                                      ACTION_DELTAS, layout.GAIN_WEIGHTINGS)  # (N, 2, 6)
             for i, agent in enumerate(self.possible_agents):
                 observations[agent][layout.KEY_GAIN] = gains[i]
         return observations
@@ -406,6 +399,12 @@ class UavIppEnv(ParallelEnv):
 
     def close(self) -> None:
         pass
+
+
+def _score(metrics: dict[str, float]) -> float:
+    """F1 minus the entropy over valuable cells: ``reward="metrics"`` pays its change, so a
+    mission's return is ``alpha`` times the gain in both Table I metrics."""
+    return metrics["f1"] - metrics["entropy"]
 
 
 @functools.lru_cache(maxsize=2)

@@ -62,7 +62,6 @@ def run(args: argparse.Namespace) -> int:
     from sb3_coma.cli import UserError, set_threads
 
     set_threads(args.threads)
-    from sb3_coma.cli import UserError
     from sb3_coma.reproduce import reproduce
 
     envs = [e.strip() for e in args.env.split(",") if e.strip()]

@@ -78,7 +78,7 @@ def _user_error() -> type[Exception]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma.cli import UserError, set_threads
+    from sb3_coma.cli import set_threads
 
     set_threads(args.threads)
     from sb3_coma.checkpoints import CheckpointError

@@ -39,10 +39,9 @@ import torch
 from .data import NOISE_PRESETS, PairConfig, PairDataset, collect_fusions, generate_pairs
 from .loss import SenDFuseLoss
 from .network import SenDFuseNet
-from .weights import canonicalize_safetensors  # noqa: F401  (moved there; re-exported for callers)
 
 __all__ = [
-    "EpochLog", "PretrainConfig", "PretrainResult", "canonicalize_safetensors", "dihedral", "pretrain",
+    "EpochLog", "PretrainConfig", "PretrainResult", "dihedral", "pretrain",
     "rescale_encoder",
 ]
 
