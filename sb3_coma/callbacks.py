@@ -493,6 +493,12 @@ class MissionEvalCallback(EvalCallback):
     Besides SB3's ``eval/mean_reward`` (the mean team return), it logs ``eval/mean_f1`` and
     ``eval/mean_entropy`` at the end of the missions. A new best model is written atomically to
     ``best_model_save_path/best_model.zip``.
+
+    With ``eval_seed`` every evaluation re-seeds the eval env first, so every checkpoint flies the
+    SAME missions and "best" compares policies, not luck of the draw (SB3's own callback lets the
+    missions run on, so two evaluations see different noise). Use seeds the final evaluation does
+    not use (``sb3_coma.training.VALIDATION_SEED``): choosing a checkpoint on the test missions
+    would report a selected, optimistic number.
     """
 
     def __init__(
@@ -505,11 +511,15 @@ class MissionEvalCallback(EvalCallback):
         deterministic: bool = True,
         callback_after_eval: BaseCallback | None = None,
         verbose: int = 1,
+        eval_seed: int | None = None,
     ) -> None:
         from sb3_coma.coma.validation import resolve_n_agents
 
         if n_eval_missions < 1:
             raise ValueError(f"n_eval_missions must be >= 1, got {n_eval_missions!r}")
+        if eval_seed is not None and (isinstance(eval_seed, bool) or not isinstance(eval_seed, (int, np.integer))):
+            raise ValueError(f"eval_seed must be an integer or None, got {eval_seed!r}")
+        self.eval_seed = None if eval_seed is None else int(eval_seed)
         self.eval_n_agents = resolve_n_agents(eval_env)
         self.eval_freq_joint = int(eval_freq)
         self.n_eval_missions = int(n_eval_missions)
@@ -536,6 +546,8 @@ class MissionEvalCallback(EvalCallback):
     def _on_step(self) -> bool:
         if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
             self._f1, self._entropy = [], []
+            if self.eval_seed is not None:
+                self.eval_env.seed(self.eval_seed)  # applies to the reset evaluate_policy starts with
         return super()._on_step()
 
     def _log_success_callback(self, locals_: dict[str, Any], globals_: dict[str, Any]) -> None:

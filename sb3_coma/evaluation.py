@@ -393,10 +393,12 @@ def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int = 10, seed: i
             if fusion == "sendfuse" and "sendfuse" in str(exc):
                 raise ValueError(f"{exc}; evaluate a model trained without SenDFuse with fusion='mean'") from exc
             raise
-        venv.seed(seed + start)
         if predictor is None or getattr(predictor, "uses_env_state", False):
             predictor, default_label = resolve_policy(policy_or_name, venv, seed + start, planner_kwargs)
             name = name or default_label
+        # Seed after loading: loading a model with env=venv re-seeds that env with the model's
+        # training seed (SB3's set_random_seed), which would replace these missions' seeds.
+        venv.seed(seed + start)
         if config is None:
             config = venv.get_attr("config", indices=[0])[0]
         parts.append(_run_batch(predictor, venv, deterministic, max(record - start, 0), record >= 1 and start == 0))

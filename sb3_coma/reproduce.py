@@ -37,6 +37,24 @@ QUICK_TIMESTEPS = 32
 QUICK_OVERRIDES = {"n_envs": 2, "n_steps": 8, "batch_size": 16, "n_critic_epochs": 1}
 #: evaluation seed base; training seed of the shipped models
 TRAIN_SEED = 0
+#: zoo-config variant of each shipped SenDFuse model: env2's prior starts at AG's greedy choice,
+#: the start that scored best on env2's validation missions (sb3_coma/pretrained/MODELS.md)
+SHIPPED_VARIANTS = {"env1": "fast", "env2": "fast-greedy", "env3": "fast"}
+#: the shipped models are the best of the run's checkpoints on the SAME 20 validation missions
+#: (env seeds 1000..1019, never the test seeds), scored every 1024 joint steps (``best_model.zip``)
+TRAIN_EVAL_FREQ = 1024
+TRAIN_EVAL_MISSIONS = 20
+#: the map of the paper's ablation and the shipped models of its three other arms (the fourth,
+#: SenDFuse + CBAM, is the env3 model itself)
+ABLATION_ENV = "env3"
+ABLATION_ARMS: dict[tuple[str, str], str] = {
+    ("sendfuse", "cnn"): "env3-sendfuse-cnn",
+    ("mean", "cbam"): "env3-mean-cbam",
+    ("mean", "cnn"): "env3-mean-cnn",
+}
+#: the arm every other arm is compared with, and the noise level of that comparison
+ABLATION_FULL = ("sendfuse", "cbam")
+ABLATION_CHECK_NOISE = "loud"
 
 
 @dataclass
@@ -64,13 +82,15 @@ def sendfuse_available() -> bool:
         return False
 
 
-def _variant_for(fusion: str) -> str:
-    """The zoo config variant with the shipped models' settings for a fusion (``fast`` / ``fast-mean``)."""
-    return "fast" if fusion == "sendfuse" else "fast-mean"
+def _variant_for(env: str, fusion: str) -> str:
+    """The zoo config variant with the shipped models' settings for an env and a fusion."""
+    return SHIPPED_VARIANTS.get(env, "fast") if fusion == "sendfuse" else "fast-mean"
 
 
-def train_command(env: str, fusion: str, seed: int = TRAIN_SEED) -> str:
-    return f"sb3-coma train --env {env} --variant {_variant_for(fusion)} --seed {seed}"
+def train_command(env: str, fusion: str, seed: int = TRAIN_SEED, validate: bool = True) -> str:
+    """The command that retrains a shipped model (with ``validate``, its ``best_model.zip`` is the model)."""
+    command = f"sb3-coma train --env {env} --variant {_variant_for(env, fusion)} --seed {seed}"
+    return command + (f" --eval-freq {TRAIN_EVAL_FREQ} --eval-missions {TRAIN_EVAL_MISSIONS}" if validate else "")
 
 
 def _curve_from_metrics(path: Path) -> list[float]:
@@ -82,6 +102,17 @@ def _curve_from_metrics(path: Path) -> list[float]:
         return [round(float(row["reward"]), 4) for row in csv.DictReader(fh)]
 
 
+def shipped_seed(env: str) -> int:
+    """The training seed of the shipped model of ``env`` (the seed whose run won on the validation
+    missions, MODELS.md), so ``--train`` retrains that very model; ``TRAIN_SEED`` without one."""
+    from sb3_coma.pretrained import model_info
+
+    try:
+        return int(model_info(env).get("seed", TRAIN_SEED))
+    except ValueError:
+        return TRAIN_SEED
+
+
 def _train_model(env: str, fusion: str, out: Path, quick: bool, timesteps: int | None, log: Callable[[str], None],
                  deterministic: bool = True) -> ModelSource:
     from sb3_coma import COMA
@@ -89,23 +120,32 @@ def _train_model(env: str, fusion: str, out: Path, quick: bool, timesteps: int |
 
     overrides: dict[str, Any] = dict(QUICK_OVERRIDES) if quick else {}
     total = QUICK_TIMESTEPS if quick else timesteps
-    variant = _variant_for(fusion)
+    variant = _variant_for(env, fusion)
+    seed = shipped_seed(env)
     run_dir = out / "runs" / env
     if run_dir.exists():
         shutil.rmtree(run_dir)
     log(f"training COMA on {env} (fusion {fusion}{', quick' if quick else ''}) ...")
     tic = time.perf_counter()
-    _, run_path = train(env=env, variant=variant, seed=TRAIN_SEED, total_timesteps=total, run_dir=run_dir,
+    _, run_path = train(env=env, variant=variant, seed=seed, total_timesteps=total, run_dir=run_dir,
                         overrides=overrides or None, progress_bar=False, verbose=0, handle_signals=False,
-                        save_freq=10 ** 9)
+                        save_freq=10 ** 9, eval_freq=0 if quick else TRAIN_EVAL_FREQ,
+                        eval_missions=TRAIN_EVAL_MISSIONS)
     wall = time.perf_counter() - tic
-    model = COMA.load(str(Path(run_path) / "model.zip"), env=None, device="cpu")
-    command = train_command(env, fusion) + (f" --timesteps {total}" if total else "")
+    model = COMA.load(str(_chosen_model(Path(run_path))), env=None, device="cpu")
+    command = train_command(env, fusion, seed, validate=not quick) + (f" --timesteps {total}" if total else "")
     if overrides:
         command += "".join(f" --set {k}={v}" for k, v in overrides.items())
     log(f"  trained {env} in {wall:.1f} s -> {run_path}")
     return ModelSource(env, model, fusion, str(run_path), command, wall, int(model.num_timesteps),
                        _curve_from_metrics(Path(run_path) / "metrics.csv"), deterministic=deterministic)
+
+
+def _chosen_model(run_path: Path) -> Path:
+    """The run's model that reproduce uses and ships: the best checkpoint on the validation
+    missions when the run evaluated, else the final one."""
+    best = run_path / "best_model.zip"
+    return best if best.is_file() else run_path / "model.zip"
 
 
 def _shipped_model(env: str) -> ModelSource:
@@ -149,8 +189,34 @@ def untrained_prior(model: Any) -> Any:
     with th.no_grad():
         policy.actor.head.weight.zero_()
         policy.actor.head.bias.zero_()
-        policy.actor.prior_theta.fill_(policy.gain_prior / policy.gain_prior_speed)
+        policy.actor.prior_theta.copy_(th.tensor(policy.gain_prior_init) / policy.gain_prior_speed)
     return policy
+
+
+def ablation_models(full_model: Any, say: Callable[[str], None] = print) -> dict[tuple[str, str], Any]:
+    """The four ablation arms: ``full_model`` (the env3 model in use) plus the shipped models of
+    the other three arms; an arm whose shipped model cannot be loaded is left out, with a message."""
+    from sb3_coma.pretrained import PretrainedError, load_pretrained
+
+    models: dict[tuple[str, str], Any] = {ABLATION_FULL: full_model}
+    for arm, name in ABLATION_ARMS.items():
+        try:
+            models[arm] = load_pretrained(name)
+        except PretrainedError as exc:
+            say(f"ablation: leaving out {arm[0]}_{arm[1]}: {exc}")
+    return models
+
+
+def ablation_acceptance(result: Any, noise: str = ABLATION_CHECK_NOISE) -> dict[str, Any]:
+    """Is the full model's entropy at 100 % of the budget under ``noise`` at most every other
+    arm's? Returns the entropies by arm label and the verdict (``None`` when an arm is missing)."""
+    from sb3_coma.ablation import LABELS
+
+    full = LABELS[ABLATION_FULL]
+    entropy = {label: float(r.mean_std("entropy", 1.0)[0]) for (label, n), r in result.results.items() if n == noise}
+    others = {k: v for k, v in entropy.items() if k != full}
+    met = None if full not in entropy or len(others) < len(LABELS) - 1 else all(entropy[full] <= v for v in others.values())
+    return {"noise": noise, "full": full, "entropy": entropy, "met": met}
 
 
 def _final(result: Any) -> dict[str, float]:
@@ -231,7 +297,7 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
               noise: str = "moderate", train: bool = False, quick: bool = False, timesteps: int | None = None,
               fusion: str | None = None, docs: str | Path | None = None, plots: bool = True, ship: bool = False,
               generalisation: bool = True, deterministic: bool | None = None, record: bool = False,
-              log: Callable[[str], None] | None = print) -> dict[str, Any]:
+              ablation: bool = True, log: Callable[[str], None] | None = print) -> dict[str, Any]:
     """Run the reproduction (see module docstring) and return the summary dict.
 
     :param train: retrain each env's model through the zoo config instead of loading the shipped one
@@ -245,6 +311,8 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
         (``metrics``; checksums and files untouched)
     :param ship: with ``train``: copy the trained zips into ``sb3_coma/pretrained`` and update
         ``models.json`` (checksums, command, wall-clock, metrics)
+    :param ablation: when env3 is among the envs, the paper's ablation on env3 at the three noise
+        levels: the env3 model in use and the shipped models of the other three arms
     """
     from sb3_coma import evaluation as ev
 
@@ -337,8 +405,23 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
                         noise=noise, label="prior")
         trained = next(x for x in results if x.env == env and x.method == "coma")
         prior_rows.append({"env": env, "prior": _final(r), "trained": _final(trained),
-                           "weights_start": [float(policy.gain_prior)] * 2,
+                           "weights_start": [float(w) for w in policy.gain_prior_init],
                            "weights_trained": [round(float(w), 3) for w in src.model.policy.actor.prior_weights.detach()]})
+
+    # ---- ablation (env3: SenDFuse x CBAM at three noise levels)
+    ablation_summary: dict[str, Any] | None = None
+    ablation_table = ""
+    ablation_result = None
+    if ablation and ABLATION_ENV in sources:
+        from sb3_coma import ablation as ab
+
+        arms = ablation_models(sources[ABLATION_ENV].model, say)
+        ablation_result = ab.run_ablation(arms, env=ABLATION_ENV, n_trials=trials, seed=seed, log=say)
+        ablation_rows = ablation_result.rows()
+        ev.write_table_csv(ablation_rows, out / "ablation.csv", group_title="noise")
+        ablation_table = ablation_result.markdown()
+        (out / "ablation.md").write_text(ablation_table)
+        ablation_summary = ablation_acceptance(ablation_result)
 
     # ---- latency
     latency = []
@@ -363,6 +446,7 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
                          "timesteps": s.timesteps, "deterministic": s.deterministic} for env, s in sources.items()},
         "table": {f"{r.env}/{r.method}": r.summary() for r in results},
         "acceptance": accept, "generalisation": gen, "latency": latency, "untrained_prior": prior_rows,
+        "ablation": ablation_summary,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
 
@@ -379,6 +463,11 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
                                              s.source) for env, s in sources.items() if s.training_curve}
         if curves:
             figures.append(pl.plot_training_reward(curves, fig_dir / "training_reward.png"))
+        if ablation_result is not None and ablation_result.results:
+            figures.append(pl.plot_metric_grid(ablation_result.by_noise(), fig_dir / "ablation_curves.png",
+                                               title=f"{ABLATION_ENV}: F1 and entropy vs step per noise level"))
+            figures.append(pl.plot_ablation(dict(ablation_result.results), fig_dir / "ablation_bars.png",
+                                            title=f"{ABLATION_ENV}: ablation at 100 % of the budget"))
 
     # ---- ship
     if ship:
@@ -386,6 +475,7 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
     elif record and not train:
         record_metrics(results, say)
 
+    summary["ablation_table"] = ablation_table
     report = results_markdown(summary, table, figures, out)
     (out / "RESULTS.md").write_text(report)
     if docs is not None:
@@ -397,7 +487,10 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
         docs.write_text(results_markdown(summary, table, [fig_docs / f.name for f in figures], docs.parent))
         say(f"wrote {docs}")
     say(_acceptance_markdown(accept))
-    say(f"wrote {out}/ (table.md, acceptance.md, generalisation.md, latency.md, summary.json, RESULTS.md)")
+    if ablation_summary is not None:
+        say(_ablation_verdict(ablation_summary))
+    say(f"wrote {out}/ (table.md, acceptance.md, generalisation.md, latency.md, summary.json, RESULTS.md"
+        + (", ablation.md" if ablation_summary is not None else "") + ")")
     return summary
 
 
@@ -430,11 +523,15 @@ def _ship(sources: dict[str, ModelSource], results: Sequence[Any], say: Callable
         manifest = {"format": 1, "models": {}}
     for env, src in sources.items():
         name = f"coma_{env}.zip"
-        shutil.copyfile(Path(src.source) / "model.zip", directory / name)
+        # Adam's moment estimates are only needed to continue training: without them the zip is
+        # less than half the size (weights unchanged; fine-tuning restarts the moments).
+        src.model.policy.optimizer.state.clear()
+        src.model.policy.critic_optimizer.state.clear()
+        src.model.save(directory / name)
         res = next(r for r in results if r.env == env and r.method == "coma")
         manifest["models"][env] = {
             "file": name, "sha256": pt.sha256_file(directory / name), "size_bytes": (directory / name).stat().st_size,
-            "env": env, "fusion": src.fusion, "variant": _variant_for(src.fusion), "seed": TRAIN_SEED,
+            "env": env, "fusion": src.fusion, "variant": _variant_for(env, src.fusion), "seed": shipped_seed(env),
             "deterministic": src.deterministic,
             "timesteps": src.timesteps, "command": src.command, "train_wall_s": round(float(src.train_wall_s or 0), 1),
             **_metrics_entry(res),
@@ -480,6 +577,17 @@ def _prior_markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _ablation_verdict(a: dict[str, Any]) -> str:
+    others = ", ".join(f"{k} {v:.4f}" for k, v in a["entropy"].items() if k != a["full"])
+    full = a["entropy"].get(a["full"])
+    head = (f"Under {a['noise']} noise, entropy at 100 %: {a['full']} "
+            f"{'n/a' if full is None else f'{full:.4f}'} vs {others}.")
+    if a["met"] is None:
+        return head + " Not every arm was evaluated, so the ablation criterion cannot be checked."
+    return head + (" The full model is at least as good as every ablation on entropy." if a["met"]
+                   else " The full model is NOT at least as good as every ablation on entropy.")
+
+
 def _latency_markdown(latency: list[dict[str, Any]]) -> str:
     lines = ["| Env | fusion | actor, one UAV (ms) | actor, batched (ms per UAV) | fusion (ms per UAV) | "
              "actor + fusion (ms) | AG (ms per UAV) |", "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
@@ -489,6 +597,19 @@ def _latency_markdown(latency: list[dict[str, Any]]) -> str:
         lines.append(f"| {t['env']} | {t['fusion']} | {t['actor_ms_batch1']:.3f} | {t['actor_ms_batched']:.3f} | "
                      f"{'n/a' if fz is None else f'{fz:.4f}'} | {total:.3f} | {t['ag_ms']:.3f} |")
     return "\n".join(lines) + "\n"
+
+
+def _ablation_section(summary: dict[str, Any]) -> list[str]:
+    """RESULTS.md lines of the env3 ablation (none when it was not run)."""
+    a = summary.get("ablation")
+    if not a:
+        return []
+    return ["## Ablation: SenDFuse x CBAM under three noise levels (env3)", "",
+            "The paper's Table II / Fig. 4. SenDFuse+CBAM is the env3 model above; the other three arms are the "
+            "shipped models `env3-sendfuse-cnn`, `env3-mean-cbam`, `env3-mean-cnn`, trained with the same settings "
+            "and selection (sb3_coma/pretrained/MODELS.md); each flown with the fusion it was trained with, same "
+            f"missions, argmax actions, at every noise level. Best of each noise level in bold. More in "
+            "docs/ABLATION.md.", "", summary.get("ablation_table", ""), "", f"**{_ablation_verdict(a)}**", ""]
 
 
 def results_markdown(summary: dict[str, Any], table: str, figures: Sequence[Path], base: Path) -> str:
@@ -530,6 +651,7 @@ def results_markdown(summary: dict[str, Any], table: str, figures: Sequence[Path
               "(docs/training.md, \"Gain prior\"). \"untrained prior\" flies the same model with that mix at its "
               "starting weights and the network's own term removed, argmax actions: the greedy planner the "
               "training starts from.", "", _prior_markdown(summary.get("untrained_prior", [])), "",
+              *_ablation_section(summary),
               "## Generalisation (100 % budget)", "",
               "Each env's model flown on the other maps and on a fresh env1 star layout "
               f"(`map_seed={FRESH_ENV1_SEED}`; env1's default is 0), same trials and noise; baselines on the fresh layout "

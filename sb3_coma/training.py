@@ -72,6 +72,10 @@ METRICS_FILE = "metrics.csv"
 CHECKPOINT_DIR = "checkpoints"
 TENSORBOARD_DIR = "tb"
 TB_LOG_NAME = "COMA"
+#: Env seed of the validation missions that ``--eval-freq`` flies (seeds 1000, 1001, ...): far
+#: from the seeds 0..n-1 that ``evaluate`` and ``reproduce`` report, so picking the best
+#: checkpoint never looks at the test missions.
+VALIDATION_SEED = 1000
 
 #: Top-level keys of a config file that are not gymnasium ids.
 VARIANTS_KEY = "variants"
@@ -479,6 +483,12 @@ def _named_objects(spec: Any, what: str) -> list[tuple[Any, dict[str, Any]]]:
     return out
 
 
+def _eval_copies(missions: int) -> int:
+    """Env copies for an evaluation of ``missions`` missions: a divisor of it (every copy flies the
+    same number), at most 5, so one forward pass acts for several missions."""
+    return next(c for c in (5, 4, 3, 2, 1) if missions % c == 0)
+
+
 def make_training_env(cfg: TrainConfig, n_envs: int | None = None, seed: int | None = None):
     """The SB3 vec env of a config (``envs.make_vec_env`` + the config's ``vec_env_wrapper``)."""
     import envs
@@ -686,6 +696,7 @@ def train(
     save_freq: int | None = None,
     eval_freq: int = 0,
     eval_missions: int = 5,
+    eval_seed: int | None = None,
     callbacks: list | None = None,
     progress_bar: bool = True,
     device: str = "auto",
@@ -716,6 +727,8 @@ def train(
     :param save_freq: joint steps between checkpoints (default: a tenth of the run)
     :param eval_freq: joint steps between evaluations (0: none); best model -> ``best_model.zip``
     :param eval_missions: missions per evaluation
+    :param eval_seed: env seed of the validation missions, the same at every evaluation (default
+        :data:`VALIDATION_SEED`, disjoint from the seeds ``evaluate`` and ``reproduce`` test on)
     :param callbacks: extra SB3 callbacks
     :param progress_bar: show SB3's progress bar (joint steps)
     :param device: torch device
@@ -850,10 +863,15 @@ def train(
         cb_list.append(_construct(cls, kwargs, "callback") if isinstance(cls, type) else cls)
     eval_env = None
     if eval_freq and eval_freq > 0:
-        eval_env = make_training_env(cfg, n_envs=1, seed=seed + 1)
+        eval_missions = _positive_int("train()", "eval_missions", eval_missions)
+        if eval_seed is None:
+            eval_seed = VALIDATION_SEED
+        elif not _is_int(eval_seed):
+            raise TrainingError(f"eval_seed must be an integer, got {eval_seed!r}")
+        eval_env = make_training_env(cfg, n_envs=_eval_copies(eval_missions), seed=int(eval_seed))
         cb_list.append(MissionEvalCallback(eval_env, eval_freq=eval_freq, n_eval_missions=eval_missions,
                                            best_model_save_path=run_path, log_path=run_path / "eval",
-                                           verbose=model_verbose))
+                                           verbose=model_verbose, eval_seed=int(eval_seed)))
     cb_list.extend(callbacks or [])
     if handle_signals:
         cb_list.append(stopper)

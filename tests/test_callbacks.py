@@ -181,3 +181,27 @@ def test_atomic_save_keeps_previous_file(tmp_path):
         atomic_save(_Partial(b"junk", fail=False), dest)
     assert dest.read_bytes() == b"previous"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.zip"]
+
+
+@pytest.mark.parametrize("eval_seed", [None, 7])
+def test_seeded_evaluations_fly_the_same_missions(eval_seed, tmp_path):
+    """With ``eval_seed`` every evaluation re-seeds: a policy that does not change (lr 1e-12) scores the same
+    each time (without it the missions run on and the scores differ)."""
+    env = make_env()
+    model = COMA("CnnPolicy", env, batch_size=6, learning_rate=1e-12, critic_learning_rate=1e-12, seed=0, device="cpu",
+                 policy_kwargs={"features_extractor_kwargs": {"features_dim": 16, "channels": (8, 8, 8)}})
+    eval_env = make_env(n_envs=1, seed=5)
+    evaluation = MissionEvalCallback(eval_env, eval_freq=6, n_eval_missions=3, verbose=0, eval_seed=eval_seed,
+                                     log_path=tmp_path)
+    model.learn(18, callback=evaluation)
+    scores = [float(np.mean(r)) for r in evaluation.evaluations_results]
+    assert len(scores) == 3
+    if eval_seed is None:
+        assert len(set(scores)) > 1
+    else:
+        assert scores == [scores[0]] * 3
+
+
+def test_eval_seed_must_be_an_integer():
+    with pytest.raises(ValueError, match="eval_seed must be an integer or None, got 1.5"):
+        MissionEvalCallback(make_env(n_envs=1), eval_freq=6, eval_seed=1.5, verbose=0)

@@ -155,6 +155,21 @@ def test_evaluates_saved_model(model_path):
     assert np.all(r.planning_time_ms > 0)
 
 
+def test_model_by_path_flies_the_same_missions_as_the_object(tmp_path):
+    """Loading a model with ``env=venv`` re-seeds that env with the model's training seed; the
+    missions must still be the requested ones (regression: a path used to fly seed 7's missions)."""
+    from sb3_coma.coma import COMA
+
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", budget=3)
+    model = COMA("CnnPolicy", venv, seed=7, device="cpu")
+    model.save(tmp_path / "seed7.zip")
+    venv.close()
+    by_object = evaluate(model, n_trials=3, seed=0, fusion="mean", deterministic=True, **SMALL)
+    by_path = evaluate(str(tmp_path / "seed7.zip"), n_trials=3, seed=0, fusion="mean", deterministic=True, **SMALL)
+    np.testing.assert_array_equal(by_path.f1, by_object.f1)
+    np.testing.assert_array_equal(by_path.entropy, by_object.entropy)
+
+
 def test_ablation_finds_models_and_skips_missing_fusion(model_path, tmp_path, monkeypatch):
     for name in ("mean_cnn.zip", "sendfuse_cbam.zip"):
         shutil.copy(model_path, tmp_path / name)

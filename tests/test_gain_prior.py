@@ -133,6 +133,9 @@ def test_no_prior_ignores_the_gain_key():
     ({"gain_prior": float("nan")}, "gain_prior=nan"),
     ({"gain_prior": 1.0, "gain_prior_speed": 0.0}, "gain_prior_speed=0.0"),
     ({"gain_prior": "lots"}, "gain_prior='lots'"),
+    ({"gain_prior": [1.0, 2.0, 3.0]}, r"one weight per 'action_gain' row, 2 \(class, none\), got 3"),
+    ({"gain_prior": [1.0, -2.0]}, r"gain_prior=\[1.0, -2.0\]: weights must be finite numbers >= 0"),
+    ({"gain_prior": [1.0, "x"]}, r"gain_prior=\[1.0, 'x'\]: must be a number or a list of numbers"),
 ])
 def test_bad_gain_prior_options(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -155,3 +158,60 @@ def test_untrained_prior_is_the_greedy_mix_the_training_starts_from():
     assert untrained_prior(no_prior) is None
     venv.close()
     venv2.close()
+
+
+def test_gain_prior_per_row_start_saves_and_loads(tmp_path: Path):
+    """``gain_prior=[10, 0]`` starts from the class-weighted row alone (adaptive-gain's choice)."""
+    model, venv = _small_model(gain_prior=[10.0, 0.0], gain_prior_speed=100.0)
+    np.testing.assert_allclose(model.policy.actor.prior_weights.detach().numpy(), [10.0, 0.0])
+    assert model.policy.gain_prior_init == (10.0, 0.0)
+    obs = venv.reset()
+    greedy = np.where(obs[layout.KEY_MASK] > 0, obs[layout.KEY_GAIN][:, 0], -np.inf).argmax(-1)
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], greedy)
+    model.learn(16)
+    model.save(tmp_path / "m.zip")
+    loaded = COMA.load(tmp_path / "m.zip", env=venv)
+    assert loaded.policy.gain_prior == [10.0, 0.0] and loaded.policy.gain_prior_init == (10.0, 0.0)
+    assert th.allclose(loaded.policy.actor.prior_weights, model.policy.actor.prior_weights)
+    from sb3_coma.reproduce import untrained_prior
+
+    np.testing.assert_allclose(untrained_prior(loaded).actor.prior_weights.detach().numpy(), [10.0, 0.0], rtol=1e-6)
+    venv.close()
+
+
+def test_all_zero_gain_prior_is_no_prior():
+    model, venv = _small_model(gain_prior=[0.0, 0.0])
+    assert model.policy.actor.prior_weights is None
+    venv.close()
+
+
+def test_gain_aware_critic_starts_neutral_learns_and_round_trips(tmp_path: Path):
+    """``critic_gain=True``: Q gets a zero-initialised linear term in the agent's action gains."""
+    model, venv = _small_model(gain_prior=5.0, critic_gain=True)
+    obs = venv.reset()
+    local, state, _, prior = model._obs_tensors(obs, grouped=True)
+    actions = th.zeros(local.shape[:2], dtype=th.long)
+    with th.no_grad():
+        q = model.policy.q_values(local, state, actions, gain=prior)
+        q_without = model.policy.q_values(local, state, actions, gain=th.zeros_like(prior))
+    assert th.equal(q, q_without)  # the gain term starts at zero
+    model.learn(32)
+    assert model.policy.critic.gain_head.weight.abs().sum() > 0  # ... and is trained
+    with th.no_grad():
+        assert not th.allclose(model.policy.q_values(local, state, actions, gain=prior),
+                               model.policy.q_values(local, state, actions, gain=th.zeros_like(prior)))
+    model.save(tmp_path / "m.zip")
+    loaded = COMA.load(tmp_path / "m.zip", env=venv)
+    assert loaded.policy.critic_gain is True
+    with th.no_grad():
+        assert th.equal(loaded.policy.q_values(local, state, actions, gain=prior),
+                        model.policy.q_values(local, state, actions, gain=prior))
+    venv.close()
+
+
+def test_gain_aware_critic_needs_the_gain_key():
+    with pytest.raises(ValueError, match="critic_gain=True needs observation\\['action_gain'\\]"):
+        venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, action_gain=False, **SMALL)
+        COMA("CnnPolicy", venv, n_steps=8, batch_size=8, policy_kwargs={"critic_gain": True})
+    with pytest.raises(ValueError, match="critic_gain='yes': must be true or false"):
+        _small_model(critic_gain="yes")

@@ -23,9 +23,24 @@ def test_manifest_records_checksums_commands_metrics():
         path = pt.pretrained_dir() / entry["file"]
         assert path.is_file() and path.stat().st_size == entry["size_bytes"]
         assert pt.sha256_file(path) == entry["sha256"]
-        assert entry["command"].startswith(f"sb3-coma train --env {name}")
+        assert entry["command"].startswith(f"sb3-coma train --env {entry['env']} --variant {entry['variant']} "
+                                           f"--seed {entry['seed']}")
         assert entry["train_wall_s"] > 0 and entry["timesteps"] > 0
-        assert {"f1_100_mean", "entropy_100_mean"} <= set(entry["metrics"])
+        if "ablation_arm" in entry:  # flown by `sb3-coma reproduce` in the ablation table
+            assert name == f"{entry['env']}-{entry['ablation_arm'][0]}-{entry['ablation_arm'][1]}"
+        else:
+            assert name == entry["env"]
+            assert {"f1_100_mean", "entropy_100_mean"} <= set(entry["metrics"])
+
+
+def test_ablation_arms_are_shipped_with_their_fusion_and_extractor():
+    from sb3_coma.extractors import CBAMExtractor
+    from sb3_coma.reproduce import ABLATION_ARMS
+
+    for (fusion, extractor), name in ABLATION_ARMS.items():
+        model = load_pretrained(name)
+        assert model.pretrained_info["fusion"] == fusion and model.pretrained_info["ablation_arm"] == [fusion, extractor]
+        assert isinstance(model.policy.actor.features_extractor, CBAMExtractor) == (extractor == "cbam")
 
 
 def test_load_pretrained_predict_honours_masks():
@@ -49,7 +64,7 @@ def test_load_pretrained_predict_honours_masks():
 
 
 def test_unknown_name_is_a_clear_error():
-    with pytest.raises(PretrainedError, match=r"unknown shipped model 'env9'; available: env1, env2, env3"):
+    with pytest.raises(PretrainedError, match=r"unknown shipped model 'env9'; available: env1, env2, env3, env3-mean-cbam"):
         load_pretrained("env9")
     assert issubclass(PretrainedError, ValueError)
 

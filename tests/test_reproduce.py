@@ -7,7 +7,7 @@ import pytest
 
 from sb3_coma import pretrained as pt
 from sb3_coma.cli import main
-from sb3_coma.reproduce import acceptance
+from sb3_coma.reproduce import ablation_acceptance, acceptance
 
 pytestmark = pytest.mark.skipif(not (pt.pretrained_dir() / pt.MANIFEST).is_file(), reason="no shipped models")
 
@@ -56,7 +56,11 @@ def test_reproduce_quick_train(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     model = summary["models"]["env1"]
     assert model["source"] == str(out / "runs" / "env1") and model["timesteps"] >= 32
-    assert model["command"].startswith("sb3-coma train --env env1 --variant fast --seed 0 --timesteps 32")
+    from sb3_coma.reproduce import shipped_seed
+
+    seed = shipped_seed("env1")  # --train retrains the shipped model's seed
+    assert model["command"].startswith(f"sb3-coma train --env env1 --variant fast --seed {seed} --timesteps 32")
+    assert "--eval-freq" not in model["command"]  # the tiny training does not validate
     assert (out / "runs" / "env1" / "model.zip").is_file() and summary["command"] == "sb3-coma reproduce --train --quick"
 
 
@@ -66,3 +70,39 @@ def test_fusion_latency_is_measured_for_both_fusions():
     for fusion in ("mean", "sendfuse"):
         ms = _time_fusion(fusion, 4, reps=3)
         assert ms is not None and 0 < ms < 1000
+
+
+def test_reproduce_quick_ablation(tmp_path):
+    """env3 brings the ablation: the env3 model plus the three shipped arms at three noise levels."""
+    out = tmp_path / "res"
+    assert main(["reproduce", "--quick", "--env", "env3", "--out", str(out), "--no-docs", "--no-plots",
+                 "--no-generalisation"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    ablation = summary["ablation"]
+    assert ablation["noise"] == "loud" and ablation["full"] == "SenDFuse+CBAM"
+    assert set(ablation["entropy"]) == {"Base", "CBAM", "SenDFuse", "SenDFuse+CBAM"}
+    assert ablation["met"] == all(ablation["entropy"]["SenDFuse+CBAM"] <= v for v in ablation["entropy"].values())
+    table = (out / "ablation.md").read_text()
+    assert all(f"| {noise} |" in table for noise in ("none", "moderate", "loud"))
+    assert "## Ablation" in (out / "RESULTS.md").read_text()
+
+
+def test_ablation_acceptance_logic():
+    class R:
+        def __init__(self, ent):
+            self.ent = ent
+
+        def mean_std(self, name, frac):
+            assert name == "entropy" and frac == 1.0
+            return self.ent, 0.0
+
+    class Result:
+        def __init__(self, full, cnn):
+            self.results = {("SenDFuse+CBAM", "loud"): R(full), ("SenDFuse", "loud"): R(cnn),
+                            ("CBAM", "loud"): R(0.5), ("Base", "loud"): R(0.6), ("SenDFuse+CBAM", "none"): R(0.9)}
+
+    assert ablation_acceptance(Result(0.40, 0.41))["met"] is True
+    assert ablation_acceptance(Result(0.42, 0.41))["met"] is False
+    partial = Result(0.40, 0.41)
+    del partial.results[("Base", "loud")]
+    assert ablation_acceptance(partial)["met"] is None

@@ -8,6 +8,7 @@ import signal
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback
@@ -320,3 +321,21 @@ def test_cli_interrupt_exit_status(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(sb3_coma.training, "train", interrupted)
     assert cli.main(["train", "--env", "env1", "-v", "0"]) == 128 + signal.SIGTERM
     assert "sb3-coma train --resume" in capsys.readouterr().err
+
+
+def test_validation_picks_best_model_on_seeded_missions(tmp_path):
+    """``eval_freq`` keeps ``best_model.zip``: the checkpoint with the best mean return on the
+    same validation missions (env seed ``VALIDATION_SEED`` by default) at every evaluation."""
+    from sb3_coma.training import VALIDATION_SEED
+
+    config = write_config(tmp_path)
+    _, run = train(env="env1", config=config, seed=0, run_dir=tmp_path / "run", eval_freq=16, eval_missions=2,
+                   **quiet())
+    data = np.load(run / "eval" / "evaluations.npz")
+    assert list(data["timesteps"]) == [16, 32]
+    assert data["results"].shape == (2, 2 * 2)  # 2 missions x 2 UAV rows per evaluation
+    best = validate_checkpoint(run / "best_model.zip").num_timesteps
+    assert best == int(data["timesteps"][int(np.argmax(data["results"].mean(axis=1)))])
+    assert VALIDATION_SEED == 1000
+    with pytest.raises(TrainingError, match="eval_missions must be a positive integer, got 0"):
+        train(env="env1", config=config, seed=0, run_dir=tmp_path / "run2", eval_freq=16, eval_missions=0, **quiet())

@@ -288,7 +288,7 @@ class COMA(OnPolicyAlgorithm):
         flat_local, flat_mask = local.flatten(0, 1), mask.flatten(0, 1)
         probs = self.policy.action_probs(flat_local, flat_mask, prior=None if prior is None else prior.flatten(0, 1))
         actions = th.multinomial(probs, 1).view(local.shape[:2])
-        q = self.policy.q_values(local, state, actions, target=True)
+        q = self.policy.q_values(local, state, actions, target=True, gain=prior)
         return (probs.view(q.shape) * q).sum(-1)
 
     def _bootstrap_truncations(self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]) -> np.ndarray:
@@ -373,10 +373,11 @@ class COMA(OnPolicyAlgorithm):
         """TD(lambda) targets ``(T * E, N)`` from the target critic's Q at the taken joint actions."""
         data = self.rollout_buffer.time_major()
         T, E, N = data["actions"].shape
-        flat = {k: data[k].flatten(0, 1) for k in ("local", "state", "actions")}
+        flat = {k: data[k].flatten(0, 1) for k in ("local", "state", "actions", "prior")}
         q_taken = th.cat(
             [
-                self.policy.q_values(flat["local"][idx], flat["state"][idx], flat["actions"][idx], target=True)
+                self.policy.q_values(flat["local"][idx], flat["state"][idx], flat["actions"][idx], target=True,
+                                     gain=flat["prior"][idx])
                 .gather(-1, flat["actions"][idx].unsqueeze(-1))
                 .squeeze(-1)
                 for idx in th.arange(T * E).split(_SCORING_CHUNK)
@@ -428,7 +429,7 @@ class COMA(OnPolicyAlgorithm):
         critic_losses = []
         for epoch in range(self.n_critic_epochs):
             for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
-                q = self.policy.q_values(local[idx], state[idx], actions[idx])
+                q = self.policy.q_values(local[idx], state[idx], actions[idx], gain=prior[idx])
                 q_taken = q.gather(-1, actions[idx].unsqueeze(-1)).squeeze(-1)
                 loss = F.mse_loss(q_taken, targets[idx])
                 self._critic_step(loss)

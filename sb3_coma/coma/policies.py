@@ -14,8 +14,10 @@ from __future__ import annotations
 import copy
 import math
 from functools import partial
+from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
@@ -93,13 +95,13 @@ class _Actor(_Head):
     """
 
     def __init__(self, features_extractor: BaseFeaturesExtractor, n_actions: int, gain: float,
-                 ortho_init: bool = True, prior_rows: int = 0, prior_scale: float = 0.0,
+                 ortho_init: bool = True, prior_init: Sequence[float] = (),
                  prior_speed: float = 1.0) -> None:
         super().__init__(features_extractor, n_actions, gain, ortho_init)
         self.prior_speed = float(prior_speed)
         self.prior_theta: nn.Parameter | None = None
-        if prior_scale > 0:
-            self.prior_theta = nn.Parameter(th.full((prior_rows,), float(prior_scale) / self.prior_speed))
+        if any(w > 0 for w in prior_init):
+            self.prior_theta = nn.Parameter(th.tensor([float(w) for w in prior_init]) / self.prior_speed)
 
     @property
     def prior_weights(self) -> th.Tensor | None:
@@ -114,6 +116,65 @@ class _Actor(_Head):
                                  "but the observation has no such key: make the env with action_gain=True")
             logits = logits + th.einsum("k,bka->ba", self.prior_speed * self.prior_theta, prior)
         return logits
+
+
+def _prior_init(gain_prior: Any, speed: Any, observation_space: spaces.Dict) -> tuple[float, ...]:
+    """The starting weight of each ``action_gain`` row (empty: no prior), with errors that name the
+    bad value. A single number applies to every row."""
+    try:
+        speed = float(speed)
+    except (TypeError, ValueError):
+        raise ValueError(f"gain_prior_speed={speed!r}: must be a number") from None
+    if not (speed > 0.0 and math.isfinite(speed)):
+        raise ValueError(f"gain_prior_speed={speed!r}: must be a finite number > 0")
+    scalar = isinstance(gain_prior, (int, float)) and not isinstance(gain_prior, bool)
+    try:
+        weights = [float(gain_prior)] if scalar else [float(w) for w in gain_prior]
+    except (TypeError, ValueError):
+        raise ValueError(f"gain_prior={gain_prior!r}: must be a number or a list of numbers, one per "
+                         f"{layout.KEY_GAIN!r} row {layout.GAIN_WEIGHTINGS}") from None
+    if not weights or not all(w >= 0.0 and math.isfinite(w) for w in weights):
+        raise ValueError(f"gain_prior={gain_prior!r}: weights must be finite numbers >= 0 (0 = no prior)")
+    if not any(w > 0 for w in weights):
+        return ()
+    if layout.KEY_GAIN not in observation_space.spaces:
+        raise ValueError(f"gain_prior={gain_prior!r} needs observation[{layout.KEY_GAIN!r}]: make the env "
+                         "with action_gain=True (the default), or use gain_prior=0")
+    rows = observation_space[layout.KEY_GAIN].shape[0]
+    if scalar:
+        return tuple(weights * rows)
+    if len(weights) != rows:
+        raise ValueError(f"gain_prior={gain_prior!r}: needs one weight per {layout.KEY_GAIN!r} row, "
+                         f"{rows} ({', '.join(layout.GAIN_WEIGHTINGS)}), got {len(weights)}")
+    return tuple(weights)
+
+
+class _Critic(_Head):
+    """The critic's head, plus an optional term linear in the agent's per-action gains.
+
+    ``Q_i(s, u_-i, a) = net(critic input)(a) + W . flatten(gain_i) (a)``, ``W`` a zero-initialised
+    ``(K * A) -> A`` linear map: the centralised critic may read agent ``i``'s ``action_gain``
+    (part of its observation) so that the value of each move's expected information gain does
+    not have to be re-derived from the 11 x 11 maps (docs/training.md, "Gain-aware critic").
+    """
+
+    def __init__(self, features_extractor: BaseFeaturesExtractor, n_actions: int, gain: float,
+                 ortho_init: bool = True, gain_inputs: int = 0) -> None:
+        super().__init__(features_extractor, n_actions, gain, ortho_init)
+        self.gain_head: nn.Linear | None = None
+        if gain_inputs > 0:
+            self.gain_head = nn.Linear(gain_inputs, n_actions)
+            nn.init.zeros_(self.gain_head.weight)
+            nn.init.zeros_(self.gain_head.bias)
+
+    def forward(self, x: th.Tensor, gain: th.Tensor | None = None) -> th.Tensor:  # type: ignore[override]
+        q = super().forward(x)
+        if self.gain_head is not None:
+            if gain is None:
+                raise ValueError(f"this critic reads observation[{layout.KEY_GAIN!r}] (critic_gain=True), "
+                                 "but none was given: make the env with action_gain=True")
+            q = q + self.gain_head(gain.flatten(1))
+        return q
 
 
 class COMAPolicy(BasePolicy):
@@ -132,10 +193,14 @@ class COMAPolicy(BasePolicy):
     :param ortho_init: orthogonal initialisation (gain sqrt 2 in the trunks, 0.01 on the actor's
         output so the first policy is near-uniform, 1 on the critic's), as SB3's A2C/PPO do
     :param normalize_images: unused (all maps are float in [0, 1]); kept for SB3's signature
-    :param gain_prior: initial weight of each row of the per-action information-gain prior added to
-        the actor's logits (``0``: no prior, the paper's actor); needs the ``action_gain`` key
+    :param gain_prior: initial weight of the rows of the per-action information-gain prior added
+        to the actor's logits: one number for every row, or one per row (``layout.GAIN_WEIGHTINGS``
+        order: class-weighted, plain), e.g. ``[10, 0]`` starts as adaptive-gain's greedy choice.
+        ``0`` (or all zeros): no prior, the paper's actor. Needs the ``action_gain`` key
     :param gain_prior_speed: how much faster than the network the prior's weights learn (see
         ``_Actor``)
+    :param critic_gain: the critic also reads the agent's ``action_gain`` (a zero-initialised
+        linear term, see ``_Critic``); needs the ``action_gain`` key
     """
 
     def __init__(
@@ -152,21 +217,20 @@ class COMAPolicy(BasePolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
         ortho_init: bool = True,
         normalize_images: bool = False,
-        gain_prior: float = 0.0,
+        gain_prior: float | Sequence[float] = 0.0,
         gain_prior_speed: float = 100.0,
+        critic_gain: bool = False,
     ) -> None:
-        try:
-            gain_prior, gain_prior_speed = float(gain_prior), float(gain_prior_speed)
-        except (TypeError, ValueError):
-            raise ValueError(f"gain_prior={gain_prior!r}, gain_prior_speed={gain_prior_speed!r}: must be numbers") from None
-        if not (gain_prior >= 0.0 and math.isfinite(gain_prior)):
-            raise ValueError(f"gain_prior={gain_prior!r}: must be a finite number >= 0 (0 = no prior)")
-        if not (gain_prior_speed > 0.0 and math.isfinite(gain_prior_speed)):
-            raise ValueError(f"gain_prior_speed={gain_prior_speed!r}: must be a finite number > 0")
-        if gain_prior > 0 and layout.KEY_GAIN not in observation_space.spaces:
-            raise ValueError(f"gain_prior={gain_prior!r} needs observation[{layout.KEY_GAIN!r}]: make the env "
-                             "with action_gain=True (the default), or use gain_prior=0")
-        self.gain_prior = gain_prior
+        if not isinstance(critic_gain, (bool, np.bool_)):
+            raise ValueError(f"critic_gain={critic_gain!r}: must be true or false")
+        if critic_gain and layout.KEY_GAIN not in observation_space.spaces:
+            raise ValueError(f"critic_gain=True needs observation[{layout.KEY_GAIN!r}]: make the env with "
+                             "action_gain=True (the default), or use critic_gain=False")
+        self.critic_gain = bool(critic_gain)
+        #: The starting weight of each gain row (empty without a prior).
+        self.gain_prior_init = _prior_init(gain_prior, gain_prior_speed, observation_space)
+        self.gain_prior = gain_prior if isinstance(gain_prior, (int, float)) else [float(w) for w in gain_prior]
+        gain_prior_speed = float(gain_prior_speed)
         self.gain_prior_speed = gain_prior_speed
         super().__init__(
             observation_space,
@@ -200,15 +264,15 @@ class COMAPolicy(BasePolicy):
             self.n_actions,
             gain=0.01,
             ortho_init=self.ortho_init,
-            prior_rows=self.observation_space[layout.KEY_GAIN].shape[0] if self.gain_prior > 0 else 0,
-            prior_scale=self.gain_prior,
+            prior_init=self.gain_prior_init,
             prior_speed=self.gain_prior_speed,
         )
-        self.critic = _Head(
+        self.critic = _Critic(
             self.critic_features_extractor_class(critic_space, **self.critic_features_extractor_kwargs),
             self.n_actions,
             gain=1.0,
             ortho_init=self.ortho_init,
+            gain_inputs=int(np.prod(self.observation_space[layout.KEY_GAIN].shape)) if self.critic_gain else 0,
         )
         self.critic_target = copy.deepcopy(self.critic)
         self.critic_target.requires_grad_(False)
@@ -233,6 +297,7 @@ class COMAPolicy(BasePolicy):
             ortho_init=self.ortho_init,
             gain_prior=self.gain_prior,
             gain_prior_speed=self.gain_prior_speed,
+            critic_gain=self.critic_gain,
         )
         return data
 
@@ -272,18 +337,21 @@ class COMAPolicy(BasePolicy):
         return self.act(local, mask, deterministic=deterministic, prior=None if prior is None else prior.float())
 
     # ---------------------------------------------------------------- critic
-    def q_values(self, local: th.Tensor, state: th.Tensor, actions: th.Tensor, target: bool = False) -> th.Tensor:
+    def q_values(self, local: th.Tensor, state: th.Tensor, actions: th.Tensor, target: bool = False,
+                 gain: th.Tensor | None = None) -> th.Tensor:
         """``Q(s, u_-i, .)`` for every agent of every joint step: ``(B, N, A)`` in one pass.
 
         :param local: ``(B, N, 8, H, W)``
         :param state: ``(B, N, 3, H, W)``
         :param actions: ``(B, N)`` joint actions (agent ``i``'s own entry does not matter for row ``i``)
         :param target: use the target critic
+        :param gain: ``(B, N, K, A)`` each agent's ``action_gain``; read only with ``critic_gain``
         """
         batch, n_agents = actions.shape
         x = critic_input(local, state, actions).flatten(0, 1)
         net = self.critic_target if target else self.critic
-        return net(x).view(batch, n_agents, self.n_actions)
+        g = gain.flatten(0, 1) if (self.critic_gain and gain is not None) else None
+        return net(x, g).view(batch, n_agents, self.n_actions)
 
     @th.no_grad()
     def sync_target(self, tau: float | None = None) -> None:

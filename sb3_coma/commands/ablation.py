@@ -20,6 +20,9 @@ HELP = "evaluate the SenDFuse / CBAM ablation models at three noise levels"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch CPU threads (default 1, as sb3-coma reproduce: float reductions differ with the "
+                             "thread count, and a rare flipped argmax changes a whole mission)")
     parser.add_argument("--models", default=None, help="directory with {fusion}_{extractor}.zip models")
     parser.add_argument("--model", action="append", default=[], metavar="FUSION_EXTRACTOR=PATH",
                         help="one model, e.g. sendfuse_cbam=runs/x/final.zip; repeatable")
@@ -37,9 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from sb3_coma import ablation, plots
-    from sb3_coma.cli import UserError
+    from sb3_coma.cli import UserError, set_threads
     from sb3_coma.evaluation import write_per_step_csv, write_table_csv
 
+    set_threads(args.threads)
     if args.trials < 1 or args.seed < 0:
         raise UserError("--trials must be >= 1 and --seed >= 0")
     if args.models and args.model:

@@ -26,6 +26,9 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch CPU threads (default 1, as sb3-coma reproduce: float reductions differ with the "
+                             "thread count, and a rare flipped argmax changes a whole mission)")
     parser.add_argument("--env", default=None,
                         help="map name(s), comma separated: env1, env2, env3 or gymnasium ids (default env3; "
                              "with --map-path the image's name)")
@@ -121,8 +124,9 @@ def _check_args(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from sb3_coma import evaluation as ev
-    from sb3_coma.cli import UserError
+    from sb3_coma.cli import UserError, set_threads
 
+    set_threads(args.threads)
     _check_args(args)
     methods = _methods(args)
     env_names = _env_names(args)

@@ -56,6 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eval-freq", type=int, default=0, metavar="N",
                         help="joint steps between evaluations (0: none; best model -> best_model.zip)")
     parser.add_argument("--eval-missions", type=int, default=5, help="missions per evaluation")
+    parser.add_argument("--eval-seed", type=int, default=None, metavar="SEED",
+                        help="env seed of the validation missions, the same at every evaluation "
+                             "(default 1000: disjoint from the test seeds 0..n-1 of evaluate/reproduce)")
     parser.add_argument("--device", default="auto", help="torch device (auto, cpu, cuda)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.add_argument("-v", "--verbose", type=int, default=1, choices=(0, 1, 2),
@@ -110,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
             save_freq=args.save_freq,
             eval_freq=args.eval_freq,
             eval_missions=args.eval_missions,
+            eval_seed=args.eval_seed,
             progress_bar=not args.no_progress,
             device=args.device,
             verbose=args.verbose,
