@@ -71,3 +71,30 @@ def test_bad_spaces_raise() -> None:
         CnnExtractor(spaces.Box(0.0, 1.0, (6,), dtype=np.float32))
     with pytest.raises(ValueError, match="three widths"):
         CBAMExtractor(LOCAL, channels=(8, 16))
+
+
+def test_open_gates_keep_the_trunk_scale() -> None:
+    """``gate_bias=3`` starts both gates near sigma(3) = 0.95 instead of 0.5, so an untrained
+    CBAM trunk is not a much smaller copy of the CNN trunk (the default 0 is Woo et al.'s CBAM)."""
+    from functools import partial
+
+    from stable_baselines3.common.policies import BasePolicy
+
+    x = th.rand(16, *LOCAL.shape)
+    stds = {}
+    for name, ext in (("paper", CBAMExtractor(LOCAL)), ("open", CBAMExtractor(LOCAL, gate_bias=3.0)),
+                      ("cnn", CnnExtractor(LOCAL))):
+        th.manual_seed(0)
+        ext.apply(partial(BasePolicy.init_weights, gain=np.sqrt(2)))  # as the COMA policy initialises trunks
+        with th.no_grad():
+            stds[name] = float(ext(x).std())
+            gate = ext.cbams[0].channel.gate(ext.cnn[:2](x)) if name != "cnn" else None
+        if gate is not None:
+            assert abs(float(gate.mean()) - (0.95 if name == "open" else 0.5)) < 0.15, (name, float(gate.mean()))
+    assert stds["paper"] < 0.1 * stds["cnn"] < stds["open"]
+
+
+@pytest.mark.parametrize("bad", ["wide", float("inf")])
+def test_bad_gate_bias_is_named(bad) -> None:
+    with pytest.raises(ValueError, match="gate_bias must be"):
+        CBAMExtractor(LOCAL, gate_bias=bad)
