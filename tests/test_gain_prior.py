@@ -215,3 +215,32 @@ def test_gain_aware_critic_needs_the_gain_key():
         COMA("CnnPolicy", venv, n_steps=8, batch_size=8, policy_kwargs={"critic_gain": True})
     with pytest.raises(ValueError, match="critic_gain='yes': must be true or false"):
         _small_model(critic_gain="yes")
+
+
+def test_prior_kl_is_zero_for_the_prior_itself_and_trains():
+    """``prior_kl_coef``: KL(pi || softmax(prior term)) is 0 while the network's term is 0."""
+    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, **SMALL)
+    model = COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, prior_kl_coef=0.5,
+                 policy_kwargs=dict(features_extractor_kwargs={"features_dim": 16}, gain_prior=[4.0, 1.0]))
+    obs = venv.reset()
+    local, _, mask, prior = model._obs_tensors(obs, grouped=False)
+    with th.no_grad():
+        model.policy.actor.head.weight.zero_()
+        model.policy.actor.head.bias.zero_()
+        log_probs = th.log_softmax(model.policy.masked_logits(local, mask, prior), -1)
+        assert model._prior_kl(log_probs.exp(), log_probs, mask, prior).item() == pytest.approx(0.0, abs=1e-6)
+        model.policy.actor.head.bias.copy_(th.arange(6.0))
+        log_probs = th.log_softmax(model.policy.masked_logits(local, mask, prior), -1)
+        assert model._prior_kl(log_probs.exp(), log_probs, mask, prior).item() > 0.01
+    model.learn(16)
+    assert np.isfinite(model.logger.name_to_value.get("train/actor_loss", 0.0))
+    venv.close()
+
+
+def test_prior_kl_needs_a_prior():
+    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, **SMALL)
+    with pytest.raises(ValueError, match="prior_kl_coef=0.5 regularises toward the gain prior, but the policy has none"):
+        COMA("CnnPolicy", venv, n_steps=8, batch_size=8, prior_kl_coef=0.5)
+    with pytest.raises(ValueError, match="prior_kl_coef"):
+        COMA("CnnPolicy", venv, n_steps=8, batch_size=8, prior_kl_coef=-1.0, policy_kwargs={"gain_prior": 1.0})
+    venv.close()

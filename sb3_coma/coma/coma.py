@@ -50,6 +50,7 @@ from envs import layout
 from sb3_coma.coma.buffer import JointRolloutBuffer
 from sb3_coma.coma.policies import CBAMPolicy, CnnPolicy, COMAPolicy
 from sb3_coma.coma.progress import JointStepProgressBar
+from sb3_coma.coma.masking import mask_logits
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
     check_batch_fits_rollout,
@@ -84,6 +85,10 @@ class COMA(OnPolicyAlgorithm):
     :param gamma: discount factor
     :param td_lambda: TD(lambda) trace decay for the critic targets
     :param ent_coef: entropy bonus weight in the actor loss
+    :param prior_kl_coef: weight of ``KL(pi || pi_prior)`` in the actor loss, ``pi_prior`` the
+        softmax of the gain prior's own term (current mixing weights, no gradient): it keeps the
+        network's correction to the prior small unless the advantages keep asking for it (needs
+        ``policy_kwargs={"gain_prior": ...}``; 0 = off)
     :param max_grad_norm: gradient-norm clip for actor and critic
     :param normalize_advantage: standardise advantages per actor minibatch
     :param target_update_interval: critic updates between target-critic synchronisations
@@ -120,6 +125,7 @@ class COMA(OnPolicyAlgorithm):
         gamma: float = 0.99,
         td_lambda: float = 0.8,
         ent_coef: float = 0.0,
+        prior_kl_coef: float = 0.0,
         max_grad_norm: float = 10.0,
         normalize_advantage: bool = False,
         target_update_interval: int = 1,
@@ -155,6 +161,8 @@ class COMA(OnPolicyAlgorithm):
         check_unit_interval("exploration_final_eps", exploration_final_eps)
         check_unit_interval("exploration_fraction", exploration_fraction, low_open=True)
         check_non_negative("ent_coef", ent_coef)
+        check_non_negative("prior_kl_coef", prior_kl_coef)
+        self.prior_kl_coef = float(prior_kl_coef)
         if isinstance(max_grad_norm, bool) or not isinstance(max_grad_norm, (int, float)) or not max_grad_norm > 0:
             raise ValueError(f"max_grad_norm must be positive, got {max_grad_norm!r}")
         check_positive_int("stats_window_size", stats_window_size)
@@ -252,6 +260,9 @@ class COMA(OnPolicyAlgorithm):
             **self.policy_kwargs,
         )
         self.policy = self.policy.to(self.device)
+        if getattr(self, "prior_kl_coef", 0.0) > 0 and self.policy.actor.prior_theta is None:
+            raise ValueError(f"prior_kl_coef={self.prior_kl_coef!r} regularises toward the gain prior, but the policy "
+                             "has none: set policy_kwargs={'gain_prior': ...} or prior_kl_coef=0")
         self._ep_metrics: dict[str, deque] = {
             "f1": deque(maxlen=self._stats_window_size),
             "entropy": deque(maxlen=self._stats_window_size),
@@ -387,6 +398,13 @@ class COMA(OnPolicyAlgorithm):
         targets = td_lambda_targets(data["rewards"], data["dones"], next_values, self.gamma, self.td_lambda)
         return targets.flatten(0, 1)
 
+    def _prior_kl(self, probs: th.Tensor, log_probs: th.Tensor, mask: th.Tensor, gain: th.Tensor) -> th.Tensor:
+        """Mean ``KL(pi || pi_prior)`` over the rows: how far the network's term moves the policy
+        away from the gain prior alone (the mixing weights are not pushed by this term)."""
+        weights = self.policy.actor.prior_weights.detach()
+        prior_log = th.log_softmax(mask_logits(th.einsum("k,bka->ba", weights, gain), mask), dim=-1)
+        return (probs * (log_probs - prior_log)).sum(-1).mean()
+
     def _check_finite(self, name: str, loss: th.Tensor) -> None:
         """Stop before a non-finite loss reaches the weights: a NaN would silently spread to
         every parameter and the run would then save a broken model."""
@@ -451,6 +469,8 @@ class COMA(OnPolicyAlgorithm):
             log_prob_taken = log_probs.gather(-1, b_actions.unsqueeze(-1)).squeeze(-1)
             entropy = -(probs * log_probs).sum(-1).mean()
             loss = -(log_prob_taken * advantage).mean() - self.ent_coef * entropy
+            if self.prior_kl_coef > 0:
+                loss = loss + self.prior_kl_coef * self._prior_kl(probs, log_probs, b_mask, prior[idx].flatten(0, 1))
             self._check_finite("actor", loss)
 
             self.policy.optimizer.zero_grad(set_to_none=True)
