@@ -24,7 +24,7 @@ import yaml
 
 from sb3_coma import COMA
 from sb3_coma import pretrained as pt
-from sb3_coma.reproduce import _curve_from_metrics
+from sb3_coma.reproduce import TRAIN_EVAL_FREQ, TRAIN_EVAL_MISSIONS, _curve_from_metrics
 
 
 def validation_best(run: Path) -> tuple[float, int]:
@@ -41,7 +41,7 @@ def run_command(run: Path) -> tuple[str, dict]:
     info = config["run"]
     env = info["env"].split("-")[1].lower()
     command = (f"sb3-coma train --env {env} --variant {info['variant']} --seed {info['seed']} "
-               "--eval-freq 1024 --eval-missions 20")
+               f"--eval-freq {TRAIN_EVAL_FREQ} --eval-missions {TRAIN_EVAL_MISSIONS}")
     return command, info
 
 
@@ -50,16 +50,11 @@ def ship(name: str, runs: list[Path]) -> dict:
     chosen = max(runs, key=lambda r: scored[r][0])
     command, info = run_command(chosen)
     model = COMA.load(chosen / "best_model.zip", device="cpu")
-    model.policy.optimizer.state.clear()
-    model.policy.critic_optimizer.state.clear()
-    directory = pt.pretrained_dir()
-    file = f"coma_{name.replace('-', '_')}.zip"
-    model.save(directory / file)
     fusion = "mean" if "mean" in info["variant"] else "sendfuse"
     extractor = "cnn" if "cnn" in info["variant"] else "cbam"
     wall = (chosen / "model.zip").stat().st_mtime - (chosen / "config.yml").stat().st_mtime
     entry = {
-        "file": file, "sha256": pt.sha256_file(directory / file), "size_bytes": (directory / file).stat().st_size,
+        **pt.save_for_shipping(model, f"coma_{name.replace('-', '_')}.zip"),
         "env": info["env"].split("-")[1].lower(), "fusion": fusion, "extractor": extractor,
         "variant": info["variant"], "seed": int(info["seed"]), "deterministic": True,
         "timesteps": int(model.num_timesteps), "command": command, "config": "zoo_configs/coma.yml",

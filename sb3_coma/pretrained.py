@@ -69,6 +69,17 @@ def write_manifest(data: dict[str, Any], directory: str | os.PathLike[str] | Non
     return path
 
 
+def save_for_shipping(model: Any, file: str, directory: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+    """Save ``model`` as ``file`` in the shipped folder without Adam's moment estimates (only needed
+    to continue training: the zip is less than half the size, the weights are unchanged) and
+    return its manifest fields ``file``, ``sha256``, ``size_bytes``."""
+    path = Path(directory or pretrained_dir()) / file
+    model.policy.optimizer.state.clear()
+    model.policy.critic_optimizer.state.clear()
+    model.save(path)
+    return {"file": file, "sha256": sha256_file(path), "size_bytes": path.stat().st_size}
+
+
 def available(directory: str | os.PathLike[str] | None = None) -> list[str]:
     """Names of the shipped models, e.g. ``["env1", "env2", "env3"]``."""
     return sorted(read_manifest(directory)["models"])

@@ -522,22 +522,16 @@ def _ship(sources: dict[str, ModelSource], results: Sequence[Any], say: Callable
     except pt.PretrainedError:
         manifest = {"format": 1, "models": {}}
     for env, src in sources.items():
-        name = f"coma_{env}.zip"
-        # Adam's moment estimates are only needed to continue training: without them the zip is
-        # less than half the size (weights unchanged; fine-tuning restarts the moments).
-        src.model.policy.optimizer.state.clear()
-        src.model.policy.critic_optimizer.state.clear()
-        src.model.save(directory / name)
         res = next(r for r in results if r.env == env and r.method == "coma")
         manifest["models"][env] = {
-            "file": name, "sha256": pt.sha256_file(directory / name), "size_bytes": (directory / name).stat().st_size,
+            **pt.save_for_shipping(src.model, f"coma_{env}.zip", directory),
             "env": env, "fusion": src.fusion, "variant": _variant_for(env, src.fusion), "seed": shipped_seed(env),
             "deterministic": src.deterministic,
             "timesteps": src.timesteps, "command": src.command, "train_wall_s": round(float(src.train_wall_s or 0), 1),
             **_metrics_entry(res),
             "training_curve": src.training_curve,
         }
-        say(f"shipped {directory / name}")
+        say(f"shipped {directory / manifest['models'][env]['file']}")
     pt.write_manifest(manifest)
 
 
@@ -608,7 +602,7 @@ def _ablation_section(summary: dict[str, Any]) -> list[str]:
             "The paper's Table II / Fig. 4. SenDFuse+CBAM is the env3 model above; the other three arms are the "
             "shipped models `env3-sendfuse-cnn`, `env3-mean-cbam`, `env3-mean-cnn`, trained with the same settings "
             "and selection (sb3_coma/pretrained/MODELS.md); each flown with the fusion it was trained with, same "
-            f"missions, argmax actions, at every noise level. Best of each noise level in bold. More in "
+            "missions, argmax actions, at every noise level. Best of each noise level in bold. More in "
             "docs/ABLATION.md.", "", summary.get("ablation_table", ""), "", f"**{_ablation_verdict(a)}**", ""]
 
 

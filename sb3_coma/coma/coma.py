@@ -48,9 +48,9 @@ from torch.nn import functional as F
 
 from envs import layout
 from sb3_coma.coma.buffer import JointRolloutBuffer
+from sb3_coma.coma.masking import mask_logits
 from sb3_coma.coma.policies import CBAMPolicy, CnnPolicy, COMAPolicy
 from sb3_coma.coma.progress import JointStepProgressBar
-from sb3_coma.coma.masking import mask_logits
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
     check_batch_fits_rollout,
@@ -260,7 +260,7 @@ class COMA(OnPolicyAlgorithm):
             **self.policy_kwargs,
         )
         self.policy = self.policy.to(self.device)
-        if getattr(self, "prior_kl_coef", 0.0) > 0 and self.policy.actor.prior_theta is None:
+        if self.prior_kl_coef > 0 and self.policy.actor.prior_theta is None:
             raise ValueError(f"prior_kl_coef={self.prior_kl_coef!r} regularises toward the gain prior, but the policy "
                              "has none: set policy_kwargs={'gain_prior': ...} or prior_kl_coef=0")
         self._ep_metrics: dict[str, deque] = {
@@ -401,8 +401,8 @@ class COMA(OnPolicyAlgorithm):
     def _prior_kl(self, probs: th.Tensor, log_probs: th.Tensor, mask: th.Tensor, gain: th.Tensor) -> th.Tensor:
         """Mean ``KL(pi || pi_prior)`` over the rows: how far the network's term moves the policy
         away from the gain prior alone (the mixing weights are not pushed by this term)."""
-        weights = self.policy.actor.prior_weights.detach()
-        prior_log = th.log_softmax(mask_logits(th.einsum("k,bka->ba", weights, gain), mask), dim=-1)
+        with th.no_grad():
+            prior_log = th.log_softmax(mask_logits(self.policy.actor.prior_logits(gain), mask), dim=-1)
         return (probs * (log_probs - prior_log)).sum(-1).mean()
 
     def _check_finite(self, name: str, loss: th.Tensor) -> None:

@@ -108,13 +108,17 @@ class _Actor(_Head):
         """``beta``: the weight of each gain row in the logits (``None`` without a prior)."""
         return None if self.prior_theta is None else self.prior_speed * self.prior_theta
 
+    def prior_logits(self, prior: th.Tensor) -> th.Tensor:
+        """The prior's own term ``sum_k beta_k * gain_k``, ``(B, A)`` from ``prior`` ``(B, K, A)``."""
+        return th.einsum("k,bka->ba", self.prior_weights, prior)
+
     def forward(self, x: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:  # type: ignore[override]
         logits = super().forward(x)
         if self.prior_theta is not None:
             if prior is None:
                 raise ValueError(f"this actor adds observation[{layout.KEY_GAIN!r}] to its logits (gain_prior > 0), "
                                  "but the observation has no such key: make the env with action_gain=True")
-            logits = logits + th.einsum("k,bka->ba", self.prior_speed * self.prior_theta, prior)
+            logits = logits + self.prior_logits(prior)
         return logits
 
 
@@ -155,7 +159,8 @@ class _Critic(_Head):
     ``Q_i(s, u_-i, a) = net(critic input)(a) + W . flatten(gain_i) (a)``, ``W`` a zero-initialised
     ``(K * A) -> A`` linear map: the centralised critic may read agent ``i``'s ``action_gain``
     (part of its observation) so that the value of each move's expected information gain does
-    not have to be re-derived from the 11 x 11 maps (docs/training.md, "Gain-aware critic").
+    not have to be re-derived from the 11 x 11 maps (docs/training.md, "Gain prior"; policy
+    kwarg ``critic_gain``).
     """
 
     def __init__(self, features_extractor: BaseFeaturesExtractor, n_actions: int, gain: float,
