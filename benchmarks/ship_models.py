@@ -65,7 +65,7 @@ def ship(name: str, runs: list[Path]) -> dict:
                                                                             "at_joint_steps": t}
                                      for r, (v, t) in scored.items()}},
         "train_wall_s": round(wall, 1),
-        "train_wall_note": "wall-clock of that command (whole run, 9216 joint steps) on 2 CPU cores shared by 2-3 "
+        "train_wall_note": "wall-clock of that command (whole run, 9216 joint steps) on 2 CPU cores shared by 2-4 "
                            "trainings, 1 torch thread each",
         "optimizer_state": "cleared for shipping (Adam moments dropped; weights unchanged)",
         "gain_prior_weights": [round(float(x), 4) for x in model.policy.actor.prior_weights.detach()],

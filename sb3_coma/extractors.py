@@ -17,6 +17,8 @@ conv3 + ReLU          4 / 1 / 1                  64 x 4 x 4
 flatten, FC + ReLU                               features_dim
 ====================  =========================  ==========
 
+``residual=True`` turns each CBAM row into ``x + CBAM(x)`` (the shipped models' setting).
+
 The first convolution keeps full resolution, so the attention sees every lattice cell; the
 stride-2 second convolution keeps the trunk cheap on a CPU (about 3 M multiply-adds per map),
 which matters because COMA's critic runs on every agent of every joint step.
@@ -84,15 +86,23 @@ class SpatialGate(nn.Module):
 
 
 class CBAM(nn.Module):
-    """Convolutional Block Attention Module: channel gate, then spatial gate (Woo et al. 2018)."""
+    """Convolutional Block Attention Module: channel gate, then spatial gate (Woo et al. 2018).
 
-    def __init__(self, channels: int, reduction: int = 8, spatial_kernel: int = 7, open_bias: float = 0.0) -> None:
+    ``residual=True`` returns ``x + CBAM(x)``, i.e. ``x * (1 + gates)``: the attention then
+    re-weights features without shrinking them (the "attention residual" form of Wang et al.
+    2017; Woo et al. place CBAM on a ResNet block's branch, which the identity shortcut adds to).
+    """
+
+    def __init__(self, channels: int, reduction: int = 8, spatial_kernel: int = 7, open_bias: float = 0.0,
+                 residual: bool = False) -> None:
         super().__init__()
         self.channel = ChannelGate(channels, reduction, open_bias)
         self.spatial = SpatialGate(spatial_kernel, open_bias)
+        self.residual = bool(residual)
 
     def forward(self, x: th.Tensor) -> th.Tensor:
-        return self.spatial(self.channel(x))
+        attended = self.spatial(self.channel(x))
+        return x + attended if self.residual else attended
 
 
 def _map_space(observation_space: spaces.Space, key: str | None) -> spaces.Box:
@@ -120,6 +130,7 @@ class _Trunk(BaseFeaturesExtractor):
         use_cbam: bool = True,
         reduction: int = 8,
         gate_bias: float = 0.0,
+        residual: bool = False,
     ) -> None:
         box = _map_space(observation_space, key if isinstance(observation_space, spaces.Dict) else None)
         if isinstance(features_dim, bool) or not isinstance(features_dim, int) or features_dim < 1:
@@ -138,9 +149,11 @@ class _Trunk(BaseFeaturesExtractor):
             raise ValueError(f"gate_bias must be a number, got {gate_bias!r}") from None
         if not math.isfinite(gate_bias):
             raise ValueError(f"gate_bias must be finite, got {gate_bias!r}")
+        if not isinstance(residual, bool):
+            raise ValueError(f"residual must be true or false, got {residual!r}")
 
         def attend(width: int) -> nn.Module:
-            return CBAM(width, reduction, open_bias=gate_bias) if use_cbam else nn.Identity()
+            return CBAM(width, reduction, open_bias=gate_bias, residual=residual) if use_cbam else nn.Identity()
 
         self.cnn = nn.Sequential(
             nn.Conv2d(in_ch, c1, kernel_size=5, stride=1, padding=2),
@@ -181,6 +194,9 @@ class CBAMExtractor(_Trunk):
         observations). ``3`` starts the gates near 0.95 (open), so the untrained trunk passes its
         features almost unchanged. Measured on env3 with the shipped settings, three seeds each,
         it did not train better models (docs/ABLATION.md), so the shipped models keep ``0``.
+    :param residual: each block returns ``x + CBAM(x)`` (see :class:`CBAM`), so attention
+        re-weights the trunk's features without shrinking them. The shipped models use it: with
+        it the CBAM actor learns corrections as large as the plain CNN's (docs/training.md)
     """
 
     def __init__(
@@ -191,9 +207,10 @@ class CBAMExtractor(_Trunk):
         channels: Sequence[int] = (32, 64, 64),
         reduction: int = 8,
         gate_bias: float = 0.0,
+        residual: bool = False,
     ) -> None:
         super().__init__(observation_space, features_dim, key, channels, use_cbam=True, reduction=reduction,
-                         gate_bias=gate_bias)
+                         gate_bias=gate_bias, residual=residual)
 
 
 class CnnExtractor(_Trunk):

@@ -45,6 +45,28 @@ def test_timesteps_are_joint_steps_and_logs_are_written() -> None:
     assert np.isfinite(last["train/critic_loss"]) and np.isfinite(last["train/actor_loss"])
 
 
+def test_temperature_anneals_and_leaves_argmax_alone() -> None:
+    model = make(temperature_initial=1.0, temperature_final=0.25, temperature_fraction=0.5)
+    logger, out = capture_logger()
+    model.set_logger(logger)
+    model.learn(4 * 16)
+    temps = out.series("train/temperature")
+    assert temps[0] < 1.0 and temps == sorted(temps, reverse=True)
+    assert model.temperature == pytest.approx(0.25)  # reached after half of the run, then held
+    obs = model.env.reset()
+    local, _, mask, prior = model._obs_tensors(obs, grouped=False)
+    with th.no_grad():
+        plain = model.policy.action_probs(local, mask, prior=prior)
+        sharp = model.policy.action_probs(local, mask, prior=prior, temperature=0.25)
+        logits = model.policy.masked_logits(local, mask, prior)
+        expected = th.softmax(logits / 0.25, dim=-1)
+        assert th.allclose(sharp, expected, atol=1e-6)
+        assert (sharp.max(-1).values >= plain.max(-1).values - 1e-6).all()  # sharper everywhere
+        assert (sharp[mask == 0] == 0).all()  # invalid moves stay impossible
+        greedy = model.policy.act(local, mask, deterministic=True, prior=prior)
+        assert th.equal(greedy, model.policy.act(local, mask, deterministic=True, prior=prior, temperature=0.1))
+
+
 def test_default_n_steps_fills_one_batch_per_rollout() -> None:
     model = COMA("CBAMPolicy", make_fake_vec_env(n_envs=3, n_agents=2), batch_size=10, policy_kwargs=SMALL)
     assert model.n_steps == 4  # ceil(10 / 3 copies)
@@ -197,6 +219,10 @@ class TestErrors:
             (dict(exploration_initial_eps=2.0), ValueError, "exploration_initial_eps"),
             (dict(exploration_fraction=0.0), ValueError, "exploration_fraction"),
             (dict(ent_coef=-1.0), ValueError, "ent_coef"),
+            (dict(temperature_final=0.0), ValueError, "temperature_final must be a finite number > 0, got 0.0"),
+            (dict(temperature_initial=float("inf")), ValueError, "temperature_initial must be a finite number > 0"),
+            (dict(temperature_initial="hot"), ValueError, "temperature_initial.*'hot'"),
+            (dict(temperature_fraction=0.0), ValueError, "temperature_fraction"),
             (dict(max_grad_norm=0.0), ValueError, "max_grad_norm"),
         ],
     )

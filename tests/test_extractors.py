@@ -98,3 +98,19 @@ def test_open_gates_keep_the_trunk_scale() -> None:
 def test_bad_gate_bias_is_named(bad) -> None:
     with pytest.raises(ValueError, match="gate_bias must be"):
         CBAMExtractor(LOCAL, gate_bias=bad)
+
+
+def test_residual_cbam_reweights_without_shrinking() -> None:
+    """``residual=True``: each block returns ``x + CBAM(x) = x * (1 + gates)``, between x and 2x."""
+    th.manual_seed(0)
+    block = CBAM(16, residual=True)
+    x = th.rand(4, 16, 11, 11)
+    with th.no_grad():
+        y = block(x)
+        plain = block.spatial(block.channel(x))
+    th.testing.assert_close(y, x + plain)
+    assert (y >= x).all() and (y <= 2 * x + 1e-6).all()
+    ext = CBAMExtractor(LOCAL, residual=True)
+    assert all(b.residual for b in ext.cbams) and not any(b.residual for b in CBAMExtractor(LOCAL).cbams)
+    with pytest.raises(ValueError, match="residual must be true or false, got 'yes'"):
+        CBAMExtractor(LOCAL, residual="yes")

@@ -244,3 +244,30 @@ def test_prior_kl_needs_a_prior():
     with pytest.raises(ValueError, match="prior_kl_coef"):
         COMA("CnnPolicy", venv, n_steps=8, batch_size=8, prior_kl_coef=-1.0, policy_kwargs={"gain_prior": 1.0})
     venv.close()
+
+
+def test_correction_bound_caps_the_network_term_and_round_trips(tmp_path: Path):
+    """``correction_bound=c``: the network's term is ``c * tanh(net / c)``, the prior's is untouched."""
+    model, venv = _small_model(gain_prior=5.0, correction_bound=2.0)
+    obs = venv.reset()
+    local, _, mask, prior = model._obs_tensors(obs, grouped=False)
+    actor = model.policy.actor
+    with th.no_grad():
+        raw = actor.head(actor.features_extractor(local))
+        th.testing.assert_close(actor.network_logits(local), 2.0 * th.tanh(raw / 2.0))
+        actor.head.bias.copy_(th.tensor([50.0, -50.0, 0.0, 0.0, 0.0, 0.0]))  # a swamping correction
+        net = actor.network_logits(local)
+        assert net.abs().max() <= 2.0 and net[:, 0].min() > 1.99
+        th.testing.assert_close(actor(local, prior) - net, actor.prior_logits(prior))
+    model.save(tmp_path / "m.zip")
+    loaded = COMA.load(tmp_path / "m.zip", env=venv)
+    assert loaded.policy.correction_bound == 2.0 and loaded.policy.actor.correction_bound == 2.0
+    with th.no_grad():
+        th.testing.assert_close(loaded.policy.masked_logits(local, mask, prior), model.policy.masked_logits(local, mask, prior))
+    venv.close()
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), "big", True])
+def test_correction_bound_rejects_bad_values(bad):
+    with pytest.raises(ValueError, match=r"correction_bound=.*must be null \(unbounded\) or a finite number > 0"):
+        _small_model(correction_bound=bad)

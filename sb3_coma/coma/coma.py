@@ -55,6 +55,7 @@ from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
     check_batch_fits_rollout,
     check_non_negative,
+    check_positive_finite,
     check_positive_int,
     check_positive_rate,
     check_spaces,
@@ -96,6 +97,13 @@ class COMA(OnPolicyAlgorithm):
     :param exploration_initial_eps: initial weight of uniform-over-valid-actions exploration
     :param exploration_final_eps: final weight
     :param exploration_fraction: fraction of training over which epsilon anneals linearly
+    :param temperature_initial: softmax temperature of the policy COMA samples and differentiates
+        at the start of training (logits / T); ``1`` is the plain policy
+    :param temperature_final: its value after ``temperature_fraction`` of training (linear). Below
+        1 it sharpens the trained (sampled) policy toward its argmax, the policy that is flown with
+        ``deterministic=True``, so the two stop drifting apart; argmax actions themselves do not
+        depend on T. Prediction after training samples at T = 1 (docs/training.md)
+    :param temperature_fraction: fraction of training over which T anneals
     :param stats_window_size: episodes averaged in the rollout/ logs
     :param tensorboard_log: TensorBoard log folder (``None``: no TensorBoard)
     :param policy_kwargs: extra arguments for the policy (extractor classes and kwargs, ...)
@@ -133,6 +141,9 @@ class COMA(OnPolicyAlgorithm):
         exploration_initial_eps: float = 0.0,
         exploration_final_eps: float = 0.0,
         exploration_fraction: float = 0.5,
+        temperature_initial: float = 1.0,
+        temperature_final: float = 1.0,
+        temperature_fraction: float = 1.0,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -160,6 +171,9 @@ class COMA(OnPolicyAlgorithm):
         check_unit_interval("exploration_initial_eps", exploration_initial_eps)
         check_unit_interval("exploration_final_eps", exploration_final_eps)
         check_unit_interval("exploration_fraction", exploration_fraction, low_open=True)
+        check_positive_finite("temperature_initial", temperature_initial)
+        check_positive_finite("temperature_final", temperature_final)
+        check_unit_interval("temperature_fraction", temperature_fraction, low_open=True)
         check_non_negative("ent_coef", ent_coef)
         check_non_negative("prior_kl_coef", prior_kl_coef)
         self.prior_kl_coef = float(prior_kl_coef)
@@ -206,6 +220,10 @@ class COMA(OnPolicyAlgorithm):
         self.exploration_final_eps = exploration_final_eps
         self.exploration_fraction = exploration_fraction
         self.exploration_rate = exploration_initial_eps
+        self.temperature_initial = float(temperature_initial)
+        self.temperature_final = float(temperature_final)
+        self.temperature_fraction = float(temperature_fraction)
+        self.temperature = self.temperature_initial
         self._n_critic_updates = 0
         self._n_target_updates = 0
         if _init_setup_model:
@@ -229,6 +247,9 @@ class COMA(OnPolicyAlgorithm):
         self.critic_lr_schedule = FloatSchedule(self.critic_learning_rate)
         self.exploration_schedule = LinearSchedule(
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
+        )
+        self.temperature_schedule = LinearSchedule(
+            self.temperature_initial, self.temperature_final, self.temperature_fraction
         )
         if self.env is not None:
             check_spaces(self.observation_space, self.action_space)
@@ -297,7 +318,8 @@ class COMA(OnPolicyAlgorithm):
         """
         local, state, mask, prior = self._obs_tensors(obs, grouped=True)
         flat_local, flat_mask = local.flatten(0, 1), mask.flatten(0, 1)
-        probs = self.policy.action_probs(flat_local, flat_mask, prior=None if prior is None else prior.flatten(0, 1))
+        probs = self.policy.action_probs(flat_local, flat_mask, prior=None if prior is None else prior.flatten(0, 1),
+                                         temperature=self.temperature)
         actions = th.multinomial(probs, 1).view(local.shape[:2])
         q = self.policy.q_values(local, state, actions, target=True, gain=prior)
         return (probs.view(q.shape) * q).sum(-1)
@@ -354,12 +376,13 @@ class COMA(OnPolicyAlgorithm):
 
         new_obs = self._last_obs
         while buffer.pos < n_rollout_steps:
-            self.exploration_rate = self.exploration_schedule(
-                1.0 - float(self.num_timesteps) / float(max(self._total_timesteps, 1))
-            )
+            progress = 1.0 - float(self.num_timesteps) / float(max(self._total_timesteps, 1))
+            self.exploration_rate = self.exploration_schedule(progress)
+            self.temperature = self.temperature_schedule(progress)
             with th.no_grad():
                 local, _, mask, prior = self._obs_tensors(self._last_obs, grouped=False)  # type: ignore[arg-type]
-                actions = self.policy.act(local, mask, epsilon=self.exploration_rate, prior=prior).cpu().numpy()
+                actions = self.policy.act(local, mask, epsilon=self.exploration_rate, prior=prior,
+                                          temperature=self.temperature).cpu().numpy()
 
             new_obs, rewards, dones, infos = env.step(actions)
             self.num_timesteps += self.n_copies  # joint steps, not agent steps
@@ -458,7 +481,7 @@ class COMA(OnPolicyAlgorithm):
         actor_losses, entropies, advantages, q_taken_all = [], [], [], []
         for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
             b_local, b_mask, b_actions = local[idx].flatten(0, 1), mask[idx].flatten(0, 1), actions[idx].flatten()
-            logits = self.policy.masked_logits(b_local, b_mask, prior[idx].flatten(0, 1))
+            logits = self.policy.masked_logits(b_local, b_mask, prior[idx].flatten(0, 1), temperature=self.temperature)
             log_probs = th.log_softmax(logits, dim=-1)
             probs = log_probs.exp()
             advantage, _, q_taken = counterfactual_advantage(q_all[idx].flatten(0, 1), b_actions, probs.detach())
@@ -493,6 +516,7 @@ class COMA(OnPolicyAlgorithm):
             float(explained_variance(q_taken_flat.flatten().cpu().numpy(), targets.flatten().cpu().numpy())),
         )
         self.logger.record("train/epsilon", self.exploration_rate)
+        self.logger.record("train/temperature", self.temperature)
         self.logger.record("train/entropy", float(np.mean(entropies)))
         self.logger.record("train/target_updates", self._n_target_updates)
         weights = self.policy.actor.prior_weights

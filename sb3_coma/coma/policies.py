@@ -96,8 +96,9 @@ class _Actor(_Head):
 
     def __init__(self, features_extractor: BaseFeaturesExtractor, n_actions: int, gain: float,
                  ortho_init: bool = True, prior_init: Sequence[float] = (),
-                 prior_speed: float = 1.0) -> None:
+                 prior_speed: float = 1.0, correction_bound: float | None = None) -> None:
         super().__init__(features_extractor, n_actions, gain, ortho_init)
+        self.correction_bound = correction_bound
         self.prior_speed = float(prior_speed)
         self.prior_theta: nn.Parameter | None = None
         if any(w > 0 for w in prior_init):
@@ -112,14 +113,32 @@ class _Actor(_Head):
         """The prior's own term ``sum_k beta_k * gain_k``, ``(B, A)`` from ``prior`` ``(B, K, A)``."""
         return th.einsum("k,bka->ba", self.prior_weights, prior)
 
+    def network_logits(self, x: th.Tensor) -> th.Tensor:
+        """The network's own term ``(B, A)``: ``c * tanh(net / c)`` with a ``correction_bound`` c,
+        so it can reorder moves whose prior logits lie within about 2c of each other but never
+        swamp the prior (unbounded, it grew to +-50 in collapsed runs, docs/training.md)."""
+        net = super().forward(x)
+        if self.correction_bound is None:
+            return net
+        return self.correction_bound * th.tanh(net / self.correction_bound)
+
     def forward(self, x: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:  # type: ignore[override]
-        logits = super().forward(x)
+        logits = self.network_logits(x)
         if self.prior_theta is not None:
             if prior is None:
                 raise ValueError(f"this actor adds observation[{layout.KEY_GAIN!r}] to its logits (gain_prior > 0), "
                                  "but the observation has no such key: make the env with action_gain=True")
             logits = logits + self.prior_logits(prior)
         return logits
+
+
+def _correction_bound(value: Any) -> float | None:
+    """``None`` or a finite number > 0, with an error that names the bad value."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (value > 0 and math.isfinite(value)):
+        raise ValueError(f"correction_bound={value!r}: must be null (unbounded) or a finite number > 0")
+    return float(value)
 
 
 def _prior_init(gain_prior: Any, speed: Any, observation_space: spaces.Dict) -> tuple[float, ...]:
@@ -204,6 +223,9 @@ class COMAPolicy(BasePolicy):
         ``0`` (or all zeros): no prior, the paper's actor. Needs the ``action_gain`` key
     :param gain_prior_speed: how much faster than the network the prior's weights learn (see
         ``_Actor``)
+    :param correction_bound: bound ``c`` on the network's term of the actor's logits, which
+        becomes ``c * tanh(net / c)`` (``None``: unbounded, the paper's actor). With a gain prior
+        it keeps the learned correction from swamping the prior (see ``_Actor.network_logits``)
     :param critic_gain: the critic also reads the agent's ``action_gain`` (a zero-initialised
         linear term, see ``_Critic``); needs the ``action_gain`` key
     """
@@ -225,7 +247,9 @@ class COMAPolicy(BasePolicy):
         gain_prior: float | Sequence[float] = 0.0,
         gain_prior_speed: float = 100.0,
         critic_gain: bool = False,
+        correction_bound: float | None = None,
     ) -> None:
+        self.correction_bound = _correction_bound(correction_bound)
         if not isinstance(critic_gain, (bool, np.bool_)):
             raise ValueError(f"critic_gain={critic_gain!r}: must be true or false")
         if critic_gain and layout.KEY_GAIN not in observation_space.spaces:
@@ -271,6 +295,7 @@ class COMAPolicy(BasePolicy):
             ortho_init=self.ortho_init,
             prior_init=self.gain_prior_init,
             prior_speed=self.gain_prior_speed,
+            correction_bound=self.correction_bound,
         )
         self.critic = _Critic(
             self.critic_features_extractor_class(critic_space, **self.critic_features_extractor_kwargs),
@@ -303,6 +328,7 @@ class COMAPolicy(BasePolicy):
             gain_prior=self.gain_prior,
             gain_prior_speed=self.gain_prior_speed,
             critic_gain=self.critic_gain,
+            correction_bound=self.correction_bound,
         )
         return data
 
@@ -313,23 +339,25 @@ class COMAPolicy(BasePolicy):
         self.training = mode
 
     # ----------------------------------------------------------------- actor
-    def masked_logits(self, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:
-        """Actor logits with invalid actions pushed to a large negative value. ``(B, A)``.
-
-        ``prior``: the ``action_gain`` rows, used when the actor has a gain prior."""
-        return mask_logits(self.actor(local, prior), mask)
+    def masked_logits(self, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None,
+                      temperature: float = 1.0) -> th.Tensor:
+        """Actor logits divided by ``temperature``, invalid actions pushed to a large negative
+        value. ``(B, A)``. ``prior``: the ``action_gain`` rows, used when the actor has a gain prior."""
+        logits = self.actor(local, prior)
+        return mask_logits(logits if temperature == 1.0 else logits / temperature, mask)
 
     def action_probs(self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0,
-                     prior: th.Tensor | None = None) -> th.Tensor:
-        """Behaviour probabilities (policy mixed with uniform-over-valid by ``epsilon``)."""
-        return behaviour_probs(self.masked_logits(local, mask, prior), mask, epsilon)
+                     prior: th.Tensor | None = None, temperature: float = 1.0) -> th.Tensor:
+        """Behaviour probabilities (policy at ``temperature`` mixed with uniform-over-valid by ``epsilon``)."""
+        return behaviour_probs(self.masked_logits(local, mask, prior, temperature), mask, epsilon)
 
     def act(self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0, deterministic: bool = False,
-            prior: th.Tensor | None = None) -> th.Tensor:
-        """One action per agent row; all agents of all env copies in a single forward pass."""
+            prior: th.Tensor | None = None, temperature: float = 1.0) -> th.Tensor:
+        """One action per agent row; all agents of all env copies in a single forward pass.
+        Argmax actions (``deterministic``) do not depend on ``temperature``."""
         if deterministic:
             return sample_actions(self.masked_logits(local, mask, prior), deterministic=True)
-        return sample_actions(self.action_probs(local, mask, epsilon, prior))
+        return sample_actions(self.action_probs(local, mask, epsilon, prior, temperature))
 
     def forward(self, obs: PyTorchObs, deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
         return self._predict(obs, deterministic)

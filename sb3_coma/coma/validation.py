@@ -5,6 +5,7 @@ with a message saying what was expected, instead of a shape error deep inside a 
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -116,6 +117,14 @@ def check_non_negative(name: str, value: float) -> None:
         raise ValueError(f"{name} must be a number >= 0, got {value!r}")
     if not value >= 0:
         raise ValueError(f"{name} must be >= 0, got {value!r}")
+
+
+def check_positive_finite(name: str, value: float) -> None:
+    """A scale such as the policy temperature: a finite number > 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    if not (value > 0 and math.isfinite(value)):
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 
 
 def check_positive_int(name: str, value: int) -> None:
