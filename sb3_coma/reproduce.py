@@ -9,6 +9,8 @@ lawnmower, random) on env1-env3 under the same seeded missions, and writes into 
 * ``acceptance.md`` -- at 100 %: does COMA beat every baseline on F1 *and* entropy, per env
 * ``generalisation.md`` / ``.csv`` -- each env's model on the other maps and a fresh env1 star seed
 * ``latency.md`` -- actor + fusion time per UAV decision vs AG
+* ``paired.md`` -- the paired check: COMA vs AG and the full model vs each ablation arm on the
+  same, more numerous missions (``wide_trials``, default 50), differences with standard errors
 * ``summary.json`` -- every number above
 * ``figures/`` -- metric curves per env, training reward per env
 * ``RESULTS.md`` -- the report; with ``docs=...`` it is also written there (figures next to it)
@@ -55,6 +57,8 @@ ABLATION_ARMS: dict[tuple[str, str], str] = {
 #: the arm every other arm is compared with, and the noise level of that comparison
 ABLATION_FULL = ("sendfuse", "cbam")
 ABLATION_CHECK_NOISE = "loud"
+#: Missions of the paired check that backs Table I's and the ablation's verdicts (sb3_coma.paired).
+WIDE_TRIALS = 50
 
 
 @dataclass
@@ -297,7 +301,8 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
               noise: str = "moderate", train: bool = False, quick: bool = False, timesteps: int | None = None,
               fusion: str | None = None, docs: str | Path | None = None, plots: bool = True, ship: bool = False,
               generalisation: bool = True, deterministic: bool | None = None, record: bool = False,
-              ablation: bool = True, log: Callable[[str], None] | None = print) -> dict[str, Any]:
+              ablation: bool = True, wide_trials: int = WIDE_TRIALS,
+              log: Callable[[str], None] | None = print) -> dict[str, Any]:
     """Run the reproduction (see module docstring) and return the summary dict.
 
     :param train: retrain each env's model through the zoo config instead of loading the shipped one
@@ -313,6 +318,9 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
         ``models.json`` (checksums, command, wall-clock, metrics)
     :param ablation: when env3 is among the envs, the paper's ablation on env3 at the three noise
         levels: the env3 model in use and the shipped models of the other three arms
+    :param wide_trials: missions of the paired check (``sb3_coma.paired``): COMA vs AG per env and
+        the full model vs every ablation arm under loud noise, each pair on the same missions, so
+        the verdicts are tested against mission-to-mission noise (0: skip; ``quick``: ``trials``)
     """
     from sb3_coma import evaluation as ev
 
@@ -321,6 +329,9 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
     out.mkdir(parents=True, exist_ok=True)
     if quick:
         trials = min(trials, 2)
+        wide_trials = min(wide_trials, trials)
+    if isinstance(wide_trials, bool) or not isinstance(wide_trials, int) or wide_trials < 0 or wide_trials == 1:
+        raise ValueError(f"wide_trials must be 0 (skip) or an integer >= 2, got {wide_trials!r}")
     if ship and (not train or quick):
         raise ValueError("ship=True needs train=True and quick=False")
     env_names = list(env_names)
@@ -423,6 +434,13 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
         (out / "ablation.md").write_text(ablation_table)
         ablation_summary = ablation_acceptance(ablation_result)
 
+    # ---- the paired check on more missions
+    wide: dict[str, Any] | None = None
+    wide_table = ""
+    if wide_trials:
+        wide, wide_table = _paired_check(sources, ablation_result, wide_trials, seed, noise, say)
+        (out / "paired.md").write_text(wide_table)
+
     # ---- latency
     latency = []
     for env, src in sources.items():
@@ -446,7 +464,7 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
                          "timesteps": s.timesteps, "deterministic": s.deterministic} for env, s in sources.items()},
         "table": {f"{r.env}/{r.method}": r.summary() for r in results},
         "acceptance": accept, "generalisation": gen, "latency": latency, "untrained_prior": prior_rows,
-        "ablation": ablation_summary,
+        "ablation": ablation_summary, "paired": wide,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
 
@@ -476,6 +494,7 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
         record_metrics(results, say)
 
     summary["ablation_table"] = ablation_table
+    summary["paired_table"] = wide_table if wide else ""
     report = results_markdown(summary, table, figures, out)
     (out / "RESULTS.md").write_text(report)
     if docs is not None:
@@ -490,8 +509,49 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
     if ablation_summary is not None:
         say(_ablation_verdict(ablation_summary))
     say(f"wrote {out}/ (table.md, acceptance.md, generalisation.md, latency.md, summary.json, RESULTS.md"
-        + (", ablation.md" if ablation_summary is not None else "") + ")")
+        + (", ablation.md" if ablation_summary is not None else "") + (", paired.md" if wide else "") + ")")
     return summary
+
+
+def _paired_check(sources: dict[str, ModelSource], ablation_result: Any, trials: int, seed: int, noise: str,
+                  say: Callable[[str], None]) -> tuple[dict[str, Any], str]:
+    """COMA vs AG per env (F1 and entropy) and, when the ablation ran, the full model vs every
+    other arm (entropy under loud noise), each pair flown on the same ``trials`` missions.
+    Returns the numbers (for summary.json) and their Markdown tables."""
+    from sb3_coma import ablation as ab
+    from sb3_coma import evaluation as ev
+    from sb3_coma.paired import paired_difference, paired_markdown
+
+    table1 = []
+    for env, src in sources.items():
+        say(f"paired check: coma vs ag on {env} ({trials} missions) ...")
+        coma = _evaluate_model(src, env, trials, seed, noise, "coma")
+        ag = ev.evaluate("ag", env=env, n_trials=trials, seed=seed, noise=noise)
+        table1 += [(env, paired_difference(coma, ag, "f1")), (env, paired_difference(coma, ag, "entropy"))]
+    arms = []
+    if ablation_result is not None and ablation_result.results:
+        full = ab.LABELS[ABLATION_FULL]
+        runs = {}
+        for variant, model in ablation_models(sources[ABLATION_ENV].model, say).items():
+            label = ab.LABELS[variant]
+            say(f"paired check: {label} on {ABLATION_ENV}, noise {ABLATION_CHECK_NOISE} ({trials} missions) ...")
+            runs[label] = ev.evaluate(model, env=ABLATION_ENV, n_trials=trials, seed=seed, fusion=variant[0],
+                                      label=label, noise=ABLATION_CHECK_NOISE)
+        arms = [paired_difference(runs[full], r, "entropy") for label, r in runs.items() if label != full]
+    met = all(d.diff <= 0 for d in arms) if arms and len(arms) == len(ABLATION_ARMS) else None
+
+    missions = f"{trials} missions (env seeds {seed}..{seed + trials - 1})"
+    parts = [f"COMA vs AG on the same {missions} per env, noise `{noise}`:\n",
+             paired_markdown([d for _, d in table1], [env for env, _ in table1])]
+    if arms:
+        verdict = "at most" if met else "NOT at most"
+        parts += [f"\nThe full model against each other ablation arm on the same {missions}, "
+                  f"`{ABLATION_CHECK_NOISE}` noise: its mean entropy is {verdict} every other arm's.\n",
+                  paired_markdown(arms, [ABLATION_CHECK_NOISE] * len(arms), first_title="noise")]
+    numbers = {"trials": trials, "seed": seed, "noise": noise,
+               "table1": [{"env": env, **d.as_dict()} for env, d in table1],
+               "ablation": [d.as_dict() for d in arms], "ablation_noise": ABLATION_CHECK_NOISE, "ablation_met": met}
+    return numbers, "\n".join(parts)
 
 
 def _metrics_entry(res: Any) -> dict[str, Any]:
@@ -606,6 +666,18 @@ def _ablation_section(summary: dict[str, Any]) -> list[str]:
             "docs/ABLATION.md.", "", summary.get("ablation_table", ""), "", f"**{_ablation_verdict(a)}**", ""]
 
 
+def _paired_section(summary: dict[str, Any]) -> list[str]:
+    """RESULTS.md lines of the paired check (none when it was skipped)."""
+    if not summary.get("paired_table"):
+        return []
+    return ["## A paired check on more missions", "",
+            "The tables above rank methods by means over the trials, and the spread between missions is as large "
+            "as several of the differences. Here each pair of methods flies the same missions, more of them, and "
+            "the per-mission difference is averaged: ± is its standard error, and a difference within two "
+            "standard errors is called a tie (`sb3_coma.paired`; `--wide-trials`). This checks the verdicts above; "
+            "it does not replace them.", "", summary["paired_table"], ""]
+
+
 def results_markdown(summary: dict[str, Any], table: str, figures: Sequence[Path], base: Path) -> str:
     """The RESULTS.md report from a summary (figure paths relative to ``base``)."""
     import os
@@ -646,6 +718,7 @@ def results_markdown(summary: dict[str, Any], table: str, figures: Sequence[Path
               "starting weights and the network's own term removed, argmax actions: the greedy planner the "
               "training starts from.", "", _prior_markdown(summary.get("untrained_prior", [])), "",
               *_ablation_section(summary),
+              *_paired_section(summary),
               "## Generalisation (100 % budget)", "",
               "Each env's model flown on the other maps and on a fresh env1 star layout "
               f"(`map_seed={FRESH_ENV1_SEED}`; env1's default is 0), same trials and noise; baselines on the fresh layout "

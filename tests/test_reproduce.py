@@ -34,6 +34,8 @@ def test_reproduce_refuses_bad_input(tmp_path, capsys):
     assert "--ship needs --train" in capsys.readouterr().err
     assert main(["reproduce", "--quick", "--env", "env9", "--out", str(tmp_path), "--no-docs"]) == 2
     assert "unknown shipped model 'env9'" in capsys.readouterr().err
+    assert main(["reproduce", "--quick", "--wide-trials", "1", "--out", str(tmp_path), "--no-docs"]) == 2
+    assert "--wide-trials must be 0 (skip) or >= 2, got 1" in capsys.readouterr().err
 
 
 def test_acceptance_logic():
@@ -85,6 +87,14 @@ def test_reproduce_quick_ablation(tmp_path):
     table = (out / "ablation.md").read_text()
     assert all(f"| {noise} |" in table for noise in ("none", "moderate", "loud"))
     assert "## Ablation" in (out / "RESULTS.md").read_text()
+    # The paired check (quick: as many missions as the table): coma vs ag, and the full model vs each arm.
+    paired = summary["paired"]
+    assert paired["trials"] == 2 and [r["metric"] for r in paired["table1"]] == ["f1", "entropy"]
+    assert {r["b"] for r in paired["ablation"]} == {"Base", "CBAM", "SenDFuse"}
+    assert all(r["a"] == "SenDFuse+CBAM" and r["n"] == 2 for r in paired["ablation"])
+    assert paired["ablation_met"] == all(r["diff"] <= 0 for r in paired["ablation"])
+    assert "| loud | SenDFuse+CBAM | SenDFuse | entropy | 2 |" in (out / "paired.md").read_text()
+    assert "## A paired check on more missions" in (out / "RESULTS.md").read_text()
 
 
 def test_ablation_acceptance_logic():

@@ -59,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-generalisation", action="store_true", help="skip the generalisation section")
     parser.add_argument("--no-ablation", action="store_true",
                         help="skip the env3 ablation (SenDFuse x CBAM arms at three noise levels)")
+    parser.add_argument("--wide-trials", type=int, default=None, metavar="N",
+                        help="missions of the paired check of the verdicts: COMA vs AG per env and the full "
+                             "model vs each ablation arm, same missions (default 50; 0 skips it)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--seed must be >= 0, got {args.seed}")
     if args.ship and (not args.train or args.quick):
         raise UserError("--ship needs --train (and not --quick)")
+    if args.wide_trials is not None and (args.wide_trials < 0 or args.wide_trials == 1):
+        raise UserError(f"--wide-trials must be 0 (skip) or >= 2, got {args.wide_trials}")
     if args.timesteps is not None and args.timesteps < 1:
         raise UserError(f"--timesteps must be >= 1, got {args.timesteps}")
     docs = None
@@ -89,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
                   quick=args.quick, timesteps=args.timesteps, fusion=args.fusion, docs=docs,
                   plots=not args.no_plots, ship=args.ship, generalisation=not args.no_generalisation,
                   deterministic=args.deterministic, record=args.record and not args.quick,
-                  ablation=not args.no_ablation)
+                  ablation=not args.no_ablation,
+                  **({} if args.wide_trials is None else {"wide_trials": args.wide_trials}))
     except ValueError as exc:  # unknown/missing/corrupt shipped model, bad env options
         raise UserError(str(exc)) from None
     return 0
