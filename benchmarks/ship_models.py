@@ -35,6 +35,25 @@ def validation_best(run: Path) -> tuple[float, int]:
     return float(means[best]), int(data["timesteps"][best])
 
 
+def run_length(run: Path) -> int:
+    """Joint steps the run trained for (its last evaluation)."""
+    return int(np.load(run / "eval" / "evaluations.npz")["timesteps"][-1])
+
+
+def _variant_timesteps(env_id: str, variant: str) -> int:
+    """``n_timesteps`` of a variant of zoo_configs/coma.yml (else the env entry's)."""
+    config = yaml.safe_load((Path(__file__).resolve().parents[1] / "zoo_configs" / "coma.yml").read_text())
+    return int(config["variants"].get(variant, {}).get("n_timesteps", config[env_id]["n_timesteps"]))
+
+
+def run_timesteps(run: Path) -> int | None:
+    """The run's ``--timesteps`` when it differs from its variant's ``n_timesteps``, else None."""
+    config = yaml.safe_load((run / "config.yml").read_text())
+    info = config["run"]
+    total = int(config[info["env"]]["n_timesteps"])
+    return None if total == _variant_timesteps(info["env"], info["variant"]) else total
+
+
 def run_command(run: Path) -> tuple[str, dict]:
     """The ``sb3-coma train`` command a run folder records, and its ``run`` section."""
     config = yaml.safe_load((run / "config.yml").read_text())
@@ -42,7 +61,8 @@ def run_command(run: Path) -> tuple[str, dict]:
     env = info["env"].split("-")[1].lower()
     command = (f"sb3-coma train --env {env} --variant {info['variant']} --seed {info['seed']} "
                f"--eval-freq {TRAIN_EVAL_FREQ} --eval-missions {TRAIN_EVAL_MISSIONS}")
-    return command, info
+    total = run_timesteps(run)
+    return command + (f" --timesteps {total}" if total is not None else ""), info
 
 
 def ship(name: str, runs: list[Path]) -> dict:
@@ -65,12 +85,14 @@ def ship(name: str, runs: list[Path]) -> dict:
                                                                             "at_joint_steps": t}
                                      for r, (v, t) in scored.items()}},
         "train_wall_s": round(wall, 1),
-        "train_wall_note": "wall-clock of that command (whole run, 9216 joint steps) on 2 CPU cores shared by 2-4 "
-                           "trainings, 1 torch thread each",
+        "train_wall_note": f"wall-clock of that command (whole run, {run_length(chosen)} joint steps) on 2 CPU cores "
+                           "shared by 2-6 trainings, 1 torch thread each",
         "optimizer_state": "cleared for shipping (Adam moments dropped; weights unchanged)",
         "gain_prior_weights": [round(float(x), 4) for x in model.policy.actor.prior_weights.detach()],
         "training_curve": _curve_from_metrics(chosen / "metrics.csv"),
     }
+    if run_timesteps(chosen) is not None:
+        entry["train_timesteps"] = run_timesteps(chosen)  # reproduce --train trains this long
     if "-" in name:
         entry["ablation_arm"] = [fusion, extractor]
     return entry

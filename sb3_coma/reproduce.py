@@ -117,13 +117,25 @@ def shipped_seed(env: str) -> int:
         return TRAIN_SEED
 
 
+def shipped_timesteps(env: str) -> int | None:
+    """The joint steps the shipped model of ``env`` was trained for when its command sets them
+    (``--timesteps``, recorded as ``train_timesteps``); ``None``: the config's ``n_timesteps``."""
+    from sb3_coma.pretrained import model_info
+
+    try:
+        value = model_info(env).get("train_timesteps")
+    except ValueError:
+        return None
+    return None if value is None else int(value)
+
+
 def _train_model(env: str, fusion: str, out: Path, quick: bool, timesteps: int | None, log: Callable[[str], None],
                  deterministic: bool = True) -> ModelSource:
     from sb3_coma import COMA
     from sb3_coma.training import train
 
     overrides: dict[str, Any] = dict(QUICK_OVERRIDES) if quick else {}
-    total = QUICK_TIMESTEPS if quick else timesteps
+    total = QUICK_TIMESTEPS if quick else (timesteps or shipped_timesteps(env))
     variant = _variant_for(env, fusion)
     seed = shipped_seed(env)
     run_dir = out / "runs" / env

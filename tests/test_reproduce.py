@@ -116,3 +116,13 @@ def test_ablation_acceptance_logic():
     partial = Result(0.40, 0.41)
     del partial.results[("Base", "loud")]
     assert ablation_acceptance(partial)["met"] is None
+
+
+def test_retraining_uses_the_shipped_run_length(monkeypatch):
+    """A shipped model trained with --timesteps records train_timesteps; --train retrains as long."""
+    from sb3_coma import pretrained, reproduce
+
+    monkeypatch.setattr(pretrained, "model_info", lambda env: {"seed": 1, "train_timesteps": 18000}
+                        if env == "envL" else {"seed": 2})
+    assert reproduce.shipped_timesteps("envL") == 18000 and reproduce.shipped_seed("envL") == 1
+    assert reproduce.shipped_timesteps("envS") is None  # the config's n_timesteps
