@@ -558,7 +558,8 @@ def _paired_check(sources: dict[str, ModelSource], ablation_result: Any, trials:
     if arms:
         verdict = "at most" if met else "NOT at most"
         parts += [f"\nThe full model against each other ablation arm on the same {missions}, "
-                  f"`{ABLATION_CHECK_NOISE}` noise: its mean entropy is {verdict} every other arm's.\n",
+                  f"`{ABLATION_CHECK_NOISE}` noise: its mean entropy is {verdict} every other arm's "
+                  f"(the verdict column says which differences exceed two standard errors).\n",
                   paired_markdown(arms, [ABLATION_CHECK_NOISE] * len(arms), first_title="noise")]
     numbers = {"trials": trials, "seed": seed, "noise": noise,
                "table1": [{"env": env, **d.as_dict()} for env, d in table1],
