@@ -25,6 +25,7 @@ import yaml
 from sb3_coma import COMA
 from sb3_coma import pretrained as pt
 from sb3_coma.reproduce import TRAIN_EVAL_FREQ, TRAIN_EVAL_MISSIONS, _curve_from_metrics
+from sb3_coma.training import load_config
 
 
 def validation_best(run: Path) -> tuple[float, int]:
@@ -40,18 +41,12 @@ def run_length(run: Path) -> int:
     return int(np.load(run / "eval" / "evaluations.npz")["timesteps"][-1])
 
 
-def _variant_timesteps(env_id: str, variant: str) -> int:
-    """``n_timesteps`` of a variant of zoo_configs/coma.yml (else the env entry's)."""
-    config = yaml.safe_load((Path(__file__).resolve().parents[1] / "zoo_configs" / "coma.yml").read_text())
-    return int(config["variants"].get(variant, {}).get("n_timesteps", config[env_id]["n_timesteps"]))
-
-
 def run_timesteps(run: Path) -> int | None:
     """The run's ``--timesteps`` when it differs from its variant's ``n_timesteps``, else None."""
     config = yaml.safe_load((run / "config.yml").read_text())
     info = config["run"]
     total = int(config[info["env"]]["n_timesteps"])
-    return None if total == _variant_timesteps(info["env"], info["variant"]) else total
+    return None if total == load_config(info["env"], variant=info["variant"]).n_timesteps else total
 
 
 def run_command(run: Path) -> tuple[str, dict]:
@@ -69,6 +64,7 @@ def ship(name: str, runs: list[Path]) -> dict:
     scored = {run: validation_best(run) for run in runs}
     chosen = max(runs, key=lambda r: scored[r][0])
     command, info = run_command(chosen)
+    total = run_timesteps(chosen)
     model = COMA.load(chosen / "best_model.zip", device="cpu")
     fusion = "mean" if "mean" in info["variant"] else "sendfuse"
     extractor = "cnn" if "cnn" in info["variant"] else "cbam"
@@ -91,8 +87,8 @@ def ship(name: str, runs: list[Path]) -> dict:
         "gain_prior_weights": [round(float(x), 4) for x in model.policy.actor.prior_weights.detach()],
         "training_curve": _curve_from_metrics(chosen / "metrics.csv"),
     }
-    if run_timesteps(chosen) is not None:
-        entry["train_timesteps"] = run_timesteps(chosen)  # reproduce --train trains this long
+    if total is not None:
+        entry["train_timesteps"] = total  # reproduce --train trains this long
     if "-" in name:
         entry["ablation_arm"] = [fusion, extractor]
     return entry

@@ -435,6 +435,7 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
     ablation_summary: dict[str, Any] | None = None
     ablation_table = ""
     ablation_result = None
+    arms: dict[tuple[str, str], Any] = {}
     if ablation and ABLATION_ENV in sources:
         from sb3_coma import ablation as ab
 
@@ -445,12 +446,13 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
         ablation_table = ablation_result.markdown()
         (out / "ablation.md").write_text(ablation_table)
         ablation_summary = ablation_acceptance(ablation_result)
+        arms = {v: m for v, m in arms.items() if ab.LABELS[v] not in ablation_result.skipped}  # flown above
 
     # ---- the paired check on more missions
     wide: dict[str, Any] | None = None
     wide_table = ""
     if wide_trials:
-        wide, wide_table = _paired_check(sources, ablation_result, wide_trials, seed, noise, say)
+        wide, wide_table = _paired_check(sources, arms, wide_trials, seed, noise, say)
         (out / "paired.md").write_text(wide_table)
 
     # ---- latency
@@ -525,11 +527,11 @@ def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_EN
     return summary
 
 
-def _paired_check(sources: dict[str, ModelSource], ablation_result: Any, trials: int, seed: int, noise: str,
-                  say: Callable[[str], None]) -> tuple[dict[str, Any], str]:
-    """COMA vs AG per env (F1 and entropy) and, when the ablation ran, the full model vs every
-    other arm (entropy under loud noise), each pair flown on the same ``trials`` missions.
-    Returns the numbers (for summary.json) and their Markdown tables."""
+def _paired_check(sources: dict[str, ModelSource], arms: dict[tuple[str, str], Any], trials: int, seed: int,
+                  noise: str, say: Callable[[str], None]) -> tuple[dict[str, Any], str]:
+    """COMA vs AG per env (F1 and entropy) and the full model vs every other ablation arm in
+    ``arms`` (the ablation's models; entropy under loud noise), each pair flown on the same
+    ``trials`` missions. Returns the numbers (for summary.json) and their Markdown tables."""
     from sb3_coma import ablation as ab
     from sb3_coma import evaluation as ev
     from sb3_coma.paired import paired_difference, paired_markdown
@@ -540,30 +542,28 @@ def _paired_check(sources: dict[str, ModelSource], ablation_result: Any, trials:
         coma = _evaluate_model(src, env, trials, seed, noise, "coma")
         ag = ev.evaluate("ag", env=env, n_trials=trials, seed=seed, noise=noise)
         table1 += [(env, paired_difference(coma, ag, "f1")), (env, paired_difference(coma, ag, "entropy"))]
-    arms = []
-    if ablation_result is not None and ablation_result.results:
-        full = ab.LABELS[ABLATION_FULL]
-        runs = {}
-        for variant, model in ablation_models(sources[ABLATION_ENV].model, say).items():
-            label = ab.LABELS[variant]
-            say(f"paired check: {label} on {ABLATION_ENV}, noise {ABLATION_CHECK_NOISE} ({trials} missions) ...")
-            runs[label] = ev.evaluate(model, env=ABLATION_ENV, n_trials=trials, seed=seed, fusion=variant[0],
-                                      label=label, noise=ABLATION_CHECK_NOISE)
-        arms = [paired_difference(runs[full], r, "entropy") for label, r in runs.items() if label != full]
-    met = all(d.diff <= 0 for d in arms) if arms and len(arms) == len(ABLATION_ARMS) else None
+    runs = {}
+    for variant, model in arms.items():
+        label = ab.LABELS[variant]
+        say(f"paired check: {label} on {ABLATION_ENV}, noise {ABLATION_CHECK_NOISE} ({trials} missions) ...")
+        runs[label] = ev.evaluate(model, env=ABLATION_ENV, n_trials=trials, seed=seed, fusion=variant[0],
+                                  label=label, noise=ABLATION_CHECK_NOISE)
+    full = ab.LABELS[ABLATION_FULL]
+    diffs = [paired_difference(runs[full], r, "entropy") for label, r in runs.items() if label != full and full in runs]
+    met = all(d.diff <= 0 for d in diffs) if len(diffs) == len(ABLATION_ARMS) else None
 
     missions = f"{trials} missions (env seeds {seed}..{seed + trials - 1})"
     parts = [f"COMA vs AG on the same {missions} per env, noise `{noise}`:\n",
              paired_markdown([d for _, d in table1], [env for env, _ in table1])]
-    if arms:
+    if diffs:
         verdict = "at most" if met else "NOT at most"
         parts += [f"\nThe full model against each other ablation arm on the same {missions}, "
                   f"`{ABLATION_CHECK_NOISE}` noise: its mean entropy is {verdict} every other arm's "
                   f"(the verdict column says which differences exceed two standard errors).\n",
-                  paired_markdown(arms, [ABLATION_CHECK_NOISE] * len(arms), first_title="noise")]
+                  paired_markdown(diffs, [ABLATION_CHECK_NOISE] * len(diffs), first_title="noise")]
     numbers = {"trials": trials, "seed": seed, "noise": noise,
                "table1": [{"env": env, **d.as_dict()} for env, d in table1],
-               "ablation": [d.as_dict() for d in arms], "ablation_noise": ABLATION_CHECK_NOISE, "ablation_met": met}
+               "ablation": [d.as_dict() for d in diffs], "ablation_noise": ABLATION_CHECK_NOISE, "ablation_met": met}
     return numbers, "\n".join(parts)
 
 
