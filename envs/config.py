@@ -12,14 +12,25 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-#: Channel-noise presets on received sensor maps: (lower bound of the attenuation a, sigma of n).
-#: The lower bound applies at the edge of the communication range and rises linearly to 1 at
-#: distance 0 (DESIGN section 3: "a's lower bound falls with sender distance").
+#: Channel-noise presets of the paper on received images, ``I_r = a I + n``: (lower bound of the
+#: attenuation ``a ~ U(alpha_low, 1)``, sigma of ``n ~ N(0, sigma^2)``), per cell.
 NOISE_PRESETS: dict[str, tuple[float, float]] = {
     "none": (1.0, 0.0),
     "moderate": (0.8, 0.02),
     "loud": (0.6, 0.06),
 }
+
+#: ``attenuation``: the paper's ``a ~ U(alpha_low, 1)`` on every link, or a lower bound that falls
+#: linearly from 1 at distance 0 to ``alpha_low`` at ``comm_range``.
+ATTENUATIONS = ("uniform", "distance")
+#: ``decoder``: how a receiver folds ``I_r`` into its local map (docs/environment.md, decision 7).
+DECODERS = ("soft", "threshold")
+#: ``split``: the paper's fixed mission, or the train / test mission distributions.
+SPLITS = ("paper", "train", "test")
+#: ``start``: the split's own rule (None), fixed well-spread columns, or seeded random columns.
+STARTS = ("fixed", "random")
+#: Rewards are float32 in SB3's buffers: scales beyond this would overflow to inf.
+MAX_REWARD_SCALE = 1e30
 
 #: ``reward`` options: the paper's relative entropy drop, or the change of the two Table I metrics.
 REWARDS = ("entropy", "metrics")
@@ -45,7 +56,7 @@ def _fail(option: str, value: Any, allowed: str) -> None:
 class IppConfig:
     """All options of one environment instance (frozen: an env never changes its rules mid-run)."""
 
-    map_name: str = "env1"
+    map_name: str = "env3"
     map_path: str | None = None
     valuable: str | None = None
     map_seed: int | None = 0
@@ -57,12 +68,17 @@ class IppConfig:
     altitudes: tuple[float, ...] = (5.0, 10.0, 15.0)
     flip_probability: Mapping[float, float] = field(default_factory=lambda: dict(DEFAULT_FLIP_PROBABILITY))
     fov_deg: float = 60.0
-    start: str = "fixed"
+    split: str = "paper"
+    start: str | None = None
     start_positions: tuple[tuple[float, float, float], ...] | None = None
     start_altitude: float = 15.0
     comm_range: float = 25.0
     drop_probability: float = 0.0
     noise: str = "moderate"
+    alpha_low: float | None = None
+    sigma: float | None = None
+    attenuation: str = "uniform"
+    decoder: str = "soft"
     comm_grid: int = 44
     alpha: float = 10.0
     beta: float = -0.17
@@ -84,7 +100,18 @@ class IppConfig:
 
     @property
     def noise_params(self) -> tuple[float, float]:
-        return NOISE_PRESETS[self.noise]
+        """(alpha_low, sigma) of the channel: the preset's, overridden by explicit options."""
+        preset_low, preset_sigma = NOISE_PRESETS[self.noise]
+        low = preset_low if self.alpha_low is None else float(self.alpha_low)
+        sigma = preset_sigma if self.sigma is None else float(self.sigma)
+        return low, sigma
+
+    @property
+    def start_rule(self) -> str:
+        """``start`` if given, else the split's rule: fixed corners for "paper", random otherwise."""
+        if self.start is not None:
+            return self.start
+        return "fixed" if self.split == "paper" else "random"
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -149,6 +176,8 @@ class IppConfig:
             _fail("field_size", self.field_size, "a positive number of metres")
         if not self.altitudes or any(not math.isfinite(a) or a <= 0 for a in self.altitudes):
             _fail("altitudes", self.altitudes, "a non-empty list of positive altitudes in metres")
+        if len(self.altitudes) > 3:
+            _fail("altitudes", self.altitudes, "at most 3 altitude levels (the gain kernels carry 3 columns per weighting)")
         if list(self.altitudes) != sorted(set(self.altitudes)):
             _fail("altitudes", self.altitudes, "strictly increasing altitudes")
         if len(self.altitudes) > 1:
@@ -166,14 +195,27 @@ class IppConfig:
                       f"probabilities strictly between 0 and 0.5 (altitude {alt} has {q})")
         if not (is_number(self.fov_deg) and 0 < self.fov_deg < 180):
             _fail("fov_deg", self.fov_deg, "an angle in (0, 180) degrees")
-        if self.start not in ("fixed", "random"):
-            _fail("start", self.start, "'fixed' or 'random'")
+        if self.start is not None and self.start not in STARTS:
+            _fail("start", self.start, "None (the split's rule), 'fixed' or 'random'")
+        if self.split not in SPLITS:
+            _fail("split", self.split, f"one of {list(SPLITS)}")
+        if self.split != "paper" and self.map_path is not None:
+            _fail("split", self.split, "'paper' with map_path= (a user's image has no train / test scenes); "
+                  "use start='random' for random starts on it")
         if self.start_altitude not in self.altitudes:
             _fail("start_altitude", self.start_altitude, f"one of the altitudes {list(self.altitudes)}")
         if self.start_positions is not None:
             self._validate_start_positions(self.start_positions)
         if not isinstance(self.noise, str) or self.noise not in NOISE_PRESETS:
             _fail("noise", self.noise, f"one of {sorted(NOISE_PRESETS)}")
+        if self.alpha_low is not None and not (is_number(self.alpha_low) and 0.0 <= self.alpha_low <= 1.0):
+            _fail("alpha_low", self.alpha_low, "None (the noise preset's) or a lower attenuation bound in [0, 1]")
+        if self.sigma is not None and not (is_number(self.sigma) and math.isfinite(self.sigma) and self.sigma >= 0):
+            _fail("sigma", self.sigma, "None (the noise preset's) or a noise standard deviation >= 0")
+        if self.attenuation not in ATTENUATIONS:
+            _fail("attenuation", self.attenuation, f"one of {list(ATTENUATIONS)}")
+        if self.decoder not in DECODERS:
+            _fail("decoder", self.decoder, f"one of {list(DECODERS)}")
         if not (isinstance(self.comm_range, (int, float)) and self.comm_range >= 0 and not math.isnan(self.comm_range)):
             _fail("comm_range", self.comm_range, "a distance >= 0 in metres (inf for unlimited)")
         if not (is_number(self.drop_probability) and 0.0 <= self.drop_probability <= 1.0):
@@ -182,6 +224,9 @@ class IppConfig:
             _fail("comm_grid", self.comm_grid, f"a multiple of 4 between 4 and grid ({self.grid})")
         if not (is_number(self.alpha) and is_number(self.beta) and math.isfinite(self.alpha) and math.isfinite(self.beta)):
             _fail("alpha/beta", (self.alpha, self.beta), "finite reward scale and offset")
+        if max(abs(self.alpha), abs(self.beta)) > MAX_REWARD_SCALE:
+            _fail("alpha/beta", (self.alpha, self.beta),
+                  f"magnitudes at most {MAX_REWARD_SCALE:g}: larger rewards overflow float32 to inf")
         if self.reward_entropy not in ("plain", "weighted"):
             _fail("reward_entropy", self.reward_entropy, "'plain' (binary entropy of every cell) or 'weighted' (ipp-marl's class weighting)")
         if self.reward not in REWARDS:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import IppConfig
+from .config import ConfigError, IppConfig
 from .maps import block_index
 
 
@@ -73,8 +73,54 @@ class FieldGeometry:
         self.cells_per_comm = np.bincount(self.comm_of_cell, minlength=self.comm_grid).astype(np.int64)
         self.comm_to_lattice = overlap_matrix(self.comm_grid, config.field_size, self.lattice)
         self._ranges = self._footprint_ranges()
+        empty = self._ranges[..., 1] <= self._ranges[..., 0]
+        if empty.any():
+            level = int(np.argwhere(empty)[0][1])
+            raise ConfigError(
+                f"invalid options fov_deg={config.fov_deg!r} / field_size={config.field_size!r} / grid={config.grid!r}: "
+                f"the camera footprint at {config.altitudes[level]:g} m covers no belief cell "
+                f"(side {2 * self.half_side[level]:.3g} m, cell {self.cell:.3g} m)")
         self.comm_cell_area = np.outer(self.cells_per_comm, self.cells_per_comm).astype(np.float32)
         self.comm_blocks, self.comm_weights = self._comm_block_weights()
+        self._build_segments()
+
+    def _build_segments(self) -> None:
+        """Cut each axis into *segments*: runs of belief cells that share a lattice block, a comm
+        cell and a gain strip.
+
+        Gain strips are the runs between consecutive footprint edges, so every footprint is an
+        exact union of strips along each axis: the expected gain of any footprint is a sum of
+        per-strip sums that the kernels keep up to date (no per-action pass over cells). The
+        kernels walk a footprint segment by segment and flush their running sums once per
+        segment, so each running sum lives in a register across the cells of one segment.
+        """
+        edges_fp = {0, self.grid}
+        edges_fp.update(int(v) for v in self._ranges.ravel())
+        strip_edges = np.array(sorted(edges_fp), dtype=np.int64)
+        edges = set(edges_fp)
+        edges.update(int(v) for v in np.flatnonzero(np.diff(self.block_of_cell)) + 1)
+        edges.update(int(v) for v in np.flatnonzero(np.diff(self.comm_of_cell)) + 1)
+        seg_edges = np.array(sorted(edges), dtype=np.int64)
+        cells = np.arange(self.grid)
+        #: (S + 1,) first cell of every segment along one axis, then ``grid``.
+        self.seg_start = seg_edges
+        #: (grid,) segment of every cell.
+        self.seg_of_cell = np.searchsorted(seg_edges, cells, side="right") - 1
+        #: (Sg,) number of gain strips is ``len(strip_edges) - 1``; (grid,) strip of every cell.
+        self.strip_of_cell = np.searchsorted(strip_edges, cells, side="right") - 1
+        self.n_strips = len(strip_edges) - 1
+        self.strip_cells = np.diff(strip_edges).astype(np.float64)
+        starts = seg_edges[:-1]
+        self.seg_block = self.block_of_cell[starts]
+        self.seg_comm = self.comm_of_cell[starts]
+        self.seg_strip = self.strip_of_cell[starts]
+        #: (lattice, n_alt, 2) half-open strip range of each footprint along one axis.
+        first = self.strip_of_cell[self._ranges[..., 0]]
+        last = self.strip_of_cell[self._ranges[..., 1] - 1] + 1
+        self.footprint_strips = np.stack([first, last], axis=-1).astype(np.int64)
+        #: (lattice, n_alt, 2) half-open belief-cell range of each footprint along one axis.
+        self.footprint_ranges = self._ranges
+        self.max_footprint = int((self._ranges[..., 1] - self._ranges[..., 0]).max())
 
     def _comm_block_weights(self) -> tuple[np.ndarray, np.ndarray]:
         """For each comm cell along one axis, the (at most two) lattice blocks it overlaps and

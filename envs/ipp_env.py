@@ -14,16 +14,19 @@ Semantics worth knowing (also in ``docs/environment.md``):
 * Actions are resolved in UAV order; a move that is invalid when executed (off the lattice, into
   a no-fly column, into a column another UAV occupies) means "hover". ``action_mask`` in the
   observation is computed from the current positions, so a masked policy never picks one.
-* Sensor maps are exchanged on the communication grid (``comm_grid`` x ``comm_grid``, default
-  44 x 44, about 1.14 m cells). A message carries the sender's id, position, altitude and its
-  fresh footprint patch (fraction of cells read valuable per comm cell). The receiver writes the
-  patch, as received through the noisy channel, into its copy of the sender's map and folds it
-  into its local belief as soft evidence. Own data is never noised; the global map sees only
-  true measurements.
+* Every UAV keeps its own local belief M_i on the belief grid (the same fixed-point log-odds as
+  the global map). Its own readings update M_i exactly as they update the global map. A message
+  (id, position, altitude, the 0/1 image of this step's footprint) reaches every UAV within
+  ``comm_range`` through the paper's channel, cell by cell ``I_r = a I + n``, and the receiver's
+  ``decoder`` folds it into M_i. Own data is never noised; the global map sees only true
+  measurements. ``received`` holds each sender's latest patch as the comm-grid average of I_r.
+* ``infos`` carry the paper's metrics on the global map (``f1``, ``entropy``) and the team metrics
+  on the M_i (``team_f1``, ``team_entropy``) at every step.
 """
 from __future__ import annotations
 
 import functools
+import math
 from typing import Any
 
 import gymnasium
@@ -33,6 +36,7 @@ from pettingzoo import ParallelEnv
 
 from . import gain, kernels, layout
 from .config import ConfigError, IppConfig
+from .gain import WEIGHTINGS
 from .geometry import FieldGeometry
 from .maps import GroundTruth, load_ground_truth
 
@@ -57,28 +61,58 @@ class UavIppEnv(ParallelEnv):
         self.possible_agents = [f"uav_{i}" for i in range(cfg.n_uavs)]
         self.agents: list[str] = []
         self.geometry = FieldGeometry(cfg)
-        self._lut = _table(cfg.reward_entropy)
+        flips = [cfg.flip_probability[a] for a in cfg.altitudes]
+        self._gtab = _global_table(cfg.reward_entropy)
+        self._ltab = _local_table(tuple(flips))
+        self._normals = _normals()
         self._alt_levels = len(cfg.altitudes)
-        self._increments = np.array([kernels.fixed_point_increment(cfg.flip_probability[a]) for a in cfg.altitudes])
-        self._local_increments = self._increments / kernels.SCALE
-        self._thresholds = np.array([kernels.flip_threshold(cfg.flip_probability[a]) for a in cfg.altitudes])
-        self._noise_low, self._noise_sigma = cfg.noise_params
-        n, r = cfg.n_uavs, cfg.comm_grid
+        self._increments = np.array([kernels.fixed_point_increment(q) for q in flips], dtype=np.int64)
+        self._gstep = kernels.step_table(self._gtab, self._increments)
+        self._lstep = kernels.step_table(self._ltab, self._increments)
+        self._thresholds = np.array([kernels.flip_threshold(q) for q in flips], dtype=np.int64)
+        self._alpha_low, self._sigma = cfg.noise_params
+        n = cfg.n_uavs
         self._slots = np.array([[s + 1 if s < i else s for s in range(n)] for i in range(n)], dtype=np.int64)
         for i in range(n):
             self._slots[i, i] = 0
+        self._redraw_map = cfg.map_path is None and (cfg.split != "paper" or cfg.map_seed is None)
         self._truth: GroundTruth | None = None
-        if cfg.map_seed is not None or cfg.map_path is not None or cfg.map_name != "env1":
+        if not self._redraw_map:
             self._set_truth(self._load_truth(cfg.map_seed if cfg.map_seed is not None else 0))
         self._rng = np.random.default_rng()
-        self._state = np.ones(1, dtype=np.uint64)       # sensor flips
+        self._flip_state = np.ones(1, dtype=np.uint64)  # sensor flips
         self._comm_state = np.ones(1, dtype=np.uint64)  # channel noise: its own stream, so the
         # noise preset never changes which cells flip (the global map must not see the channel)
-        if cfg.action_gain:
-            self._gain_counts = gain.axis_counts(self.geometry)
-            self._gain_flips = np.array([cfg.flip_probability[a] for a in cfg.altitudes], dtype=np.float64)
-        self._build_spaces(n, r)
+        self._allocate(n)
+        self._build_spaces(n, cfg.comm_grid)
         self._steps = 0
+
+    def _allocate(self, n: int) -> None:
+        """Arrays that live as long as the env; :meth:`reset` only refills them."""
+        cfg, geo = self.config, self.geometry
+        G, L, R, S = cfg.grid, cfg.lattice, cfg.comm_grid, geo.n_strips
+        self._logodds = np.zeros((G, G), dtype=np.int16)
+        self._measured = np.zeros((G, G), dtype=np.uint8)
+        self._local_logodds = np.zeros((n, G, G), dtype=np.int16)
+        self._readings = np.zeros((n, geo.max_footprint, geo.max_footprint), dtype=np.uint8)
+        self._g_block = np.zeros((3, L, L), dtype=np.float64)
+        self._g_scal = np.zeros(4, dtype=np.float64)
+        self._l_block = np.zeros((n, 2, L, L), dtype=np.float64)
+        self._l_strip = np.zeros((n, self._ltab.shape[1] - kernels.L_GAIN0, S, S), dtype=np.float64)
+        self._l_scal = np.zeros((n, 3), dtype=np.float64)
+        self._received = np.full((n, n, R, R), 0.5, dtype=np.float32)
+        self._received_valid = np.zeros((n, n), dtype=np.float32)
+        self._comm_sum = np.zeros((R, R), dtype=np.float64)
+        self._comm_cnt = np.zeros((R, R), dtype=np.float64)
+        self._comm_area = geo.comm_cell_area.astype(np.float64)
+        self._masks = np.zeros((n, layout.N_ACTIONS), dtype=np.int8)
+        self._gains = np.zeros((n, len(layout.GAIN_WEIGHTINGS), layout.N_ACTIONS), dtype=np.float64)
+        self._visits = np.zeros((n, L, L), dtype=np.float32)
+        self._uav_index = np.arange(n)
+        self._id_ratio = ((np.arange(n) + 1) / n).astype(np.float32)[:, None, None]
+        self._alt_ratio = (np.asarray(cfg.altitudes) / max(cfg.altitudes)).astype(np.float32)
+        prior = self._ltab[kernels.OFFSET].astype(np.float64)
+        self._strip_prior = prior[kernels.L_GAIN0:, None, None] * np.outer(geo.strip_cells, geo.strip_cells)[None]
 
     # ------------------------------------------------------------------ spaces
     def _build_spaces(self, n: int, r: int) -> None:
@@ -107,7 +141,7 @@ class UavIppEnv(ParallelEnv):
     def _load_truth(self, seed: int) -> GroundTruth:
         cfg = self.config
         return load_ground_truth(cfg.map_name, seed=seed, map_path=cfg.map_path, valuable=cfg.valuable,
-                                 grid=cfg.grid, lattice=cfg.lattice)
+                                 grid=cfg.grid, lattice=cfg.lattice, split=cfg.split)
 
     def _set_truth(self, truth: GroundTruth) -> None:
         self._truth = truth
@@ -150,7 +184,7 @@ class UavIppEnv(ParallelEnv):
         free = self._default_columns()
         if len(free) < n:
             raise ConfigError(f"invalid option n_uavs={n}: map {self.ground_truth.name!r} has only {len(free)} flyable columns")
-        if cfg.start == "random":
+        if cfg.start_rule == "random":
             pick = self._rng.choice(len(free), size=n, replace=False)
             cols = [free[k] for k in pick]
         else:
@@ -186,38 +220,34 @@ class UavIppEnv(ParallelEnv):
     # ------------------------------------------------------------------ reset / step
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None:
+            if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+                raise ConfigError(f"invalid reset seed={seed!r}: an integer >= 0 or None")
             self._rng = np.random.default_rng(seed)
-        cfg = self.config
-        if self._truth is None or (cfg.map_seed is None and cfg.map_path is None and cfg.map_name == "env1"):
+        cfg, geo = self.config, self.geometry
+        if self._redraw_map:
             self._set_truth(self._load_truth(int(self._rng.integers(0, 2**31 - 1))))
-        self._state[0] = np.uint64(int(self._rng.integers(1, 2**63 - 1)))
+        self._flip_state[0] = np.uint64(int(self._rng.integers(1, 2**63 - 1)))
         self._comm_state[0] = np.uint64(int(self._rng.integers(1, 2**63 - 1)))
-        n, R, G, L = self.n_uavs, cfg.comm_grid, cfg.grid, cfg.lattice
-        geo = self.geometry
         self.agents = list(self.possible_agents)
         self._budget_left = cfg.budget
         self._steps = 0
         self._pos = self._start_positions()
-        self._logodds = np.zeros((G, G), dtype=np.int16)
-        self._measured = np.zeros((G, G), dtype=np.uint8)
-        self._block_prob = 0.5 * geo.block_area
-        self._block_ent = geo.block_area.copy()
-        self._block_cov = np.zeros((L, L), dtype=np.float64)
-        self._went_total = float(kernels.reward_entropy(np.array(0.5), cfg.reward_entropy)) * G * G
-        self._ent_true = float(self._n_valuable)
-        self._tp = 0
-        self._pp = 0
-        self._local_logodds = np.zeros((n, R, R), dtype=np.float32)
-        self._local_prob = np.full((n, R, R), 0.5, dtype=np.float32)
-        self._local_ent = np.ones((n, R, R), dtype=np.float32)
-        self._local_agg = np.empty((n, 3, L, L), dtype=np.float64)
-        self._local_agg[:, 0:2] = 0.5
-        self._local_agg[:, 2] = 1.0
-        self._received = np.full((n, n, R, R), 0.5, dtype=np.float32)
-        self._received_valid = np.zeros((n, n), dtype=np.float32)
+        self._logodds.fill(0)
+        self._measured.fill(0)
+        self._local_logodds.fill(0)
+        self._g_block[0] = 0.5 * geo.block_area
+        self._g_block[1] = geo.block_area
+        self._g_block[2] = 0.0
+        g0 = self._gtab[kernels.OFFSET]
+        self._g_scal[:] = (float(g0[kernels.G_REWARD]) * cfg.grid ** 2, float(self._n_valuable), 0.0, 0.0)
+        self._l_block[:, 0] = 0.5 * geo.block_area
+        self._l_block[:, 1] = geo.block_area
+        self._l_strip[:] = self._strip_prior
+        self._l_scal[:] = (float(self._n_valuable), 0.0, 0.0)
+        self._received.fill(0.5)
+        self._received_valid.fill(0.0)
         self._received_valid[:, 0] = 1.0
-        self._visits = np.zeros((n, L, L), dtype=np.float32)
-        self._links = np.eye(n, dtype=bool)
+        self._visits.fill(0.0)
         self._trajectory: list[np.ndarray] = []
         self._measure_all()
         self._mark_visits()
@@ -229,19 +259,19 @@ class UavIppEnv(ParallelEnv):
         if not self.agents:
             raise RuntimeError("step() called on a finished mission: call reset() first")
         acts = self._parse_actions(actions)
-        h_before = self._went_total
-        score_before = _score(self.metrics()) if self.config.reward == "metrics" else 0.0
+        cfg = self.config
+        h_before = self._g_scal[kernels.S_REWARD]
+        score_before = _score(self._global_metrics()) if cfg.reward == "metrics" else 0.0
         self._apply_actions(acts)
         self._budget_left -= 1
         self._steps += 1
         self._measure_all()
         self._mark_visits()
-        cfg = self.config
-        h_after = self._went_total
         metrics = self.metrics()
         if cfg.reward == "metrics":
             reward = cfg.alpha * (_score(metrics) - score_before) + cfg.beta
         else:
+            h_after = self._g_scal[kernels.S_REWARD]
             reward = cfg.alpha * (h_before - h_after) / h_before + cfg.beta if h_before > 0 else cfg.beta
         done = self._budget_left <= 0
         observations = self._observations()
@@ -265,6 +295,9 @@ class UavIppEnv(ParallelEnv):
             raise ValueError(f"missing action(s) for {missing}; every live agent must act")
         for i, agent in enumerate(self.possible_agents):
             value = actions[agent]
+            if type(value) is int and 0 <= value < layout.N_ACTIONS:  # the common case, no numpy
+                acts[i] = value
+                continue
             try:
                 a = int(np.asarray(value).item())
             except (TypeError, ValueError, OverflowError):  # OverflowError: an infinite float
@@ -275,67 +308,65 @@ class UavIppEnv(ParallelEnv):
         return acts
 
     # ------------------------------------------------------------------ measurement + comms
-    def _measure_all(self) -> None:
-        cfg, geo = self.config, self.geometry
-        n, R = self.n_uavs, cfg.comm_grid
-        comm_sum = np.zeros((n, R, R), dtype=np.float32)
-        comm_cnt = np.zeros((n, R, R), dtype=np.float32)
-        boxes = []
-        for i in range(n):
-            ix, iy, lev = (int(v) for v in self._pos[i])
-            fp = geo.footprint(ix, iy, lev)
-            d_went, d_ent, d_tp, d_pp = kernels.measure_global(
-                self._logodds, self._truth_u8, self._measured, fp.r0, fp.r1, fp.c0, fp.c1,
-                int(self._increments[lev]), int(self._thresholds[lev]), self._state,
-                self._lut, geo.block_of_cell, geo.comm_of_cell,
-                self._block_prob, self._block_ent, self._block_cov, comm_sum[i], comm_cnt[i])
-            self._went_total += d_went
-            self._ent_true += d_ent
-            self._tp += d_tp
-            self._pp += d_pp
-            boxes.append((geo.comm_of_cell[fp.r0], geo.comm_of_cell[fp.r1 - 1] + 1,
-                          geo.comm_of_cell[fp.c0], geo.comm_of_cell[fp.c1 - 1] + 1))
-        fresh_mask = comm_cnt >= 0.5 * geo.comm_cell_area[None]
-        fresh = comm_sum / np.maximum(comm_cnt, 1.0)
-        pos_m = self.positions_m()
-        self._trajectory.append(pos_m)  # one position read per measurement serves both
+    def _links(self, pos_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Which messages arrive this step, ``links[r, s]``, and each link's attenuation bound.
+
+        Single hop, positions after the move, 3-D distance within ``comm_range``; each message is
+        lost whole with ``drop_probability``. ``attenuation="distance"`` lowers the bound of
+        ``a ~ U(bound, 1)`` linearly from 1 at distance 0 to ``alpha_low`` at the range.
+        """
+        cfg, n = self.config, self.n_uavs
         dist = np.linalg.norm(pos_m[:, None, :] - pos_m[None, :, :], axis=-1)
         links = dist <= cfg.comm_range
         if cfg.drop_probability > 0:
             links &= self._rng.random((n, n)) >= cfg.drop_probability
         np.fill_diagonal(links, True)
-        self._links = links  # links[r, s]: r received s's message this step
-        for s in range(n):
-            cr0, cr1, cc0, cc1 = boxes[s]
-            kernels.communicate(s, fresh[s], fresh_mask[s], cr0, cr1, cc0, cc1,
-                                float(self._local_increments[self._pos[s, 2]]), links[:, s], dist[:, s],
-                                float(cfg.comm_range), self._noise_low, self._noise_sigma, self._slots,
-                                self._received, self._received_valid, self._local_logodds,
-                                self._local_prob, self._local_ent, self._local_agg,
-                                geo.comm_blocks, geo.comm_weights, self._comm_state)
+        if cfg.attenuation == "distance" and 0.0 < cfg.comm_range < math.inf:
+            frac = np.minimum(dist / cfg.comm_range, 1.0)
+            bound = 1.0 - (1.0 - self._alpha_low) * frac
+        else:
+            bound = np.full((n, n), self._alpha_low)
+        return links, bound
+
+    def _measure_all(self) -> None:
+        """Every UAV measures; every message in range is delivered and decoded (one kernel call)."""
+        cfg, geo = self.config, self.geometry
+        pos_m = self.positions_m()
+        self._trajectory.append(pos_m)  # one position read per measurement serves both
+        links, bound = self._links(pos_m)
+        self._links_now = links  # links[r, s]: r received s's message this step
+        kernels.measure_and_communicate(
+            self._pos, geo.footprint_ranges, self._increments, self._thresholds, links, bound, self._sigma,
+            cfg.decoder == "soft", self._slots, self._truth_u8, self._logodds, self._measured, self._local_logodds,
+            self._readings, self._gstep, self._lstep, self._ltab, self._normals, geo.seg_start, geo.seg_of_cell, geo.seg_block,
+            geo.seg_comm, geo.seg_strip, geo.block_of_cell, geo.comm_of_cell, geo.strip_of_cell, self._comm_area,
+            self._flip_state, self._comm_state, self._g_block, self._g_scal, self._l_block, self._l_strip,
+            self._l_scal, self._received, self._received_valid, self._comm_sum, self._comm_cnt)
 
     def _mark_visits(self) -> None:
-        cur = self._visits == 1.0
-        self._visits[cur] = 0.5
-        self._visits[np.arange(self.n_uavs), self._pos[:, 1], self._pos[:, 0]] = 1.0
+        np.minimum(self._visits, 0.5, out=self._visits)
+        self._visits[self._uav_index, self._pos[:, 1], self._pos[:, 0]] = 1.0
 
     # ------------------------------------------------------------------ observations / metrics
     def _observations(self) -> dict[str, dict[str, np.ndarray]]:
         cfg, geo = self.config, self.geometry
         n, L = self.n_uavs, cfg.lattice
-        local = np.zeros((n, layout.RAW_LOCAL_CHANNELS, L, L), dtype=np.float32)
+        area = geo.block_area
+        local = np.empty((n, layout.RAW_LOCAL_CHANNELS, L, L), dtype=np.float32)
         local[:, layout.BUDGET] = self._budget_left / cfg.budget
-        local[:, layout.AGENT_ID] = ((np.arange(n) + 1) / n)[:, None, None]
-        alt_ratio = np.asarray(cfg.altitudes, dtype=np.float32)[self._pos[:, 2]] / max(cfg.altitudes)
-        r_idx, s_idx = np.nonzero(self._links)
+        local[:, layout.AGENT_ID] = self._id_ratio
+        local[:, layout.ALTITUDE] = 0.0
+        alt_ratio = self._alt_ratio[self._pos[:, 2]]
+        r_idx, s_idx = np.nonzero(self._links_now)
         local[r_idx, layout.ALTITUDE, self._pos[s_idx, 1], self._pos[s_idx, 0]] = alt_ratio[s_idx]
         local[:, layout.FOOTPRINT] = self._visits
-        local[:, layout.SENSOR:layout.BELIEF_ENTROPY + 1] = self._local_agg
+        local[:, layout.SENSOR] = geo.to_lattice(self._received[:, 0])
+        local[:, layout.BELIEF:layout.BELIEF_ENTROPY + 1] = self._l_block / area
         np.clip(local[:, layout.SENSOR:], 0.0, 1.0, out=local[:, layout.SENSOR:])
-        area = geo.block_area
-        state = np.stack([self._block_prob / area, self._block_ent / area, self._block_cov / area]).astype(np.float32)
+        state = (self._g_block / area).astype(np.float32)
         np.clip(state, 0.0, 1.0, out=state)
-        masks = self.action_masks()
+        masks = self._masks
+        kernels.action_masks(self._pos, self._no_fly, self._alt_levels, ACTION_DELTAS, masks)
         received = self._received.copy()
         valid = self._received_valid.copy()
         observations = {
@@ -344,42 +375,67 @@ class UavIppEnv(ParallelEnv):
                 layout.KEY_RECEIVED: received[i],
                 layout.KEY_RECEIVED_VALID: valid[i],
                 layout.KEY_STATE: state,
-                layout.KEY_MASK: masks[i],
+                layout.KEY_MASK: masks[i].copy(),
             }
             for i, agent in enumerate(self.possible_agents)
         }
         if cfg.action_gain:
-            gains = gain.action_gains(self._local_prob, self._pos, masks, self._gain_counts, self._gain_flips,
-                                      ACTION_DELTAS, layout.GAIN_WEIGHTINGS)  # (N, 2, 6)
+            kernels.action_gains(self._pos, masks, ACTION_DELTAS, geo.footprint_strips, self._l_strip,
+                                 self._alt_levels, self._gains)
+            gains = self._gains.astype(np.float32)
             for i, agent in enumerate(self.possible_agents):
                 observations[agent][layout.KEY_GAIN] = gains[i]
         return observations
 
+    def _global_metrics(self) -> dict[str, float]:
+        tp, pp = self._g_scal[kernels.S_TP], self._g_scal[kernels.S_PP]
+        return {"f1": _f1(tp, pp, self._n_valuable),
+                "entropy": _mean_entropy(self._g_scal[kernels.S_ENT_TRUE], self._n_valuable)}
+
     def metrics(self) -> dict[str, float]:
-        """F1 of (global belief > 0.5) vs truth, mean entropy (bits) over valuable cells, and more."""
-        denom = self._pp + self._n_valuable
-        f1 = 2.0 * self._tp / denom if denom > 0 else 0.0
-        entropy = self._ent_true / self._n_valuable if self._n_valuable > 0 else 0.0
-        return {
-            "f1": float(f1),
-            "entropy": float(max(entropy, 0.0)),
-            "reward_entropy": float(self._went_total),
-            "coverage": float(self._block_cov.sum() / self.config.grid ** 2),
-            "budget_left": int(self._budget_left),
-        }
+        """The paper's metrics on the global belief (``f1``, ``entropy`` over valuable cells) and the
+        team metrics on each UAV's own M_i, averaged over UAVs (``team_f1``, ``team_entropy``)."""
+        out = self._global_metrics()
+        n_val, n = self._n_valuable, self.n_uavs
+        per_uav = self._l_scal.tolist()  # rows: (entropy over valuable cells, tp, pp)
+        out["team_f1"] = sum(_f1(tp, pp, n_val) for _, tp, pp in per_uav) / n
+        out["team_entropy"] = sum(_mean_entropy(ent, n_val) for ent, _, _ in per_uav) / n
+        out["reward_entropy"] = float(self._g_scal[kernels.S_REWARD])
+        out["coverage"] = float(self._g_block[2].sum() / self.config.grid ** 2)
+        out["budget_left"] = int(self._budget_left)
+        return out
 
     # ------------------------------------------------------------------ inspection helpers
     def global_belief(self) -> np.ndarray:
         """(grid, grid) probability that each cell is valuable (float32)."""
-        return (1.0 / (1.0 + np.exp(-self._logodds.astype(np.float32) / kernels.SCALE))).astype(np.float32)
+        return kernels.probability(self._logodds)
 
     def local_beliefs(self) -> np.ndarray:
-        """(N, R, R) each UAV's local belief on the communication grid."""
-        return self._local_prob.copy()
+        """(N, grid, grid) each UAV's own local belief M_i, per belief cell (float32)."""
+        return kernels.probability(self._local_logodds)
+
+    def local_logodds(self) -> np.ndarray:
+        """(N, grid, grid) each UAV's M_i as stored: int16 log-odds in 1/``kernels.SCALE`` units."""
+        return self._local_logodds.copy()
 
     def sensor_maps(self) -> np.ndarray:
-        """(N, R, R) each UAV's own clean sensor map (0.5 where never observed)."""
+        """(N, R, R) each UAV's own clean sensor map on the comm grid (0.5 where never observed)."""
         return self._received[:, 0].copy()
+
+    def gain_strip_sums(self) -> np.ndarray:
+        """(N, W, A, S, S) per UAV, weighting (``envs.gain.WEIGHTINGS``), altitude level and gain strip
+        cell: the summed expected gain of one reading, from the UAV's own M_i (what AG plans with)."""
+        n, s = self.n_uavs, self.geometry.n_strips
+        sums = self._l_strip.reshape(n, len(WEIGHTINGS), gain.MAX_LEVELS, s, s)
+        return sums[:, :, :self._alt_levels].copy()
+
+    def lattice_positions(self) -> np.ndarray:
+        """(N, 3) int64 lattice indices (ix, iy, altitude level) of the UAVs."""
+        return self._pos.copy()
+
+    def no_fly_columns(self) -> np.ndarray:
+        """(lattice, lattice) bool no-fly mask of the current map, indexed [y, x]."""
+        return self._no_fly
 
     def trajectory(self) -> np.ndarray:
         """(steps + 1, N, 3) positions in metres since the last reset."""
@@ -401,6 +457,17 @@ class UavIppEnv(ParallelEnv):
         pass
 
 
+def _f1(tp: float, pp: float, n_valuable: int) -> float:
+    """F1 of "believed valuable" (log-odds > 0) from true and predicted positive counts."""
+    denom = pp + n_valuable
+    return float(2.0 * tp / denom) if denom > 0 else 0.0
+
+
+def _mean_entropy(total: float, n_valuable: int) -> float:
+    """Mean entropy (bits) over the valuable cells from its running total."""
+    return float(max(total / n_valuable, 0.0)) if n_valuable > 0 else 0.0
+
+
 def _score(metrics: dict[str, float]) -> float:
     """F1 minus the entropy over valuable cells: ``reward="metrics"`` pays its change, so a
     mission's return is ``alpha`` times the gain in both Table I metrics."""
@@ -408,5 +475,15 @@ def _score(metrics: dict[str, float]) -> float:
 
 
 @functools.lru_cache(maxsize=2)
-def _table(kind: str) -> np.ndarray:
-    return kernels.build_table(kind)
+def _global_table(kind: str) -> np.ndarray:
+    return kernels.build_global_table(kind)
+
+
+@functools.lru_cache(maxsize=4)
+def _local_table(flips: tuple[float, ...]) -> np.ndarray:
+    return gain.build_local_table(flips)
+
+
+@functools.lru_cache(maxsize=1)
+def _normals() -> np.ndarray:
+    return kernels.normal_table()

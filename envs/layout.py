@@ -35,4 +35,4 @@ KEY_MASK = "action_mask"
 #: gain, from the UAV's own local belief, under ipp-marl's class-weighted entropy (row 0) and
 #: plain binary entropy (row 1); COMA's actor can add it to its logits (``gain_prior``).
 KEY_GAIN = "action_gain"
-GAIN_WEIGHTINGS = ("class", "none")
+GAIN_WEIGHTINGS = ("class", "plain")

@@ -9,8 +9,8 @@ import pytest
 import envs
 from envs import layout
 from envs.ipp_env import ACTION_DELTAS
-from sb3_coma.baselines import PLANNERS, choose_actions, make_planner, planner_class
-from sb3_coma.baselines.gain import axis_counts, footprint_fraction, footprint_gains, gain_density
+from envs.gain import gain_density
+from sb3_coma.baselines import PLANNERS, make_planner, planner_class, plan_team
 from sb3_coma.baselines.lawnmower import axis_ranges, best_lanes, union_length
 from sb3_coma.baselines.navigation import best_move, distance_field
 
@@ -21,15 +21,37 @@ def geometry():
 
 
 @pytest.fixture(scope="module")
-def gain_setup(geometry):
+def flips(geometry):
     cfg = geometry.config
-    flips = np.array([cfg.flip_probability[a] for a in cfg.altitudes])
-    return axis_counts(geometry), geometry.comm_cell_area.astype(np.float64), flips
+    return np.array([cfg.flip_probability[a] for a in cfg.altitudes])
 
 
-def _comm_centres(geometry):
-    c = (np.arange(geometry.comm_grid) + 0.5) * geometry.config.field_size / geometry.comm_grid
+def _cell_centres(geometry):
+    c = (np.arange(geometry.grid) + 0.5) * geometry.cell
     return np.meshgrid(c, c)  # X, Y in metres, indexed [row=y, col=x]
+
+
+def _strip_sums(geometry, belief, flips, weighting="class"):
+    """(A, S, S) gain of one reading per level summed over every gain strip cell (brute force)."""
+    out = np.zeros((len(flips), geometry.n_strips, geometry.n_strips))
+    strip = geometry.strip_of_cell
+    for level, q in enumerate(flips):
+        np.add.at(out[level], (strip[:, None], strip[None, :]), gain_density(belief, q, weighting))
+    return out
+
+
+def _ag(sums, pos, mask, discount=0.5, lookahead=1, geometry=None):
+    """Run the AG kernel on one team; return (actions, scores)."""
+    n = pos.shape[0]
+    actions, scores = np.zeros(n, np.int64), np.zeros((n, 6))
+    plan_team(np.ascontiguousarray(sums), pos, mask, np.zeros((11, 11), bool), ACTION_DELTAS,
+              geometry.footprint_strips, discount, lookahead, np.zeros((n, 6)), scores, actions)
+    return actions, scores
+
+
+def _brute_gain(geometry, belief, flips, target, weighting="class"):
+    fp = geometry.footprint(*(int(v) for v in target))
+    return gain_density(belief[fp.r0:fp.r1, fp.c0:fp.c1], flips[target[2]], weighting).sum()
 
 
 def _fly(method, name="env1", n_envs=1, seed=0, **options):
@@ -151,67 +173,105 @@ def test_gain_density_matches_definition():
     p1 = p * (1 - q) / (p * (1 - q) + (1 - p) * q)
     p0 = p * q / (p * q + (1 - p) * (1 - q))
     mi = h(p) - ((p * (1 - q) + (1 - p) * q) * h(p1) + (p * q + (1 - p) * (1 - q)) * h(p0))
-    assert np.allclose(gain_density(p, q, "none"), mi)
-    assert np.all(gain_density(p, q, "none") > 0)
+    assert np.allclose(gain_density(p, q, "plain"), mi)
+    assert np.all(gain_density(p, q, "plain") > 0)
     # class weighting: unknown (0.5) is worth half, believed-not-valuable cells can cost
     assert np.isclose(gain_density(0.5, q, "class"), 0.5 - 0.5 * h(1 - q))
     assert gain_density(0.3, 0.01, "class") < 0
-    per_alt = gain_density(np.full((2, 4, 4), 0.5), [0.01, 0.265, 0.375])
-    assert per_alt.shape == (2, 3, 4, 4) and np.all(np.diff(per_alt[0, :, 0, 0]) < 0)  # low = more informative
+    per_alt = [gain_density(0.5, q) for q in (0.01, 0.265, 0.375)]
+    assert np.all(np.diff(per_alt) < 0)  # low = more informative
+    with pytest.raises(ValueError, match="weighting"):
+        gain_density(p, q, "none")
 
 
-def test_footprint_gains_match_brute_force(geometry, gain_setup):
-    counts, area, flips = gain_setup
+def test_footprint_gains_match_brute_force(geometry, flips):
     rng = np.random.default_rng(0)
-    belief = rng.uniform(0.2, 0.8, (geometry.comm_grid, geometry.comm_grid))
-    density = gain_density(belief, flips)  # (A, R, R)
-    targets = np.array([[[0, 0, 0], [5, 5, 1], [10, 3, 2], [7, 10, 0]]])
-    fast = footprint_gains(density[None], counts, targets)[0]
-    cell = geometry.comm_of_cell
-    for k, (ix, iy, lev) in enumerate(targets[0]):
-        fp = geometry.footprint(ix, iy, lev)
-        per_cell = density[lev][cell[fp.r0:fp.r1, None], cell[None, fp.c0:fp.c1]]  # every belief cell
-        assert np.isclose(fast[k], per_cell.sum(), rtol=1e-9)
-    frac = footprint_fraction(counts, area, targets[0, 1:2])[0]
-    assert frac.max() == 1.0 and frac.min() == 0.0
+    belief = rng.uniform(0.2, 0.8, (geometry.grid, geometry.grid))
+    sums = _strip_sums(geometry, belief, flips)
+    pos = np.array([[5, 5, 1]])
+    _, scores = _ag(sums[None], pos, np.ones((1, 6), bool), geometry=geometry)
+    for a in range(6):
+        target = pos[0] + ACTION_DELTAS[a]
+        assert np.isclose(scores[0, a], _brute_gain(geometry, belief, flips, target), rtol=1e-9)
+    # footprints are exact unions of strips: the strip rectangle holds exactly the footprint's cells
+    for k, level in itertools.product(range(11), range(3)):
+        s0, s1 = geometry.footprint_strips[k, level]
+        r0, r1 = geometry.footprint_ranges[k, level]
+        assert geometry.strip_cells[s0:s1].sum() == r1 - r0
 
 
-def test_ag_picks_highest_gain_action(geometry, gain_setup):
-    counts, area, flips = gain_setup
-    X, Y = _comm_centres(geometry)
+def test_ag_picks_highest_gain_action(geometry, flips):
+    X, Y = _cell_centres(geometry)
     belief = np.full(X.shape, 0.5)
     belief[(np.abs(X - 35) < 5) & (np.abs(Y - 25) < 5)] = 0.7  # a likely-valuable patch east
     belief[X < 20] = 0.3  # believed not valuable west: reading it only costs
-    pos = np.array([[[5, 5, 1]]])  # (25, 25) at 10 m
-    mask = np.ones((1, 1, 6), bool)
-    actions, scores = choose_actions(belief[None, None], pos, mask, counts, area, flips)
-    targets = pos[0, 0] + ACTION_DELTAS
-    gains = footprint_gains(gain_density(belief, flips)[None], counts, targets[None])[0]
-    assert actions[0, 0] == int(np.argmax(gains)) == 4  # +x, towards the patch
-    assert np.isclose(scores[0, 0].max(), 1.0)  # normalised per UAV
-    mask[0, 0, 4] = False
-    actions, _ = choose_actions(belief[None, None], pos, mask, counts, area, flips)
-    assert actions[0, 0] == int(np.argmax(np.where(mask[0, 0], gains, -np.inf)))
+    sums = _strip_sums(geometry, belief, flips)[None]
+    pos = np.array([[5, 5, 1]])  # (25, 25) at 10 m
+    mask = np.ones((1, 6), bool)
+    actions, scores = _ag(sums, pos, mask, geometry=geometry)
+    gains = [_brute_gain(geometry, belief, flips, pos[0] + d) for d in ACTION_DELTAS]
+    assert actions[0] == int(np.argmax(gains)) == 4  # +x, towards the patch
+    mask[0, 4] = False
+    actions, scores = _ag(sums, pos, mask, geometry=geometry)
+    assert actions[0] == int(np.argmax(np.where(mask[0], gains, -np.inf)))
+    assert scores[0, 4] == -np.inf
 
 
-def test_ag_discount_separates_two_uavs(geometry, gain_setup):
-    counts, area, flips = gain_setup
-    X, Y = _comm_centres(geometry)
+def test_ag_discount_separates_two_uavs(geometry, flips):
+    X, Y = _cell_centres(geometry)
     belief = np.full(X.shape, 0.5)
     belief[(np.abs(X - 25) < 4) & (np.abs(Y - 25) < 4)] = 0.7  # one valuable-looking patch between them
-    beliefs = np.stack([belief, belief])[None]
-    pos = np.array([[[4, 5, 1], [6, 5, 1]]])  # x = 20 m and 30 m at 10 m, both next to the patch
-    mask = np.ones((1, 2, 6), bool)
+    sums = np.stack([_strip_sums(geometry, belief, flips)] * 2)
+    pos = np.array([[4, 5, 1], [6, 5, 1]])  # x = 20 m and 30 m at 10 m, both next to the patch
+    mask = np.ones((2, 6), bool)
 
     def overlap(discount):
-        actions, _ = choose_actions(beliefs, pos, mask, counts, area, flips, discount=discount)
-        assert actions[0, 0] == 4  # the first UAV takes the patch (+x)
-        assert actions[0, 1] != 1  # ... and its column is never taken again (would hover)
-        frac = footprint_fraction(counts, area, pos[0] + ACTION_DELTAS[actions[0]])
-        return (frac[0] * frac[1] * area).sum()
+        actions, _ = _ag(sums, pos, mask, discount=discount, geometry=geometry)
+        assert actions[0] == 4  # the first UAV takes the patch (+x)
+        assert actions[1] != 1  # ... and its column is never taken again (would hover)
+        boxes = []
+        for u in range(2):
+            fp = geometry.footprint(*(int(v) for v in pos[u] + ACTION_DELTAS[actions[u]]))
+            box = np.zeros((geometry.grid, geometry.grid), bool)
+            box[fp.r0:fp.r1, fp.c0:fp.c1] = True
+            boxes.append(box)
+        return (boxes[0] & boxes[1]).sum()
 
     assert overlap(0.0) > 0
     assert overlap(1.0) < 0.5 * overlap(0.0)
+
+
+def test_lookahead_one_is_ag_and_deeper_search_sees_further(geometry, flips):
+    rng = np.random.default_rng(1)
+    belief = rng.uniform(0.3, 0.7, (geometry.grid, geometry.grid))
+    sums = np.stack([_strip_sums(geometry, belief, flips)] * 3)
+    pos = np.array([[2, 2, 2], [8, 2, 1], [5, 8, 0]])
+    mask = np.ones((3, 6), bool)
+    mask[0, 0] = mask[2, 5] = False  # top / bottom altitude
+    greedy, greedy_scores = _ag(sums, pos, mask, geometry=geometry)
+    same, same_scores = _ag(sums, pos, mask, lookahead=1, geometry=geometry)
+    np.testing.assert_array_equal(greedy, same)
+    np.testing.assert_array_equal(greedy_scores, same_scores)
+    _, deep = _ag(sums, pos, mask, lookahead=2, geometry=geometry)
+    allowed = np.isfinite(greedy_scores)
+    assert np.all(deep[allowed] > greedy_scores[allowed])  # a second footprint adds gain
+    # a two-step value is at most twice the best single footprint reachable
+    assert deep[0].max() <= 2 * greedy_scores.max() + 1e-9
+
+
+def test_lookahead_planner_flies_valid_and_reports_bad_options():
+    planner, pairs, infos = _fly("ag", n_envs=1, budget=3)
+    assert planner.lookahead == 1
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, budget=3)
+    deep = make_planner("ag", venv, seed=0, lookahead=2, weighting="plain")
+    obs = venv.reset()
+    for _ in range(3):
+        actions, _ = deep.predict(obs)
+        assert obs[layout.KEY_MASK][np.arange(len(actions)), actions].all()
+        obs, *_ = venv.step(actions)
+    for bad in ({"lookahead": 0}, {"lookahead": 9}, {"lookahead": 1.5}, {"weighting": "none"}, {"discount": 2}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            make_planner("ag", venv, **bad)
 
 
 def test_ag_end_to_end_valid_and_seeded():

@@ -8,7 +8,7 @@ import pytest
 from pettingzoo.test import parallel_api_test
 
 import envs
-from envs import kernels, layout
+from envs import gain, kernels, layout
 from envs.config import ConfigError
 from envs.ipp_env import ACTION_DELTAS
 
@@ -91,45 +91,92 @@ def test_footprint_clipped_at_field_border():
     assert fp.shape[0] == pytest.approx(171 / 2, abs=2)
 
 
-def _kernel_call(logodds, truth, inc, threshold, seed=7):
-    n = truth.shape[0]
-    z2 = np.zeros((2, 2))
-    idx = np.zeros(n, dtype=np.int64)
-    measured = np.zeros_like(truth)
-    comm_sum = np.zeros((1, 1), np.float32)
-    comm_cnt = np.zeros((1, 1), np.float32)
-    state = np.array([seed], dtype=np.uint64)
-    out = kernels.measure_global(logodds, truth, measured, 0, n, 0, n, inc, threshold, state,
-                                 kernels.build_table(), idx, idx, z2, z2.copy(), z2.copy(), comm_sum, comm_cnt)
-    return out, comm_sum[0, 0], comm_cnt[0, 0]
+def _sense_once(env, local_logodds, truth, level, threshold, seed=7):
+    """Call the sensing kernel on the footprint of the field's centre at ``level`` with a chosen
+    flip threshold; return (readings, comm_sum, comm_cnt, (rows, cols))."""
+    geo = env.geometry
+    r0, r1 = geo.footprint_ranges[5, level]
+    inc = int(env._increments[level])
+    readings = np.zeros((geo.max_footprint, geo.max_footprint), np.uint8)
+    comm_sum = np.zeros((geo.comm_grid, geo.comm_grid))
+    comm_cnt = np.zeros_like(comm_sum)
+    glob = np.zeros_like(local_logodds)
+    kernels.sense(r0, r1, r0, r1, level, inc, threshold, truth, glob, np.zeros_like(truth), local_logodds, readings,
+                  env._gstep, env._lstep, geo.seg_start, geo.seg_of_cell, geo.seg_block, geo.seg_comm, geo.seg_strip,
+                  geo.block_of_cell, geo.comm_of_cell, geo.strip_of_cell, np.array([seed], np.uint64),
+                  np.zeros((3, 11, 11)), np.zeros(4), np.zeros((2, 11, 11)), np.zeros((6, geo.n_strips, geo.n_strips)),
+                  np.zeros(3), comm_sum, comm_cnt)
+    return readings[:r1 - r0, :r1 - r0], comm_sum, comm_cnt, (slice(r0, r1), slice(r0, r1))
 
 
 def test_belief_update_matches_closed_form():
     """Readings without flips move log-odds by exactly +-log((1-q)/q) per reading."""
-    q = 0.265
-    inc = kernels.fixed_point_increment(q)
-    truth = (np.arange(100).reshape(10, 10) % 3 == 0).astype(np.uint8)
-    logodds = np.zeros((10, 10), np.int16)
+    env = envs.make_env("env1")
+    level, q = 1, 0.265
+    truth = (np.arange(493 * 493).reshape(493, 493) % 3 == 0).astype(np.uint8)
+    logodds = np.zeros((493, 493), np.int16)
     for k in range(1, 4):
-        _kernel_call(logodds, truth, inc, threshold=0)
-        expected = np.where(truth == 1, 1.0, -1.0) * k * math.log((1 - q) / q)
-        p_expected = 1 / (1 + np.exp(-expected))
-        p = 1 / (1 + np.exp(-logodds / kernels.SCALE))
-        np.testing.assert_allclose(p, p_expected, atol=2e-4)
+        _, _, _, box = _sense_once(env, logodds, truth, level, threshold=0)
+        expected = np.where(truth[box] == 1, 1.0, -1.0) * k * math.log((1 - q) / q)
+        p = 1 / (1 + np.exp(-logodds[box] / kernels.SCALE))
+        np.testing.assert_allclose(p, 1 / (1 + np.exp(-expected)), atol=2e-3)
+    outside = np.ones_like(logodds, bool)
+    outside[box] = False
+    assert np.all(logodds[outside] == 0)
     # always-flipping readings undo it
     for _ in range(3):
-        _kernel_call(logodds, truth, inc, threshold=65536)
+        _sense_once(env, logodds, truth, level, threshold=65536)
     assert np.all(logodds == 0)
 
 
 def test_sensor_flip_rate_matches_altitude_table():
-    for q in (0.01, 0.265, 0.375):
-        truth = np.ones((200, 200), np.uint8)
-        logodds = np.zeros((200, 200), np.int16)
-        (_, _, _, _), read_sum, count = _kernel_call(logodds, truth, kernels.fixed_point_increment(q),
-                                                     kernels.flip_threshold(q), seed=11)
-        flips = 1 - read_sum / count
+    env = envs.make_env("env1")
+    truth = np.ones((493, 493), np.uint8)
+    for level, q in enumerate((0.01, 0.265, 0.375)):
+        readings, comm_sum, comm_cnt, _ = _sense_once(env, np.zeros((493, 493), np.int16), truth, level,
+                                                      kernels.flip_threshold(q), seed=11)
+        count = readings.size
+        assert comm_cnt.sum() == count and comm_sum.sum() == readings.sum()
+        flips = 1 - readings.mean()
         assert abs(flips - q) < 4 * math.sqrt(q * (1 - q) / count) + 1e-4
+
+
+def _received_image(env, image, alpha_low, sigma, soft, increment):
+    """Decode a 0/1 image (the centre footprint at 15 m) through the receive kernel into a blank
+    M_r with a large increment, and return the evidence each cell's log-odds change implies."""
+    geo = env.geometry
+    r0, r1 = geo.footprint_ranges[5, 2]
+    local = np.zeros((493, 493), np.int16)
+    readings = np.zeros((geo.max_footprint, geo.max_footprint), np.uint8)
+    readings[:r1 - r0, :r1 - r0] = image
+    kernels.receive(r0, r1, r0, r1, increment, alpha_low, sigma, soft, np.uint64(99), np.zeros((493, 493), np.uint8),
+                    local, readings, env._ltab, env._normals, geo.seg_start, geo.seg_of_cell, geo.seg_block,
+                    geo.seg_comm, geo.seg_strip, geo.comm_of_cell, geo.strip_of_cell, 493, np.zeros((2, 11, 11)),
+                    np.zeros((6, geo.n_strips, geo.n_strips)), np.zeros(3), np.zeros((44, 44)), np.zeros((44, 44)))
+    return local[r0:r1, r0:r1].astype(np.float64)
+
+
+@pytest.mark.parametrize("preset", ["none", "moderate", "loud"])
+def test_channel_noise_statistics(preset):
+    """Each received cell is a I + n, a ~ U(alpha_low, 1), n ~ N(0, sigma^2); soft decoding adds
+    increment x (2 clip(I_r, 0, 1) - 1), so the log-odds change reveals the evidence per cell."""
+    env = envs.make_env("env1")
+    lo, sigma = envs.NOISE_PRESETS[preset]
+    inc = 1000
+    side = env.geometry.footprint_ranges[5, 2, 1] - env.geometry.footprint_ranges[5, 2, 0]
+    ones = np.ones((side, side), np.uint8)
+    evidence = (_received_image(env, ones, lo, sigma, True, inc) / inc + 1) / 2
+    rng = np.random.default_rng(0)
+    model = np.clip(rng.uniform(lo, 1, 400_000) + rng.normal(0, sigma, 400_000), 0, 1)
+    assert evidence.mean() == pytest.approx(model.mean(), abs=2e-3 + 4 * model.std() / side)
+    assert evidence.std() == pytest.approx(model.std(), rel=0.1, abs=1e-3)
+    zeros = (_received_image(env, 0 * ones, lo, sigma, True, inc) / inc + 1) / 2
+    assert zeros.mean() == pytest.approx(np.clip(rng.normal(0, sigma, 400_000), 0, 1).mean(), abs=2e-3)
+    # threshold decoding: a full +-increment, flipped only where the noise crosses 0.5
+    hard = _received_image(env, ones, lo, sigma, False, inc)
+    assert set(np.unique(hard)) <= {-inc, inc}
+    assert (hard > 0).mean() == pytest.approx((rng.uniform(lo, 1, 400_000) + rng.normal(0, sigma, 400_000) > 0.5).mean(),
+                                               abs=3e-3)
 
 
 def test_incremental_bookkeeping_matches_full_recompute():
@@ -153,10 +200,47 @@ def test_incremental_bookkeeping_matches_full_recompute():
     blocks = np.zeros((11, 11))
     np.add.at(blocks, (geo.block_of_cell[:, None], geo.block_of_cell[None, :]), p)
     np.testing.assert_allclose(state[layout.GLOBAL_BELIEF], blocks / geo.block_area, atol=1e-4)
-    # local 11x11 channels equal the block means of the comm-grid maps they summarise
-    local = obs["uav_1"][layout.KEY_LOCAL]
-    np.testing.assert_allclose(local[layout.BELIEF], geo.to_lattice(env.local_beliefs()[1]), atol=1e-4)
-    np.testing.assert_allclose(local[layout.SENSOR], np.clip(geo.to_lattice(env.sensor_maps()[1]), 0, 1), atol=1e-4)
+    # local 11x11 channels equal the block means of the per-cell M_i (and of the comm-grid sensor map)
+    beliefs = env.local_beliefs().astype(np.float64)
+    for u, agent in enumerate(env.possible_agents):
+        local = obs[agent][layout.KEY_LOCAL]
+        np.testing.assert_allclose(local[layout.BELIEF], _block_means(geo, beliefs[u]), atol=1e-4)
+        np.testing.assert_allclose(local[layout.BELIEF_ENTROPY], _block_means(geo, kernels.binary_entropy(beliefs[u])),
+                                   atol=1e-4)
+        np.testing.assert_allclose(local[layout.SENSOR], np.clip(geo.to_lattice(env.sensor_maps()[u]), 0, 1), atol=1e-4)
+    # team metrics: each UAV's own M_i scored like the global map, then averaged
+    f1s = [2 * np.sum((b > 0.5) & truth) / ((b > 0.5).sum() + truth.sum()) for b in beliefs]
+    ents = [kernels.binary_entropy(b[truth]).mean() for b in beliefs]
+    assert info["team_f1"] == pytest.approx(np.mean(f1s), abs=1e-9)
+    assert info["team_entropy"] == pytest.approx(np.mean(ents), abs=1e-4)
+
+
+def _block_means(geo, cell_map):
+    blocks = np.zeros((geo.lattice, geo.lattice))
+    np.add.at(blocks, (geo.block_of_cell[:, None], geo.block_of_cell[None, :]), cell_map)
+    return blocks / geo.block_area
+
+
+def test_action_gain_is_the_exact_footprint_gain_of_own_belief():
+    """action_gain = the expected entropy drop summed over each action's target footprint, from the
+    UAV's own per-cell M_i (brute force over cells), normalised by the best valid action."""
+    env = envs.make_env("env3", budget=6, comm_range=30.0)
+    hist = random_episode(env, seed=4)
+    obs = hist[-1][2]
+    geo = env.geometry
+    flips = [env.config.flip_probability[a] for a in env.config.altitudes]
+    beliefs = env.local_beliefs().astype(np.float64)
+    for u, agent in enumerate(env.possible_agents):
+        mask = obs[agent][layout.KEY_MASK]
+        for w, weighting in enumerate(gain.WEIGHTINGS):
+            raw = np.zeros(6)
+            for act in np.flatnonzero(mask):
+                x, y, z = np.clip(env._pos[u] + ACTION_DELTAS[act], 0, [10, 10, 2])
+                fp = geo.footprint(int(x), int(y), int(z))
+                cells = beliefs[u, fp.r0:fp.r1, fp.c0:fp.c1]
+                raw[act] = gain.gain_density(cells, flips[z], weighting).sum()
+            expected = raw / np.abs(raw).max()
+            np.testing.assert_allclose(obs[agent][layout.KEY_GAIN][w], expected, atol=2e-4)
 
 
 def test_metrics_on_hand_made_map(tmp_path):
@@ -225,34 +309,6 @@ def test_simultaneous_moves_never_share_a_column():
     env.step({"uav_0": 4, "uav_1": 1})  # both aim at (5, 0)
     cols = {tuple(p[:2]) for p in env._pos}
     assert len(cols) == 2
-
-
-@pytest.mark.parametrize("preset", ["none", "moderate", "loud"])
-def test_channel_noise_statistics(preset):
-    lo_bound, sigma = envs.NOISE_PRESETS[preset]
-    R, n = 44, 2
-    fresh = np.ones((R, R), np.float32)
-    mask = np.ones((R, R), np.bool_)
-    received = np.full((n, n, R, R), 0.5, np.float32)
-    valid = np.zeros((n, n), np.float32)
-    local = np.zeros((n, R, R), np.float32)
-    prob = np.full((n, R, R), 0.5, np.float32)
-    ent = np.ones((n, R, R), np.float32)
-    agg = np.zeros((n, 3, 11, 11))
-    geo = envs.make_env("env1").geometry
-    slots = np.array([[0, 1], [1, 0]])
-    comm_range = 25.0
-    kernels.communicate(0, fresh, mask, 0, R, 0, R, 1.0, np.array([True, True]), np.array([0.0, comm_range]),
-                        comm_range, lo_bound, sigma, slots, received, valid, local, prob, ent, agg,
-                        geo.comm_blocks, geo.comm_weights, np.array([99], np.uint64))
-    own = received[0, 0]
-    assert np.all(own == 1.0)  # the sender's own data is never noised
-    got = received[1, 1].astype(np.float64)
-    mean_expected = (1 + lo_bound) / 2
-    std_expected = math.sqrt((1 - lo_bound) ** 2 / 12 + sigma ** 2)
-    assert got.mean() == pytest.approx(mean_expected, abs=4 * std_expected / R + 1e-9)
-    assert got.std() == pytest.approx(std_expected, rel=0.1, abs=1e-9)
-    assert valid[1, 1] == 1.0
 
 
 def test_global_map_never_sees_channel_noise():

@@ -14,10 +14,9 @@ import torch as th
 
 import envs
 from envs import layout
-from envs.gain import axis_counts
 from envs.ipp_env import ACTION_DELTAS
 from sb3_coma import COMA
-from sb3_coma.baselines.adaptive_gain import choose_actions
+from sb3_coma.baselines.adaptive_gain import plan_team
 
 SMALL = dict(n_uavs=2, budget=4)
 
@@ -29,9 +28,6 @@ def _positions(env) -> np.ndarray:
 def test_action_gain_is_normalised_masked_and_matches_ag():
     env = envs.make_env("env3")
     geometry = env.geometry
-    counts = axis_counts(geometry)
-    cfg = geometry.config
-    flips = np.array([cfg.flip_probability[a] for a in cfg.altitudes])
     rng = np.random.default_rng(3)
     obs, _ = env.reset(seed=3)
     for _ in range(5):
@@ -42,12 +38,14 @@ def test_action_gain_is_normalised_masked_and_matches_ag():
         assert np.all(np.abs(gains) <= 1.0)
         assert np.all(gains[~np.repeat(masks[:, None], 2, axis=1)] == 0.0)
         np.testing.assert_allclose(np.abs(np.where(masks[:, None], gains, 0)).max(-1), 1.0, rtol=1e-6)
+        sums = env.gain_strip_sums()
         for row, weighting in enumerate(layout.GAIN_WEIGHTINGS):
-            _, scores = choose_actions(env.local_beliefs()[None].astype(np.float64), _positions(env)[None],
-                                       masks[None], counts, geometry.comm_cell_area.astype(np.float64), flips,
-                                       discount=0.0, weighting=weighting)
-            # UAV 0 decides first, so AG's normalised scores are exactly its own gains.
-            np.testing.assert_allclose(gains[0, row][masks[0]], scores[0, 0][masks[0]], rtol=1e-5, atol=1e-6)
+            scores, actions = np.zeros((4, 6)), np.zeros(4, np.int64)
+            plan_team(np.ascontiguousarray(sums[:, row]), _positions(env), masks, env.no_fly_columns(), ACTION_DELTAS,
+                      geometry.footprint_strips, 0.0, 1, np.zeros((4, 6)), scores, actions)
+            # UAV 0 decides first, so AG's scores, normalised, are exactly its own gains.
+            own = scores[0][masks[0]]
+            np.testing.assert_allclose(gains[0, row][masks[0]], own / np.abs(own).max(), rtol=1e-5, atol=1e-6)
 
 
 def test_action_gain_can_be_switched_off():
@@ -133,7 +131,7 @@ def test_no_prior_ignores_the_gain_key():
     ({"gain_prior": float("nan")}, "gain_prior=nan"),
     ({"gain_prior": 1.0, "gain_prior_speed": 0.0}, "gain_prior_speed=0.0"),
     ({"gain_prior": "lots"}, "gain_prior='lots'"),
-    ({"gain_prior": [1.0, 2.0, 3.0]}, r"one weight per 'action_gain' row, 2 \(class, none\), got 3"),
+    ({"gain_prior": [1.0, 2.0, 3.0]}, r"one weight per 'action_gain' row, 2 \(class, plain\), got 3"),
     ({"gain_prior": [1.0, -2.0]}, r"gain_prior=\[1.0, -2.0\]: weights must be finite numbers >= 0"),
     ({"gain_prior": [1.0, "x"]}, r"gain_prior=\[1.0, 'x'\]: must be a number or a list of numbers"),
 ])

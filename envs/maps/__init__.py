@@ -5,6 +5,10 @@
 * ``env3``: a real Sentinel-2 scene, vegetation (NDVI > 0.5) valuable, built-up columns no-fly;
 * any image file: ``map_path=`` plus a ``valuable=`` rule string (:mod:`.rules`).
 
+``split=`` chooses the mission distribution (:mod:`.scenes`): ``"paper"`` (the maps above, the
+default), or the disjoint ``"train"`` / ``"test"`` sets of stars and of further scenes cut from the
+same sources, each scene in its 8 flips and rotations, ``seed`` picking one.
+
 The real images ship as small PNGs in ``data/`` with their provenance (``data/PROVENANCE.md``);
 nothing is downloaded or read from other packages at run time.
 
@@ -20,9 +24,11 @@ from __future__ import annotations
 from .errors import MapError
 from .ground_truth import BUILTIN_MAPS, GroundTruth, available_maps, block_fraction, block_index, load_ground_truth
 from .rules import RULE_NAMES, parse_rule
+from .scenes import ENV1_SEED_RANGES, SCENES, SPLITS, TRANSFORMS, Scene, dihedral, scene_count, split_scenes
 from .synthetic import star_map
 
 __all__ = [
-    "BUILTIN_MAPS", "RULE_NAMES", "GroundTruth", "MapError", "available_maps", "block_fraction", "block_index",
-    "load_ground_truth", "parse_rule", "star_map",
+    "BUILTIN_MAPS", "ENV1_SEED_RANGES", "RULE_NAMES", "SCENES", "SPLITS", "TRANSFORMS", "GroundTruth", "MapError",
+    "Scene", "available_maps", "block_fraction", "block_index", "dihedral", "load_ground_truth", "parse_rule",
+    "scene_count", "split_scenes", "star_map",
 ]

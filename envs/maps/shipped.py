@@ -17,8 +17,8 @@ from .rules import MapImage, resize_to_grid, rgb_to_gray
 
 __all__ = [
     "DATA_DIR", "ENV2_DEFAULT_RULE", "ENV2_FILE", "ENV3_BANDS", "ENV3_BUILTUP_FILE", "ENV3_DEFAULT_RULE",
-    "ENV3_NIR_FILE", "ENV3_NO_FLY_FRACTION", "ENV3_RGB_FILE", "SHIPPED_SIZE", "env2_image", "env3_builtup",
-    "env3_image",
+    "ENV3_NIR_FILE", "ENV3_NO_FLY_FRACTION", "ENV3_RGB_FILE", "SHIPPED_SIZE", "env2_image", "env2_scene_image",
+    "env3_builtup", "env3_image", "env3_image_from_codes", "env3_scene_masks",
 ]
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
@@ -76,16 +76,23 @@ def _decode(values: np.ndarray, band: str) -> np.ndarray:
 
 
 def env3_image(grid: int) -> MapImage:
-    """The Sentinel-2 scene at ``grid`` x ``grid``: display RGB in [0, 1], its gray, and NDVI.
-
-    Bands are resampled as reflectances *before* NDVI is formed, because averaging reflectance is
-    what a coarser sensor would measure, whereas averaging a ratio is not.
-    """
+    """The Sentinel-2 scene at ``grid`` x ``grid``: display RGB in [0, 1], its gray, and NDVI."""
     bgr = _read_shipped(ENV3_RGB_FILE, cv2.IMREAD_COLOR)
     nir8 = _read_shipped(ENV3_NIR_FILE, cv2.IMREAD_GRAYSCALE)
-    rgb8 = resize_to_grid(bgr[:, :, ::-1], grid)            # 0..255 floats, RGB order
+    return env3_image_from_codes(bgr[:, :, ::-1], nir8, grid)
+
+
+def env3_image_from_codes(rgb_codes: np.ndarray, nir_codes: np.ndarray, grid: int) -> MapImage:
+    """Decode 8-bit band codes (``ENV3_BANDS``; ``rgb_codes`` in RGB order) into a :class:`MapImage`.
+
+    Bands are resampled as reflectances *before* NDVI is formed, because averaging reflectance is
+    what a coarser sensor would measure, whereas averaging a ratio is not. The build tool runs the
+    extra env3 scenes through this same function, so their shipped masks are what the paper
+    loader would compute from their bands.
+    """
+    rgb8 = resize_to_grid(rgb_codes, grid)                  # 0..255 floats, RGB order
     red = _decode(rgb8[:, :, 0], "red")
-    nir = _decode(resize_to_grid(nir8, grid), "nir")
+    nir = _decode(resize_to_grid(nir_codes, grid), "nir")
     total = nir + red
     ndvi = np.where(total > 0, (nir - red) / np.where(total > 0, total, 1.0), 0.0).astype(np.float32)
     rgb = np.ascontiguousarray(rgb8 / 255.0, dtype=np.float32)
@@ -96,3 +103,30 @@ def env3_builtup(grid: int) -> np.ndarray:
     """Built-up fraction of every grid cell (float32 in [0, 1]; binary at the shipped size)."""
     mask = _read_shipped(ENV3_BUILTUP_FILE, cv2.IMREAD_GRAYSCALE)
     return resize_to_grid((mask > 0).astype(np.float32), grid)
+
+
+# --- the extra train / test scenes (envs.maps.scenes) ------------------------------------------------
+def env2_scene_image(file: str, grid: int) -> MapImage:
+    """An extra env2 scene: its 8-bit thermal crop (native crop size, white = hot) at ``grid``.
+
+    Upsampled bicubically (as the paper scene was at build time; clipped back to [0, 1], since
+    cubic interpolation overshoots), or area-averaged when the grid is coarser than the crop.
+    """
+    raw = _read_shipped(file, cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0
+    if raw.shape[0] >= grid:
+        return MapImage(gray=resize_to_grid(raw, grid))
+    up = cv2.resize(raw, (grid, grid), interpolation=cv2.INTER_CUBIC)
+    return MapImage(gray=np.clip(up, 0.0, 1.0))
+
+
+def env3_scene_masks(valuable_file: str, builtup_file: str, grid: int) -> tuple[np.ndarray, np.ndarray]:
+    """An extra env3 scene: (valuable bool mask, built-up fraction float32) at ``grid`` x ``grid``.
+
+    The valuable mask ships only under the default rule (``ENV3_DEFAULT_RULE``), at 493 x 493; on
+    another grid it is area-averaged and re-thresholded at one half (majority of the cell).
+    """
+    valuable = _read_shipped(valuable_file, cv2.IMREAD_GRAYSCALE) > 0
+    built = _read_shipped(builtup_file, cv2.IMREAD_GRAYSCALE) > 0
+    if valuable.shape[0] != grid:
+        valuable = resize_to_grid(valuable.astype(np.float32), grid) > 0.5
+    return valuable, resize_to_grid(built.astype(np.float32), grid)

@@ -4,8 +4,8 @@
 
 * ``random``: uniform over valid actions;
 * ``lawnmower``: the paper's NL, a non-adaptive boustrophedon strip sweep;
-* ``ag``: adaptive gain, greedy expected class-weighted information gain with a discount on cells
-  that other UAVs are about to cover.
+* ``ag``: adaptive gain, greedy (or ``lookahead=k`` steps) expected information gain from each
+  UAV's own belief, with a discount on cells that other UAVs are about to cover.
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from typing import Any
 
 from stable_baselines3.common.vec_env import VecEnv
 
-from .adaptive_gain import AdaptiveGainPlanner, choose_actions
+from .adaptive_gain import AdaptiveGainPlanner, plan_team
 from .base import Planner
 from .lawnmower import LawnmowerPlanner
 from .random_planner import RandomPlanner
@@ -48,4 +48,4 @@ def make_planner(name: str, venv: VecEnv, seed: int | None = None, **kwargs: Any
 
 
 __all__ = ["ALIASES", "AdaptiveGainPlanner", "LawnmowerPlanner", "PLANNERS", "Planner", "RandomPlanner",
-           "choose_actions", "make_planner", "planner_class"]
+           "make_planner", "plan_team", "planner_class"]

@@ -1,111 +1,173 @@
-"""``ag``: adaptive gain (Carbone et al. 2021, as ipp-marl adapted it to 3-D flight).
+"""``ag``: adaptive gain (Carbone et al. 2021, as ipp-marl adapted it to 3-D flight), with look-ahead.
 
-Each UAV scores every valid move by the expected class-weighted information gain of the camera
-footprint it would take there, at that altitude's flip probability, computed from its OWN local
-belief (what it measured plus what reached it through the noisy channel). Scores are normalised
-per UAV. UAVs decide in id order (the order the env resolves moves in); the footprints already
-chosen by earlier UAVs discount the cells they cover for the later ones, and a column an earlier
-UAV moves into is not taken again (the env would turn that move into a hover). Each UAV then takes
-its best move: greedy, one step ahead.
+Each UAV scores its moves by the expected information gain of the camera footprints they lead
+to, at the footprint's altitude and flip probability, computed from its OWN per-cell local belief
+M_i (what it measured plus what reached it through the noisy channel): the env keeps, per UAV,
+the gain of one reading summed over every gain strip cell (``UavIppEnv.gain_strip_sums``), and
+footprints are exact unions of strips, so a footprint's gain is exact and cheap.
+
+UAVs decide in id order (the order the env resolves moves in). Cells covered by footprints that
+earlier UAVs (or earlier steps of the same plan) are about to take lose ``discount`` of their
+gain, and a column an earlier UAV moves into is not taken again (the env would turn that move
+into a hover). With ``lookahead=k`` each UAV searches every sequence of k valid moves
+(exhaustive, 6^k sequences) and takes the first move of the best sequence; ``k = 1`` is AG.
+The search discounts a strip cell by ``discount`` each time a footprint of the plan covers it,
+a first-order stand-in for the posterior after those readings, so planning cost grows as 6^k.
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from envs.gain import WEIGHTINGS, check_weighting
 from envs.geometry import FieldGeometry
 from envs.ipp_env import ACTION_DELTAS
 
 from .base import Planner
-from .gain import WEIGHTINGS, axis_counts, footprint_fraction, footprint_gains, gain_density
 
-#: Relative size of the random tie-break added to normalised scores (never changes a strict order).
+#: Relative size of the random tie-break added to scores (never changes a strict order).
 _JITTER = 1e-9
+#: Deepest look-ahead accepted: 6^4 = 1296 sequences per UAV and decision is already ~10 ms.
+MAX_LOOKAHEAD = 4
 
 
-def choose_actions(beliefs: np.ndarray, positions: np.ndarray, mask: np.ndarray, counts: np.ndarray,
-                   cell_area: np.ndarray, flips: np.ndarray, discount: float = 0.5,
-                   weighting: str = "class", rng: np.random.Generator | None = None
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Sequential greedy AG decision for a batch of env copies.
+@numba.njit(cache=True)
+def _footprint_gain(sums, keep, strips, x, y, z):
+    """Discounted gain of the footprint at lattice (x, y) and level z: sum over its strip rectangle."""
+    total = 0.0
+    for gi in range(strips[y, z, 0], strips[y, z, 1]):
+        for gj in range(strips[x, z, 0], strips[x, z, 1]):
+            total += sums[z, gi, gj] * keep[gi, gj]
+    return total
 
-    :param beliefs: (C, N, R, R) each UAV's local belief on the comm grid
-    :param positions: (C, N, 3) lattice indices (ix, iy, level)
-    :param mask: (C, N, 6) bool valid actions
-    :param counts: (A, L, R) footprint table (:func:`gain.axis_counts`)
-    :param cell_area: (R, R) belief cells per comm cell
-    :param flips: (A,) flip probability per altitude level
-    :param discount: how much a cell covered by an earlier UAV's chosen footprint loses of its
-        gain for later UAVs (0: ignore others, 1: a covered cell is worth nothing)
-    :return: actions (C, N) and the normalised scores (C, N, 6) (``-inf`` where not allowed)
+
+@numba.njit(cache=True)
+def _claim(keep, strips, x, y, z, discount):
+    for gi in range(strips[y, z, 0], strips[y, z, 1]):
+        for gj in range(strips[x, z, 0], strips[x, z, 1]):
+            keep[gi, gj] *= 1.0 - discount
+
+
+@numba.njit(cache=True)
+def _continuation(sums, start_keep, keep, moves, x0, y0, z0, no_fly, n_levels, deltas, strips, discount):
+    """Best discounted gain of ``moves`` more valid moves from (x0, y0, z0), by enumerating every
+    sequence (6^moves; ``start_keep`` already holds the claims so far and is left unchanged)."""
+    if moves == 0:
+        return 0.0
+    lat = no_fly.shape[0]
+    n_act = deltas.shape[0]
+    best = 0.0
+    found = False
+    for code in range(n_act ** moves):
+        keep[:, :] = start_keep
+        x, y, z = x0, y0, z0
+        value = 0.0
+        valid = True
+        for _ in range(moves):
+            a = code % n_act
+            code //= n_act
+            x, y, z = x + deltas[a, 0], y + deltas[a, 1], z + deltas[a, 2]
+            if not (0 <= x < lat and 0 <= y < lat and 0 <= z < n_levels) or no_fly[y, x]:
+                valid = False
+                break
+            value += _footprint_gain(sums, keep, strips, x, y, z)
+            _claim(keep, strips, x, y, z, discount)
+        if valid and (not found or value > best):
+            best = value
+            found = True
+    return best
+
+
+@numba.njit(cache=True)
+def plan_team(sums, positions, allowed, no_fly, deltas, strips, discount, horizon, jitter, scores, actions):
+    """Sequential AG decision of one team (see module docstring).
+
+    :param sums: (N, A, S, S) each UAV's gain strip sums for the chosen weighting
+    :param positions: (N, 3) lattice (ix, iy, level)
+    :param allowed: (N, 6) bool valid first moves (the env's mask)
+    :param jitter: (N, 6) tie-break added to each first move's score
+    :param scores: (N, 6) out: each first move's look-ahead value (``-inf`` where not allowed)
+    :param actions: (N,) out: the chosen moves
     """
-    n_copies, n_uavs = positions.shape[:2]
-    n_levels, lat = counts.shape[0], counts.shape[1]
-    density = gain_density(beliefs, flips, weighting)  # (C, N, A, R, R)
-    targets = positions[:, :, None, :] + ACTION_DELTAS[None, None]  # (C, N, 6, 3)
-    inside = ((targets[..., :2] >= 0) & (targets[..., :2] < lat)).all(-1) & (targets[..., 2] >= 0) & (targets[..., 2] < n_levels)
-    allowed = mask & inside
-    targets = np.clip(targets, 0, [lat - 1, lat - 1, n_levels - 1])
-    keep = np.ones((n_copies,) + cell_area.shape)  # gain kept per comm cell after earlier claims
-    taken = np.zeros((n_copies, lat, lat), dtype=bool)  # columns earlier UAVs move into
-    horizontal = (ACTION_DELTAS[:, :2] != 0).any(axis=1)
-    rows = np.arange(n_copies)
-    actions = np.zeros((n_copies, n_uavs), dtype=np.int64)
-    scores = np.full((n_copies, n_uavs, len(ACTION_DELTAS)), -np.inf)
-    for u in range(n_uavs):  # sequential by design: each UAV sees the earlier UAVs' choices
-        t = targets[:, u]
-        gains = footprint_gains(density[:, u] * keep[:, None], counts, t)
-        ok = allowed[:, u] & ~(taken[rows[:, None], t[..., 1], t[..., 0]] & horizontal[None])
-        ok = np.where(ok.any(axis=1, keepdims=True), ok, allowed[:, u] | ~allowed[:, u].any(axis=1, keepdims=True))
-        scale = np.abs(np.where(ok, gains, 0.0)).max(axis=1, keepdims=True)
-        norm = gains / np.where(scale > 0, scale, 1.0)
-        if rng is not None:
-            norm = norm + _JITTER * rng.random(norm.shape)
-        norm = np.where(ok, norm, -np.inf)
-        choice = norm.argmax(axis=1)
-        actions[:, u] = choice
-        scores[:, u] = norm
-        chosen = t[rows, choice]  # (C, 3)
-        keep *= 1.0 - discount * footprint_fraction(counts, cell_area, chosen)
-        taken[rows, chosen[:, 1], chosen[:, 0]] = True
-    return actions, scores
+    n, n_levels = sums.shape[0], sums.shape[1]
+    s = sums.shape[2]
+    keep = np.ones((s, s))
+    scratch = np.ones((s, s))
+    team_keep = np.ones((s, s))
+    lat = no_fly.shape[0]
+    taken = np.zeros((lat, lat), dtype=np.bool_)
+    for u in range(n):
+        best_a = -1
+        for a in range(deltas.shape[0]):
+            scores[u, a] = -np.inf
+            nx, ny, nz = positions[u, 0] + deltas[a, 0], positions[u, 1] + deltas[a, 1], positions[u, 2] + deltas[a, 2]
+            horizontal = deltas[a, 0] != 0 or deltas[a, 1] != 0
+            if not allowed[u, a] or (horizontal and taken[ny, nx]):
+                continue
+            value = _footprint_gain(sums[u], team_keep, strips, nx, ny, nz)
+            if horizon > 1:
+                keep[:, :] = team_keep
+                _claim(keep, strips, nx, ny, nz, discount)
+                value += _continuation(sums[u], keep, scratch, horizon - 1, nx, ny, nz, no_fly, n_levels, deltas,
+                                       strips, discount)
+            scores[u, a] = value + jitter[u, a]
+            if best_a < 0 or scores[u, a] > scores[u, best_a]:
+                best_a = a
+        if best_a < 0:  # every move blocked by an earlier UAV's claim: take the best allowed one
+            for a in range(deltas.shape[0]):
+                if allowed[u, a]:
+                    best_a = a
+                    break
+            best_a = max(best_a, 0)
+        actions[u] = best_a
+        tx, ty, tz = (positions[u, 0] + deltas[best_a, 0], positions[u, 1] + deltas[best_a, 1],
+                      positions[u, 2] + deltas[best_a, 2])
+        if not (0 <= tx < lat and 0 <= ty < lat and 0 <= tz < n_levels):
+            tx, ty, tz = positions[u, 0], positions[u, 1], positions[u, 2]  # a hover
+        _claim(team_keep, strips, tx, ty, tz, discount)
+        taken[ty, tx] = True
 
 
 class AdaptiveGainPlanner(Planner):
-    """Greedy expected-information-gain planner (see module docstring).
+    """Greedy (``lookahead=1``) or k-step expected-information-gain planner (module docstring).
 
-    :param discount: weight of the discount on cells claimed by earlier UAVs (0..1)
-    :param weighting: ``"class"`` (ipp-marl's class-weighted entropy, default) or ``"none"``
+    :param discount: share of a cell's gain lost once an earlier footprint of the team covers it (0..1)
+    :param weighting: ``"class"`` (ipp-marl's class-weighted entropy) or ``"plain"`` (binary entropy)
+    :param lookahead: moves searched ahead per UAV (1 = AG, at most :data:`MAX_LOOKAHEAD`)
     """
 
     name = "ag"
     uses_env_state = True
 
     def __init__(self, venv: VecEnv, seed: int | None = None, discount: float = 0.5,
-                 weighting: str = "class") -> None:
+                 weighting: str = "class", lookahead: int = 1) -> None:
         super().__init__(venv, seed)
-        if not (0.0 <= float(discount) <= 1.0):
-            raise ValueError(f"ag discount={discount!r}: must be in [0, 1]")
+        if isinstance(discount, bool) or not isinstance(discount, (int, float)) or not 0.0 <= float(discount) <= 1.0:
+            raise ValueError(f"ag discount={discount!r}: must be a number in [0, 1]")
         if weighting not in WEIGHTINGS:
             raise ValueError(f"ag weighting={weighting!r}: choose one of {WEIGHTINGS}")
+        if isinstance(lookahead, bool) or not isinstance(lookahead, (int, np.integer)) or not 1 <= lookahead <= MAX_LOOKAHEAD:
+            raise ValueError(f"ag lookahead={lookahead!r}: an integer from 1 (greedy AG) to {MAX_LOOKAHEAD}")
         self.discount = float(discount)
-        self.weighting = weighting
+        self.weighting = check_weighting(weighting)
+        self.lookahead = int(lookahead)
         self.geometry: FieldGeometry = venv.get_attr("geometry", indices=[0])[0]
-        config = self.geometry.config
-        self.altitudes = np.asarray(config.altitudes, dtype=np.float64)
-        self.flips = np.array([config.flip_probability[a] for a in config.altitudes], dtype=np.float64)
-        self.counts = axis_counts(self.geometry)
-        self.cell_area = np.asarray(self.geometry.comm_cell_area, dtype=np.float64)
-        #: Normalised scores of the last decision, (copies, N, 6), for inspection.
+        self._weighting_index = WEIGHTINGS.index(self.weighting)
+        #: Look-ahead scores of the last decision, (copies, N, 6), for inspection.
         self.last_scores: np.ndarray | None = None
 
     def _plan(self, observation: dict[str, np.ndarray], mask: np.ndarray, starts: np.ndarray) -> np.ndarray:
         copies = mask.shape[0]
-        beliefs = np.stack(self._per_copy("local_beliefs", copies)).astype(np.float64)
-        pos_m = np.stack(self._per_copy("positions_m", copies))
-        spacing = self.geometry.config.spacing
-        positions = np.concatenate([np.rint(pos_m[..., :2] / spacing),
-                                    np.searchsorted(self.altitudes, pos_m[..., 2])[..., None]], axis=-1).astype(np.int64)
-        actions, self.last_scores = choose_actions(beliefs, positions, mask, self.counts, self.cell_area,
-                                                   self.flips, self.discount, self.weighting, self.rng)
+        sums = self._per_copy("gain_strip_sums", copies)
+        positions = self._per_copy("lattice_positions", copies)
+        no_fly = self._per_copy("no_fly_columns", copies)
+        actions = np.zeros((copies, self.n_agents), dtype=np.int64)
+        scores = np.zeros((copies, self.n_agents, len(ACTION_DELTAS)))
+        for c in range(copies):
+            jitter = _JITTER * self.rng.random((self.n_agents, len(ACTION_DELTAS)))
+            plan_team(np.ascontiguousarray(sums[c][:, self._weighting_index]), positions[c], mask[c], no_fly[c],
+                      ACTION_DELTAS, self.geometry.footprint_strips, self.discount, self.lookahead, jitter,
+                      scores[c], actions[c])
+        self.last_scores = scores
         return actions

@@ -1,0 +1,113 @@
+"""``sb3-coma export``: a trained model's actor and fusion network as ONNX files, for on-board use."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from sb3_coma.export import ModelSource
+
+NAME = "export"
+HELP = "export a trained model's actor and its fusion network to ONNX (+ a JSON of inputs and env options)"
+DESCRIPTION = (
+    "Write actor.onnx (features extractor + action head + gain prior, masked logits and the argmax action), "
+    "fusion.onnx (SenDFuse or the mean, ending in the 8th local channel the actor reads) and export.json "
+    "(input and output names, shapes, dtypes, and the env options the model was trained with) into --out. "
+    "Both files are checked against PyTorch with onnxruntime before the command returns. See docs/deployment.md."
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--model", required=True, metavar="NAME_OR_PATH",
+                        help="a shipped model name (env1, env2, env3, ...) or the path of a COMA model .zip")
+    parser.add_argument("--out", required=True, metavar="DIR", help="folder to write the files into (created)")
+    parser.add_argument("--fusion", default=None, choices=("sendfuse", "mean"),
+                        help="fusion to export (default: the one the model was trained with, from models.json or "
+                             "the run folder's config.yml; needed for a bare .zip)")
+    parser.add_argument("--opset", type=int, default=None, help="ONNX opset (default 17; at least 17)")
+    parser.add_argument("--no-verify", action="store_true",
+                        help="skip the onnxruntime-vs-PyTorch check of the written files")
+
+
+def _load(source: ModelSource) -> Any:
+    """Load the model the source names: a shipped one after its checksum, a zip after validation."""
+    from sb3_coma.cli import UserError
+
+    if source.shipped is not None:
+        from sb3_coma.pretrained import PretrainedError, load_pretrained
+
+        try:
+            return load_pretrained(source.given)
+        except PretrainedError as exc:
+            raise UserError(str(exc)) from None
+    from sb3_coma.evaluation import _load_model_file
+
+    try:
+        return _load_model_file(source.path, None)
+    except ValueError as exc:  # CheckpointError is one too: corrupt, truncated, another algorithm
+        raise UserError(str(exc)) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from sb3_coma.checkpoints import validate_checkpoint
+    from sb3_coma.cli import UserError
+    from sb3_coma.export import (
+        MIN_OPSET,
+        OPSET,
+        ExportError,
+        check_out_dir,
+        export_onnx,
+        resolve_model_source,
+        settings_of_source,
+    )
+
+    opset = OPSET if args.opset is None else args.opset
+    if opset < MIN_OPSET:
+        raise UserError(f"--opset {opset}: must be at least {MIN_OPSET}")
+    # Every check that needs no model comes first: a bad --model or --out costs nothing.
+    try:
+        source = resolve_model_source(args.model)
+        out = check_out_dir(args.out)
+        validate_checkpoint(source.path)  # CheckpointError (a user error): empty, truncated, not COMA
+        settings = settings_of_source(source)
+    except ExportError as exc:
+        raise UserError(str(exc)) from None
+    fusion = args.fusion or (settings or {}).get("fusion")
+    if fusion is None:
+        raise UserError(f"cannot tell which fusion model {args.model!r} was trained with (no models.json entry, no "
+                        f"run config.yml next to it): pass --fusion sendfuse or --fusion mean")
+    model = _load(source)
+    try:
+        paths = export_onnx(model, out, fusion=fusion, settings=settings, source=source, opset=opset,
+                            verify=not args.no_verify)
+    except ExportError as exc:
+        raise UserError(str(exc)) from None
+    _report(paths, fusion)
+    return 0
+
+
+def _report(paths: dict[str, Path], fusion: str) -> None:
+    """What was written, what the actor reads, what the model was trained on, how well it matched."""
+    import json
+
+    meta = json.loads(paths["metadata"].read_text())
+    actor_inputs = ", ".join(f"{i['name']} {i['shape']}" for i in meta["actor"]["inputs"])
+    fusion_inputs = ", ".join(f"{i['name']} {i['shape']}" for i in meta["fusion"]["inputs"])
+    print(f"actor:  {paths['actor']}  ({actor_inputs} -> logits, action)")
+    print(f"fusion: {paths['fusion']}  ({fusion}; {fusion_inputs} -> fused, fused_channel)")
+    print(f"json:   {paths['metadata']}")
+    env = meta["env"]
+    options = ", ".join(f"{k}={v}" for k, v in env["options"].items()) or "defaults"
+    print(f"trained on {env['name']} with {options} (from {env['from']})")
+    check = meta["check"]
+    if check.get("done"):
+        print(f"checked with onnxruntime: max |ONNX - PyTorch| actor {check['actor_max_abs_diff']:.2g}, "
+              f"fusion {check['fusion_max_abs_diff']:.2g}")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from sb3_coma.cli import main
+
+    sys.exit(main([NAME, *sys.argv[1:]]))
