@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .config import NOISE_PRESETS, ConfigError, IppConfig
+from .config import NOISE_PRESETS, WORLD_VERSION, ConfigError, IppConfig
 from .ipp_env import UavIppEnv
 from .maps import GroundTruth, MapError, available_maps, load_ground_truth
 from .registration import ENV_IDS, map_name_of, register_envs
@@ -32,6 +32,6 @@ def make_vec_env(name: str = "env3", n_envs: int = 1, fusion: str = "mean", seed
 register_envs()
 
 __all__ = [
-    "ConfigError", "ENV_IDS", "GroundTruth", "IppConfig", "IppVecEnv", "MapError", "NOISE_PRESETS",
+    "ConfigError", "ENV_IDS", "WORLD_VERSION", "GroundTruth", "IppConfig", "IppVecEnv", "MapError", "NOISE_PRESETS",
     "UavIppEnv", "available_maps", "load_ground_truth", "make_env", "make_vec_env",
 ]

@@ -12,6 +12,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+#: Version of the world's rules. 2: per-cell local beliefs M_i fed by cell-level messages (issue #14);
+#: 1: local beliefs on the comm grid. A model trained on another version sees different observations.
+WORLD_VERSION = 2
+
 #: Channel-noise presets of the paper on received images, ``I_r = a I + n``: (lower bound of the
 #: attenuation ``a ~ U(alpha_low, 1)``, sigma of ``n ~ N(0, sigma^2)``), per cell.
 NOISE_PRESETS: dict[str, tuple[float, float]] = {

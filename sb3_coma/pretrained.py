@@ -17,8 +17,11 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Any
+
+from envs import WORLD_VERSION
 
 __all__ = ["PretrainedError", "load_pretrained", "available", "model_info", "pretrained_dir",
            "model_path", "sha256_file", "read_manifest", "write_manifest", "MANIFEST"]
@@ -139,6 +142,10 @@ def load_pretrained(name: str, env: Any = None, device: str = "cpu",
 
     info = model_info(name, directory)
     path = model_path(name, directory, verify=True)
+    if info.get("world", 1) != WORLD_VERSION:
+        warnings.warn(f"shipped model {name!r} was trained on world v{info.get('world', 1)} (local beliefs on the "
+                      f"comm grid); this env is world v{WORLD_VERSION} (per-cell local beliefs, cell-level messages): "
+                      f"it is outdated and flies below its recorded numbers until retrained", stacklevel=2)
     model = COMA.load(str(path), env=env, device=device)
     model.pretrained_info = info
     return model

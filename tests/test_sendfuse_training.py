@@ -198,3 +198,23 @@ def test_quality_rows_and_table() -> None:
     assert all(r.fusions > 0 and np.isfinite(r.sendfuse_mse) for r in rows)
     text = format_table(rows)
     assert "SenDFuse MSE" in text and text.count("\n") == 2
+
+
+def test_pretrain_never_writes_into_the_package(tmp_path, capsys) -> None:
+    inside = default_weights_path(44).parent / "mine.safetensors"
+    assert main(["pretrain-sendfuse", "--samples", "48", "--epochs", "1", "--quiet", "--out", str(inside)]) == 2
+    assert "inside the installed package" in capsys.readouterr().err
+    assert not inside.exists()
+
+
+def test_shipped_weights_are_checksummed(tmp_path, monkeypatch) -> None:
+    from sb3_coma.sendfuse import weights as weights_mod
+
+    shipped = default_weights_path(44)
+    assert weights_mod._file_sha256(shipped) == weights_mod.SHIPPED_SHA256[44]
+    replaced = tmp_path / shipped.name
+    replaced.write_bytes(shipped.read_bytes()[:-1] + b" ")  # still parses as safetensors? never trusted
+    monkeypatch.setattr(weights_mod, "default_weights_path", lambda grid_size=44: replaced)
+    with pytest.raises(weights_mod.SenDFuseWeightsError, match="recorded SHA-256"):
+        load_weights()
+    load_weights(shipped)  # an explicit path is the user's choice: checked for integrity, not for origin

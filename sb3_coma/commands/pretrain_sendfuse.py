@@ -36,7 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration-fusions", type=int, default=d.calibration_fusions,
                         help=f"fusions flown to calibrate the fusion scale (default {d.calibration_fusions})")
     parser.add_argument("--out", default=None,
-                        help="output .safetensors (default: the package's shipped weights file for R = 44)")
+                        help="output .safetensors (default: sendfuse_r44.safetensors in the current folder; "
+                             "never the package's shipped file)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -66,7 +67,10 @@ def run(args: argparse.Namespace) -> int:
         config.validate()
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    out = Path(args.out) if args.out else default_weights_path(config.grid_size)
+    out = Path(args.out) if args.out else Path(default_weights_path(config.grid_size).name)
+    if out.resolve().parent == default_weights_path(config.grid_size).resolve().parent:
+        raise UserError(f"--out {str(out)!r} is inside the installed package; write the weights elsewhere "
+                        "(shipped weights change only through a release, with their SHA-256 recorded)")
     if out.exists() and out.is_dir():
         raise UserError(f"--out {str(out)!r} is a directory; give a file name such as sendfuse.safetensors")
     command = canonical_command(args)

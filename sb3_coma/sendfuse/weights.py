@@ -144,6 +144,21 @@ def save_weights(model: SenDFuseNet, path: str | os.PathLike[str], metadata: Map
     return target
 
 
+#: SHA-256 of every shipped weight file, per grid size: the shipped weights are verified before
+#: they are read, like the shipped models (``sb3_coma/pretrained/SENDFUSE.md`` has the provenance).
+SHIPPED_SHA256: dict[int, str] = {
+    44: "525d986f3c00f3923c6058332372781a719bf89626f3fa247e1f900044c31058",
+}
+
+
+def _file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def _resolve(path: str | os.PathLike[str] | None) -> Path:
     target = default_weights_path() if path is None else Path(path)
     if not target.exists():
@@ -151,6 +166,12 @@ def _resolve(path: str | os.PathLike[str] | None) -> Path:
         raise SenDFuseWeightsError(f"{which} not found at {target}; {_HOW_TO_CREATE}")
     if not target.is_file():
         raise SenDFuseWeightsError(f"SenDFuse weights path {target} is not a file")
+    if path is None:
+        expected = SHIPPED_SHA256.get(DEFAULT_GRID_SIZE)
+        if _file_sha256(target) != expected:
+            raise SenDFuseWeightsError(f"the shipped SenDFuse weights {target} do not match their recorded SHA-256 "
+                                       f"({expected}): the install is damaged or the file was replaced; reinstall "
+                                       f"sb3-coma, or pass your own file explicitly")
     return target
 
 
