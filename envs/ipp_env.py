@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 from typing import Any
 
 import gymnasium
@@ -42,6 +43,8 @@ from .maps import GroundTruth, load_ground_truth
 
 #: (dx, dy, dz) of each action in lattice steps: 0 up(+z), 1 -x, 2 -y, 3 +y, 4 +x, 5 down(-z).
 ACTION_DELTAS = np.array([(0, 0, 1), (-1, 0, 0), (0, -1, 0), (0, 1, 0), (1, 0, 0), (0, 0, -1)], dtype=np.int64)
+#: Below this many valuable cells the mission metrics are warned about (a few cells decide F1).
+MIN_VALUABLE_CELLS = 100
 #: Received values are clipped to this range so the observation stays inside a bounded Box;
 #: the clip is 8 sigma beyond the loudest preset and never binds in practice.
 RECEIVED_RANGE = (-0.5, 1.5)
@@ -76,10 +79,11 @@ class UavIppEnv(ParallelEnv):
         for i in range(n):
             self._slots[i, i] = 0
         self._redraw_map = cfg.map_path is None and (cfg.split != "paper" or cfg.map_seed is None)
+        self._rng = np.random.default_rng()
         self._truth: GroundTruth | None = None
         if not self._redraw_map:
             self._set_truth(self._load_truth(cfg.map_seed if cfg.map_seed is not None else 0))
-        self._rng = np.random.default_rng()
+            self._start_positions()  # a fixed map: bad starts fail at construction, not at the first reset
         self._flip_state = np.ones(1, dtype=np.uint64)  # sensor flips
         self._comm_state = np.ones(1, dtype=np.uint64)  # channel noise: its own stream, so the
         # noise preset never changes which cells flip (the global map must not see the channel)
@@ -147,6 +151,9 @@ class UavIppEnv(ParallelEnv):
         self._truth = truth
         self._truth_u8 = np.ascontiguousarray(truth.valuable, dtype=np.uint8)
         self._n_valuable = int(self._truth_u8.sum())
+        if self._n_valuable < MIN_VALUABLE_CELLS:
+            warnings.warn(f"map {truth.name!r} has only {self._n_valuable} valuable cell(s): F1 and the entropy over "
+                          f"valuable cells measure almost nothing on it (fewer than {MIN_VALUABLE_CELLS})", stacklevel=3)
         self._no_fly = np.ascontiguousarray(truth.no_fly, dtype=np.bool_)
 
     @property

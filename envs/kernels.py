@@ -340,14 +340,14 @@ def receive(r0, r1, c0, c1, increment, alpha_low, sigma, soft, key, truth, local
             acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             for j in range(j0, j1):
                 h = _hash(key, row + np.uint64(j))
-                a = alpha_low + spread * (float(h & np.uint64(0xFFFF)) * (1.0 / 65536.0))
-                noise = sigma * normals[np.int64((h >> np.uint64(16)) & np.uint64(NORMAL_LEVELS - 1))]
-                value = a * readings[i - r0, j - c0] + noise
+                a = alpha_low + spread * (float(np.int32(h & np.uint64(0xFFFF))) * (1.0 / 65536.0))
+                noise = sigma * normals[np.int32(h >> np.uint64(16)) & np.int32(NORMAL_LEVELS - 1)]
+                value = a * float(readings[i - r0, j - c0]) + noise
                 if soft:
                     e = min(max(value, 0.0), 1.0)
-                    d = np.int32(math.floor(incf * (2.0 * e - 1.0) + 0.5))
+                    d = np.int32(incf * (2.0 * e - 1.0) + (CLAMP + 0.5)) - CLAMP  # round half up (truncation of a positive)
                 else:
-                    d = inc if value > 0.5 else -inc
+                    d = inc * (2 * np.int32(value > 0.5) - 1)
                 s_val += value
                 t = np.int32(truth[i, j])
                 old = np.int32(local[i, j])

@@ -392,3 +392,27 @@ def test_unknown_map_is_clear_error():
 def test_action_deltas_match_documented_meaning():
     # 0 up(+z), 1 -x, 2 -y, 3 +y, 4 +x, 5 down(-z)
     np.testing.assert_array_equal(ACTION_DELTAS, [[0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 1, 0], [1, 0, 0], [0, 0, -1]])
+
+
+def test_bad_worlds_fail_at_construction_with_the_value_named(tmp_path):
+    with pytest.raises(ConfigError, match="n_uavs=120.*110 flyable"):
+        envs.make_env("env3", n_uavs=120)
+    with pytest.raises(ConfigError, match="start_positions.*no-fly"):
+        envs.make_env("env3", n_uavs=1, start_positions=[(20, 20, 15)])
+    with pytest.raises(ConfigError, match="field_size"):
+        envs.make_env("env1", field_size=1e6)
+    with pytest.raises(envs.MapError, match="NUL"):
+        envs.make_env("mine", map_path="a\x00b.png", valuable="threshold:0.5")
+    with pytest.raises(ConfigError, match="reset seed=-1"):
+        envs.make_env("env1").reset(seed=-1)
+
+
+def test_map_with_almost_no_valuable_cells_warns(tmp_path):
+    import cv2
+
+    img = np.full((100, 100), 255, np.uint8)
+    img[50, 50] = 0
+    path = tmp_path / "dot.png"
+    cv2.imwrite(str(path), img)
+    with pytest.warns(UserWarning, match="valuable cell"):
+        envs.make_env("dot", map_path=str(path), valuable="dark:0.5")

@@ -289,6 +289,8 @@ def load_ground_truth(name: str = "env1", *, seed: int | None = 0, map_path: str
         if split != "paper":
             raise MapError(f"split={split!r} needs a built-in map {list(BUILTIN_MAPS)}: a user image "
                            f"(map_path={os.fspath(map_path)!r}) has no disjoint scenes, only split='paper'")
+        if "\x00" in os.fspath(map_path):
+            raise MapError(f"map_path={os.fspath(map_path)!r} contains a NUL byte; no file can have that name")
         path = Path(map_path).expanduser()
         label = path.stem if key in BUILTIN_MAPS or not name.strip() else name.strip()
         try:
