@@ -9,10 +9,13 @@ SuperSuit auto-resets a finished copy inside ``step`` and puts the last observat
 auto-reset mode and would leave those observations unfused, so these wrappers subclass
 ``VectorWrapper`` and transform both (the same ``observations()`` hook as the gymnasium API).
 """
+
 from __future__ import annotations
 
 import inspect
-from typing import Any, Callable
+from collections.abc import Callable
+from importlib import metadata
+from typing import Any, cast
 
 import numpy as np
 from gymnasium import spaces
@@ -22,17 +25,22 @@ from . import layout
 from .config import ConfigError
 from .geometry import overlap_matrix
 
-
 #: Keys a fusion wrapper replaces by the 8th ``local`` channel.
 _CONSUMED = (layout.KEY_LOCAL, layout.KEY_RECEIVED, layout.KEY_RECEIVED_VALID)
+
+
+def _shape(space: spaces.Dict, key: str) -> tuple[int, ...]:
+    box = space[key]
+    if not isinstance(box, spaces.Box):
+        raise TypeError(f"observation[{key!r}] must be a Box, got {box}")
+    return box.shape
 
 
 def fused_observation_space(raw: spaces.Dict) -> spaces.Dict:
     """The per-agent space after fusion: ``local`` (8 ch), ``state``, ``action_mask`` and any other
     key of the raw space (``action_gain``) as it is; the received maps are consumed."""
-    local = raw[layout.KEY_LOCAL]
-    channels, h, w = local.shape
-    entries = {layout.KEY_LOCAL: spaces.Box(0.0, 1.0, (channels + 1, h, w), np.float32)}
+    channels, h, w = _shape(raw, layout.KEY_LOCAL)
+    entries: dict[str, spaces.Space[Any]] = {layout.KEY_LOCAL: spaces.Box(0.0, 1.0, (channels + 1, h, w), np.float32)}
     entries.update((key, space) for key, space in raw.spaces.items() if key not in _CONSUMED)
     return spaces.Dict(entries)
 
@@ -59,15 +67,16 @@ class FusionWrapper(VectorWrapper):
         super().__init__(env)
         raw = env.observation_space
         if not isinstance(raw, spaces.Dict) or layout.KEY_RECEIVED not in raw.spaces:
-            raise TypeError(f"{type(self).__name__} needs the raw IPP observation (a Dict with "
-                            f"'{layout.KEY_RECEIVED}'), got {raw}")
+            raise TypeError(
+                f"{type(self).__name__} needs the raw IPP observation (a Dict with '{layout.KEY_RECEIVED}'), got {raw}"
+            )
         self.raw_observation_space = raw
         # SuperSuit resets a finished copy inside step() and returns the last observation in infos.
         self.metadata = {**dict(env.metadata), "autoreset_mode": AutoresetMode.SAME_STEP}
         self.observation_space = fused_observation_space(raw)
         self.single_observation_space = self.observation_space
-        comm = raw[layout.KEY_RECEIVED].shape[-1]
-        lattice = raw[layout.KEY_LOCAL].shape[-1]
+        comm = _shape(raw, layout.KEY_RECEIVED)[-1]
+        lattice = _shape(raw, layout.KEY_LOCAL)[-1]
         self._to_lattice = overlap_matrix(comm, float(lattice - 1), lattice)
 
     def fuse(self, received: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -90,7 +99,8 @@ class FusionWrapper(VectorWrapper):
     def step(self, actions):
         """Fuse the step's observations and, where copies finished, their terminal observations, in
         one call of :meth:`fuse` (one network pass for SenDFuse, even at episode ends)."""
-        observations, rewards, terminations, truncations, infos = self.env.step(actions)
+        observations, rewards, terminations, truncations, step_infos = self.env.step(actions)
+        infos = cast("list[dict[str, Any]]", step_infos)  # SuperSuit: one info dict per row
         ended = [i for i, info in enumerate(infos) if "terminal_observation" in info]
         if not ended:
             return self.observations(observations), rewards, terminations, truncations, infos
@@ -112,29 +122,73 @@ class MeanFusionWrapper(FusionWrapper):
         return mean_fusion(received, valid)
 
 
-FUSION_WRAPPERS: dict[str, Callable[..., FusionWrapper]] = {"mean": MeanFusionWrapper}
+#: The fusion of every entry point that builds a vec env: the paper's SenDFuse (an entry point).
+DEFAULT_FUSION = "sendfuse"
+#: Fusions built into ``envs``; ``"none"`` keeps the raw observation (for tools).
+BUILTIN_FUSIONS: dict[str, Callable[..., FusionWrapper]] = {"mean": MeanFusionWrapper}
+RAW_FUSION = "none"
+#: Entry-point group through which installed packages provide more fusion wrappers: a name and
+#: ``module:Class`` of a :class:`FusionWrapper` subclass (sb3-coma's setup.cfg declares
+#: ``sendfuse = sb3_coma.sendfuse.wrapper:SenDFuseFusionWrapper``). Looked up when an env is
+#: wrapped, so importing ``envs`` imports nothing of those packages.
+ENTRY_POINT_GROUP = "uav_ipp.fusion"
 
 
-def register_fusion(name: str, factory: Callable[..., FusionWrapper]) -> None:
-    """Make a fusion wrapper available to ``make_vec_env(fusion=name)``."""
-    FUSION_WRAPPERS[name] = factory
+def _installed_fusions() -> dict[str, metadata.EntryPoint]:
+    """Name -> entry point over every distribution on the path. Not ``metadata.entry_points()``,
+    which reads only the first distribution of each name: a stale ``*.egg-info`` folder in a
+    source checkout (on ``sys.path`` as the working directory) would hide the installed one."""
+    found: dict[str, metadata.EntryPoint] = {}
+    for dist in metadata.distributions():
+        for entry in dist.entry_points:
+            if entry.group == ENTRY_POINT_GROUP:
+                found.setdefault(entry.name, entry)
+    return found
+
+
+def available_fusions() -> list[str]:
+    """Every name ``make_vec_env(fusion=...)`` accepts here: built-in and installed ones."""
+    return sorted({*BUILTIN_FUSIONS, RAW_FUSION, *_installed_fusions()})
+
+
+def fusion_factory(name: str) -> Callable[..., FusionWrapper]:
+    """The wrapper class of a fusion name; ``ValueError`` listing the available names for an unknown
+    one, :class:`ConfigError` for an installed one that cannot be loaded."""
+    if name in BUILTIN_FUSIONS:
+        return BUILTIN_FUSIONS[name]
+    installed = _installed_fusions()
+    if not isinstance(name, str) or name not in installed:
+        raise ValueError(
+            f"unknown fusion {name!r}; choose one of {available_fusions()}"
+            + (
+                ""
+                if installed
+                else f" (no package provides entry points {ENTRY_POINT_GROUP!r}: "
+                "`pip install -e .` in the sb3-coma checkout adds 'sendfuse')"
+            )
+        )
+    entry = installed[name]
+    try:
+        factory = entry.load()
+    except (ImportError, AttributeError) as exc:
+        raise ConfigError(f"fusion {name!r} ({entry.value}) cannot be loaded: {exc}") from exc
+    if not (isinstance(factory, type) and issubclass(factory, FusionWrapper)):
+        raise ConfigError(f"fusion {name!r}: entry point {entry.value} is not a FusionWrapper subclass")
+    return factory
 
 
 def wrap_fusion(env: VectorEnv, fusion: str, **kwargs: Any) -> FusionWrapper | VectorEnv:
     """Apply the named fusion wrapper; ``"none"`` keeps the raw observation (for tools)."""
-    if fusion == "none":
+    if fusion == RAW_FUSION:
+        if kwargs:
+            raise ConfigError(f"invalid option fusion_kwargs={kwargs!r}: fusion 'none' takes no options")
         return env
-    if fusion == "sendfuse" and fusion not in FUSION_WRAPPERS:
-        try:
-            from . import sendfuse_wrapper  # noqa: F401  (registers itself)
-        except ImportError as exc:  # pragma: no cover - only when the module is missing
-            raise ValueError(f"fusion='sendfuse' is unavailable: {exc}") from exc
-    if fusion not in FUSION_WRAPPERS:
-        raise ValueError(f"unknown fusion {fusion!r}; choose one of {sorted(FUSION_WRAPPERS) + ['none']}")
-    factory = FUSION_WRAPPERS[fusion]
+    factory = fusion_factory(fusion)
     accepted = [n for n in list(inspect.signature(factory).parameters)[1:] if n not in ("args", "kwargs")]
     unknown = sorted(set(kwargs) - set(accepted))
     if unknown:
-        raise ConfigError(f"invalid option fusion_kwargs={kwargs!r}: fusion {fusion!r} does not take {unknown}; "
-                          f"it takes {accepted or 'no options'}")
+        raise ConfigError(
+            f"invalid option fusion_kwargs={kwargs!r}: fusion {fusion!r} does not take {unknown}; "
+            f"it takes {accepted or 'no options'}"
+        )
     return factory(env, **kwargs)

@@ -5,6 +5,7 @@ so cell ``[j, i]`` of an 11 x 11 map is the lattice column at ``(x, y) = (5 i, 5
 Keeping the channel numbers in one module means the env, the fusion wrappers, COMA's critic and
 the planners cannot drift apart.
 """
+
 from __future__ import annotations
 
 #: Side of the decision lattice and of every observation map.

@@ -5,11 +5,15 @@ carry a *vector* entry point, so ``gymnasium.make_vec("UavIpp-Env3-v0", num_envs
 fused gymnasium vector env (index = copy * n_agents + agent), and ``gymnasium.make`` explains
 where to go instead. :data:`ENV_IDS` maps ids to map names for tools such as the rl-zoo entry point.
 """
+
 from __future__ import annotations
 
 from typing import Any
 
 import gymnasium
+
+from .fusion import DEFAULT_FUSION
+from .vec_env import IppVecEnv, make_vec_env
 
 ENV_IDS: dict[str, str] = {
     "UavIpp-Env1-v0": "env1",
@@ -30,11 +34,10 @@ def single_agent_entry_point(**kwargs: Any):
     )
 
 
-def vector_entry_point(name: str, num_envs: int = 1, fusion: str = "mean", **options: Any):
+def vector_entry_point(name: str, num_envs: int = 1, fusion: str = DEFAULT_FUSION, **options: Any):
     """gymnasium ``make_vec`` entry: the fused gymnasium vector env of ``num_envs`` copies."""
-    from .vec_env import make_vec_env
-
     sb3_env = make_vec_env(name, n_envs=num_envs, fusion=fusion, monitor=False, **options)
+    assert isinstance(sb3_env, IppVecEnv)
     return sb3_env.venv
 
 

@@ -6,9 +6,11 @@ lack ``TimeLimit.truncated``), so :class:`IppVecEnv` is a small SB3 ``VecEnv`` o
 gymnasium vector env that fixes exactly those points. Agent ``a`` of env copy ``e`` sits at index
 ``e * n_agents + a``; ``n_agents`` is an attribute that learners read to regroup joint steps.
 """
+
 from __future__ import annotations
 
-from typing import Any, Iterable, Sequence
+from collections.abc import Iterable, Sequence
+from typing import Any, cast
 
 import numpy as np
 import supersuit
@@ -16,8 +18,12 @@ from gymnasium.vector import VectorEnv
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 from .config import ConfigError, IppConfig
-from .fusion import wrap_fusion
+from .fusion import DEFAULT_FUSION, wrap_fusion
 from .ipp_env import UavIppEnv
+
+#: The default map of every entry point that builds an env (``make_env``, ``make_vec_env``, the
+#: gymnasium ids, ``sb3-coma train``): ``IppConfig``'s own, the paper's Env3.
+DEFAULT_MAP: str = IppConfig.map_name
 
 
 class IppVecEnv(VecEnv):
@@ -36,8 +42,8 @@ class IppVecEnv(VecEnv):
     # ------------------------------------------------------------------ core API
     def reset(self):
         seed, self._copy_seed = self._copy_seed, None
-        observations, infos = self.venv.reset(seed=seed)
-        self.reset_infos = [dict(info) for info in infos]
+        observations, reset_infos = self.venv.reset(seed=seed)
+        self.reset_infos = [dict(info) for info in cast("list[dict[str, Any]]", reset_infos)]  # one per row
         self._reset_seeds()
         self._reset_options()
         return observations
@@ -48,14 +54,15 @@ class IppVecEnv(VecEnv):
     def step_wait(self):
         if self._actions is None:
             raise RuntimeError("step_wait() called without step_async()")
-        observations, rewards, terminations, truncations, infos = self.venv.step(self._actions)
+        observations, rewards, terminations, truncations, step_infos = self.venv.step(self._actions)
+        infos = cast("list[dict[str, Any]]", step_infos)  # SuperSuit: one info dict per row
         self._actions = None
         terminations = np.asarray(terminations, dtype=bool)
         truncations = np.asarray(truncations, dtype=bool)
         dones = terminations | truncations
         out_infos = []
-        for i, info in enumerate(infos):
-            info = dict(info)
+        for i, row_info in enumerate(infos):
+            info = dict(row_info)
             if dones[i]:
                 info["TimeLimit.truncated"] = bool(truncations[i] and not terminations[i])
             out_infos.append(info)
@@ -100,12 +107,21 @@ class IppVecEnv(VecEnv):
         return [self.copies[i // self.n_agents].render() for i in range(self.num_envs)]
 
 
-def make_vec_env(name: str = "env1", n_envs: int = 1, fusion: str = "mean", seed: int | None = None,
-                 monitor: bool = True, fusion_kwargs: dict[str, Any] | None = None, **options: Any) -> VecEnv:
+def make_vec_env(
+    name: str = DEFAULT_MAP,
+    n_envs: int = 1,
+    fusion: str = DEFAULT_FUSION,
+    seed: int | None = None,
+    monitor: bool = True,
+    fusion_kwargs: dict[str, Any] | None = None,
+    **options: Any,
+) -> VecEnv:
     """Build the SB3 vec env of ``n_envs`` copies of the named map (see DESIGN section 7).
 
-    ``fusion`` is ``"mean"`` or ``"sendfuse"`` (or ``"none"`` for the raw observation);
-    ``options`` are environment options (:class:`envs.config.IppConfig`).
+    ``fusion`` is ``"sendfuse"`` (the paper's; provided by sb3-coma through the ``uav_ipp.fusion``
+    entry point), ``"mean"`` (the ablation's naive average) or ``"none"`` (the raw observation,
+    for tools); ``fusion_kwargs`` are the fusion wrapper's options; ``options`` are environment
+    options (:class:`envs.config.IppConfig`).
     """
     if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
         raise ConfigError(f"invalid option n_envs={n_envs!r}: an integer >= 1 (env copies)")

@@ -1,39 +1,31 @@
 """sb3-coma: COMA for multi-UAV informative path planning, as a Stable-Baselines3 extension.
 
-``from sb3_coma import COMA`` gives the algorithm; names are resolved lazily so that light
-modules (``sb3_coma.sendfuse.network``, which the environment package imports for its wrapper)
-do not pull in SB3 and the whole algorithm side.
+The library: ``COMA`` and its policies (``CBAMPolicy``, ``CnnPolicy``), the features extractors,
+SenDFuse, ``evaluate`` (the paper's protocol for models and baselines), ``load_pretrained``
+(the shipped models) and ``training_options`` (the env options a saved model was trained with).
 """
+
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from sb3_coma.checkpoints import training_options
+from sb3_coma.coma import COMA, CBAMPolicy, CnnPolicy, COMAPolicy
+from sb3_coma.evaluation import evaluate
+from sb3_coma.extractors import CBAMExtractor, CnnExtractor
+from sb3_coma.pretrained import load_pretrained
+from sb3_coma.sendfuse import SenDFuseNet
 
 __version__ = "0.1.0"
 
-_EXPORTS: dict[str, str] = {
-    "COMA": "sb3_coma.coma",
-    "CBAMPolicy": "sb3_coma.coma",
-    "CnnPolicy": "sb3_coma.coma",
-    "COMAPolicy": "sb3_coma.coma",
-    "CBAMExtractor": "sb3_coma.extractors",
-    "CnnExtractor": "sb3_coma.extractors",
-    "SenDFuseNet": "sb3_coma.sendfuse",
-    "evaluate": "sb3_coma.evaluation",
-    "load_pretrained": "sb3_coma.pretrained",
-}
-
-__all__ = sorted(_EXPORTS) + ["__version__"]
-
-
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'sb3_coma' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return __all__
+__all__ = [
+    "COMA",
+    "CBAMExtractor",
+    "CBAMPolicy",
+    "COMAPolicy",
+    "CnnExtractor",
+    "CnnPolicy",
+    "SenDFuseNet",
+    "__version__",
+    "evaluate",
+    "load_pretrained",
+    "training_options",
+]

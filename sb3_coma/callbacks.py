@@ -14,8 +14,10 @@ so a mission is read once, from the row of its first agent.
 * :class:`SignalStopCallback` - turn SIGINT / SIGTERM into a clean stop at the next step;
 * :class:`MissionEvalCallback` - SB3's ``EvalCallback`` counting missions, logging F1 and entropy.
 """
+
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
@@ -24,14 +26,16 @@ import signal
 import threading
 import time
 from collections import deque
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from stable_baselines3.common.logger import TensorBoardOutputFormat
 
 from sb3_coma.checkpoints import CHECKPOINT_PREFIX, atomic_save, atomic_write_text, checkpoint_name, find_checkpoints
+from sb3_coma.coma.validation import resolve_n_agents
 
 __all__ = [
     "METRIC_COLUMNS",
@@ -441,10 +445,8 @@ class SignalStopCallback(BaseCallback):
 
     def restore(self) -> None:
         for sig, handler in self._previous.items():
-            try:
+            with contextlib.suppress(ValueError, OSError):
                 signal.signal(sig, handler)
-            except (ValueError, OSError):  # pragma: no cover
-                pass
         self._previous = {}
 
     def _handle(self, signum: int, frame: Any) -> None:
@@ -513,8 +515,6 @@ class MissionEvalCallback(EvalCallback):
         verbose: int = 1,
         eval_seed: int | None = None,
     ) -> None:
-        from sb3_coma.coma.validation import resolve_n_agents
-
         if n_eval_missions < 1:
             raise ValueError(f"n_eval_missions must be >= 1, got {n_eval_missions!r}")
         if eval_seed is not None and (isinstance(eval_seed, bool) or not isinstance(eval_seed, (int, np.integer))):

@@ -12,6 +12,7 @@ traceback from inside ``zipfile`` or ``torch``.
 Checkpoint names follow rl-zoo3 (``rl_model_<joint steps>_steps.zip``), so rl-zoo3's
 ``enjoy --load-checkpoint N`` / ``--load-last-checkpoint`` find them.
 """
+
 from __future__ import annotations
 
 import json
@@ -26,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sb3_coma.coma import COMA
+
 __all__ = [
     "CheckpointError",
     "CheckpointInfo",
@@ -36,6 +39,7 @@ __all__ = [
     "find_checkpoints",
     "last_checkpoint",
     "load_checkpoint",
+    "training_options",
     "validate_checkpoint",
 ]
 
@@ -245,15 +249,37 @@ def last_checkpoint(folder: str | os.PathLike[str], prefix: str = CHECKPOINT_PRE
     return None
 
 
-def load_checkpoint(path: str | os.PathLike[str], env: Any = None, **kwargs: Any):
+def load_checkpoint(path: str | os.PathLike[str], env: Any = None, **kwargs: Any) -> COMA:
     """Validate, then ``COMA.load(path, env=env, **kwargs)``; errors name the file."""
-    from sb3_coma.coma import COMA
-
     validate_checkpoint(path)
     try:
         return COMA.load(str(path), env=env, **kwargs)
     except pickle.UnpicklingError as exc:  # torch's "Weights only load failed ..." on a damaged member
-        raise CheckpointError(f"checkpoint {path} is corrupt: a network or optimizer member is not a readable "
-                              "PyTorch file") from exc
+        raise CheckpointError(
+            f"checkpoint {path} is corrupt: a network or optimizer member is not a readable PyTorch file"
+        ) from exc
     except (KeyError, ValueError, RuntimeError, zipfile.BadZipFile, EOFError) as exc:
         raise CheckpointError(f"checkpoint {path} could not be loaded: {exc}") from exc
+
+
+# --------------------------------------------------------------------------- training settings
+def training_options(model_or_path: Any) -> dict[str, Any] | None:
+    """The env options a COMA model was trained with, or ``None`` when it does not record them.
+
+    ``model_or_path``: a COMA model (its ``env_options`` attribute, set by ``sb3-coma train``,
+    ``python -m sb3_coma.zoo train`` and ``sb3_coma.training.train``; for a shipped model
+    ``load_pretrained`` fills it from ``models.json`` and the config variant it names) or a model
+    zip (read from its ``data`` member; the networks are not loaded). The dict is
+    ``{"map": "env3", "fusion": "sendfuse", "fusion_kwargs": {...}, <every envs.IppConfig option>}``,
+    so ``envs.make_vec_env(opts.pop("map"), **opts)`` rebuilds the training env (override
+    ``split``/``start`` for an evaluation protocol). Models saved before this was recorded (and
+    models trained with a bare ``COMA(...).learn()``) give ``None``.
+
+    :raises FileNotFoundError: a path that does not exist
+    :raises CheckpointError: a path that is not a readable COMA zip
+    """
+    if isinstance(model_or_path, (str, os.PathLike)):
+        options = validate_checkpoint(model_or_path) and _check_zip(Path(model_or_path)).get("env_options")
+    else:
+        options = getattr(model_or_path, "env_options", None)
+    return dict(options) if isinstance(options, dict) else None

@@ -5,6 +5,7 @@ Each sub-command lives in its own module under :mod:`sb3_coma.commands` and expo
 at start-up, so adding a command never touches this file. Errors that users can fix (bad options,
 missing files) are printed as one line and exit with status 2, never as a traceback.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -13,7 +14,13 @@ import pkgutil
 import sys
 from types import ModuleType
 
-from . import commands
+import torch
+
+from envs import ConfigError, MapError
+from sb3_coma import commands
+from sb3_coma.checkpoints import CheckpointError
+from sb3_coma.config import TrainingError
+from sb3_coma.sendfuse import SenDFuseWeightsError
 
 
 class UserError(Exception):
@@ -31,27 +38,23 @@ def _command_modules() -> list[ModuleType]:
     return mods
 
 
-def _user_error_types() -> tuple[type[BaseException], ...]:
-    """Exception types that mean "the user gave a bad value": printed as one line, exit 2."""
-    import importlib as _il
-
-    found: list[type[BaseException]] = [UserError, FileNotFoundError, FloatingPointError]
-    for module, name in (("envs.config", "ConfigError"), ("envs.maps", "MapError"),
-                         ("sb3_coma.training", "TrainingError"), ("sb3_coma.checkpoints", "CheckpointError"),
-                         ("sb3_coma.sendfuse.weights", "SenDFuseWeightsError")):
-        try:
-            found.append(getattr(_il.import_module(module), name))
-        except (ImportError, AttributeError):  # pragma: no cover - optional parts not installed
-            continue
-    return tuple(found)
+#: Exception types that mean "the user gave a bad value": printed as one line, exit 2.
+USER_ERRORS: tuple[type[BaseException], ...] = (
+    UserError,
+    FileNotFoundError,
+    FloatingPointError,
+    ConfigError,
+    MapError,
+    TrainingError,
+    CheckpointError,
+    SenDFuseWeightsError,
+)
 
 
 def set_threads(threads: int) -> None:
     """``--threads``: torch's CPU thread count for this command (must be >= 1)."""
     if not isinstance(threads, int) or threads < 1:
         raise UserError(f"--threads must be an integer >= 1, got {threads!r}")
-    import torch
-
     torch.set_num_threads(threads)
 
 
@@ -72,10 +75,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    user_errors = _user_error_types()
     try:
         return int(table[args.command].run(args) or 0)
-    except user_errors as exc:
+    except USER_ERRORS as exc:
         print(f"sb3-coma {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

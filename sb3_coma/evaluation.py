@@ -9,6 +9,24 @@ measurement (step 0) and after each of the ``budget`` joint steps, giving arrays
 (steps ``round(f * budget)``: 5, 10, 15 for the default budget) as mean +- std over trials
 (population std, ``ddof=0``).
 
+Besides the paper's metrics on the global map (``f1``, ``entropy``), every result carries the
+team metrics on each UAV's own local belief M_i, averaged over UAVs (``team_f1``,
+``team_entropy``: what the team knows without a ground station), read at the same steps.
+
+Two protocols (``protocol=``, :data:`PROTOCOLS`):
+
+* ``"paper"``: the paper's Table I: ``split="paper"`` (the fixed map and start corners), 10
+  seeded trials;
+* ``"unseen"``: 50 missions on ``split="test"`` (scenes / stars never trained on, each with one of
+  8 flips / rotations) with random starts.
+
+Either way trial ``k`` uses env seed ``seed + k`` for every method, so two results of one protocol
+are shared missions and ``sb3_coma.paired`` compares them mission by mission.
+
+AG's entropy weighting defaults to the one chosen per map family on validation missions
+(``sb3_coma.baselines.adaptive_gain.WEIGHTING_BY_MAP``, measured by ``sb3-coma ag-weighting``)
+unless ``planner_kwargs`` names one.
+
 Planning time is the wall time of the ``predict`` call of each joint step divided by the
 number of UAV decisions it produced (all trials of a batch decide in one call).
 """
@@ -30,6 +48,45 @@ FRACTIONS: tuple[float, ...] = (1 / 3, 2 / 3, 1.0)
 FRACTION_LABELS: tuple[str, ...] = ("33%", "67%", "100%")
 #: Metric -> (title, whether higher is better).
 METRICS: dict[str, tuple[str, bool]] = {"f1": ("F1-Score", True), "entropy": ("Entropy", False)}
+#: The same two on each UAV's own local belief M_i, averaged over UAVs (env infos ``team_f1`` ...).
+TEAM_METRICS: dict[str, tuple[str, bool]] = {"team_f1": ("team F1", True), "team_entropy": ("team entropy", False)}
+ALL_METRICS: dict[str, tuple[str, bool]] = {**METRICS, **TEAM_METRICS}
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """An evaluation protocol: which missions (split, start rule) and how many by default
+    (``description`` says which missions, not how many)."""
+
+    name: str
+    split: str
+    start: str | None
+    n_trials: int
+    description: str
+
+    def env_options(self) -> dict[str, Any]:
+        return {"split": self.split, **({} if self.start is None else {"start": self.start})}
+
+
+#: ``evaluate(..., protocol=NAME)``: the paper's Table I and the unseen missions (module docstring).
+PROTOCOLS: dict[str, Protocol] = {
+    "paper": Protocol("paper", "paper", None, 10, "the paper's Table I: split `paper` (the fixed map and start "
+                      "corners)"),
+    "unseen": Protocol("unseen", "test", "random", 50, "unseen missions: split `test` (held-out scenes / stars, "
+                       "each in one of 8 flips / rotations), random starts"),
+}
+#: Missions when neither ``n_trials`` nor a protocol says otherwise (Table I's count).
+DEFAULT_TRIALS = 10
+
+
+def protocol_of(name: str) -> Protocol:
+    """The :class:`Protocol` of a name; ``ValueError`` listing the choices otherwise."""
+    key = str(name).strip().lower()
+    if key not in PROTOCOLS:
+        raise ValueError(f"unknown protocol {name!r}; choose one of {sorted(PROTOCOLS)}")
+    return PROTOCOLS[key]
+
+
 #: Label of a trained model in tables when the caller gives none (the paper's "Ours").
 MODEL_LABEL = "coma"
 
@@ -41,7 +98,9 @@ MODEL_LABEL = "coma"
 class EvaluationResult:
     """Per-step metrics of ``n_trials`` seeded missions of one method on one env setting.
 
-    Arrays: ``f1`` and ``entropy`` (n_trials, budget + 1), step 0 = after the reset measurement;
+    Arrays: ``f1`` and ``entropy`` (n_trials, budget + 1), step 0 = after the reset measurement
+    (global map), ``team_f1`` / ``team_entropy`` the same on the UAVs' own M_i (NaN where an env
+    does not report them);
     ``returns`` (n_trials,) team return; ``planning_time_ms`` (budget,) mean wall time per UAV
     decision at each step; ``trajectories`` (n_trials, budget + 1, n_agents, 3) positions in
     metres. For the first ``recorded`` trials the final global belief is kept (``final_beliefs``,
@@ -69,6 +128,12 @@ class EvaluationResult:
     final_beliefs: np.ndarray | None = None
     belief_frames: np.ndarray | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    team_f1: np.ndarray | None = None
+    team_entropy: np.ndarray | None = None
+    #: the protocol the missions came from (``None``: plain ``evaluate`` options)
+    protocol: str | None = None
+    #: the planner's options (AG: weighting, lookahead) as flown
+    planner_kwargs: dict[str, Any] = field(default_factory=dict)
 
     def step_of(self, fraction: float) -> int:
         """Step index at a fraction of the budget (0 = the reset measurement)."""
@@ -77,9 +142,12 @@ class EvaluationResult:
         return int(round(fraction * self.budget))
 
     def metric(self, name: str) -> np.ndarray:
-        if name not in METRICS:
-            raise ValueError(f"unknown metric {name!r}; choose one of {sorted(METRICS)}")
-        return getattr(self, name)
+        if name not in ALL_METRICS:
+            raise ValueError(f"unknown metric {name!r}; choose one of {sorted(ALL_METRICS)}")
+        values = getattr(self, name)
+        if values is None:
+            return np.full_like(self.f1, np.nan)
+        return values
 
     def at(self, name: str, fraction: float) -> np.ndarray:
         """(n_trials,) values of a metric at a fraction of the budget."""
@@ -90,9 +158,10 @@ class EvaluationResult:
         return float(values.mean()), float(values.std())
 
     def summary(self) -> dict[str, float]:
-        """Flat dict of Table I's numbers, e.g. ``f1_100_mean``, plus return and planning time."""
+        """Flat dict of Table I's numbers, e.g. ``f1_100_mean`` (and ``team_f1_100_mean`` ...), plus
+        return and planning time."""
         out: dict[str, float] = {}
-        for name in METRICS:
+        for name in ALL_METRICS:
             for frac, label in zip(FRACTIONS, FRACTION_LABELS):
                 mean, std = self.mean_std(name, frac)
                 out[f"{name}_{label[:-1]}_mean"] = mean
@@ -280,8 +349,11 @@ def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int
     budget = int(venv.get_attr("config", indices=[0])[0].budget)
     f1 = np.zeros((copies, budget + 1))
     ent = np.zeros((copies, budget + 1))
+    team = {k: np.full((copies, budget + 1), np.nan) for k in TEAM_METRICS}
     f1[:, 0] = [m["f1"] for m in start]
     ent[:, 0] = [m["entropy"] for m in start]
+    for k, arr in team.items():
+        arr[:, 0] = [m.get(k, np.nan) for m in start]
     returns = np.zeros(copies)
     plan_ms = np.zeros(budget)
     env_copies = _env_copies(venv)
@@ -298,6 +370,8 @@ def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int
             returns += rewards[rows]
             f1[:, t] = [infos[r]["f1"] for r in rows]
             ent[:, t] = [infos[r]["entropy"] for r in rows]
+            for k, arr in team.items():
+                arr[:, t] = [infos[r].get(k, np.nan) for r in rows]
             if t < budget:
                 if dones.any():
                     raise RuntimeError(f"a mission ended after {t} of {budget} steps")
@@ -316,7 +390,7 @@ def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int
         final_beliefs = []
     if frames and final_beliefs and final_beliefs[0] is not None:
         belief_frames.append(final_beliefs[0].astype(np.float16))
-    return {"f1": f1, "entropy": ent, "returns": returns, "truth": truth, "plan_ms": plan_ms, "trajectories": trajectories,
+    return {"f1": f1, "entropy": ent, **team, "returns": returns, "truth": truth, "plan_ms": plan_ms, "trajectories": trajectories,
             "final_beliefs": [b for b in final_beliefs if b is not None],
             "belief_frames": np.stack(belief_frames) if frames and len(belief_frames) == budget + 1 else None}
 
@@ -342,17 +416,51 @@ def _shipped_info(policy_or_name: Any) -> dict[str, Any]:
     return {}
 
 
-def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int = 10, seed: int = 0,
+def _is_ag(policy_or_name: Any) -> bool:
+    if not isinstance(policy_or_name, str) or not _is_baseline(policy_or_name):
+        return False
+    from sb3_coma.baselines import planner_class
+
+    return planner_class(policy_or_name).name == "ag"
+
+
+def planner_options(policy_or_name: Any, config: Any, planner_kwargs: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The options a baseline is built with: ``planner_kwargs`` plus, for AG on a known map family
+    without a ``weighting`` of the caller's, the per-map weighting chosen on validation missions."""
+    options = dict(planner_kwargs or {})
+    if _is_ag(policy_or_name) and "weighting" not in options:
+        from sb3_coma.baselines.adaptive_gain import default_weighting
+
+        options["weighting"] = default_weighting(None if getattr(config, "map_path", None) else config.map_name)
+    return options
+
+
+def _protocol_options(protocol: str | None, n_trials: int | None, env_options: dict[str, Any]
+                      ) -> tuple[str | None, int, dict[str, Any]]:
+    """(protocol name, missions, env options) after applying a protocol's rules."""
+    if protocol is None:
+        return None, DEFAULT_TRIALS if n_trials is None else n_trials, env_options
+    proto = protocol_of(protocol)
+    fixed = proto.env_options()
+    for key, value in fixed.items():
+        if key in env_options and env_options[key] != value:
+            raise ValueError(f"protocol {proto.name!r} flies {key}={value!r}; got {key}={env_options[key]!r} "
+                             f"(drop protocol= to choose the missions yourself)")
+    return proto.name, proto.n_trials if n_trials is None else n_trials, {**env_options, **fixed}
+
+
+def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int | None = None, seed: int = 0,
              fusion: str | None = None, deterministic: bool | None = None, n_envs: int | None = None,
              record: int = 1, label: str | None = None, planner_kwargs: Mapping[str, Any] | None = None,
-             **env_options: Any) -> EvaluationResult:
+             protocol: str | None = None, **env_options: Any) -> EvaluationResult:
     """Run a trained model or a baseline for ``n_trials`` seeded missions (see module docstring).
 
     :param policy_or_name: ``"random"``, ``"lawnmower"``, ``"ag"`` (or ``"nl"``); a COMA model
         object, a path to a saved ``.zip``, or a shipped model name (``"env1"`` ...,
         via ``sb3_coma.load_pretrained``); or any object with SB3's ``predict``
     :param env: map name or gymnasium id
-    :param n_trials: missions; trial ``k`` uses env seed ``seed + k``
+    :param n_trials: missions; trial ``k`` uses env seed ``seed + k`` (default: the protocol's
+        count, 10 without a protocol)
     :param seed: base seed (env and the planner's own random stream)
     :param fusion: ``"mean"`` or ``"sendfuse"``; ``None``: ``"sendfuse"`` for models (the paper's
         method), ``"mean"`` for baselines (they do not read the fused channel)
@@ -363,12 +471,16 @@ def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int = 10, seed: i
     :param record: how many trials keep their final global belief (trial 0 also keeps a belief
         per step for the GIF when ``record >= 1``)
     :param label: method name in tables (default: the baseline name, model file stem or "coma")
-    :param planner_kwargs: options of the baseline (e.g. ``{"altitude": 5.0}`` for the lawnmower)
+    :param planner_kwargs: options of the baseline (e.g. ``{"altitude": 5.0}`` for the lawnmower,
+        ``{"lookahead": 2}`` for AG; AG's ``weighting`` defaults to the map family's, see module docstring)
+    :param protocol: ``"paper"`` or ``"unseen"`` (:data:`PROTOCOLS`): sets ``split`` / ``start`` and
+        the default ``n_trials``; ``None``: the env options as given
     :param env_options: environment options (``noise``, ``n_uavs``, ``budget``, ``map_path``,
         ``valuable``, ...)
     """
     import envs
 
+    protocol, n_trials, env_options = _protocol_options(protocol, n_trials, dict(env_options))
     n_trials = _check_int("n_trials", n_trials, 1)
     seed = _check_int("seed", seed, 0)
     record = _check_int("record", record, 0)
@@ -385,6 +497,7 @@ def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int = 10, seed: i
     venv = None
     first_truth: Any = None
     config: Any = None
+    flown_kwargs: dict[str, Any] = dict(planner_kwargs or {})
     for start in range(0, n_trials, n_envs):
         size = min(n_envs, n_trials - start)
         try:
@@ -393,14 +506,15 @@ def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int = 10, seed: i
             if fusion == "sendfuse" and "sendfuse" in str(exc):
                 raise ValueError(f"{exc}; evaluate a model trained without SenDFuse with fusion='mean'") from exc
             raise
+        if config is None:
+            config = venv.get_attr("config", indices=[0])[0]
+            flown_kwargs = planner_options(policy_or_name, config, planner_kwargs)
         if predictor is None or getattr(predictor, "uses_env_state", False):
-            predictor, default_label = resolve_policy(policy_or_name, venv, seed + start, planner_kwargs)
+            predictor, default_label = resolve_policy(policy_or_name, venv, seed + start, flown_kwargs)
             name = name or default_label
         # Seed after loading: loading a model with env=venv re-seeds that env with the model's
         # training seed (SB3's set_random_seed), which would replace these missions' seeds.
         venv.seed(seed + start)
-        if config is None:
-            config = venv.get_attr("config", indices=[0])[0]
         parts.append(_run_batch(predictor, venv, deterministic, max(record - start, 0), record >= 1 and start == 0))
         if first_truth is None:
             first_truth = parts[0]["truth"]
@@ -410,6 +524,10 @@ def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int = 10, seed: i
         method=str(name), env=str(env), seed=seed, n_trials=n_trials, budget=int(config.budget),
         n_agents=int(config.n_uavs), fusion=fusion, env_options=dict(env_options),
         f1=np.concatenate([p["f1"] for p in parts]), entropy=np.concatenate([p["entropy"] for p in parts]),
+        team_f1=np.concatenate([p["team_f1"] for p in parts]),
+        team_entropy=np.concatenate([p["team_entropy"] for p in parts]),
+        protocol=protocol, planner_kwargs=flown_kwargs if isinstance(policy_or_name, str) and
+        _is_baseline(policy_or_name) else {},
         returns=np.concatenate([p["returns"] for p in parts]),
         planning_time_ms=np.average(np.stack([p["plan_ms"] for p in parts]), axis=0,
                                     weights=[len(p["returns"]) for p in parts]),
@@ -432,18 +550,32 @@ class TableRow:
     result: EvaluationResult
 
 
-def _cell_values(result: EvaluationResult) -> list[tuple[float, float]]:
-    return [result.mean_std(name, frac) for name in METRICS for frac in FRACTIONS]
+#: Which metrics a table shows: the paper's (global map) or the team's (the UAVs' own M_i).
+METRIC_FAMILIES: dict[str, tuple[str, ...]] = {"global": tuple(METRICS), "team": tuple(TEAM_METRICS)}
 
 
-def _best_flags(rows: Sequence[TableRow], digits: int) -> list[list[bool]]:
+def _metric_names(metrics: Sequence[str] | str) -> tuple[str, ...]:
+    names = METRIC_FAMILIES[metrics] if isinstance(metrics, str) and metrics in METRIC_FAMILIES else tuple(
+        [metrics] if isinstance(metrics, str) else metrics)
+    unknown = [m for m in names if m not in ALL_METRICS]
+    if unknown or not names:
+        raise ValueError(f"unknown metrics {unknown or names}; choose from {sorted(ALL_METRICS)} or "
+                         f"{sorted(METRIC_FAMILIES)}")
+    return names
+
+
+def _cell_values(result: EvaluationResult, metrics: Sequence[str] = tuple(METRICS)) -> list[tuple[float, float]]:
+    return [result.mean_std(name, frac) for name in metrics for frac in FRACTIONS]
+
+
+def _best_flags(rows: Sequence[TableRow], digits: int, metrics: Sequence[str] = tuple(METRICS)) -> list[list[bool]]:
     """Per row and column, whether the mean is the best of its group (ties share the bold)."""
-    flags = [[False] * (len(METRICS) * len(FRACTIONS)) for _ in rows]
-    higher = [METRICS[name][1] for name in METRICS for _ in FRACTIONS]
+    flags = [[False] * (len(metrics) * len(FRACTIONS)) for _ in rows]
+    higher = [ALL_METRICS[name][1] for name in metrics for _ in FRACTIONS]
     groups: dict[str, list[int]] = {}
     for i, row in enumerate(rows):
         groups.setdefault(row.group, []).append(i)
-    values = [_cell_values(r.result) for r in rows]
+    values = [_cell_values(r.result, metrics) for r in rows]
     for members in groups.values():
         if len(members) < 2:
             continue
@@ -455,16 +587,21 @@ def _best_flags(rows: Sequence[TableRow], digits: int) -> list[list[bool]]:
     return flags
 
 
-def table_markdown(rows: Sequence[TableRow], group_title: str = "Env", digits: int = 4) -> str:
-    """The paper's Table I as Markdown: mean +- std, best mean of each group in bold."""
-    head = [group_title, "Method"] + [f"{METRICS[n][0]} {'↑' if METRICS[n][1] else '↓'} {lab}"
-                                       for n in METRICS for lab in FRACTION_LABELS]
+def table_markdown(rows: Sequence[TableRow], group_title: str = "Env", digits: int = 4,
+                   metrics: Sequence[str] | str = "global") -> str:
+    """The paper's Table I as Markdown: mean +- std, best mean of each group in bold.
+
+    :param metrics: ``"global"`` (the paper's F1 / entropy of the global map), ``"team"``
+        (``team_f1`` / ``team_entropy``) or a list of metric names"""
+    metrics = _metric_names(metrics)
+    head = [group_title, "Method"] + [f"{ALL_METRICS[n][0]} {'↑' if ALL_METRICS[n][1] else '↓'} {lab}"
+                                       for n in metrics for lab in FRACTION_LABELS]
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join([" --- "] * 2 + [" ---: "] * (len(head) - 2)) + "|"]
-    flags = _best_flags(rows, digits)
+    flags = _best_flags(rows, digits, metrics)
     previous = None
     for row, bold in zip(rows, flags):
         cells = []
-        for (mean, std), b in zip(_cell_values(row.result), bold):
+        for (mean, std), b in zip(_cell_values(row.result, metrics), bold):
             m = f"{mean:.{digits}f}"
             cells.append(f"**{m}** ± {std:.{digits}f}" if b else f"{m} ± {std:.{digits}f}")
         group = row.group if row.group != previous else ""
@@ -473,14 +610,16 @@ def table_markdown(rows: Sequence[TableRow], group_title: str = "Env", digits: i
     return "\n".join(lines) + "\n"
 
 
-def table_text(rows: Sequence[TableRow], group_title: str = "Env", digits: int = 4) -> str:
+def table_text(rows: Sequence[TableRow], group_title: str = "Env", digits: int = 4,
+               metrics: Sequence[str] | str = "global") -> str:
     """Plain-text Table I for terminals: the best mean of each group marked with ``*``."""
-    head = [group_title, "Method"] + [f"{n} {lab}" for n in METRICS for lab in FRACTION_LABELS]
-    flags = _best_flags(rows, digits)
+    metrics = _metric_names(metrics)
+    head = [group_title, "Method"] + [f"{n} {lab}" for n in metrics for lab in FRACTION_LABELS]
+    flags = _best_flags(rows, digits, metrics)
     body = []
     for row, bold in zip(rows, flags):
         cells = [f"{'*' if b else ' '}{mean:.{digits}f}±{std:.{digits}f}"
-                 for (mean, std), b in zip(_cell_values(row.result), bold)]
+                 for (mean, std), b in zip(_cell_values(row.result, metrics), bold)]
         body.append([row.group, row.method] + cells)
     widths = [max(len(str(r[i])) for r in [head] + body) for i in range(len(head))]
 
@@ -490,22 +629,26 @@ def table_text(rows: Sequence[TableRow], group_title: str = "Env", digits: int =
     return "\n".join([fmt(head), "  ".join("-" * w for w in widths)] + [fmt(r) for r in body]) + "\n"
 
 
-def table_columns() -> list[str]:
-    return [f"{name}_{lab[:-1]}_{stat}" for name in METRICS for lab in FRACTION_LABELS for stat in ("mean", "std")]
+def table_columns(metrics: Sequence[str] | str = "global") -> list[str]:
+    return [f"{name}_{lab[:-1]}_{stat}" for name in _metric_names(metrics) for lab in FRACTION_LABELS
+            for stat in ("mean", "std")]
 
 
-def write_table_csv(rows: Sequence[TableRow], path: str | os.PathLike, group_title: str = "env") -> Path:
-    """Wide CSV of Table I: one line per (group, method), ``f1_33_mean, f1_33_std, ...``."""
+def write_table_csv(rows: Sequence[TableRow], path: str | os.PathLike, group_title: str = "env",
+                    metrics: Sequence[str] | str = "global") -> Path:
+    """Wide CSV of Table I: one line per (group, method), ``f1_33_mean, f1_33_std, ...``
+    (``metrics="team"`` or a list: other metric columns; ``"all"``-style lists work too)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    columns = table_columns(metrics)
     with path.open("w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow([group_title, "method", "n_trials", "budget"] + table_columns()
+        writer.writerow([group_title, "method", "n_trials", "budget"] + columns
                         + ["return_mean", "return_std", "planning_ms_per_decision"])
         for row in rows:
             s = row.result.summary()
             writer.writerow([row.group, row.method, row.result.n_trials, row.result.budget]
-                            + [f"{s[c]:.6f}" for c in table_columns()]
+                            + [f"{s[c]:.6f}" for c in columns]
                             + [f"{s['return_mean']:.6f}", f"{s['return_std']:.6f}",
                                f"{s['planning_ms_per_decision']:.6f}"])
     return path
@@ -517,12 +660,12 @@ def write_per_step_csv(rows: Sequence[TableRow], path: str | os.PathLike, group_
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow([group_title, "method", "step", "f1_mean", "f1_std", "entropy_mean", "entropy_std"])
+        writer.writerow([group_title, "method", "step"] + [f"{m}_{s}" for m in ALL_METRICS for s in ("mean", "std")])
         for row in rows:
             r = row.result
             for t in range(r.budget + 1):
-                writer.writerow([row.group, row.method, t, f"{r.f1[:, t].mean():.6f}", f"{r.f1[:, t].std():.6f}",
-                                 f"{r.entropy[:, t].mean():.6f}", f"{r.entropy[:, t].std():.6f}"])
+                writer.writerow([row.group, row.method, t] + [f"{v:.6f}" for m in ALL_METRICS
+                                                              for v in (r.metric(m)[:, t].mean(), r.metric(m)[:, t].std())])
     return path
 
 

@@ -35,6 +35,7 @@ worst-case cost always, which is what an on-board budget has to plan for anyway)
 The legacy TorchScript exporter is used (``dynamo=False``): the dynamo exporter needs
 ``onnxscript`` and gains nothing for these small static graphs.
 """
+
 from __future__ import annotations
 
 import copy
@@ -49,11 +50,24 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import onnx
+import onnxruntime as ort
 import torch as th
 from torch import nn
 
-from envs import layout
+from envs import IppConfig, layout
+from envs.fusion import FusionWrapper, mean_fusion
+from envs.geometry import overlap_matrix
+from sb3_coma import __version__
+from sb3_coma.baselines import planner_class
+from sb3_coma.checkpoints import training_options
 from sb3_coma.coma.masking import MASKED_LOGIT, mask_logits
+from sb3_coma.config import TrainingError, load_config, split_env_kwargs
+from sb3_coma.evaluation import _looks_like_path
+from sb3_coma.pretrained import PretrainedError, model_info, pretrained_dir, sha256_file
+from sb3_coma.runs import read_run_config, run_folder_of
+from sb3_coma.sendfuse.network import UNKNOWN
+from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 
 __all__ = [
     "ACTOR_FILE",
@@ -110,8 +124,9 @@ class ActorGraph(nn.Module):
         self.actor = actor
         self.with_prior = getattr(actor, "prior_theta", None) is not None
 
-    def forward(self, local: th.Tensor, action_mask: th.Tensor,
-                action_gain: th.Tensor | None = None) -> tuple[th.Tensor, th.Tensor]:
+    def forward(
+        self, local: th.Tensor, action_mask: th.Tensor, action_gain: th.Tensor | None = None
+    ) -> tuple[th.Tensor, th.Tensor]:
         # Inputs keep the dtypes of the model's observation space (e.g. an int8 mask) and are
         # cast here, as COMAPolicy._predict casts them.
         prior = action_gain.float() if (self.with_prior and action_gain is not None) else None
@@ -127,8 +142,9 @@ class FusionGraph(nn.Module):
     ``network=None`` is the naive mean; otherwise the SenDFuse network, fused at ``alpha``.
     """
 
-    def __init__(self, network: nn.Module | None, n_sources: int, to_lattice: np.ndarray,
-                 alpha: float | None = None) -> None:
+    def __init__(
+        self, network: nn.Module | None, n_sources: int, to_lattice: np.ndarray, alpha: float | None = None
+    ) -> None:
         super().__init__()
         self.network = network
         self.n_sources = int(n_sources)
@@ -151,8 +167,6 @@ class FusionGraph(nn.Module):
             return total / count
         if self.n_sources == 1:
             return th.clamp(total / count, 0.0, 1.0)
-        from sb3_coma.sendfuse.network import UNKNOWN
-
         rec, rmask = maps[:, 1:], mask[:, 1:]
         m, r = self.n_sources - 1, rec.shape[-1]
         features = self.network.encode(rec.reshape(-1, 1, r, r))
@@ -166,8 +180,10 @@ class FusionGraph(nn.Module):
         """:func:`sb3_coma.sendfuse.network.fusion_strategy` on post-ReLU features ``(B, m, C, H, W)``."""
         channel = features.mean(dim=(3, 4)).masked_fill(~mask[:, :, None], _FUSION_MASKED)
         spatial = features.sum(dim=2).masked_fill(~mask[:, :, None, None], _FUSION_MASKED)  # L1: features >= 0
-        weights = (self.alpha * th.softmax(channel, dim=1)[:, :, :, None, None]
-                   + (1.0 - self.alpha) * th.softmax(spatial, dim=1)[:, :, None])
+        weights = (
+            self.alpha * th.softmax(channel, dim=1)[:, :, :, None, None]
+            + (1.0 - self.alpha) * th.softmax(spatial, dim=1)[:, :, None]
+        )
         return (weights * features).sum(dim=1)
 
 
@@ -186,23 +202,20 @@ class ModelSource:
 
 def resolve_model_source(name_or_path: str | os.PathLike[str]) -> ModelSource:
     """A model zip path or a shipped model name -> :class:`ModelSource`, with errors naming the value."""
-    from sb3_coma.evaluation import _looks_like_path
-
     text = os.fspath(name_or_path)
     if not text.strip():
         raise ExportError("--model is empty: pass a COMA model .zip or a shipped model name")
     for candidate in (Path(text), Path(text + ".zip")):
         if candidate.is_file():
-            return ModelSource(text, candidate, None, _run_folder(candidate))
+            return ModelSource(text, candidate, None, run_folder_of(candidate))
     if Path(text).is_dir():
         raise ExportError(f"model {text!r} is a folder: pass the model .zip inside it (e.g. {text}/model.zip)")
     if _looks_like_path(text):
         raise ExportError(f"model file not found: {text!r}")
     if _is_baseline(text):
-        raise ExportError(f"model {text!r} is a baseline planner, not a trained model: pass a COMA model .zip "
-                          f"or a shipped model name")
-    from sb3_coma.pretrained import PretrainedError, model_info, pretrained_dir
-
+        raise ExportError(
+            f"model {text!r} is a baseline planner, not a trained model: pass a COMA model .zip or a shipped model name"
+        )
     try:
         info = model_info(text)
     except PretrainedError as exc:
@@ -210,25 +223,8 @@ def resolve_model_source(name_or_path: str | os.PathLike[str]) -> ModelSource:
     return ModelSource(text, pretrained_dir() / info["file"], info, None)
 
 
-def _run_folder(zip_path: Path) -> Path | None:
-    """The ``sb3-coma train`` run folder of a model zip: its own folder (``model.zip``,
-    ``best_model.zip``) or the one above ``checkpoints/``, when that holds a ``config.yml``."""
-    from sb3_coma.training import CHECKPOINT_DIR, CONFIG_FILE
-
-    parent = zip_path.parent
-    for folder in (parent, parent.parent if parent.name == CHECKPOINT_DIR else None):
-        if folder is not None and (folder / CONFIG_FILE).is_file():
-            return folder
-    return None
-
-
 def _is_baseline(name: str) -> bool:
-    """Whether ``name`` is a baseline planner (for a clearer message). Exporting never needs the
-    planners, so when they cannot be imported the names they are known by are used instead."""
-    try:
-        from sb3_coma.baselines import planner_class
-    except ImportError:
-        return name.strip().lower() in ("random", "lawnmower", "nl", "ag", "adaptive_gain", "adaptive-gain")
+    """Whether ``name`` is a baseline planner (for a clearer message)."""
     try:
         planner_class(name)
     except ValueError:
@@ -281,33 +277,51 @@ def _config_dict(config: Any) -> dict[str, Any]:
     return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
 
 
-def _settings(env: str, fusion: str, fusion_kwargs: Mapping[str, Any], options: Mapping[str, Any],
-              origin: str) -> dict[str, Any]:
+def _settings(
+    env: str, fusion: str, fusion_kwargs: Mapping[str, Any], options: Mapping[str, Any], origin: str
+) -> dict[str, Any]:
     """The ``env`` block of the JSON: map, fusion, options as trained and the full resolved config."""
-    from envs import IppConfig
-
     config = IppConfig.from_options(env, **dict(options))
-    return {"name": env, "fusion": fusion, "fusion_kwargs": dict(fusion_kwargs), "options": dict(options),
-            "config": _config_dict(config), "from": origin}
+    return {
+        "name": env,
+        "fusion": fusion,
+        "fusion_kwargs": dict(fusion_kwargs),
+        "options": dict(options),
+        "config": _config_dict(config),
+        "from": origin,
+    }
+
+
+def _recorded_settings(env_options: Mapping[str, Any] | None, origin: str) -> dict[str, Any] | None:
+    """Settings from the env options a model records (``sb3_coma.training_options``): the options
+    that differ from ``IppConfig``'s defaults, and the full config."""
+    if not env_options:
+        return None
+    recorded = dict(env_options)
+    name, fusion, fusion_kwargs = recorded.pop("map"), recorded.pop("fusion"), recorded.pop("fusion_kwargs", {})
+    config = _config_dict(IppConfig.from_options(name, **recorded))
+    defaults = _config_dict(IppConfig(map_name=name))
+    options = {k: v for k, v in config.items() if k != "map_name" and v != defaults[k]}
+    return _settings(name, fusion, fusion_kwargs or {}, options, origin)
 
 
 def settings_of_source(source: ModelSource) -> dict[str, Any] | None:
-    """Training settings recorded for a model: its ``models.json`` entry (resolved through the
-    config variant it names) or its run folder's ``config.yml``; ``None`` when neither exists."""
-    from sb3_coma.training import (
-        TrainingError,
-        _read_run_config,
-        _split_env_kwargs,
-        load_config,
+    """Training settings recorded for a model: the env options saved in its zip, else its
+    ``models.json`` entry (resolved through the config variant it names) or its run folder's
+    ``config.yml``; ``None`` when there are none."""
+    recorded = _recorded_settings(
+        training_options(source.path) if source.path.is_file() else None,
+        f"the env options recorded in {source.path.name}",
     )
-
+    if recorded is not None:
+        return recorded
     if source.shipped is not None:
         info = source.shipped
         env, variant = str(info["env"]), info.get("variant")
         origin = f"models.json entry {source.given!r}"
         try:
             cfg = load_config(env=env, variant=variant)
-            fusion, fusion_kwargs, options = _split_env_kwargs(cfg.env_kwargs)
+            fusion, fusion_kwargs, options = split_env_kwargs(cfg.env_kwargs)
             origin += f" (variant {variant!r} of {cfg.source})" if variant else f" ({cfg.source})"
         except TrainingError as exc:  # config file gone: the manifest's own fields still hold
             fusion, fusion_kwargs, options = str(info.get("fusion", "sendfuse")), {}, {}
@@ -315,18 +329,16 @@ def settings_of_source(source: ModelSource) -> dict[str, Any] | None:
         return _settings(env, str(info.get("fusion", fusion)), fusion_kwargs, options, origin)
     if source.run_dir is not None:
         try:
-            cfg = _read_run_config(source.run_dir)
+            cfg = read_run_config(source.run_dir)
         except TrainingError:
             return None
-        fusion, fusion_kwargs, options = _split_env_kwargs(cfg.env_kwargs)
+        fusion, fusion_kwargs, options = split_env_kwargs(cfg.env_kwargs)
         return _settings(cfg.map_name, fusion, fusion_kwargs, options, f"run config {cfg.source}")
     return None
 
 
 def _fusion_wrapper(venv: Any) -> Any:
     """The :class:`envs.fusion.FusionWrapper` inside a vec env from ``envs.make_vec_env``, or ``None``."""
-    from envs.fusion import FusionWrapper
-
     seen = 0
     while venv is not None and seen < 16:
         if isinstance(venv, FusionWrapper):
@@ -337,26 +349,28 @@ def _fusion_wrapper(venv: Any) -> Any:
 
 
 def settings_of_model(model: Any) -> dict[str, Any] | None:
-    """Training settings of a loaded model: a shipped model's manifest, else the env attached to
-    it (its ``IppConfig`` and fusion wrapper); ``None`` when the model carries neither."""
+    """Training settings of a loaded model: the env options it records, a shipped model's
+    manifest, else the env attached to it (its ``IppConfig`` and fusion wrapper); ``None`` when
+    the model carries none of them."""
+    recorded = _recorded_settings(training_options(model), "the env options the model records")
+    if recorded is not None:
+        return recorded
     info = getattr(model, "pretrained_info", None)
     if isinstance(info, dict) and "env" in info:
-        from sb3_coma.pretrained import pretrained_dir
-
-        return settings_of_source(ModelSource(str(info.get("file", info["env"])),
-                                              pretrained_dir() / str(info.get("file", "")), info))
+        return settings_of_source(
+            ModelSource(str(info.get("file", info["env"])), pretrained_dir() / str(info.get("file", "")), info)
+        )
     venv = getattr(model, "env", None)
     if venv is None:
         return None
-    from envs import IppConfig
-
     config = venv.get_attr("config", indices=[0])[0]
     wrapper = _fusion_wrapper(venv)
     defaults = _config_dict(IppConfig(map_name=config.map_name))
     options = {k: v for k, v in _config_dict(config).items() if k != "map_name" and v != defaults[k]}
     fusion_kwargs = {"alpha": wrapper.alpha} if getattr(wrapper, "alpha", None) is not None else {}
-    return _settings(config.map_name, getattr(wrapper, "name", "unknown"), fusion_kwargs, options,
-                     "the env attached to the model")
+    return _settings(
+        config.map_name, getattr(wrapper, "name", "unknown"), fusion_kwargs, options, "the env attached to the model"
+    )
 
 
 # =========================================================================== building the graphs
@@ -370,8 +384,6 @@ def _fusion_graph(model: Any, fusion: str, settings: Mapping[str, Any]) -> tuple
 
     Uses the network of the model's own env when it has one (exactly what it was evaluated
     with), else the weights the training config names (default: the shipped file)."""
-    from envs.geometry import overlap_matrix
-
     config = settings["config"]
     comm, lattice, n = int(config["comm_grid"]), int(config["lattice"]), int(config["n_uavs"])
     to_lattice = overlap_matrix(comm, float(lattice - 1), lattice)  # as FusionWrapper builds it
@@ -382,16 +394,18 @@ def _fusion_graph(model: Any, fusion: str, settings: Mapping[str, Any]) -> tuple
     if wrapper is not None and getattr(wrapper, "name", None) == "sendfuse":
         network, alpha = wrapper.network, wrapper.alpha
     else:
-        from sb3_coma.sendfuse.weights import default_weights_path, load_weights
-
         kwargs = dict(settings.get("fusion_kwargs") or {})
         network = load_weights(kwargs.get("weights") or default_weights_path(comm), expected_config={"grid_size": comm})
         alpha = kwargs.get("alpha")
     network = copy.deepcopy(network).cpu().to(memory_format=th.contiguous_format).eval()
     graph = FusionGraph(network, n, to_lattice, alpha).eval()
     meta = dict(getattr(network, "weights_metadata", {}) or {})
-    info.update(alpha=graph.alpha, network=dict(network.config.as_dict()), parameters=network.num_parameters(),
-                weights_sha256=next((v for k, v in meta.items() if k.endswith("sha256")), None))
+    info.update(
+        alpha=graph.alpha,
+        network=dict(network.config.as_dict()),
+        parameters=network.num_parameters(),
+        weights_sha256=next((v for k, v in meta.items() if k.endswith("sha256")), None),
+    )
     return graph, info
 
 
@@ -427,8 +441,9 @@ def _local_channel_names() -> list[str]:
     return [n.lower() for n in sorted(names, key=lambda n: getattr(layout, n))]
 
 
-def _export_graph(graph: nn.Module, args: tuple[th.Tensor, ...], path: Path, inputs: list[str],
-                  outputs: list[str], opset: int) -> None:
+def _export_graph(
+    graph: nn.Module, args: tuple[th.Tensor, ...], path: Path, inputs: list[str], outputs: list[str], opset: int
+) -> None:
     """``torch.onnx.export`` with a dynamic batch axis, written to a temporary name and moved
     into place, so a failed export never leaves a half-written file under the final name."""
     axes = {name: {0: BATCH} for name in inputs + outputs}
@@ -436,18 +451,23 @@ def _export_graph(graph: nn.Module, args: tuple[th.Tensor, ...], path: Path, inp
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the legacy exporter's deprecation and tracer notes
         with th.no_grad():
-            th.onnx.export(graph, args, str(tmp), input_names=inputs, output_names=outputs,
-                           dynamic_axes=axes, opset_version=opset, dynamo=False, do_constant_folding=True)
-    import onnx
-
+            th.onnx.export(
+                graph,
+                args,
+                str(tmp),
+                input_names=inputs,
+                output_names=outputs,
+                dynamic_axes=axes,
+                opset_version=opset,
+                dynamo=False,
+                do_constant_folding=True,
+            )
     onnx.checker.check_model(onnx.load(str(tmp)))
     os.replace(tmp, path)
 
 
 def onnx_session(path: str | os.PathLike[str], threads: int = 1) -> Any:
     """An onnxruntime CPU session on ``threads`` threads (1: what one on-board core gives)."""
-    import onnxruntime as ort
-
     options = ort.SessionOptions()
     options.intra_op_num_threads = int(threads)
     options.inter_op_num_threads = 1
@@ -457,8 +477,14 @@ def onnx_session(path: str | os.PathLike[str], threads: int = 1) -> Any:
 
 
 #: onnxruntime's names of the tensor types the graphs use.
-_ORT_DTYPES = {"tensor(float)": np.float32, "tensor(double)": np.float64, "tensor(int8)": np.int8,
-               "tensor(uint8)": np.uint8, "tensor(int64)": np.int64, "tensor(bool)": np.bool_}
+_ORT_DTYPES = {
+    "tensor(float)": np.float32,
+    "tensor(double)": np.float64,
+    "tensor(int8)": np.int8,
+    "tensor(uint8)": np.uint8,
+    "tensor(int64)": np.int64,
+    "tensor(bool)": np.bool_,
+}
 
 
 def onnx_feeds(session: Any, arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -491,14 +517,13 @@ def _torch_reference(graph: nn.Module) -> Any:
     def run(*arrays: np.ndarray) -> list[np.ndarray]:
         with th.no_grad():
             return [t.numpy() for t in graph(*(th.from_numpy(a) for a in arrays))]
+
     return run
 
 
 def fusion_reference(graph: FusionGraph) -> Any:
     """The outputs ``fusion.onnx`` must reproduce, computed the way the env's fusion wrapper does
     (``SenDFuseNet.fuse`` or ``mean_fusion``, then ``clip(A fused A^T, 0, 1)``), not by the graph."""
-    from envs.fusion import mean_fusion
-
     a = graph.to_lattice.numpy()
 
     def run(received: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
@@ -506,14 +531,24 @@ def fusion_reference(graph: FusionGraph) -> Any:
             fused = mean_fusion(received, valid)
         else:
             with th.inference_mode():
-                fused = graph.network.fuse(th.from_numpy(received), th.from_numpy(valid > 0.5), alpha=graph.alpha).numpy()
+                fused = graph.network.fuse(
+                    th.from_numpy(received), th.from_numpy(valid > 0.5), alpha=graph.alpha
+                ).numpy()
         return [fused, np.clip(np.matmul(np.matmul(a, fused), a.T), 0.0, 1.0).astype(np.float32)]
+
     return run
 
 
-def export_onnx(model: Any, out_dir: str | os.PathLike[str], *, fusion: str | None = None,
-                settings: Mapping[str, Any] | None = None, source: ModelSource | None = None,
-                opset: int = OPSET, verify: bool = True) -> dict[str, Path]:
+def export_onnx(
+    model: Any,
+    out_dir: str | os.PathLike[str],
+    *,
+    fusion: str | None = None,
+    settings: Mapping[str, Any] | None = None,
+    source: ModelSource | None = None,
+    opset: int = OPSET,
+    verify: bool = True,
+) -> dict[str, Path]:
     """Write ``actor.onnx``, ``fusion.onnx`` and ``export.json`` for a COMA model into ``out_dir``.
 
     :param model: a loaded or freshly built ``COMA`` model
@@ -539,8 +574,10 @@ def export_onnx(model: Any, out_dir: str | os.PathLike[str], *, fusion: str | No
         fusion = (settings or {}).get("fusion")
     if fusion not in FUSIONS:
         if fusion is None or fusion == "unknown":
-            raise ExportError("cannot tell which fusion this model was trained with (no shipped-model entry, "
-                              "run config or env with a fusion wrapper): pass fusion='sendfuse' or 'mean'")
+            raise ExportError(
+                "cannot tell which fusion this model was trained with (no shipped-model entry, "
+                "run config or env with a fusion wrapper): pass fusion='sendfuse' or 'mean'"
+            )
         raise ExportError(f"fusion={fusion!r}: choose one of {', '.join(FUSIONS)}")
     if settings is None:
         settings = _settings_from_spaces(model, fusion)
@@ -551,17 +588,32 @@ def export_onnx(model: Any, out_dir: str | os.PathLike[str], *, fusion: str | No
     actor = _actor_graph(model)
     actor_inputs = ["local", "action_mask"] + (["action_gain"] if actor.with_prior else [])
     paths = {"actor": out / ACTOR_FILE, "fusion": out / FUSION_FILE, "metadata": out / METADATA_FILE}
-    _export_graph(actor, tuple(th.from_numpy(feeds[k]) for k in actor_inputs), paths["actor"], actor_inputs,
-                  ["logits", "action"], opset)
+    _export_graph(
+        actor,
+        tuple(th.from_numpy(feeds[k]) for k in actor_inputs),
+        paths["actor"],
+        actor_inputs,
+        ["logits", "action"],
+        opset,
+    )
     fusion_graph, fusion_info = _fusion_graph(model, fusion, settings)
-    _export_graph(fusion_graph, (th.from_numpy(feeds["received"]), th.from_numpy(feeds["received_valid"])),
-                  paths["fusion"], ["received", "received_valid"], ["fused", "fused_channel"], opset)
+    _export_graph(
+        fusion_graph,
+        (th.from_numpy(feeds["received"]), th.from_numpy(feeds["received_valid"])),
+        paths["fusion"],
+        ["received", "received_valid"],
+        ["fused", "fused_channel"],
+        opset,
+    )
     checked: dict[str, Any] = {"done": False}
     if verify:
         try:
-            checked = {"done": True, "inputs": "3 random valid rows",
-                       "actor_max_abs_diff": _verify(paths["actor"], feeds, _torch_reference(actor), "actor"),
-                       "fusion_max_abs_diff": _verify(paths["fusion"], feeds, fusion_reference(fusion_graph), "fusion")}
+            checked = {
+                "done": True,
+                "inputs": "3 random valid rows",
+                "actor_max_abs_diff": _verify(paths["actor"], feeds, _torch_reference(actor), "actor"),
+                "fusion_max_abs_diff": _verify(paths["fusion"], feeds, fusion_reference(fusion_graph), "fusion"),
+            }
         except RuntimeError:
             for path in (paths["actor"], paths["fusion"]):
                 path.unlink(missing_ok=True)
@@ -586,64 +638,126 @@ def _settings_from_spaces(model: Any, fusion: str) -> dict[str, Any]:
         options["lattice"] = lattice
     if layout.KEY_GAIN not in space.spaces:
         options["action_gain"] = False
-    return _settings("unknown", fusion, {}, options, "not recorded: options implied by the model's observation "
-                     "space, the rest are defaults (the map does not change the observation layout)")
+    return _settings(
+        "unknown",
+        fusion,
+        {},
+        options,
+        "not recorded: options implied by the model's observation "
+        "space, the rest are defaults (the map does not change the observation layout)",
+    )
 
 
 def _policy_info(model: Any, actor: ActorGraph) -> dict[str, Any]:
     policy = model.policy
     prior = actor.actor.prior_weights
-    return {"class": type(policy).__name__, "features_extractor": policy.features_extractor_class.__name__,
-            "features_extractor_kwargs": dict(policy.features_extractor_kwargs),
-            "gain_prior_weights": None if prior is None else [float(w) for w in prior.detach()],
-            "correction_bound": policy.correction_bound, "num_timesteps": int(getattr(model, "num_timesteps", 0)),
-            "parameters": sum(p.numel() for p in actor.actor.parameters())}
+    return {
+        "class": type(policy).__name__,
+        "features_extractor": policy.features_extractor_class.__name__,
+        "features_extractor_kwargs": dict(policy.features_extractor_kwargs),
+        "gain_prior_weights": None if prior is None else [float(w) for w in prior.detach()],
+        "correction_bound": policy.correction_bound,
+        "num_timesteps": int(getattr(model, "num_timesteps", 0)),
+        "parameters": sum(p.numel() for p in actor.actor.parameters()),
+    }
 
 
-def _metadata(model: Any, actor: ActorGraph, actor_inputs: list[str], fusion_info: dict[str, Any],
-              settings: Mapping[str, Any], source: ModelSource | None, opset: int,
-              checked: Mapping[str, Any]) -> dict[str, Any]:
+def _metadata(
+    model: Any,
+    actor: ActorGraph,
+    actor_inputs: list[str],
+    fusion_info: dict[str, Any],
+    settings: Mapping[str, Any],
+    source: ModelSource | None,
+    opset: int,
+    checked: Mapping[str, Any],
+) -> dict[str, Any]:
     """The JSON: every input/output, the env options the observations must be built with, provenance."""
-    import sb3_coma
-    from sb3_coma.pretrained import sha256_file
-
     space = model.policy.observation_space
     local_shape = tuple(space[layout.KEY_LOCAL].shape)
     config = settings["config"]
     n, r, lattice = int(config["n_uavs"]), int(config["comm_grid"]), int(config["lattice"])
+
     def dtype(key: str) -> str:
         return str(np.dtype(space[key].dtype))
 
-    actor_in = [_io("local", local_shape, dtype(layout.KEY_LOCAL), "the UAV's local maps in [0, 1]; channel 8 "
-                    "(fused) is fusion.onnx's fused_channel", channels=_local_channel_names()),
-                _io("action_mask", (layout.N_ACTIONS,), dtype(layout.KEY_MASK), "1 valid, 0 invalid action")]
+    actor_in = [
+        _io(
+            "local",
+            local_shape,
+            dtype(layout.KEY_LOCAL),
+            "the UAV's local maps in [0, 1]; channel 8 (fused) is fusion.onnx's fused_channel",
+            channels=_local_channel_names(),
+        ),
+        _io("action_mask", (layout.N_ACTIONS,), dtype(layout.KEY_MASK), "1 valid, 0 invalid action"),
+    ]
     if "action_gain" in actor_inputs:
-        actor_in.append(_io("action_gain", tuple(space[layout.KEY_GAIN].shape), dtype(layout.KEY_GAIN),
-                            "each action's normalised expected information gain (rows: "
-                            f"{', '.join(layout.GAIN_WEIGHTINGS)}), the env's action_gain observation"))
-    fusion_block = {"file": FUSION_FILE, **fusion_info,
-                    "inputs": [_io("received", (n, r, r), "float32", "slot 0: the UAV's own map; slots 1..: maps "
-                                   "received from the other UAVs (0.5 where nothing arrived)"),
-                               _io("received_valid", (n,), "float32", "1 where a slot holds a map (slot 0 always)")],
-                    "outputs": [_io("fused", (r, r), "float32", "the fused map on the communication grid"),
-                                _io("fused_channel", (lattice, lattice), "float32",
-                                    "the actor's 8th local channel: fused averaged onto the lattice, clipped to [0, 1]")]}
+        actor_in.append(
+            _io(
+                "action_gain",
+                tuple(space[layout.KEY_GAIN].shape),
+                dtype(layout.KEY_GAIN),
+                "each action's normalised expected information gain (rows: "
+                f"{', '.join(layout.GAIN_WEIGHTINGS)}), the env's action_gain observation",
+            )
+        )
+    fusion_block = {
+        "file": FUSION_FILE,
+        **fusion_info,
+        "inputs": [
+            _io(
+                "received",
+                (n, r, r),
+                "float32",
+                "slot 0: the UAV's own map; slots 1..: maps received from the other UAVs (0.5 where nothing arrived)",
+            ),
+            _io("received_valid", (n,), "float32", "1 where a slot holds a map (slot 0 always)"),
+        ],
+        "outputs": [
+            _io("fused", (r, r), "float32", "the fused map on the communication grid"),
+            _io(
+                "fused_channel",
+                (lattice, lattice),
+                "float32",
+                "the actor's 8th local channel: fused averaged onto the lattice, clipped to [0, 1]",
+            ),
+        ],
+    }
     return {
         "format": METADATA_FORMAT,
-        "exported_by": f"sb3-coma {sb3_coma.__version__}, torch {th.__version__}",
+        "exported_by": f"sb3-coma {__version__}, torch {th.__version__}",
         "opset": opset,
         "pipeline": "fused_channel = fusion(received, received_valid); local = concat(raw local channels 0-6, "
-                    "fused_channel); logits, action = actor(local, action_mask[, action_gain])",
-        "actor": {"file": ACTOR_FILE, "inputs": actor_in,
-                  "outputs": [_io("logits", (layout.N_ACTIONS,), "float32", f"masked logits: invalid actions are "
-                                  f"{MASKED_LOGIT:g}; softmax gives the policy"),
-                              _io("action", (), "int64", "argmax of logits (first on ties): the action "
-                                  "model.predict(obs, deterministic=True) returns")],
-                  "actions": list(layout.ACTION_NAMES), "policy": _policy_info(model, actor)},
+        "fused_channel); logits, action = actor(local, action_mask[, action_gain])",
+        "actor": {
+            "file": ACTOR_FILE,
+            "inputs": actor_in,
+            "outputs": [
+                _io(
+                    "logits",
+                    (layout.N_ACTIONS,),
+                    "float32",
+                    f"masked logits: invalid actions are {MASKED_LOGIT:g}; softmax gives the policy",
+                ),
+                _io(
+                    "action",
+                    (),
+                    "int64",
+                    "argmax of logits (first on ties): the action model.predict(obs, deterministic=True) returns",
+                ),
+            ],
+            "actions": list(layout.ACTION_NAMES),
+            "policy": _policy_info(model, actor),
+        },
         "fusion": fusion_block,
         "env": dict(settings),
-        "source": None if source is None else {"given": source.given, "path": str(source.path),
-                                               "sha256": sha256_file(source.path) if source.path.is_file() else None,
-                                               "shipped": source.shipped is not None},
+        "source": None
+        if source is None
+        else {
+            "given": source.given,
+            "path": str(source.path),
+            "sha256": sha256_file(source.path) if source.path.is_file() else None,
+            "shipped": source.shipped is not None,
+        },
         "check": dict(checked),
     }

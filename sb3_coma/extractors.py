@@ -26,6 +26,7 @@ which matters because COMA's critic runs on every agent of every joint step.
 Both extractors accept either a ``Box(C, H, W)`` space or a ``Dict`` space plus ``key`` (the
 actor reads ``obs["local"]``), so they plug into SB3 policies as ``features_extractor_class``.
 """
+
 from __future__ import annotations
 
 import math
@@ -93,8 +94,9 @@ class CBAM(nn.Module):
     2017; Woo et al. place CBAM on a ResNet block's branch, which the identity shortcut adds to).
     """
 
-    def __init__(self, channels: int, reduction: int = 8, spatial_kernel: int = 7, open_bias: float = 0.0,
-                 residual: bool = False) -> None:
+    def __init__(
+        self, channels: int, reduction: int = 8, spatial_kernel: int = 7, open_bias: float = 0.0, residual: bool = False
+    ) -> None:
         super().__init__()
         self.channel = ChannelGate(channels, reduction, open_bias)
         self.spatial = SpatialGate(spatial_kernel, open_bias)
@@ -209,8 +211,16 @@ class CBAMExtractor(_Trunk):
         gate_bias: float = 0.0,
         residual: bool = False,
     ) -> None:
-        super().__init__(observation_space, features_dim, key, channels, use_cbam=True, reduction=reduction,
-                         gate_bias=gate_bias, residual=residual)
+        super().__init__(
+            observation_space,
+            features_dim,
+            key,
+            channels,
+            use_cbam=True,
+            reduction=reduction,
+            gate_bias=gate_bias,
+            residual=residual,
+        )
 
 
 class CnnExtractor(_Trunk):

@@ -6,7 +6,8 @@
   read by :func:`load_training_log`;
 * :func:`plot_mission` - ground truth, final global belief and the UAVs' 3-D trajectories
   coloured by altitude; :func:`animate_mission` - the same mission step by step as a GIF;
-* :func:`plot_ablation` - final F1 / entropy of the ablation variants per noise level.
+* :func:`plot_ablation` - final F1 / entropy of the ablation variants per noise level;
+* :func:`plot_noise_sweep` - global and team entropy at 100 % vs each channel-noise axis per arm.
 
 Training logs understood by :func:`load_training_log` (first match wins):
 
@@ -395,4 +396,52 @@ def plot_ablation(results: Mapping[tuple[str, str], "EvaluationResult"], path: P
     if title:
         fig.suptitle(title)
     fig.tight_layout()
+    return _save(fig, path, dpi=120)
+
+
+# ---------------------------------------------------------------------------------------------
+# noise sweep
+# ---------------------------------------------------------------------------------------------
+def plot_noise_sweep(result: object, path: PathLike, title: str | None = None) -> Path:
+    """Entropy at 100 % vs each swept channel axis, one line per arm (solid: soft decoder, dashed:
+    threshold), error bars = standard error over the shared missions; top row the global map's
+    entropy (the paper's), bottom row the team entropy on the UAVs' own maps.
+
+    ``result`` is a ``sb3_coma.noise_sweep.NoiseSweepResult``.
+    """
+    from sb3_coma.noise_sweep import AXIS_TITLES
+
+    axes_swept = [a for a in AXIS_TITLES if any(p.axis == a or p.axis == "grid" for p in result.points)] or ["sigma"]
+    decoders = list(dict.fromkeys(p.decoder for p in result.points))
+    if not result.results:
+        raise ValueError("plot_noise_sweep needs at least one result")
+    fig, grid = plt.subplots(2, len(axes_swept), figsize=(4.2 * len(axes_swept), 6.4), squeeze=False, sharey="row")
+    styles = {"soft": "-", "threshold": "--"}
+    for col, axis in enumerate(axes_swept):
+        for row, (metric, name) in enumerate((("entropy", "entropy (global map)"), ("team_entropy", "team entropy"))):
+            ax = grid[row][col]
+            for k, arm in enumerate(result.arms):
+                for decoder in decoders:
+                    if any(p.axis == "grid" for p in result.points):  # a grid: average over the other axes
+                        xs = sorted({p.value(axis) for p in result.points})
+                        ys = [np.mean([result.final(arm, p, metric).mean() for p in result.points
+                                       if p.decoder == decoder and p.value(axis) == x and (arm, p) in result.results])
+                              for x in xs]
+                        x, mean, se = np.array(xs), np.array(ys), None
+                    else:
+                        x, mean, se = result.curves(axis, arm, decoder, metric)
+                    if len(x) == 0:
+                        continue
+                    ax.errorbar(x, mean, yerr=se, color=_colour(arm, k), ls=styles.get(decoder, ":"), marker="o",
+                                ms=3, lw=1.4, capsize=2, label=f"{arm} ({decoder})")
+            ax.set_xlabel(AXIS_TITLES[axis])
+            if col == 0:
+                ax.set_ylabel(f"{name} at 100 %")
+            ax.grid(alpha=0.3)
+    handles, labels = grid[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 5), fontsize=8, frameon=False)
+    fig.suptitle(title or f"{result.env}: entropy vs channel noise ({result.n_missions} shared missions; "
+                          "solid: soft decoder, dashed: threshold)")
+    rows_of_legend = -(-len(labels) // 5)
+    fig.tight_layout(rect=(0, 0.035 * rows_of_legend + 0.01, 1, 1))
     return _save(fig, path, dpi=120)

@@ -3,7 +3,7 @@
 The models live in ``sb3_coma/pretrained/`` next to ``models.json``, which records for each name
 the zip's file name, its SHA-256 checksum and size, the exact command that retrains it, the
 training wall-clock, the fusion it was trained with and the metrics measured by
-``sb3-coma reproduce`` (see ``MODELS.md`` there).
+``sb3-coma reproduce`` (how they were trained: ``docs/tuning_log.md``).
 
 Security: an SB3 ``.zip`` is loaded with ``torch.load`` and may contain pickled Python objects,
 so loading a zip from an untrusted source can run code. :func:`load_pretrained` therefore checks
@@ -12,6 +12,7 @@ mismatch raises :class:`PretrainedError` and nothing is loaded. This checked rou
 verified one: loading a zip by path (``COMA.load``, ``sb3-coma evaluate --model PATH``) trusts
 the file as it is.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -22,9 +23,21 @@ from pathlib import Path
 from typing import Any
 
 from envs import WORLD_VERSION
+from sb3_coma.coma import COMA
+from sb3_coma.config import TrainingError, env_options_of, load_config
 
-__all__ = ["PretrainedError", "load_pretrained", "available", "model_info", "pretrained_dir",
-           "model_path", "sha256_file", "read_manifest", "write_manifest", "MANIFEST"]
+__all__ = [
+    "PretrainedError",
+    "load_pretrained",
+    "available",
+    "model_info",
+    "pretrained_dir",
+    "model_path",
+    "sha256_file",
+    "read_manifest",
+    "write_manifest",
+    "MANIFEST",
+]
 
 #: File name of the manifest inside the pretrained folder.
 MANIFEST = "models.json"
@@ -52,8 +65,10 @@ def read_manifest(directory: str | os.PathLike[str] | None = None) -> dict[str, 
     """The parsed ``models.json`` (``{"format": 1, "models": {name: entry}}``)."""
     path = Path(directory or pretrained_dir()) / MANIFEST
     if not path.is_file():
-        raise PretrainedError(f"no shipped models: {path} is missing (this install has no sb3_coma/pretrained "
-                              f"data; retrain with `sb3-coma reproduce --train`)")
+        raise PretrainedError(
+            f"no shipped models: {path} is missing (this install has no sb3_coma/pretrained "
+            f"data; retrain with `sb3-coma reproduce --train`)"
+        )
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
@@ -93,7 +108,7 @@ def _canonical(name: str) -> str:
     low = text.lower()
     # accept the gymnasium id too: UavIpp-Env3-v0 -> env3
     if low.startswith("uavipp-") and low.endswith("-v0"):
-        low = low[len("uavipp-"):-len("-v0")]
+        low = low[len("uavipp-") : -len("-v0")]
     return low
 
 
@@ -111,20 +126,25 @@ def model_path(name: str, directory: str | os.PathLike[str] | None = None, verif
     info = model_info(name, directory)
     path = Path(directory or pretrained_dir()) / info["file"]
     if not path.is_file():
-        raise PretrainedError(f"shipped model {name!r}: file {path} is missing (reinstall sb3-coma or retrain "
-                              f"with: {info.get('command', 'sb3-coma reproduce --train')})")
+        raise PretrainedError(
+            f"shipped model {name!r}: file {path} is missing (reinstall sb3-coma or retrain "
+            f"with: {info.get('command', 'sb3-coma reproduce --train')})"
+        )
     if verify:
         actual = sha256_file(path)
         expected = str(info.get("sha256", "")).lower()
         if actual != expected:
-            raise PretrainedError(f"shipped model {name!r}: checksum mismatch for {path} (sha256 {actual}, "
-                                  f"models.json expects {expected}); the file was modified or corrupted and "
-                                  f"is NOT loaded (an SB3 zip can run code when loaded)")
+            raise PretrainedError(
+                f"shipped model {name!r}: checksum mismatch for {path} (sha256 {actual}, "
+                f"models.json expects {expected}); the file was modified or corrupted and "
+                f"is NOT loaded (an SB3 zip can run code when loaded)"
+            )
     return path
 
 
-def load_pretrained(name: str, env: Any = None, device: str = "cpu",
-                    directory: str | os.PathLike[str] | None = None) -> Any:
+def load_pretrained(
+    name: str, env: Any = None, device: str = "cpu", directory: str | os.PathLike[str] | None = None
+) -> Any:
     """Load a shipped COMA model after verifying its checksum.
 
     :param name: ``"env1"``, ``"env2"``, ``"env3"`` (or the gymnasium id ``"UavIpp-Env3-v0"``)
@@ -134,18 +154,35 @@ def load_pretrained(name: str, env: Any = None, device: str = "cpu",
     :param directory: folder holding ``models.json`` and the zips (default: the shipped one)
     :raises PretrainedError: unknown name, missing file, checksum mismatch (a ``ValueError``)
 
-    The returned model carries ``pretrained_info`` (its manifest entry); evaluate it with the
-    fusion it was trained with: ``sb3_coma.evaluate(model, env="env3",
-    fusion=model.pretrained_info["fusion"])``.
+    The returned model carries ``pretrained_info`` (its manifest entry) and, when its zip does not
+    record them, ``env_options`` resolved from the manifest's env and config variant
+    (``sb3_coma.training_options(model)``); evaluate it with the fusion it was trained with:
+    ``sb3_coma.evaluate(model, env="env3", fusion=sb3_coma.training_options(model)["fusion"])``.
     """
-    from sb3_coma import COMA
-
     info = model_info(name, directory)
     path = model_path(name, directory, verify=True)
     if info.get("world", 1) != WORLD_VERSION:
-        warnings.warn(f"shipped model {name!r} was trained on world v{info.get('world', 1)} (local beliefs on the "
-                      f"comm grid); this env is world v{WORLD_VERSION} (per-cell local beliefs, cell-level messages): "
-                      f"it is outdated and flies below its recorded numbers until retrained", stacklevel=2)
+        warnings.warn(
+            f"shipped model {name!r} was trained on world v{info.get('world', 1)} (local beliefs on the "
+            f"comm grid); this env is world v{WORLD_VERSION} (per-cell local beliefs, cell-level messages): "
+            f"it is outdated and flies below its recorded numbers until retrained",
+            stacklevel=2,
+        )
     model = COMA.load(str(path), env=env, device=device)
     model.pretrained_info = info
+    if model.env_options is None:
+        model.env_options = _manifest_env_options(info)
     return model
+
+
+def _manifest_env_options(info: dict[str, Any]) -> dict[str, Any] | None:
+    """The env options of a shipped model saved before models recorded them: its manifest's env
+    and fusion with the options of the config variant it names; ``None`` without that config."""
+    try:
+        cfg = load_config(env=str(info["env"]), variant=info.get("variant"))
+    except (KeyError, TrainingError):
+        return None
+    env_kwargs = cfg.env_kwargs
+    if "fusion" in info:
+        env_kwargs["fusion"] = info["fusion"]
+    return env_options_of(cfg.map_name, env_kwargs)

@@ -1,36 +1,46 @@
-"""Reproduce the paper's results: Table I, generalisation, deployment latency, training wall-clock.
+"""Reproduce the paper's results and the project's own checks: ``sb3-coma reproduce``.
 
-``reproduce()`` (``sb3-coma reproduce``) evaluates the shipped COMA models (or, with
-``train=True``, models retrained through ``zoo_configs/coma.yml``) and the baselines (AG,
-lawnmower, random) on env1-env3 under the same seeded missions, and writes into ``out``:
+``reproduce()`` evaluates the shipped COMA models (or, with ``train=True``, models retrained
+through ``zoo_configs/coma.yml``), every other shipped model of each map, and the baselines (AG with
+the map's validated weighting, AG with look-ahead 2 and 3, lawnmower, random; IPPO / MAPPO rows
+when such models are shipped) in named steps (:data:`STEPS`), writing into ``out``:
 
-* ``table.md`` / ``table.csv`` -- Table I: F1 and entropy at 33/67/100 % of the budget, mean +- std
-* ``per_step.csv``, ``planning_time.csv``
-* ``acceptance.md`` -- at 100 %: does COMA beat every baseline on F1 *and* entropy, per env
-* ``generalisation.md`` / ``.csv`` -- each env's model on the other maps and a fresh env1 star seed
-* ``latency.md`` -- actor + fusion time per UAV decision vs AG
-* ``paired.md`` -- the paired check: COMA vs AG and the full model vs each ablation arm on the
-  same, more numerous missions (``wide_trials``, default 50), differences with standard errors
-* ``summary.json`` -- every number above
-* ``figures/`` -- metric curves per env, training reward per env
-* ``RESULTS.md`` -- the report; with ``docs=...`` it is also written there (figures next to it)
+* ``table.md`` / ``table.csv`` -- Table I, the **paper protocol** (split "paper", 10 seeded trials):
+  F1 and entropy of the global map at 33/67/100 % of the budget, mean +- std;
+  ``team_table.md`` / ``.csv`` the team metrics (each UAV's own map) the same way;
+  ``paper_verdicts.md`` / ``.csv`` the paired verdicts; ``per_step.csv``, ``planning_time.csv``
+* ``acceptance.md`` -- does COMA beat every baseline on F1 *and* entropy (paired tests), per env
+* ``ablation.md`` / ``.csv`` -- the env3 SenDFuse x CBAM ablation at three noise levels
+* ``paired.md`` -- COMA vs AG and the full model vs each ablation arm on more paper-split missions
+* ``unseen_*.md`` / ``.csv`` -- the **unseen protocol** (50 missions on split "test", random
+  starts): tables, team tables, verdicts
+* ``generalisation.md`` -- each env's model on the other maps and a fresh env1 star seed
+* ``noise_sweep.md`` / ``.csv`` -- AG and each ablation arm over sigma, a_low, drop probability
+  and both decoders (``sb3_coma.noise_sweep``)
+* ``latency.md`` -- the deployment cost per UAV decision (``sb3_coma.costs``)
+* ``summary.json`` -- every number above; ``figures/``; ``RESULTS.md`` (``sb3_coma.report``),
+  with ``docs=...`` also written there (figures next to it)
 
-Everything in the report is measured by the run that writes it; nothing is copied in.
+Every "A beats B" in the report is a paired test on shared missions (``sb3_coma.paired``);
+everything in it is measured by the run that writes it; nothing is copied in.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import platform
 import shutil
 import sys
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
 DEFAULT_ENVS: tuple[str, ...] = ("env1", "env2", "env3")
+#: The baselines of Table I (the protocols also fly AG's look-ahead variants: sb3_coma.protocols).
 BASELINES: tuple[str, ...] = ("ag", "lawnmower", "random")
 #: map seed of the "fresh" env1 star layout used for generalisation (env1's default map_seed is 0)
 FRESH_ENV1_SEED = 7
@@ -57,8 +67,97 @@ ABLATION_ARMS: dict[tuple[str, str], str] = {
 #: the arm every other arm is compared with, and the noise level of that comparison
 ABLATION_FULL = ("sendfuse", "cbam")
 ABLATION_CHECK_NOISE = "loud"
-#: Missions of the paired check that backs Table I's and the ablation's verdicts (sb3_coma.paired).
+#: Missions of the paired check on the paper split that backs Table I's and the ablation's verdicts.
 WIDE_TRIALS = 50
+#: Missions of the unseen protocol (sb3_coma.evaluation.PROTOCOLS["unseen"]) and of the noise sweep,
+#: which flies the same missions (env seeds 0..49 of split "test") at every channel setting (20
+#: missions, the command's default, left every arm tied with AG on the paired test).
+UNSEEN_MISSIONS = 50
+SWEEP_MISSIONS = UNSEEN_MISSIONS
+#: ``quick``: missions of every protocol, sweep and check; cost-table repeats.
+QUICK_TRIALS = 2
+QUICK_REPEATS = 5
+COST_REPEATS = 200
+#: Errors that make an optional step or row "skipped, with the reason" instead of a failed run.
+OPTIONAL_ERRORS: tuple[type[BaseException], ...] = (ImportError, FileNotFoundError, ValueError, RuntimeError, OSError)
+
+
+# ---------------------------------------------------------------------------------------------
+# options and the run's state
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class ReproduceOptions:
+    """Everything ``reproduce`` can be told (keyword arguments of :func:`reproduce`).
+
+    :param env_names: maps to evaluate
+    :param trials: missions of the paper protocol (Table I) and the ablation
+    :param unseen_missions: missions of the unseen protocol (0: skip it)
+    :param sweep_missions: missions of the noise sweep (0: skip it)
+    :param wide_trials: missions of the paired check on the paper split (0: skip)
+    :param seed: base env seed: mission ``k`` of every protocol is seed ``seed + k``
+    :param noise: channel noise of the protocols
+    :param train: retrain each env's model through the zoo config instead of loading the shipped one
+    :param quick: smoke test: :data:`QUICK_TRIALS` missions everywhere, a small sweep, and with
+        ``train`` a tiny training
+    :param timesteps: with ``train``: joint steps (default: the shipped model's run length)
+    :param fusion: fusion of retrained models (default: the shipped model's, else sendfuse when its
+        weights exist, else mean)
+    :param deterministic: argmax actions or seeded draws (default: the shipped model's entry)
+    :param docs: also write ``RESULTS.md`` at this path and its figures in ``<docs dir>/figures``
+    :param ship: with ``train``: copy the trained zips into ``sb3_coma/pretrained`` and update ``models.json``
+    :param record: write the measured Table I numbers of the shipped models into ``models.json``
+    :param extra_models: ``{env: {label: model}}`` more learned methods to fly (e.g. IPPO / MAPPO
+        models loaded by the caller); labels starting with "ippo" / "mappo" are treated as those kinds
+    :param cost_envs: maps whose AG planning cost the cost table times (default: all evaluated maps)
+    :param baselines_only: fly no learned model at all (the baselines' rows of every step). Without
+        it, a map with no shipped model (an install without ``sb3_coma/pretrained``) gets baseline
+        rows only, with the reason under "Skipped"
+    """
+
+    env_names: Sequence[str] = DEFAULT_ENVS
+    trials: int = 10
+    unseen_missions: int = UNSEEN_MISSIONS
+    sweep_missions: int = SWEEP_MISSIONS
+    wide_trials: int = WIDE_TRIALS
+    seed: int = 0
+    noise: str = "moderate"
+    train: bool = False
+    quick: bool = False
+    timesteps: int | None = None
+    fusion: str | None = None
+    deterministic: bool | None = None
+    docs: str | Path | None = None
+    plots: bool = True
+    ship: bool = False
+    record: bool = False
+    generalisation: bool = True
+    ablation: bool = True
+    costs: bool = True
+    extra_models: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    cost_envs: Sequence[str] | None = None
+    baselines_only: bool = False
+
+    def checked(self) -> ReproduceOptions:
+        """Validated, with ``quick`` applied."""
+        self.env_names = list(self.env_names)
+        if not self.env_names:
+            raise ValueError("env_names is empty")
+        for name in ("trials", "unseen_missions", "sweep_missions", "wide_trials", "seed"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "trials" else 0):
+                raise ValueError(f"{name} must be an integer >= {1 if name == 'trials' else 0}, got {value!r}")
+        if self.quick:
+            self.trials = min(self.trials, QUICK_TRIALS)
+            self.wide_trials = min(self.wide_trials, self.trials)
+            self.unseen_missions = min(self.unseen_missions, QUICK_TRIALS)
+            self.sweep_missions = min(self.sweep_missions, QUICK_TRIALS)
+        if self.wide_trials == 1:
+            raise ValueError(f"wide_trials must be 0 (skip) or an integer >= 2, got {self.wide_trials!r}")
+        if self.ship and (not self.train or self.quick):
+            raise ValueError("ship=True needs train=True and quick=False")
+        if self.baselines_only and (self.train or self.record):
+            raise ValueError("baselines_only=True flies no model: it cannot train, ship or record one")
+        return self
 
 
 @dataclass
@@ -73,6 +172,132 @@ class ModelSource:
     training_curve: list[float] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
     deterministic: bool = True       # argmax actions (True) or seeded draws from the policy (False)
+
+
+@dataclass
+class Run:
+    """What the steps share: the options, the models, the results, the report's parts."""
+
+    opts: ReproduceOptions
+    out: Path
+    say: Callable[[str], None]
+    started: float = field(default_factory=time.perf_counter)
+    sources: dict[str, ModelSource] = field(default_factory=dict)
+    arms: dict[tuple[str, str], Any] = field(default_factory=dict)
+    methods: dict[str, list[Any]] = field(default_factory=dict)
+    paper: Any = None
+    unseen: Any = None
+    ablation: Any = None
+    sweep: Any = None
+    summary: dict[str, Any] = field(default_factory=dict)
+    sections: dict[str, str] = field(default_factory=dict)
+    figures: list[Path] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def results(self) -> list[Any]:
+        """The paper protocol's results (Table I), in table order."""
+        return [row.result for row in self.paper.rows()] if self.paper is not None else []
+
+
+def attempt(run: Run, what: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """``fn(*args, **kwargs)``, or ``None`` with the reason in ``run.skipped[what]`` and the log
+    when it fails for a reason this install can have (a missing optional part, a model that cannot
+    be loaded): the one place optional parts of the run are guarded."""
+    try:
+        return fn(*args, **kwargs)
+    except OPTIONAL_ERRORS as exc:
+        reason = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        run.skipped[what] = reason
+        run.say(f"skipping {what}: {reason}")
+        return None
+
+
+def manifest_value(env: str, key: str, default: Any = None) -> Any:
+    """``models.json``'s ``key`` of the shipped model ``env``, ``default`` when either is missing."""
+    try:
+        from sb3_coma.pretrained import model_info
+
+        return model_info(env).get(key, default)
+    except (ImportError, ValueError):
+        return default
+
+
+# ---------------------------------------------------------------------------------------------
+# the run
+# ---------------------------------------------------------------------------------------------
+def reproduce(out: str | Path = "results", *, log: Callable[[str], None] | None = print,
+              **options: Any) -> dict[str, Any]:
+    """Run the reproduction (see module docstring) and return the summary dict.
+
+    ``options`` are the fields of :class:`ReproduceOptions` (``env_names``, ``trials``,
+    ``unseen_missions``, ``train``, ``quick``, ``docs`` ...).
+    """
+    unknown = sorted(set(options) - {f.name for f in dataclasses.fields(ReproduceOptions)})
+    if unknown:
+        raise TypeError(f"reproduce() got unknown options {unknown}")
+    run = Run(ReproduceOptions(**options).checked(), Path(out), log or (lambda _m: None))
+    run.out.mkdir(parents=True, exist_ok=True)
+    for step in STEPS:
+        tic = time.perf_counter()
+        step(run)
+        run.timings[step.__name__] = round(time.perf_counter() - tic, 1)
+    return run.summary
+
+
+# ---------------------------------------------------------------------------------------------
+# step 1: models
+# ---------------------------------------------------------------------------------------------
+def load_models(run: Run) -> None:
+    """Each env's COMA model (shipped or retrained), the ablation arms, and the methods of the
+    protocols per env: that model, every other model shipped for the env, extra models, baselines."""
+    from sb3_coma.protocols import BASELINE_METHODS, Method, outdated_note, shipped_methods
+
+    o = run.opts
+    for env in o.env_names:
+        if o.baselines_only:
+            continue
+        if o.train:
+            run.sources[env] = _retrained_model(run, env)
+        else:
+            src = _shipped_or_none(run, env)
+            if src is not None:
+                run.sources[env] = src
+    if o.ablation and ABLATION_ENV in run.sources:
+        run.arms = ablation_models(run.sources[ABLATION_ENV].model, run.say)
+    loaded = {ABLATION_ARMS[v]: m for v, m in run.arms.items() if v in ABLATION_ARMS}
+    for env, src in run.sources.items():
+        note = outdated_note(src.info) if src.source == "shipped" else ""
+        own = Method("coma", src.model, kind="coma", fusion=src.fusion, deterministic=src.deterministic, note=note)
+        others = attempt(run, f"other shipped models of {env}", shipped_methods, env, loaded=loaded, skip=(env,),
+                         log=run.say) or []
+        extra = [Method(label, model, kind=_kind_of(label)) for label, model in o.extra_models.get(env, {}).items()]
+        run.methods[env] = [own, *others, *extra, *BASELINE_METHODS]
+    for env in o.env_names:
+        run.methods.setdefault(env, list(BASELINE_METHODS))
+
+
+def _shipped_or_none(run: Run, env: str) -> ModelSource | None:
+    """The shipped model of ``env``; ``None`` (baseline rows only, the reason under "Skipped") when
+    this install has none for a built-in map; an unknown name is an error."""
+    from envs.maps.ground_truth import available_maps
+    from sb3_coma.pretrained import PretrainedError
+
+    try:
+        return _shipped_model(env, run.opts.deterministic)
+    except PretrainedError as exc:
+        if env not in available_maps():
+            raise
+        run.skipped[f"COMA on {env}"] = f"no shipped model ({exc}); baseline rows only"
+        run.say(f"no shipped model for {env}: baseline rows only ({exc})")
+        return None
+
+
+def _kind_of(label: str) -> str:
+    from sb3_coma.protocols import LEARNED_BASELINES
+
+    return next((k for k in LEARNED_BASELINES if label.lower().startswith(k)), "coma")
 
 
 def sendfuse_available() -> bool:
@@ -109,24 +334,23 @@ def _curve_from_metrics(path: Path) -> list[float]:
 def shipped_seed(env: str) -> int:
     """The training seed of the shipped model of ``env`` (the seed whose run won on the validation
     missions, MODELS.md), so ``--train`` retrains that very model; ``TRAIN_SEED`` without one."""
-    from sb3_coma.pretrained import model_info
-
-    try:
-        return int(model_info(env).get("seed", TRAIN_SEED))
-    except ValueError:
-        return TRAIN_SEED
+    return int(manifest_value(env, "seed", TRAIN_SEED))
 
 
 def shipped_timesteps(env: str) -> int | None:
     """The joint steps the shipped model of ``env`` was trained for when its command sets them
     (``--timesteps``, recorded as ``train_timesteps``); ``None``: the config's ``n_timesteps``."""
-    from sb3_coma.pretrained import model_info
-
-    try:
-        value = model_info(env).get("train_timesteps")
-    except ValueError:
-        return None
+    value = manifest_value(env, "train_timesteps")
     return None if value is None else int(value)
+
+
+def _retrained_model(run: Run, env: str) -> ModelSource:
+    o = run.opts
+    fusion = o.fusion or manifest_value(env, "fusion")
+    if fusion in ("sendfuse", None):
+        fusion = "sendfuse" if sendfuse_available() else "mean"
+    deterministic = o.deterministic if o.deterministic is not None else bool(manifest_value(env, "deterministic", True))
+    return _train_model(env, fusion, run.out, o.quick, o.timesteps, run.say, deterministic)
 
 
 def _train_model(env: str, fusion: str, out: Path, quick: bool, timesteps: int | None, log: Callable[[str], None],
@@ -164,19 +388,149 @@ def _chosen_model(run_path: Path) -> Path:
     return best if best.is_file() else run_path / "model.zip"
 
 
-def _shipped_model(env: str) -> ModelSource:
+def _shipped_model(env: str, deterministic: bool | None = None) -> ModelSource:
     from sb3_coma.pretrained import load_pretrained
 
     model = load_pretrained(env)
     info = model.pretrained_info
+    det = bool(info.get("deterministic", True)) if deterministic is None else deterministic
     return ModelSource(env, model, info.get("fusion", "sendfuse"), "shipped", info.get("command", ""),
-                       info.get("train_wall_s"), info.get("timesteps"), list(info.get("training_curve", [])), info,
-                       bool(info.get("deterministic", True)))
+                       info.get("train_wall_s"), info.get("timesteps"), list(info.get("training_curve", [])), info, det)
+
+
+def ablation_models(full_model: Any, say: Callable[[str], None] = print) -> dict[tuple[str, str], Any]:
+    """The four ablation arms: ``full_model`` (the env3 model in use) plus the shipped models of
+    the other three arms; an arm whose shipped model cannot be loaded is left out, with a message."""
+    from sb3_coma.pretrained import PretrainedError, load_pretrained
+
+    models: dict[tuple[str, str], Any] = {ABLATION_FULL: full_model}
+    for arm, name in ABLATION_ARMS.items():
+        try:
+            models[arm] = load_pretrained(name)
+        except PretrainedError as exc:
+            say(f"ablation: leaving out {arm[0]}_{arm[1]}: {exc}")
+    return models
 
 
 # ---------------------------------------------------------------------------------------------
-# measurements
+# step 2: the paper protocol (Table I)
 # ---------------------------------------------------------------------------------------------
+def paper_protocol(run: Run) -> None:
+    """Table I on split "paper": every method, global and team tables, paired verdicts, acceptance."""
+    from sb3_coma import evaluation as ev
+    from sb3_coma.protocols import run_protocol
+
+    o = run.opts
+    run.paper = run_protocol("paper", run.methods, n_trials=o.trials, seed=o.seed, noise=o.noise, log=run.say)
+    run.paper.write(run.out, "paper")
+    run.skipped.update({f"paper protocol: {k}": v for k, v in run.paper.skipped.items()})
+    rows = run.paper.rows()
+    ev.write_table_csv(rows, run.out / "table.csv")
+    ev.write_table_csv(rows, run.out / "team_table.csv", metrics="team")
+    ev.write_per_step_csv(rows, run.out / "per_step.csv")
+    ev.write_planning_time_csv(rows, run.out / "planning_time.csv")
+    run.sections["table"] = run.paper.table("global")
+    (run.out / "table.md").write_text(run.sections["table"])
+    (run.out / "team_table.md").write_text(run.paper.table("team"))
+    baselines = list(dict.fromkeys(m.label for ms in run.methods.values() for m in ms if m.kind != "coma"))
+    accept = acceptance(run.results, baselines=baselines)
+    (run.out / "acceptance.md").write_text(_report().acceptance_markdown(accept))
+    run.summary.update(table={f"{r.env}/{r.method}": r.summary() for r in run.results}, acceptance=accept,
+                       paper=run.paper.summary())
+
+
+def acceptance(results: Sequence[Any], model_label: str = "coma",
+               baselines: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
+    """Per env: does ``model_label`` beat every baseline on F1 and on entropy at 100 %, each by a
+    paired test on the shared missions (``sb3_coma.paired``: a tie is not a win)?
+
+    :param baselines: the methods to beat (default: every other method whose label does not start
+        with ``model_label``, i.e. not another COMA model)
+    """
+    from sb3_coma.paired import paired_difference
+
+    out: dict[str, dict[str, Any]] = {}
+    for env in dict.fromkeys(r.env for r in results):
+        group = {r.method: r for r in results if r.env == env}
+        if model_label not in group:
+            continue
+        mine = group[model_label]
+        others = {k: v for k, v in group.items() if k != model_label and
+                  (k in baselines if baselines is not None else not k.startswith(model_label))}
+        diffs = {k: {m: paired_difference(mine, v, m) for m in ("f1", "entropy")} for k, v in others.items()}
+        finals = {k: _final(v) for k, v in others.items()}
+        best_f1 = max(finals.items(), key=lambda kv: kv[1]["f1"]) if finals else None
+        best_en = min(finals.items(), key=lambda kv: kv[1]["entropy"]) if finals else None
+        beats = {m: all(d[m].winner == model_label for d in diffs.values()) for m in ("f1", "entropy")}
+        out[env] = {"coma": _final(mine), "best_f1_baseline": best_f1[0] if best_f1 else None,
+                    "best_f1": best_f1[1]["f1"] if best_f1 else None,
+                    "best_entropy_baseline": best_en[0] if best_en else None,
+                    "best_entropy": best_en[1]["entropy"] if best_en else None,
+                    "paired": {k: {m: d.as_dict() for m, d in v.items()} for k, v in diffs.items()},
+                    "beats_f1": beats["f1"], "beats_entropy": beats["entropy"],
+                    "beats_all": beats["f1"] and beats["entropy"], "missions": mine.n_trials}
+    return out
+
+
+def _final(result: Any) -> dict[str, float]:
+    """Mean and std (over the missions) of F1 and entropy at 100 % of the budget."""
+    f1, en = np.asarray(result.f1)[:, -1], np.asarray(result.entropy)[:, -1]
+    return {"f1": float(f1.mean()), "f1_std": float(f1.std()), "entropy": float(en.mean()),
+            "entropy_std": float(en.std())}
+
+
+# ---------------------------------------------------------------------------------------------
+# step 3: the ablation and the paired check on more paper-split missions
+# ---------------------------------------------------------------------------------------------
+def ablation_step(run: Run) -> None:
+    """The env3 ablation: the four arms at three noise levels on the Table I missions."""
+    if not run.arms:
+        return
+    from sb3_coma import ablation as ab
+    from sb3_coma import evaluation as ev
+    from sb3_coma.paired import paired_difference
+
+    run.ablation = ab.run_ablation(run.arms, env=ABLATION_ENV, n_trials=run.opts.trials, seed=run.opts.seed,
+                                   log=run.say)
+    ev.write_table_csv(run.ablation.rows(), run.out / "ablation.csv", group_title="noise")
+    run.sections["ablation"] = run.ablation.markdown()
+    (run.out / "ablation.md").write_text(run.sections["ablation"])
+    full = ab.LABELS[ABLATION_FULL]
+    paired = [(noise, paired_difference(run.ablation.results[(full, noise)], r, "entropy"))
+              for (label, noise), r in run.ablation.results.items() if label != full
+              and (full, noise) in run.ablation.results]
+    run.sections["ablation_paired"] = _report().paired_table(paired, "noise")
+    run.arms = {v: m for v, m in run.arms.items() if ab.LABELS[v] not in run.ablation.skipped}  # flown above
+    run.summary["ablation"] = {**ablation_acceptance(run.ablation),
+                               "paired": [{"noise": n, **d.as_dict()} for n, d in paired]}
+
+
+def ablation_acceptance(result: Any, noise: str = ABLATION_CHECK_NOISE) -> dict[str, Any]:
+    """The paper's ablation criterion by the means: is the full model's entropy at 100 % of the
+    budget under ``noise`` at most every other arm's? Returns the entropies by arm label and the
+    verdict (``None`` when an arm is missing). The paired differences are reported next to it."""
+    from sb3_coma.ablation import LABELS
+
+    full = LABELS[ABLATION_FULL]
+    entropy = {label: float(r.mean_std("entropy", 1.0)[0]) for (label, n), r in result.results.items() if n == noise}
+    others = {k: v for k, v in entropy.items() if k != full}
+    met = None if full not in entropy or len(others) < len(LABELS) - 1 else all(entropy[full] <= v for v in others.values())
+    return {"noise": noise, "full": full, "entropy": entropy, "met": met}
+
+
+def wide_paired_check(run: Run) -> None:
+    """COMA vs AG per env and the full model vs every other ablation arm (loud noise), each pair on
+    the same ``wide_trials`` paper-split missions."""
+    if not run.opts.wide_trials or not (run.sources or run.arms):
+        run.summary["paired"] = None
+        return
+    numbers, table = _paired_check(run.sources, run.arms, run.opts.wide_trials, run.opts.seed, run.opts.noise,
+                                   run.say)
+    (run.out / "paired.md").write_text(table)
+    run.sections["paired"] = table
+    run.summary["paired"] = numbers
+
+
 def _evaluate_model(src: ModelSource, env: str, trials: int, seed: int, noise: str, label: str, **extra: Any) -> Any:
     """``evaluate`` a COMA model; sampled actions come from torch's generator, seeded here with ``seed``."""
     import torch as th
@@ -185,7 +539,93 @@ def _evaluate_model(src: ModelSource, env: str, trials: int, seed: int, noise: s
 
     th.manual_seed(seed)
     return ev.evaluate(src.model, env=env, n_trials=trials, seed=seed, fusion=src.fusion, label=label,
-                       deterministic=src.deterministic, noise=noise, **extra)
+                       deterministic=src.deterministic, noise=noise, record=0, **extra)
+
+
+def _paired_check(sources: dict[str, ModelSource], arms: dict[tuple[str, str], Any], trials: int, seed: int,
+                  noise: str, say: Callable[[str], None]) -> tuple[dict[str, Any], str]:
+    from sb3_coma import ablation as ab
+    from sb3_coma import evaluation as ev
+    from sb3_coma.paired import paired_difference, paired_markdown
+
+    table1 = []
+    for env, src in sources.items():
+        say(f"paired check: coma vs ag on {env} ({trials} missions) ...")
+        coma = _evaluate_model(src, env, trials, seed, noise, "coma")
+        ag = ev.evaluate("ag", env=env, n_trials=trials, seed=seed, noise=noise, record=0)
+        table1 += [(env, paired_difference(coma, ag, "f1")), (env, paired_difference(coma, ag, "entropy"))]
+    runs = {}
+    for variant, model in arms.items():
+        label = ab.LABELS[variant]
+        say(f"paired check: {label} on {ABLATION_ENV}, noise {ABLATION_CHECK_NOISE} ({trials} missions) ...")
+        runs[label] = ev.evaluate(model, env=ABLATION_ENV, n_trials=trials, seed=seed, fusion=variant[0],
+                                  label=label, noise=ABLATION_CHECK_NOISE, record=0)
+    full = ab.LABELS[ABLATION_FULL]
+    diffs = [paired_difference(runs[full], r, "entropy") for label, r in runs.items() if label != full and full in runs]
+    met = all(d.diff <= 0 for d in diffs) if len(diffs) == len(ABLATION_ARMS) else None
+
+    missions = f"{trials} missions (env seeds {seed}..{seed + trials - 1})"
+    parts = [f"COMA vs AG on the same {missions} per env, noise `{noise}`:\n",
+             paired_markdown([d for _, d in table1], [env for env, _ in table1])]
+    if diffs:
+        verdict = "at most" if met else "NOT at most"
+        parts += [f"\nThe full model against each other ablation arm on the same {missions}, "
+                  f"`{ABLATION_CHECK_NOISE}` noise: its mean entropy is {verdict} every other arm's "
+                  f"(the verdict column says which differences exceed two standard errors).\n",
+                  paired_markdown(diffs, [ABLATION_CHECK_NOISE] * len(diffs), first_title="noise")]
+    numbers = {"trials": trials, "seed": seed, "noise": noise,
+               "table1": [{"env": env, **d.as_dict()} for env, d in table1],
+               "ablation": [d.as_dict() for d in diffs], "ablation_noise": ABLATION_CHECK_NOISE, "ablation_met": met}
+    return numbers, "\n".join(parts)
+
+
+# ---------------------------------------------------------------------------------------------
+# step 4: the unseen protocol
+# ---------------------------------------------------------------------------------------------
+def unseen_protocol(run: Run) -> None:
+    """Every method on ``unseen_missions`` missions of split "test" with random starts."""
+    if not run.opts.unseen_missions:
+        return
+    from sb3_coma.protocols import run_protocol
+
+    o = run.opts
+    run.unseen = run_protocol("unseen", run.methods, n_trials=o.unseen_missions, seed=o.seed, noise=o.noise,
+                              log=run.say)
+    run.unseen.write(run.out, "unseen")
+    run.skipped.update({f"unseen protocol: {k}": v for k, v in run.unseen.skipped.items()})
+    run.summary["unseen"] = run.unseen.summary()
+
+
+# ---------------------------------------------------------------------------------------------
+# step 5: generalisation and what training adds
+# ---------------------------------------------------------------------------------------------
+def generalisation_step(run: Run) -> None:
+    """Each env's model on the other paper maps and on a fresh env1 star (baselines there too)."""
+    from sb3_coma import evaluation as ev
+
+    o = run.opts
+    gen: list[dict[str, Any]] = []
+    if o.generalisation:
+        # quick: only the fresh env1 layout (the cross-map runs are the same code path)
+        targets = ([] if o.quick else [(e, {}) for e in o.env_names]) + \
+            [(f"env1 (map_seed={FRESH_ENV1_SEED})", {"map_seed": FRESH_ENV1_SEED})]
+        fresh_label = targets[-1][0]
+        for env, src in run.sources.items():
+            for target, extra in targets:
+                if target == env:
+                    continue  # in Table I
+                run.say(f"generalisation: {env} model on {target} ...")
+                r = _evaluate_model(src, "env1" if extra else target, o.trials, o.seed, o.noise, f"coma[{env}]", **extra)
+                gen.append({"model": env, "target": target, **_final(r)})
+        for name in BASELINES:
+            r = ev.evaluate(name, env="env1", n_trials=o.trials, seed=o.seed, noise=o.noise, record=0,
+                            map_seed=FRESH_ENV1_SEED)
+            gen.append({"model": name, "target": fresh_label, **_final(r)})
+    for r in run.results:  # own-map numbers for reference
+        if r.method == "coma":
+            gen.append({"model": r.env, "target": r.env, **_final(r)})
+    (run.out / "generalisation.md").write_text(_report().generalisation_markdown(gen))
+    run.summary["generalisation"] = gen
 
 
 def untrained_prior(model: Any) -> Any:
@@ -209,362 +649,122 @@ def untrained_prior(model: Any) -> Any:
     return policy
 
 
-def ablation_models(full_model: Any, say: Callable[[str], None] = print) -> dict[tuple[str, str], Any]:
-    """The four ablation arms: ``full_model`` (the env3 model in use) plus the shipped models of
-    the other three arms; an arm whose shipped model cannot be loaded is left out, with a message."""
-    from sb3_coma.pretrained import PretrainedError, load_pretrained
-
-    models: dict[tuple[str, str], Any] = {ABLATION_FULL: full_model}
-    for arm, name in ABLATION_ARMS.items():
-        try:
-            models[arm] = load_pretrained(name)
-        except PretrainedError as exc:
-            say(f"ablation: leaving out {arm[0]}_{arm[1]}: {exc}")
-    return models
-
-
-def ablation_acceptance(result: Any, noise: str = ABLATION_CHECK_NOISE) -> dict[str, Any]:
-    """Is the full model's entropy at 100 % of the budget under ``noise`` at most every other
-    arm's? Returns the entropies by arm label and the verdict (``None`` when an arm is missing)."""
-    from sb3_coma.ablation import LABELS
-
-    full = LABELS[ABLATION_FULL]
-    entropy = {label: float(r.mean_std("entropy", 1.0)[0]) for (label, n), r in result.results.items() if n == noise}
-    others = {k: v for k, v in entropy.items() if k != full}
-    met = None if full not in entropy or len(others) < len(LABELS) - 1 else all(entropy[full] <= v for v in others.values())
-    return {"noise": noise, "full": full, "entropy": entropy, "met": met}
-
-
-def _final(result: Any) -> dict[str, float]:
-    f1, f1s = result.mean_std("f1", 1.0)
-    en, ens = result.mean_std("entropy", 1.0)
-    return {"f1": f1, "f1_std": f1s, "entropy": en, "entropy_std": ens}
-
-
-def acceptance(results: Sequence[Any], model_label: str = "coma") -> dict[str, dict[str, Any]]:
-    """Per env: COMA's 100 % F1/entropy, the best baseline on each, and whether COMA beats all."""
-    out: dict[str, dict[str, Any]] = {}
-    for env in dict.fromkeys(r.env for r in results):
-        group = {r.method: _final(r) for r in results if r.env == env}
-        if model_label not in group:
-            continue
-        mine = group.pop(model_label)
-        best_f1 = max(group.items(), key=lambda kv: kv[1]["f1"]) if group else None
-        best_en = min(group.items(), key=lambda kv: kv[1]["entropy"]) if group else None
-        beats_f1 = all(mine["f1"] > v["f1"] for v in group.values())
-        beats_en = all(mine["entropy"] < v["entropy"] for v in group.values())
-        out[env] = {"coma": mine, "best_f1_baseline": best_f1[0] if best_f1 else None,
-                    "best_f1": best_f1[1]["f1"] if best_f1 else None,
-                    "best_entropy_baseline": best_en[0] if best_en else None,
-                    "best_entropy": best_en[1]["entropy"] if best_en else None,
-                    "beats_f1": beats_f1, "beats_entropy": beats_en, "beats_all": beats_f1 and beats_en}
-    return out
-
-
-def _time_fusion(fusion: str, n_agents: int, reps: int = 200) -> float | None:
-    """ms per UAV decision of fusing the N received maps of one UAV (batch of one)."""
-    from envs import fusion as fz
-
-    rng = np.random.default_rng(0)
-    received = rng.random((1, n_agents, 44, 44), dtype=np.float32)
-    valid = np.ones((1, n_agents), dtype=bool)
-    if fusion == "mean":
-        fn = lambda: fz.mean_fusion(received, valid)  # noqa: E731
-    else:
-        try:
-            import torch as th
-
-            from sb3_coma.sendfuse.weights import default_weights_path, load_weights
-
-            net = load_weights(default_weights_path(received.shape[-1]))
-            x, v = th.as_tensor(received), th.as_tensor(valid)
-
-            def fn() -> Any:
-                with th.inference_mode():
-                    return net.fuse(x, v)
-        except Exception:  # noqa: BLE001 - weights missing or unreadable: report n/a, not a crash
-            return None
-    fn()
-    tic = time.perf_counter()
-    for _ in range(reps):
-        fn()
-    return (time.perf_counter() - tic) * 1e3 / reps
-
-
-def _time_actor(model: Any, env: str, fusion: str, noise: str, reps: int = 100) -> float:
-    """ms of one UAV's decision (batch of one observation), as on board."""
-    import envs
-
-    venv = envs.make_vec_env(env, n_envs=1, fusion=fusion, seed=0, noise=noise)
-    obs = venv.reset()
-    venv.close()
-    one = {k: v[:1] for k, v in obs.items()}
-    model.predict(one, deterministic=True)
-    tic = time.perf_counter()
-    for _ in range(reps):
-        model.predict(one, deterministic=True)
-    return (time.perf_counter() - tic) * 1e3 / reps
-
-
-# ---------------------------------------------------------------------------------------------
-# the run
-# ---------------------------------------------------------------------------------------------
-def reproduce(out: str | Path = "results", env_names: Sequence[str] = DEFAULT_ENVS, trials: int = 10, seed: int = 0,
-              noise: str = "moderate", train: bool = False, quick: bool = False, timesteps: int | None = None,
-              fusion: str | None = None, docs: str | Path | None = None, plots: bool = True, ship: bool = False,
-              generalisation: bool = True, deterministic: bool | None = None, record: bool = False,
-              ablation: bool = True, wide_trials: int = WIDE_TRIALS,
-              log: Callable[[str], None] | None = print) -> dict[str, Any]:
-    """Run the reproduction (see module docstring) and return the summary dict.
-
-    :param train: retrain each env's model through the zoo config instead of loading the shipped one
-    :param quick: smoke test: 2 trials (unless ``trials`` is smaller) and, with ``train``, a tiny training
-    :param fusion: fusion of retrained models (default: the shipped model's, else sendfuse when its
-        weights exist, else mean)
-    :param docs: also write ``RESULTS.md`` at this path and its figures in ``<docs dir>/figures``
-    :param deterministic: argmax actions or seeded draws from the policy (default: the shipped
-        model's ``deterministic`` entry, True for retrained models without one)
-    :param record: write the measured Table I numbers of the shipped models into ``models.json``
-        (``metrics``; checksums and files untouched)
-    :param ship: with ``train``: copy the trained zips into ``sb3_coma/pretrained`` and update
-        ``models.json`` (checksums, command, wall-clock, metrics)
-    :param ablation: when env3 is among the envs, the paper's ablation on env3 at the three noise
-        levels: the env3 model in use and the shipped models of the other three arms
-    :param wide_trials: missions of the paired check (``sb3_coma.paired``): COMA vs AG per env and
-        the full model vs every ablation arm under loud noise, each pair on the same missions, so
-        the verdicts are tested against mission-to-mission noise (0: skip; ``quick``: ``trials``)
-    """
+def untrained_prior_step(run: Run) -> None:
+    """The untrained gain prior of each model vs the trained model on the Table I missions."""
     from sb3_coma import evaluation as ev
 
-    say = log or (lambda _m: None)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    if quick:
-        trials = min(trials, 2)
-        wide_trials = min(wide_trials, trials)
-    if isinstance(wide_trials, bool) or not isinstance(wide_trials, int) or wide_trials < 0 or wide_trials == 1:
-        raise ValueError(f"wide_trials must be 0 (skip) or an integer >= 2, got {wide_trials!r}")
-    if ship and (not train or quick):
-        raise ValueError("ship=True needs train=True and quick=False")
-    env_names = list(env_names)
-
-    # ---- models
-    sources: dict[str, ModelSource] = {}
-    for env in env_names:
-        if train:
-            fz = fusion
-            if fz is None:
-                try:
-                    from sb3_coma.pretrained import model_info
-
-                    fz = model_info(env).get("fusion")
-                except ValueError:
-                    fz = None
-            if fz == "sendfuse" or fz is None:
-                fz = "sendfuse" if sendfuse_available() else "mean"
-            det = deterministic
-            if det is None:
-                try:
-                    from sb3_coma.pretrained import model_info
-
-                    det = bool(model_info(env).get("deterministic", True))
-                except ValueError:
-                    det = True
-            sources[env] = _train_model(env, fz, out, quick, timesteps, say, det)
-        else:
-            sources[env] = _shipped_model(env)
-            if deterministic is not None:
-                sources[env].deterministic = deterministic
-
-    # ---- Table I
-    results = []
-    for env in env_names:
-        src = sources[env]
-        say(f"evaluating coma on {env} ({trials} trials, noise {noise}, fusion {src.fusion}) ...")
-        results.append(_evaluate_model(src, env, trials, seed, noise, "coma"))
-        for name in BASELINES:
-            say(f"evaluating {name} on {env} ...")
-            results.append(ev.evaluate(name, env=env, n_trials=trials, seed=seed, noise=noise))
-    rows = ev.rows_for(results)
-    ev.write_table_csv(rows, out / "table.csv")
-    ev.write_per_step_csv(rows, out / "per_step.csv")
-    ev.write_planning_time_csv(rows, out / "planning_time.csv")
-    table = ev.table_markdown(rows)
-    (out / "table.md").write_text(table)
-    accept = acceptance(results)
-    (out / "acceptance.md").write_text(_acceptance_markdown(accept))
-
-    # ---- generalisation
-    gen: list[dict[str, Any]] = []
-    if generalisation:
-        # quick: only the fresh env1 layout (the cross-map runs are the same code path)
-        targets = ([] if quick else [(e, {}) for e in env_names]) + \
-            [(f"env1 (map_seed={FRESH_ENV1_SEED})", {"map_seed": FRESH_ENV1_SEED})]
-        fresh_label = targets[-1][0]
-        for env, src in sources.items():
-            for target, extra in targets:
-                if target == env:
-                    continue  # in Table I
-                base_env = "env1" if extra else target
-                say(f"generalisation: {env} model on {target} ...")
-                r = _evaluate_model(src, base_env, trials, seed, noise, f"coma[{env}]", **extra)
-                gen.append({"model": env, "target": target, **_final(r)})
-        for name in BASELINES:
-            r = ev.evaluate(name, env="env1", n_trials=trials, seed=seed, noise=noise, map_seed=FRESH_ENV1_SEED)
-            gen.append({"model": name, "target": fresh_label, **_final(r)})
-    for r in results:  # own-map numbers for reference
-        if r.method == "coma":
-            gen.append({"model": r.env, "target": r.env, **_final(r)})
-    (out / "generalisation.md").write_text(_generalisation_markdown(gen, env_names, results))
-
-    # ---- what training adds over the untrained gain prior
-    prior_rows: list[dict[str, Any]] = []
-    for env, src in sources.items():
+    o = run.opts
+    rows: list[dict[str, Any]] = []
+    for env, src in run.sources.items():
         policy = untrained_prior(src.model)
         if policy is None:
             continue
-        say(f"evaluating the untrained gain prior of the {env} model ...")
-        r = ev.evaluate(policy, env=env, n_trials=trials, seed=seed, fusion=src.fusion, deterministic=True,
-                        noise=noise, label="prior")
-        trained = next(x for x in results if x.env == env and x.method == "coma")
-        prior_rows.append({"env": env, "prior": _final(r), "trained": _final(trained),
-                           "weights_start": [float(w) for w in policy.gain_prior_init],
-                           "weights_trained": [round(float(w), 3) for w in src.model.policy.actor.prior_weights.detach()]})
-
-    # ---- ablation (env3: SenDFuse x CBAM at three noise levels)
-    ablation_summary: dict[str, Any] | None = None
-    ablation_table = ""
-    ablation_result = None
-    arms: dict[tuple[str, str], Any] = {}
-    if ablation and ABLATION_ENV in sources:
-        from sb3_coma import ablation as ab
-
-        arms = ablation_models(sources[ABLATION_ENV].model, say)
-        ablation_result = ab.run_ablation(arms, env=ABLATION_ENV, n_trials=trials, seed=seed, log=say)
-        ablation_rows = ablation_result.rows()
-        ev.write_table_csv(ablation_rows, out / "ablation.csv", group_title="noise")
-        ablation_table = ablation_result.markdown()
-        (out / "ablation.md").write_text(ablation_table)
-        ablation_summary = ablation_acceptance(ablation_result)
-        arms = {v: m for v, m in arms.items() if ab.LABELS[v] not in ablation_result.skipped}  # flown above
-
-    # ---- the paired check on more missions
-    wide: dict[str, Any] | None = None
-    wide_table = ""
-    if wide_trials:
-        wide, wide_table = _paired_check(sources, arms, wide_trials, seed, noise, say)
-        (out / "paired.md").write_text(wide_table)
-
-    # ---- latency
-    latency = []
-    for env, src in sources.items():
-        ag = next(r for r in results if r.env == env and r.method == "ag")
-        coma = next(r for r in results if r.env == env and r.method == "coma")
-        n_agents = coma.n_agents
-        latency.append({"env": env, "fusion": src.fusion,
-                        "actor_ms_batch1": _time_actor(src.model, env, src.fusion, noise, reps=10 if quick else 100),
-                        "actor_ms_batched": float(coma.planning_time_ms.mean()),
-                        "fusion_ms": _time_fusion(src.fusion, n_agents, reps=20 if quick else 200),
-                        "ag_ms": float(ag.planning_time_ms.mean())})
-    (out / "latency.md").write_text(_latency_markdown(latency))
-
-    summary = {
-        "command": " ".join(["sb3-coma reproduce"] + (["--train"] if train else []) + (["--quick"] if quick else [])
-                            + (["--record"] if record and not train else [])),
-        "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "python": sys.version.split()[0],
-        "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
-        "trials": trials, "seed": seed, "noise": noise, "envs": env_names,
-        "models": {env: {"source": s.source, "fusion": s.fusion, "command": s.command, "train_wall_s": s.train_wall_s,
-                         "timesteps": s.timesteps, "deterministic": s.deterministic} for env, s in sources.items()},
-        "table": {f"{r.env}/{r.method}": r.summary() for r in results},
-        "acceptance": accept, "generalisation": gen, "latency": latency, "untrained_prior": prior_rows,
-        "ablation": ablation_summary, "paired": wide,
-    }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
-
-    # ---- figures
-    figures: list[Path] = []
-    if plots:
-        from sb3_coma import plots as pl
-
-        fig_dir = out / "figures"
-        groups = {env: [r for r in results if r.env == env] for env in env_names}
-        figures.append(pl.plot_metric_grid(groups, fig_dir / "table1_curves.png",
-                                           title=f"F1 and entropy vs step, noise {noise}, {trials} trials"))
-        curves = {f"{env}": pl.TrainingCurve(np.arange(1, len(s.training_curve) + 1), np.asarray(s.training_curve),
-                                             s.source) for env, s in sources.items() if s.training_curve}
-        if curves:
-            figures.append(pl.plot_training_reward(curves, fig_dir / "training_reward.png"))
-        if ablation_result is not None and ablation_result.results:
-            figures.append(pl.plot_metric_grid(ablation_result.by_noise(), fig_dir / "ablation_curves.png",
-                                               title=f"{ABLATION_ENV}: F1 and entropy vs step per noise level"))
-            figures.append(pl.plot_ablation(dict(ablation_result.results), fig_dir / "ablation_bars.png",
-                                            title=f"{ABLATION_ENV}: ablation at 100 % of the budget"))
-
-    # ---- ship
-    if ship:
-        _ship(sources, results, say)
-    elif record and not train:
-        record_metrics(results, say)
-
-    summary["ablation_table"] = ablation_table
-    summary["paired_table"] = wide_table if wide else ""
-    report = results_markdown(summary, table, figures, out)
-    (out / "RESULTS.md").write_text(report)
-    if docs is not None:
-        docs = Path(docs)
-        fig_docs = docs.parent / "figures"
-        fig_docs.mkdir(parents=True, exist_ok=True)
-        for f in figures:
-            shutil.copyfile(f, fig_docs / f.name)
-        docs.write_text(results_markdown(summary, table, [fig_docs / f.name for f in figures], docs.parent))
-        say(f"wrote {docs}")
-    say(_acceptance_markdown(accept))
-    if ablation_summary is not None:
-        say(_ablation_verdict(ablation_summary))
-    say(f"wrote {out}/ (table.md, acceptance.md, generalisation.md, latency.md, summary.json, RESULTS.md"
-        + (", ablation.md" if ablation_summary is not None else "") + (", paired.md" if wide else "") + ")")
-    return summary
+        run.say(f"evaluating the untrained gain prior of the {env} model ...")
+        r = ev.evaluate(policy, env=env, n_trials=o.trials, seed=o.seed, fusion=src.fusion, deterministic=True,
+                        noise=o.noise, label="prior", record=0)
+        rows.append({"env": env, "prior": _final(r), "trained": _final(run.paper.result(env, "coma")),
+                     "weights_start": [float(w) for w in policy.gain_prior_init],
+                     "weights_trained": [round(float(w), 3) for w in src.model.policy.actor.prior_weights.detach()]})
+    run.summary["untrained_prior"] = rows
 
 
-def _paired_check(sources: dict[str, ModelSource], arms: dict[tuple[str, str], Any], trials: int, seed: int,
-                  noise: str, say: Callable[[str], None]) -> tuple[dict[str, Any], str]:
-    """COMA vs AG per env (F1 and entropy) and the full model vs every other ablation arm in
-    ``arms`` (the ablation's models; entropy under loud noise), each pair flown on the same
-    ``trials`` missions. Returns the numbers (for summary.json) and their Markdown tables."""
+# ---------------------------------------------------------------------------------------------
+# step 6: the noise sweep
+# ---------------------------------------------------------------------------------------------
+def sweep_arms(run: Run) -> tuple[str, list[Any]]:
+    """(map, arms) of the noise sweep: AG and every trained ablation arm on env3 when it is
+    evaluated, else AG and the first map's model."""
     from sb3_coma import ablation as ab
-    from sb3_coma import evaluation as ev
-    from sb3_coma.paired import paired_difference, paired_markdown
+    from sb3_coma.protocols import Method
 
-    table1 = []
-    for env, src in sources.items():
-        say(f"paired check: coma vs ag on {env} ({trials} missions) ...")
-        coma = _evaluate_model(src, env, trials, seed, noise, "coma")
-        ag = ev.evaluate("ag", env=env, n_trials=trials, seed=seed, noise=noise)
-        table1 += [(env, paired_difference(coma, ag, "f1")), (env, paired_difference(coma, ag, "entropy"))]
-    runs = {}
-    for variant, model in arms.items():
-        label = ab.LABELS[variant]
-        say(f"paired check: {label} on {ABLATION_ENV}, noise {ABLATION_CHECK_NOISE} ({trials} missions) ...")
-        runs[label] = ev.evaluate(model, env=ABLATION_ENV, n_trials=trials, seed=seed, fusion=variant[0],
-                                  label=label, noise=ABLATION_CHECK_NOISE)
-    full = ab.LABELS[ABLATION_FULL]
-    diffs = [paired_difference(runs[full], r, "entropy") for label, r in runs.items() if label != full and full in runs]
-    met = all(d.diff <= 0 for d in diffs) if len(diffs) == len(ABLATION_ARMS) else None
+    env = ABLATION_ENV if ABLATION_ENV in run.sources else run.opts.env_names[0]
+    arms = [Method("ag", "ag")]
+    if env == ABLATION_ENV and run.arms:
+        arms += [Method(ab.LABELS[v], m, kind="coma", fusion=v[0], deterministic=True) for v, m in run.arms.items()]
+    elif env in run.sources:
+        src = run.sources[env]
+        arms.append(Method("coma", src.model, kind="coma", fusion=src.fusion, deterministic=src.deterministic))
+    return env, arms
 
-    missions = f"{trials} missions (env seeds {seed}..{seed + trials - 1})"
-    parts = [f"COMA vs AG on the same {missions} per env, noise `{noise}`:\n",
-             paired_markdown([d for _, d in table1], [env for env, _ in table1])]
-    if diffs:
-        verdict = "at most" if met else "NOT at most"
-        parts += [f"\nThe full model against each other ablation arm on the same {missions}, "
-                  f"`{ABLATION_CHECK_NOISE}` noise: its mean entropy is {verdict} every other arm's "
-                  f"(the verdict column says which differences exceed two standard errors).\n",
-                  paired_markdown(diffs, [ABLATION_CHECK_NOISE] * len(diffs), first_title="noise")]
-    numbers = {"trials": trials, "seed": seed, "noise": noise,
-               "table1": [{"env": env, **d.as_dict()} for env, d in table1],
-               "ablation": [d.as_dict() for d in diffs], "ablation_noise": ABLATION_CHECK_NOISE, "ablation_met": met}
-    return numbers, "\n".join(parts)
+
+def noise_sweep_step(run: Run) -> None:
+    """``sb3_coma.noise_sweep`` on the sweep arms, shared unseen missions; table, CSV, figure."""
+    if not run.opts.sweep_missions:
+        return
+    from sb3_coma.noise_sweep import run_noise_sweep
+
+    env, arms = sweep_arms(run)
+    run.sweep = run_noise_sweep(arms, env=env, n_missions=run.opts.sweep_missions, seed=run.opts.seed,
+                                quick=run.opts.quick, log=run.say)
+    run.sweep.write_csv(run.out / "noise_sweep.csv")
+    run.skipped.update({f"noise sweep: {k}": v for k, v in run.sweep.skipped.items()})
+    run.sections["noise_sweep"] = run.sweep.markdown()
+    (run.out / "noise_sweep.md").write_text(run.sections["noise_sweep"])
+    run.summary["noise_sweep"] = run.sweep.summary()
+
+
+# ---------------------------------------------------------------------------------------------
+# step 7: the deployment cost table
+# ---------------------------------------------------------------------------------------------
+def cost_models(run: Run) -> dict[str, tuple[Any, str, str]]:
+    """One model per architecture in use (fusion x extractor), each timed on its own map: the maps'
+    models, then the ablation arms of other architectures."""
+    from sb3_coma import ablation as ab
+
+    out: dict[str, tuple[Any, str, str]] = {}
+    seen = set()
+    candidates = [(f"COMA {src.env}", src.model, src.fusion, src.env) for src in run.sources.values()] + \
+        [(f"COMA {ab.LABELS[v]}", m, v[0], ABLATION_ENV) for v, m in run.arms.items()]
+    for label, model, fusion, env in candidates:
+        arch = (fusion, type(model.policy.actor.features_extractor).__name__)
+        if arch not in seen:
+            seen.add(arch)
+            out[f"{label} ({fusion} + {'CBAM' if 'CBAM' in arch[1] else 'CNN'})"] = (model, fusion, env)
+    return out
+
+
+def cost_table(run: Run) -> None:
+    """Decision time per UAV (batch of one, one thread): actor + fusion in PyTorch and ONNX Runtime,
+    AG with look-ahead 1, 2, 3 (``sb3_coma.costs``)."""
+    if not run.opts.costs:
+        run.summary["latency"] = []
+        return
+    from sb3_coma.costs import costs_markdown, decision_costs
+
+    o = run.opts
+    models = cost_models(run)
+    if o.quick:
+        models = dict(list(models.items())[:1])
+    rows = decision_costs(models, envs=list(o.cost_envs or o.env_names), repeats=QUICK_REPEATS if o.quick else
+                          COST_REPEATS, log=run.say)
+    run.sections["latency"] = costs_markdown(rows)
+    (run.out / "latency.md").write_text(run.sections["latency"])
+    run.summary["latency"] = [r.as_dict() for r in rows]
+
+
+def _time_fusion(fusion: str, n_agents: int, reps: int = 200) -> float | None:
+    """ms per UAV decision of fusing the N received maps of one UAV (batch of one, PyTorch, with
+    the projection to the lattice); ``None`` when the fusion cannot be built here."""
+    from sb3_coma.costs import _torch_fusion, one_thread, time_call
+
+    try:
+        fn = _torch_fusion(fusion, n_agents, 44, 11)
+    except Exception:  # noqa: BLE001 - weights missing or unreadable: report n/a, not a crash
+        return None
+    with one_thread():
+        return time_call(fn, reps, warmup=1)[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# step 8: ship / record, then the report
+# ---------------------------------------------------------------------------------------------
+def ship_or_record(run: Run) -> None:
+    """With ``ship``: the retrained zips into sb3_coma/pretrained; with ``record``: the measured
+    Table I numbers of the shipped models into models.json."""
+    if run.opts.ship:
+        _ship(run.sources, run.results, run.say)
+    elif run.opts.record and not run.opts.train:
+        record_metrics(run.results, run.say)
 
 
 def _metrics_entry(res: Any) -> dict[str, Any]:
@@ -604,145 +804,120 @@ def _ship(sources: dict[str, ModelSource], results: Sequence[Any], say: Callable
             **_metrics_entry(res),
             "training_curve": src.training_curve,
         }
+        try:
+            from envs import WORLD_VERSION
+
+            manifest["models"][env]["world"] = WORLD_VERSION
+        except ImportError:
+            pass
         say(f"shipped {directory / manifest['models'][env]['file']}")
     pt.write_manifest(manifest)
 
 
-# ---------------------------------------------------------------------------------------------
-# markdown
-# ---------------------------------------------------------------------------------------------
-def _acceptance_markdown(accept: dict[str, dict[str, Any]]) -> str:
-    lines = ["| Env | COMA F1 @100% | best baseline F1 | COMA entropy @100% | best baseline entropy | beats all on F1 | "
-             "beats all on entropy |", "| --- | ---: | --- | ---: | --- | :---: | :---: |"]
-    for env, a in accept.items():
-        c = a["coma"]
-        lines.append(f"| {env} | {c['f1']:.4f} ± {c['f1_std']:.4f} | {a['best_f1_baseline']} {a['best_f1']:.4f} | "
-                     f"{c['entropy']:.4f} ± {c['entropy_std']:.4f} | {a['best_entropy_baseline']} {a['best_entropy']:.4f} | "
-                     f"{'yes' if a['beats_f1'] else 'NO'} | {'yes' if a['beats_entropy'] else 'NO'} |")
-    return "\n".join(lines) + "\n"
+def _report() -> Any:
+    from sb3_coma import report
+
+    return report
 
 
-def _generalisation_markdown(gen: list[dict[str, Any]], env_names: Sequence[str], results: Sequence[Any]) -> str:
-    lines = ["| model (trained on) | evaluated on | F1 @100% | entropy @100% |", "| --- | --- | ---: | ---: |"]
-    for g in sorted(gen, key=lambda g: (g["model"] in BASELINES, g["model"], g["target"])):
-        own = " (own map)" if g["model"] == g["target"] else ""
-        lines.append(f"| {g['model']}{own} | {g['target']} | {g['f1']:.4f} ± {g['f1_std']:.4f} | "
-                     f"{g['entropy']:.4f} ± {g['entropy_std']:.4f} |")
-    return "\n".join(lines) + "\n"
+def figures_step(run: Run) -> None:
+    """Metric curves per protocol, training reward, ablation, noise sweep."""
+    if not run.opts.plots:
+        return
+    from sb3_coma import plots as pl
+
+    fig_dir = run.out / "figures"
+    o = run.opts
+    paper = {env: [run.paper.result(env, m.label) for m in ms if (env, m.label) in run.paper.results]
+             for env, ms in run.methods.items()}
+    run.figures.append(pl.plot_metric_grid(paper, fig_dir / "table1_curves.png",
+                                           title=f"paper protocol: F1 and entropy vs step, noise {o.noise}, "
+                                                 f"{o.trials} trials"))
+    if run.unseen is not None:
+        unseen = {env: [run.unseen.result(env, m.label) for m in ms if (env, m.label) in run.unseen.results]
+                  for env, ms in run.methods.items()}
+        run.figures.append(pl.plot_metric_grid(unseen, fig_dir / "unseen_curves.png",
+                                               title=f"unseen protocol: F1 and entropy vs step, noise {o.noise}, "
+                                                     f"{run.unseen.n_trials} missions"))
+    curves = {env: pl.TrainingCurve(np.arange(1, len(s.training_curve) + 1), np.asarray(s.training_curve), s.source)
+              for env, s in run.sources.items() if s.training_curve}
+    if curves:
+        run.figures.append(pl.plot_training_reward(curves, fig_dir / "training_reward.png"))
+    if run.ablation is not None and run.ablation.results:
+        run.figures.append(pl.plot_metric_grid(run.ablation.by_noise(), fig_dir / "ablation_curves.png",
+                                               title=f"{ABLATION_ENV}: F1 and entropy vs step per noise level"))
+        run.figures.append(pl.plot_ablation(dict(run.ablation.results), fig_dir / "ablation_bars.png",
+                                            title=f"{ABLATION_ENV}: ablation at 100 % of the budget"))
+    if run.sweep is not None and run.sweep.results:
+        run.figures.append(pl.plot_noise_sweep(run.sweep, fig_dir / "noise_sweep.png"))
 
 
-def _prior_markdown(rows: list[dict[str, Any]]) -> str:
-    lines = ["| Env | untrained prior F1 | trained F1 | untrained prior entropy | trained entropy | prior weights "
-             "(class, plain): start -> trained |", "| --- | ---: | ---: | ---: | ---: | --- |"]
-    for r in rows:
-        p, t = r["prior"], r["trained"]
-        lines.append(f"| {r['env']} | {p['f1']:.4f} ± {p['f1_std']:.4f} | {t['f1']:.4f} ± {t['f1_std']:.4f} | "
-                     f"{p['entropy']:.4f} ± {p['entropy_std']:.4f} | {t['entropy']:.4f} ± {t['entropy_std']:.4f} | "
-                     f"{r['weights_start']} -> {r['weights_trained']} |")
-    if not rows:
-        lines.append("| (no model with a gain prior) | | | | | |")
-    return "\n".join(lines) + "\n"
+def write_results(run: Run) -> None:
+    """summary.json, RESULTS.md (and the docs copy with its figures)."""
+    o = run.opts
+    report = _report()
+    run.summary.update(
+        command=" ".join(["sb3-coma reproduce"] + (["--train"] if o.train else []) + (["--quick"] if o.quick else [])
+                         + (["--record"] if o.record and not o.train else [])),
+        command_line=command_line(o), date=time.strftime("%Y-%m-%d %H:%M:%S %Z"), python=sys.version.split()[0],
+        machine=f"{platform.machine()} {platform.processor() or ''}".strip(), trials=o.trials, seed=o.seed,
+        noise=o.noise, envs=list(o.env_names), ag_weighting=_ag_weightings(o.env_names),
+        models={env: {"source": s.source, "fusion": s.fusion, "command": s.command, "train_wall_s": s.train_wall_s,
+                      "timesteps": s.timesteps, "deterministic": s.deterministic,
+                      "note": next((m.note for m in run.methods.get(env, []) if m.label == "coma"), "")}
+                for env, s in run.sources.items()},
+        skipped=dict(run.skipped), step_seconds=dict(run.timings),
+        wall_s=round(time.perf_counter() - run.started, 1))
+    (run.out / "summary.json").write_text(json.dumps(run.summary, indent=2, default=_jsonable) + "\n")
+    (run.out / "RESULTS.md").write_text(report.results_markdown(run, run.figures, run.out))
+    if o.docs is not None:
+        docs = Path(o.docs)
+        fig_docs = docs.parent / "figures"
+        fig_docs.mkdir(parents=True, exist_ok=True)
+        for f in run.figures:
+            shutil.copyfile(f, fig_docs / f.name)
+        docs.write_text(report.results_markdown(run, [fig_docs / f.name for f in run.figures], docs.parent))
+        run.say(f"wrote {docs}")
+    if "acceptance" in run.summary:
+        run.say(report.acceptance_markdown(run.summary["acceptance"]))
+    if run.summary.get("ablation"):
+        run.say(report.ablation_verdict(run.summary["ablation"]))
+    run.say(f"wrote {run.out}/ (table.md, team_table.md, paper_verdicts.md, acceptance.md, unseen_*.md, "
+            f"noise_sweep.md, generalisation.md, latency.md, summary.json, RESULTS.md) in {run.summary['wall_s']} s")
 
 
-def _ablation_verdict(a: dict[str, Any]) -> str:
-    others = ", ".join(f"{k} {v:.4f}" for k, v in a["entropy"].items() if k != a["full"])
-    full = a["entropy"].get(a["full"])
-    head = (f"Under {a['noise']} noise, entropy at 100 %: {a['full']} "
-            f"{'n/a' if full is None else f'{full:.4f}'} vs {others}.")
-    if a["met"] is None:
-        return head + " Not every arm was evaluated, so the ablation criterion cannot be checked."
-    return head + (" The full model is at least as good as every ablation on entropy." if a["met"]
-                   else " The full model is NOT at least as good as every ablation on entropy.")
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return float(value)
 
 
-def _latency_markdown(latency: list[dict[str, Any]]) -> str:
-    lines = ["| Env | fusion | actor, one UAV (ms) | actor, batched (ms per UAV) | fusion (ms per UAV) | "
-             "actor + fusion (ms) | AG (ms per UAV) |", "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
-    for t in latency:
-        fz = t["fusion_ms"]
-        total = t["actor_ms_batch1"] + (fz or 0.0)
-        lines.append(f"| {t['env']} | {t['fusion']} | {t['actor_ms_batch1']:.3f} | {t['actor_ms_batched']:.3f} | "
-                     f"{'n/a' if fz is None else f'{fz:.4f}'} | {total:.3f} | {t['ag_ms']:.3f} |")
-    return "\n".join(lines) + "\n"
+def _ag_weightings(env_names: Sequence[str]) -> dict[str, str]:
+    from sb3_coma.baselines.adaptive_gain import default_weighting
+
+    return {env: default_weighting(env) for env in env_names}
 
 
-def _ablation_section(summary: dict[str, Any]) -> list[str]:
-    """RESULTS.md lines of the env3 ablation (none when it was not run)."""
-    a = summary.get("ablation")
-    if not a:
-        return []
-    return ["## Ablation: SenDFuse x CBAM under three noise levels (env3)", "",
-            "The paper's Table II / Fig. 4. SenDFuse+CBAM is the env3 model above; the other three arms are the "
-            "shipped models `env3-sendfuse-cnn`, `env3-mean-cbam`, `env3-mean-cnn`, trained with the same settings "
-            "and selection (sb3_coma/pretrained/MODELS.md); each flown with the fusion it was trained with, same "
-            "missions, argmax actions, at every noise level. Best of each noise level in bold. More in "
-            "docs/ABLATION.md.", "", summary.get("ablation_table", ""), "", f"**{_ablation_verdict(a)}**", ""]
+def command_line(o: ReproduceOptions) -> str:
+    """The ``sb3-coma reproduce`` command line that gives these options."""
+    parts = ["sb3-coma reproduce"] + (["--train"] if o.train else []) + (["--quick"] if o.quick else []) + \
+        (["--record"] if o.record and not o.train else [])
+    defaults = ReproduceOptions()
+    for name, flag in (("unseen_missions", "--unseen-missions"), ("sweep_missions", "--sweep-missions"),
+                       ("wide_trials", "--wide-trials")):
+        if not o.quick and getattr(o, name) != getattr(defaults, name):
+            parts.append(f"{flag} {getattr(o, name)}")
+    if list(o.env_names) != list(DEFAULT_ENVS):
+        parts.append(f"--env {','.join(o.env_names)}")
+    if o.trials != defaults.trials and not o.quick:
+        parts.append(f"--trials {o.trials}")
+    return " ".join(parts)
 
 
-def _paired_section(summary: dict[str, Any]) -> list[str]:
-    """RESULTS.md lines of the paired check (none when it was skipped)."""
-    if not summary.get("paired_table"):
-        return []
-    return ["## A paired check on more missions", "",
-            "The tables above rank methods by means over the trials, and the spread between missions is as large "
-            "as several of the differences. Here each pair of methods flies the same missions, more of them, and "
-            "the per-mission difference is averaged: ± is its standard error, and a difference within two "
-            "standard errors is called a tie (`sb3_coma.paired`; `--wide-trials`). This checks the verdicts above; "
-            "it does not replace them.", "", summary["paired_table"], ""]
-
-
-def results_markdown(summary: dict[str, Any], table: str, figures: Sequence[Path], base: Path) -> str:
-    """The RESULTS.md report from a summary (figure paths relative to ``base``)."""
-    import os
-
-    models = summary["models"]
-    acc = summary["acceptance"]
-    verdict = all(a["beats_all"] for a in acc.values()) if acc else False
-    lines = [
-        "# Results",
-        "",
-        f"Generated by `{summary['command']}` on {summary['date']} (Python {summary['python']}, "
-        f"{summary['machine']}, CPU). {summary['trials']} seeded trials per method (env seeds "
-        f"{summary['seed']}..{summary['seed'] + summary['trials'] - 1}, identical for every method), "
-        f"4 UAVs, budget 15, channel noise `{summary['noise']}`. Every number on this page is measured by that command; "
-        "regenerate it with `sb3-coma reproduce` (shipped models) or `sb3-coma reproduce --train` (retrain first).",
-        "",
-        "## Models",
-        "",
-        "| Env | source | fusion | actions | joint steps | training wall-clock (s) | retrain command |",
-        "| --- | --- | --- | --- | ---: | ---: | --- |",
-    ]
-    for env, m in models.items():
-        wall = "n/a" if m["train_wall_s"] is None else f"{float(m['train_wall_s']):.1f}"
-        acts = "argmax" if m.get("deterministic", True) else "sampled (seeded)"
-        lines.append(f"| {env} | {m['source'] if m['source'] == 'shipped' else 'trained by this run'} | {m['fusion']} | {acts} | "
-                     f"{m['timesteps']} | {wall} | `{m['command']}` |")
-    lines += ["", "Hyperparameters: `zoo_configs/coma.yml`; how they were chosen: `sb3_coma/pretrained/MODELS.md`.", "",
-              "## Table I (mean ± std over trials; best of each env in bold)", "", table, "",
-              "## Acceptance: COMA vs every baseline at 100 % of the budget", "",
-              _acceptance_markdown(acc), "",
-              ("**Verdict: COMA beats AG, NL (lawnmower) and random on both F1 and entropy on every evaluated "
-               "environment.**") if verdict else
-              "**Verdict: COMA does NOT beat every baseline on both metrics everywhere; see the NO cells above. "
-              "What was tried and measured: `sb3_coma/pretrained/MODELS.md`.**", "",
-              "## What training adds: the untrained gain prior vs the trained model (100 % budget)", "",
-              "The shipped actor adds a learned mix of each action's expected information gain to its logits "
-              "(docs/training.md, \"Gain prior\"). \"untrained prior\" flies the same model with that mix at its "
-              "starting weights and the network's own term removed, argmax actions: the greedy planner the "
-              "training starts from.", "", _prior_markdown(summary.get("untrained_prior", [])), "",
-              *_ablation_section(summary),
-              *_paired_section(summary),
-              "## Generalisation (100 % budget)", "",
-              "Each env's model flown on the other maps and on a fresh env1 star layout "
-              f"(`map_seed={FRESH_ENV1_SEED}`; env1's default is 0), same trials and noise; baselines on the fresh layout "
-              "for reference.", "", _generalisation_markdown(summary["generalisation"], summary["envs"], []), "",
-              "## Deployment latency (per UAV decision, CPU)", "",
-              "Actor = `model.predict` on one UAV's observation (batch of one, as on board) and batched over all trials "
-              "as in evaluation; fusion = fusing the N received maps of one UAV; AG = its `predict` per UAV decision "
-              "as timed by `evaluate` (batched over trials).", "", _latency_markdown(summary["latency"]), ""]
-    if figures:
-        lines += ["## Figures", ""]
-        for f in figures:
-            rel = os.path.relpath(f, base)
-            lines += [f"![{Path(f).stem}]({rel})", ""]
-    return "\n".join(lines) + "\n"
+#: The named steps of :func:`reproduce`, in order.
+STEPS: tuple[Callable[[Run], None], ...] = (
+    load_models, paper_protocol, ablation_step, wide_paired_check, unseen_protocol, generalisation_step,
+    untrained_prior_step, noise_sweep_step, cost_table, ship_or_record, figures_step, write_results,
+)

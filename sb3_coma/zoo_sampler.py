@@ -12,11 +12,13 @@ ablation stays a comparison of arms. ``n_steps`` is left to COMA, which collects
 minibatch worth of joint steps per rollout (``ceil(batch_size / n_envs)`` steps per copy), so no
 sampled combination can be refused for a batch larger than its rollout.
 """
+
 from __future__ import annotations
 
 from typing import Any
 
 import optuna
+from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER
 
 __all__ = ["sample_coma_params", "convert_coma_params", "register"]
 
@@ -58,7 +60,5 @@ def sample_coma_params(
 
 def register() -> None:
     """Add the COMA sampler and converter to rl-zoo3's tables."""
-    from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER
-
     HYPERPARAMS_SAMPLER["coma"] = sample_coma_params
     HYPERPARAMS_CONVERTER["coma"] = convert_coma_params

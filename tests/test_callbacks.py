@@ -73,7 +73,8 @@ def make_env(n_envs: int = 2, seed: int = 0) -> Recorder:
 
 def make_model(env, batch_size: int = 6) -> COMA:
     # 2 copies, batch 6 -> 3 steps per copy per rollout = 6 joint steps = one mission per copy.
-    return COMA("CnnPolicy", env, batch_size=batch_size, learning_rate=1e-4, critic_learning_rate=1e-3, seed=0,
+    return COMA("CnnPolicy", env, batch_size=batch_size, n_steps=batch_size // 2, learning_rate=1e-4,
+                critic_learning_rate=1e-3, seed=0,
                 device="cpu", policy_kwargs={"features_extractor_kwargs": {"features_dim": 16, "channels": (8, 8, 8)}})
 
 
@@ -188,7 +189,8 @@ def test_seeded_evaluations_fly_the_same_missions(eval_seed, tmp_path):
     """With ``eval_seed`` every evaluation re-seeds: a policy that does not change (lr 1e-12) scores the same
     each time (without it the missions run on and the scores differ)."""
     env = make_env()
-    model = COMA("CnnPolicy", env, batch_size=6, learning_rate=1e-12, critic_learning_rate=1e-12, seed=0, device="cpu",
+    model = COMA("CnnPolicy", env, batch_size=6, n_steps=3, learning_rate=1e-12, critic_learning_rate=1e-12, seed=0,
+                 device="cpu",
                  policy_kwargs={"features_extractor_kwargs": {"features_dim": 16, "channels": (8, 8, 8)}})
     eval_env = make_env(n_envs=1, seed=5)
     evaluation = MissionEvalCallback(eval_env, eval_freq=6, n_eval_missions=3, verbose=0, eval_seed=eval_seed,

@@ -48,7 +48,7 @@ def _one_thread():
 def _train(seed: int, policy: str = "CnnPolicy") -> tuple[list[dict[str, float]], dict[str, torch.Tensor], list]:
     venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4, noise="moderate")
     try:
-        model = COMA(policy, venv, batch_size=16, n_critic_epochs=2, exploration_initial_eps=0.3,
+        model = COMA(policy, venv, batch_size=16, n_steps=16, n_critic_epochs=2, exploration_initial_eps=0.3,
                      exploration_final_eps=0.05, ent_coef=0.01, seed=seed, device="cpu",
                      policy_kwargs=SMALL_CNN)
         capture = _Capture()

@@ -183,67 +183,6 @@ def test_all_zero_gain_prior_is_no_prior():
     venv.close()
 
 
-def test_gain_aware_critic_starts_neutral_learns_and_round_trips(tmp_path: Path):
-    """``critic_gain=True``: Q gets a zero-initialised linear term in the agent's action gains."""
-    model, venv = _small_model(gain_prior=5.0, critic_gain=True)
-    obs = venv.reset()
-    local, state, _, prior = model._obs_tensors(obs, grouped=True)
-    actions = th.zeros(local.shape[:2], dtype=th.long)
-    with th.no_grad():
-        q = model.policy.q_values(local, state, actions, gain=prior)
-        q_without = model.policy.q_values(local, state, actions, gain=th.zeros_like(prior))
-    assert th.equal(q, q_without)  # the gain term starts at zero
-    model.learn(32)
-    assert model.policy.critic.gain_head.weight.abs().sum() > 0  # ... and is trained
-    with th.no_grad():
-        assert not th.allclose(model.policy.q_values(local, state, actions, gain=prior),
-                               model.policy.q_values(local, state, actions, gain=th.zeros_like(prior)))
-    model.save(tmp_path / "m.zip")
-    loaded = COMA.load(tmp_path / "m.zip", env=venv)
-    assert loaded.policy.critic_gain is True
-    with th.no_grad():
-        assert th.equal(loaded.policy.q_values(local, state, actions, gain=prior),
-                        model.policy.q_values(local, state, actions, gain=prior))
-    venv.close()
-
-
-def test_gain_aware_critic_needs_the_gain_key():
-    with pytest.raises(ValueError, match="critic_gain=True needs observation\\['action_gain'\\]"):
-        venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, action_gain=False, **SMALL)
-        COMA("CnnPolicy", venv, n_steps=8, batch_size=8, policy_kwargs={"critic_gain": True})
-    with pytest.raises(ValueError, match="critic_gain='yes': must be true or false"):
-        _small_model(critic_gain="yes")
-
-
-def test_prior_kl_is_zero_for_the_prior_itself_and_trains():
-    """``prior_kl_coef``: KL(pi || softmax(prior term)) is 0 while the network's term is 0."""
-    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, **SMALL)
-    model = COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, prior_kl_coef=0.5,
-                 policy_kwargs=dict(features_extractor_kwargs={"features_dim": 16}, gain_prior=[4.0, 1.0]))
-    obs = venv.reset()
-    local, _, mask, prior = model._obs_tensors(obs, grouped=False)
-    with th.no_grad():
-        model.policy.actor.head.weight.zero_()
-        model.policy.actor.head.bias.zero_()
-        log_probs = th.log_softmax(model.policy.masked_logits(local, mask, prior), -1)
-        assert model._prior_kl(log_probs.exp(), log_probs, mask, prior).item() == pytest.approx(0.0, abs=1e-6)
-        model.policy.actor.head.bias.copy_(th.arange(6.0))
-        log_probs = th.log_softmax(model.policy.masked_logits(local, mask, prior), -1)
-        assert model._prior_kl(log_probs.exp(), log_probs, mask, prior).item() > 0.01
-    model.learn(16)
-    assert np.isfinite(model.logger.name_to_value.get("train/actor_loss", 0.0))
-    venv.close()
-
-
-def test_prior_kl_needs_a_prior():
-    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, **SMALL)
-    with pytest.raises(ValueError, match="prior_kl_coef=0.5 regularises toward the gain prior, but the policy has none"):
-        COMA("CnnPolicy", venv, n_steps=8, batch_size=8, prior_kl_coef=0.5)
-    with pytest.raises(ValueError, match="prior_kl_coef"):
-        COMA("CnnPolicy", venv, n_steps=8, batch_size=8, prior_kl_coef=-1.0, policy_kwargs={"gain_prior": 1.0})
-    venv.close()
-
-
 def test_correction_bound_caps_the_network_term_and_round_trips(tmp_path: Path):
     """``correction_bound=c``: the network's term is ``c * tanh(net / c)``, the prior's is untouched."""
     model, venv = _small_model(gain_prior=5.0, correction_bound=2.0)

@@ -49,7 +49,7 @@ def test_refuses_different_missions_and_unknown_metrics():
         paired_difference(a, _result("b", [0.3, 0.4], seed=5))
     with pytest.raises(ValueError, match="not the same missions: n_trials 2 vs 3"):
         paired_difference(a, _result("b", [0.3, 0.4, 0.5]))
-    with pytest.raises(ValueError, match="metric must be 'f1' or 'entropy', got 'return'"):
+    with pytest.raises(ValueError, match="metric must be 'f1', 'entropy', 'team_f1' or 'team_entropy', got 'return'"):
         paired_difference(a, a, "return")
 
 

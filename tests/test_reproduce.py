@@ -21,7 +21,7 @@ def test_reproduce_quick_end_to_end(tmp_path, capsys):
         assert (out / name).is_file(), name
     summary = json.loads((out / "summary.json").read_text())
     assert summary["trials"] == 2 and summary["models"]["env1"]["source"] == "shipped"
-    assert set(summary["table"]) == {"env1/coma", "env1/ag", "env1/lawnmower", "env1/random"}
+    assert set(summary["table"]) == {"env1/coma", "env1/ag", "env1/ag-k2", "env1/ag-k3", "env1/lawnmower", "env1/random"}
     assert {g["target"] for g in summary["generalisation"] if g["model"] == "env1"} >= {"env1 (map_seed=7)"}
     text = docs.read_text()
     assert "## Table I" in text and "## Generalisation" in text and "## Deployment latency" in text
@@ -39,16 +39,20 @@ def test_reproduce_refuses_bad_input(tmp_path, capsys):
 
 
 def test_acceptance_logic():
+    """Verdicts are paired on shared missions: per-mission values around the means below."""
+    import numpy as np
+
     class R:
         def __init__(self, env, method, f1, ent):
-            self.env, self.method, self._v = env, method, {"f1": f1, "entropy": ent}
-
-        def mean_std(self, name, frac):
-            return self._v[name], 0.0
+            jitter = np.array([-0.01, 0.0, 0.01, 0.005])  # the same missions for every method
+            self.env, self.method, self.seed, self.n_trials, self.env_options = env, method, 0, 4, {}
+            self.f1 = np.column_stack([np.zeros(4), f1 + jitter])
+            self.entropy = np.column_stack([np.ones(4), ent + jitter])
 
     acc = acceptance([R("e", "coma", 0.8, 0.3), R("e", "ag", 0.7, 0.2), R("e", "random", 0.5, 0.7)])["e"]
     assert acc["beats_f1"] and not acc["beats_entropy"] and not acc["beats_all"]
     assert acc["best_entropy_baseline"] == "ag" and acc["best_f1_baseline"] == "ag"
+    assert acc["paired"]["ag"]["entropy"]["verdict"] == "ag better" and acc["paired"]["random"]["f1"]["verdict"] == "coma better"
 
 
 def test_reproduce_quick_train(tmp_path):

@@ -6,9 +6,10 @@ import pytest
 import torch
 
 import envs
-from envs import layout
+from envs import ConfigError, fusion, layout
 from sb3_coma.sendfuse.network import SenDFuseNet
 from sb3_coma.sendfuse.weights import SenDFuseWeightsError, load_weights
+from sb3_coma.sendfuse.wrapper import SenDFuseFusionWrapper
 
 
 def _random_actions(obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
@@ -110,3 +111,30 @@ def test_wrapper_uses_the_given_network_and_checks_its_grid() -> None:
     torch.manual_seed(0)
     with pytest.raises(ValueError, match="comm_grid"):
         envs.make_vec_env("env3", fusion="sendfuse", fusion_kwargs={"network": SenDFuseNet(grid_size=32)})
+
+
+# ------------------------------------------------------------------ the entry point and the defaults
+def test_sendfuse_is_found_through_its_entry_point() -> None:
+    assert "sendfuse" in envs.available_fusions() and {"mean", "none"} <= set(envs.available_fusions())
+    assert fusion.fusion_factory("sendfuse") is SenDFuseFusionWrapper
+    assert fusion.fusion_factory("mean") is fusion.MeanFusionWrapper
+
+
+def test_default_vec_env_is_env3_with_sendfuse() -> None:
+    venv = envs.make_vec_env(budget=2)
+    assert envs.DEFAULT_MAP == "env3" and venv.get_attr("config", indices=[0])[0].map_name == "env3"
+    assert isinstance(venv.venv.venv, SenDFuseFusionWrapper) and envs.DEFAULT_FUSION == "sendfuse"
+    venv.close()
+
+
+def test_unknown_and_broken_fusions_name_the_choices(monkeypatch) -> None:
+    with pytest.raises(ValueError, match=r"unknown fusion 'median'; choose one of \['mean', 'none', 'sendfuse'\]"):
+        envs.make_vec_env("env3", fusion="median")
+    broken = {"ghost": fusion.metadata.EntryPoint("ghost", "no_such_module:Wrapper", fusion.ENTRY_POINT_GROUP)}
+    monkeypatch.setattr(fusion, "_installed_fusions", lambda: broken)
+    assert envs.available_fusions() == ["ghost", "mean", "none"]
+    with pytest.raises(ConfigError, match=r"fusion 'ghost' \(no_such_module:Wrapper\) cannot be loaded"):
+        envs.make_vec_env("env3", fusion="ghost")
+    monkeypatch.setattr(fusion, "_installed_fusions", dict)
+    with pytest.raises(ValueError, match="no package provides entry points 'uav_ipp.fusion'"):
+        envs.make_vec_env("env3", fusion="sendfuse")

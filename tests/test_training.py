@@ -14,7 +14,7 @@ import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 
 import envs  # noqa: F401  (registers the gymnasium ids)
-from sb3_coma import cli
+from sb3_coma import cli, training_options
 from sb3_coma.checkpoints import CheckpointError, find_checkpoints, validate_checkpoint
 from sb3_coma.training import (
     TrainingError,
@@ -36,6 +36,9 @@ TINY = {
         "learning_rate": 1.0e-4,
         "critic_learning_rate": 1.0e-3,
         "batch_size": 8,
+        "n_steps": 8,
+        "n_epochs": 1,
+        "n_critic_epochs": 1,
         "gamma": 0.99,
         "td_lambda": 0.8,
         "env_kwargs": {"fusion": "mean", "n_uavs": 2, "budget": 4, "noise": "moderate"},
@@ -91,19 +94,23 @@ class _Boom(BaseCallback):
 
 
 # ----------------------------------------------------------------------------- config files
-def test_default_config_has_paper_settings_and_variants():
+def test_default_config_has_the_settings_that_learn_and_the_paper_variant():
     path = default_config_path()
     data = yaml.safe_load(path.read_text())
     for env_id in ("UavIpp-Env1-v0", "UavIpp-Env2-v0", "UavIpp-Env3-v0"):
         cfg = load_config(env_id, path)
         e = cfg.entry
-        assert e["n_timesteps"] == 18000 and e["policy"] == "CBAMPolicy"
-        assert e["learning_rate"] == 1e-5 and e["critic_learning_rate"] == 1e-4
-        assert e["batch_size"] == 512 and e["gamma"] == 0.99 and e["td_lambda"] == 0.8
-        assert e["env_kwargs"] == {"fusion": "sendfuse", "n_uavs": 4, "budget": 15, "noise": "moderate", "start": "fixed"}
+        assert e["n_timesteps"] == 24000 and e["policy"] == "CBAMPolicy" and e["n_envs"] == 8
+        assert "learning_rate" not in e and "batch_size" not in e  # COMA's defaults: the measured settings
+        assert e["env_kwargs"] == {"fusion": "sendfuse", "n_uavs": 4, "budget": 15, "noise": "moderate",
+                                   "split": "train", "reward": "metrics", "action_gain": False}
         assert data[env_id] == e
+    paper = load_config("env3", path, "paper").entry
+    assert paper["n_timesteps"] == 18000 and paper["learning_rate"] == 1e-5 and paper["critic_learning_rate"] == 1e-4
+    assert paper["batch_size"] == 512 and paper["advantage"] == "q" and paper["clip_range"] is None
+    assert paper["n_epochs"] == 1 and paper["env_kwargs"]["split"] == "paper"
     variants = list_variants(path)
-    assert {"sendfuse-cbam", "sendfuse-cnn", "mean-cbam", "mean-cnn"} <= set(variants)
+    assert {"paper", "sendfuse-cbam", "sendfuse-cnn", "mean-cbam", "mean-cnn"} <= set(variants)
     base = load_config("env3", path, "mean-cnn").entry
     assert base["policy"] == "CnnPolicy" and base["env_kwargs"]["fusion"] == "mean"
     assert base["env_kwargs"]["noise"] == "moderate"  # merged key by key
@@ -118,7 +125,7 @@ def test_default_config_main_keys_load_in_rl_zoo(tmp_path):
     for env_id in ("UavIpp-Env1-v0", "UavIpp-Env3-v0"):
         manager = ExperimentManager(argparse.Namespace(), "coma", env_id, str(tmp_path), config=str(default_config_path()))
         hyperparams, saved = manager.read_hyperparameters()
-        assert hyperparams["batch_size"] == 512 and saved["env_kwargs"]["fusion"] == "sendfuse"
+        assert hyperparams["n_envs"] == 8 and saved["env_kwargs"]["fusion"] == "sendfuse"
 
 
 def test_overrides_and_variant(tmp_path):
@@ -192,6 +199,12 @@ def test_run_folder_checkpoints_resume_and_no_overwrite(tmp_path):
     assert saved[ENV]["env_kwargs"]["n_uavs"] == 2 and saved["run"]["seed"] == 0 and saved["run"]["env"] == ENV
     # final model and checkpoints at rollout boundaries (multiples of 8), atomically written
     assert validate_checkpoint(run / "model.zip").num_timesteps == 40
+    # every saved model records the env it was trained on (sb3_coma.training_options)
+    recorded = training_options(run / "model.zip")
+    assert recorded == training_options(model) and recorded is not None
+    assert recorded["map"] == "env1" and recorded["fusion"] == "mean" and recorded["noise"] == "moderate"
+    assert (recorded["n_uavs"], recorded["budget"], recorded["split"]) == (2, 4, "paper")
+    assert training_options(find_checkpoints(run / "checkpoints")[0][1]) == recorded
     steps = [s for s, _ in find_checkpoints(run / "checkpoints")]
     assert steps and all(s % 8 == 0 and s >= 16 for s in steps)
     assert not [p for p in run.rglob("*.tmp")]

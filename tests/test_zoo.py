@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 import envs  # noqa: F401  (registers the gymnasium ids)
-from sb3_coma import zoo, zoo_sampler
+from sb3_coma import training_options, zoo, zoo_sampler
 from sb3_coma.checkpoints import validate_checkpoint
 from sb3_coma.training import coma_parameter_names
 
@@ -24,6 +24,7 @@ TINY = {
         "learning_rate": 1.0e-4,
         "critic_learning_rate": "lin_1e-3",
         "batch_size": 8,
+        "n_steps": 8,
         "env_kwargs": {"fusion": "mean", "n_uavs": 2, "budget": 4},
     },
     "variants": {"cbam": {"policy": "CBAMPolicy"}},
@@ -54,6 +55,9 @@ def test_zoo_train_enjoy_round_trip(tmp_path, conf, capsys):
     assert rl_zoo3.train.ExperimentManager is ExperimentManager  # un-patched afterwards
     run = logs / "coma" / f"{ENV}_1"
     assert validate_checkpoint(run / f"{ENV}.zip").num_timesteps == 16
+    recorded = training_options(run / f"{ENV}.zip")  # the same record as sb3-coma train's
+    assert recorded is not None and recorded["map"] == "env1" and recorded["fusion"] == "mean"
+    assert recorded["n_uavs"] == 2 and training_options(run / "rl_model_8_steps.zip") == recorded
     assert validate_checkpoint(run / "rl_model_8_steps.zip").num_timesteps == 8
     assert validate_checkpoint(run / "rl_model_16_steps.zip").num_timesteps == 16
     assert validate_checkpoint(run / "best_model.zip")

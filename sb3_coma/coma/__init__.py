@@ -1,4 +1,5 @@
 """COMA for Stable-Baselines3: the algorithm, its policies, joint-step buffer and targets."""
+
 from sb3_coma.coma.buffer import JointRolloutBuffer
 from sb3_coma.coma.coma import COMA
 from sb3_coma.coma.policies import CBAMPolicy, CnnPolicy, COMAPolicy, critic_input, other_actions_map

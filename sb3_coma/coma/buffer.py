@@ -6,6 +6,7 @@ would tear one joint step apart; COMA's critic needs every agent of a joint step
 index ``e * N + a``, so a plain reshape of each step's ``(E * N, ...)`` arrays into ``(E, N, ...)``
 regroups them, and minibatches are drawn over whole joint steps.
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterator
@@ -44,12 +45,16 @@ class JointRolloutBuffer:
         self.n_agents = n_agents
         self.device = th.device(device)
         lead = (n_steps, n_copies, n_agents)
-        self.local = np.zeros(lead + observation_space[layout.KEY_LOCAL].shape, dtype=np.float32)
-        self.state = np.zeros(lead + observation_space[layout.KEY_STATE].shape, dtype=np.float32)
-        self.mask = np.zeros(lead + observation_space[layout.KEY_MASK].shape, dtype=np.float32)
+
+        def shape(key: str) -> tuple[int, ...]:
+            return tuple(observation_space[key].shape or ())
+
+        self.local = np.zeros(lead + shape(layout.KEY_LOCAL), dtype=np.float32)
+        self.state = np.zeros(lead + shape(layout.KEY_STATE), dtype=np.float32)
+        self.mask = np.zeros(lead + shape(layout.KEY_MASK), dtype=np.float32)
         #: The actor's prior (``action_gain``); zeros when the observation has none.
-        gain = observation_space.spaces.get(layout.KEY_GAIN)
-        self.prior = np.zeros(lead + (tuple(gain.shape) if gain is not None else (1, self.mask.shape[-1])), dtype=np.float32)
+        prior = shape(layout.KEY_GAIN) if layout.KEY_GAIN in observation_space.spaces else (1, self.mask.shape[-1])
+        self.prior = np.zeros(lead + prior, dtype=np.float32)
         self.actions = np.zeros(lead, dtype=np.int64)
         self.rewards = np.zeros(lead, dtype=np.float32)
         #: 1.0 where the episode ended with this step (termination or truncation).

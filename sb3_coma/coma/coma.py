@@ -22,9 +22,11 @@ Choices the paper leaves open, as implemented here:
 * Exploration mixes the policy with the uniform distribution over *valid* actions; the actor
   loss uses the policy's own log-probabilities.
 """
+
 from __future__ import annotations
 
 import math
+import warnings
 from collections import deque
 from typing import Any, ClassVar, TypeVar
 
@@ -48,14 +50,12 @@ from torch.nn import functional as F
 
 from envs import layout
 from sb3_coma.coma.buffer import JointRolloutBuffer
-from sb3_coma.coma.masking import mask_logits
 from sb3_coma.coma.policies import CBAMPolicy, CnnPolicy, COMAPolicy
 from sb3_coma.coma.progress import JointStepProgressBar
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
     check_batch_fits_rollout,
     check_non_negative,
-    check_positive_finite,
     check_positive_int,
     check_positive_rate,
     check_spaces,
@@ -65,10 +65,30 @@ from sb3_coma.coma.validation import (
 
 SelfCOMA = TypeVar("SelfCOMA", bound="COMA")
 
-__all__ = ["COMA"]
+#: ``advantage`` options: the TD(lambda) return of the joint action, or the critic's Q (paper).
+ADVANTAGES = ("return", "q")
+#: Steps per env copy per rollout when ``n_steps`` is not given (256 joint steps with 8 copies).
+DEFAULT_ROLLOUT_STEPS = 32
+
+__all__ = ["ADVANTAGES", "COMA", "REMOVED_ARGUMENTS", "REMOVED_POLICY_KWARGS"]
 
 #: Joint steps per forward pass when the target critic scores a whole rollout (bounds memory).
 _SCORING_CHUNK = 1024
+
+#: Experimental arguments of earlier versions, removed (no config used them, none measured a
+#: benefit; docs/tuning_log.md), with the value that meant "off". A saved model that holds them
+#: still loads: see :meth:`COMA._drop_removed_settings`.
+REMOVED_ARGUMENTS: dict[str, Any] = {
+    "prior_kl_coef": 0.0,
+    "tau": None,
+    "temperature_initial": 1.0,
+    "temperature_final": 1.0,
+    "temperature_fraction": 1.0,
+}
+#: Saved state that came with them.
+_REMOVED_STATE = ("temperature", "temperature_schedule")
+#: Removed ``policy_kwargs`` keys (``critic_gain``: a gain-reading term in the critic).
+REMOVED_POLICY_KWARGS = ("critic_gain",)
 
 
 class COMA(OnPolicyAlgorithm):
@@ -79,31 +99,26 @@ class COMA(OnPolicyAlgorithm):
         (``envs.make_vec_env``); may be ``None`` only when loading for prediction
     :param learning_rate: actor learning rate (Adam), float or schedule; paper 1e-5
     :param critic_learning_rate: critic learning rate (Adam), float or schedule; paper 1e-4
-    :param n_steps: steps per env copy per rollout; ``None`` picks the smallest count that holds
-        ``batch_size`` joint steps (``ceil(batch_size / n_copies)``)
+    :param n_steps: steps per env copy per rollout; ``None``: 32, stretched when needed so that a
+        rollout holds at least ``batch_size`` joint steps
     :param batch_size: minibatch size in joint steps (all agents of a step stay together); paper 512
+    :param n_epochs: passes of actor minibatch updates over each rollout; paper 1
+    :param clip_range: PPO-style clip of the probability ratio in the actor's surrogate, so several
+        passes cannot move the policy far from the one that collected the rollout; ``None``: the
+        plain policy gradient (paper)
+    :param advantage: first term of the counterfactual advantage ``A_i = X - sum_u' pi(u'|o_i)
+        Q(s, (u_-i, u'))``: ``"return"``, the TD(lambda) return of the joint action taken
+        (measured to learn, docs/training.md), or ``"q"``, the critic's ``Q(s, u)`` (the paper)
     :param n_critic_epochs: passes of critic minibatch updates over each rollout
     :param gamma: discount factor
     :param td_lambda: TD(lambda) trace decay for the critic targets
     :param ent_coef: entropy bonus weight in the actor loss
-    :param prior_kl_coef: weight of ``KL(pi || pi_prior)`` in the actor loss, ``pi_prior`` the
-        softmax of the gain prior's own term (current mixing weights, no gradient): it keeps the
-        network's correction to the prior small unless the advantages keep asking for it (needs
-        ``policy_kwargs={"gain_prior": ...}``; 0 = off)
     :param max_grad_norm: gradient-norm clip for actor and critic
     :param normalize_advantage: standardise advantages per actor minibatch
-    :param target_update_interval: critic updates between target-critic synchronisations
-    :param tau: ``None`` for a hard copy at each synchronisation, else the Polyak coefficient
+    :param target_update_interval: critic updates between target-critic synchronisations (a hard copy)
     :param exploration_initial_eps: initial weight of uniform-over-valid-actions exploration
     :param exploration_final_eps: final weight
     :param exploration_fraction: fraction of training over which epsilon anneals linearly
-    :param temperature_initial: softmax temperature of the policy COMA samples and differentiates
-        at the start of training (logits / T); ``1`` is the plain policy
-    :param temperature_final: its value after ``temperature_fraction`` of training (linear). Below
-        1 it sharpens the trained (sampled) policy toward its argmax, the policy that is flown with
-        ``deterministic=True``, so the two stop drifting apart; argmax actions themselves do not
-        depend on T. Prediction after training samples at T = 1 (docs/training.md)
-    :param temperature_fraction: fraction of training over which T anneals
     :param stats_window_size: episodes averaged in the rollout/ logs
     :param tensorboard_log: TensorBoard log folder (``None``: no TensorBoard)
     :param policy_kwargs: extra arguments for the policy (extractor classes and kwargs, ...)
@@ -111,6 +126,10 @@ class COMA(OnPolicyAlgorithm):
     :param seed: seed for torch, numpy, python and the env
     :param device: torch device
     :param _init_setup_model: build networks now (SB3's ``load`` passes ``False``)
+
+    ``env_options`` (``None`` until a trainer sets it, saved with the model): the env the model
+    was trained on, as ``{"map": ..., "fusion": ..., "fusion_kwargs": {...}, <IppConfig options>}``
+    (``sb3_coma.training_options`` reads it from a model or a zip).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -118,32 +137,30 @@ class COMA(OnPolicyAlgorithm):
         "CnnPolicy": CnnPolicy,
         "COMAPolicy": COMAPolicy,
     }
-    policy: COMAPolicy
+    policy: COMAPolicy  # type: ignore[assignment]  # SB3 types it as ActorCriticPolicy
     rollout_buffer: JointRolloutBuffer  # type: ignore[assignment]
 
     def __init__(
         self,
         policy: str | type[COMAPolicy],
         env: GymEnv | None,
-        learning_rate: float | Schedule = 1e-5,
-        critic_learning_rate: float | Schedule = 1e-4,
+        learning_rate: float | Schedule = 3e-4,
+        critic_learning_rate: float | Schedule = 1e-3,
         n_steps: int | None = None,
-        batch_size: int = 512,
-        n_critic_epochs: int = 1,
+        batch_size: int = 64,
+        n_epochs: int = 4,
+        clip_range: float | None = 0.2,
+        advantage: str = "return",
+        n_critic_epochs: int = 2,
         gamma: float = 0.99,
         td_lambda: float = 0.8,
-        ent_coef: float = 0.0,
-        prior_kl_coef: float = 0.0,
+        ent_coef: float = 0.01,
         max_grad_norm: float = 10.0,
-        normalize_advantage: bool = False,
-        target_update_interval: int = 1,
-        tau: float | None = None,
+        normalize_advantage: bool = True,
+        target_update_interval: int = 4,
         exploration_initial_eps: float = 0.0,
         exploration_final_eps: float = 0.0,
         exploration_fraction: float = 0.5,
-        temperature_initial: float = 1.0,
-        temperature_final: float = 1.0,
-        temperature_fraction: float = 1.0,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -163,20 +180,19 @@ class COMA(OnPolicyAlgorithm):
         check_unit_interval("td_lambda", td_lambda)
         check_positive_int("batch_size", batch_size)
         check_positive_int("n_critic_epochs", n_critic_epochs)
+        check_positive_int("n_epochs", n_epochs)
+        if clip_range is not None and (isinstance(clip_range, bool) or not isinstance(clip_range, (int, float))
+                                       or not 0.0 < clip_range < math.inf):
+            raise ValueError(f"clip_range must be None or a positive number, got {clip_range!r}")
+        if advantage not in ADVANTAGES:
+            raise ValueError(f"advantage must be one of {ADVANTAGES}, got {advantage!r}")
         check_positive_int("target_update_interval", target_update_interval)
         if n_steps is not None:
             check_positive_int("n_steps", n_steps)
-        if tau is not None:
-            check_unit_interval("tau", tau, low_open=True)
         check_unit_interval("exploration_initial_eps", exploration_initial_eps)
         check_unit_interval("exploration_final_eps", exploration_final_eps)
         check_unit_interval("exploration_fraction", exploration_fraction, low_open=True)
-        check_positive_finite("temperature_initial", temperature_initial)
-        check_positive_finite("temperature_final", temperature_final)
-        check_unit_interval("temperature_fraction", temperature_fraction, low_open=True)
         check_non_negative("ent_coef", ent_coef)
-        check_non_negative("prior_kl_coef", prior_kl_coef)
-        self.prior_kl_coef = float(prior_kl_coef)
         if isinstance(max_grad_norm, bool) or not isinstance(max_grad_norm, (int, float)) or not max_grad_norm > 0:
             raise ValueError(f"max_grad_norm must be positive, got {max_grad_norm!r}")
         check_positive_int("stats_window_size", stats_window_size)
@@ -184,11 +200,11 @@ class COMA(OnPolicyAlgorithm):
             raise ValueError(f"seed must be None or an integer >= 0, got {seed!r}")
         if env is not None and n_steps is not None:
             assert n_agents is not None
-            check_batch_fits_rollout(batch_size, n_steps, env.num_envs // n_agents)
+            check_batch_fits_rollout(batch_size, n_steps, env.num_envs // n_agents)  # type: ignore[union-attr]
 
         super().__init__(
-            policy_class,
-            env,
+            policy_class,  # type: ignore[arg-type]  # SB3 types it as an ActorCriticPolicy class
+            env,  # type: ignore[arg-type]  # None only when loading (SB3's load does the same)
             learning_rate=learning_rate,
             n_steps=n_steps or 1,  # resolved in _setup_model
             gamma=gamma,
@@ -212,18 +228,20 @@ class COMA(OnPolicyAlgorithm):
         self.critic_learning_rate = critic_learning_rate
         self.batch_size = batch_size
         self.n_critic_epochs = n_critic_epochs
+        self.n_epochs = n_epochs
+        self.clip_range = clip_range
+        self.advantage = advantage
         self.td_lambda = td_lambda
         self.normalize_advantage = normalize_advantage
         self.target_update_interval = target_update_interval
-        self.tau = tau
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
         self.exploration_fraction = exploration_fraction
         self.exploration_rate = exploration_initial_eps
-        self.temperature_initial = float(temperature_initial)
-        self.temperature_final = float(temperature_final)
-        self.temperature_fraction = float(temperature_fraction)
-        self.temperature = self.temperature_initial
+        self.env_options: dict[str, Any] | None = None
+        #: Only ``load`` builds a model with ``_init_setup_model=False`` and then restores saved
+        #: attributes, which may include settings earlier versions had (see ``_drop_removed_settings``).
+        self._restoring = not _init_setup_model
         self._n_critic_updates = 0
         self._n_target_updates = 0
         if _init_setup_model:
@@ -248,9 +266,8 @@ class COMA(OnPolicyAlgorithm):
         self.exploration_schedule = LinearSchedule(
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
         )
-        self.temperature_schedule = LinearSchedule(
-            self.temperature_initial, self.temperature_final, self.temperature_fraction
-        )
+        if self._restoring:
+            self._drop_removed_settings()
         if self.env is not None:
             check_spaces(self.observation_space, self.action_space)
             self.n_agents = resolve_n_agents(self.env)
@@ -262,7 +279,8 @@ class COMA(OnPolicyAlgorithm):
         # explicit n_steps that is too short; a model loaded onto an env with fewer copies (e.g.
         # evaluation on 2 copies of a model trained on 8) stretches its rollouts instead.
         min_steps = math.ceil(self.batch_size / self.n_copies)
-        self.n_steps = max(self.n_steps_requested or 0, min_steps)
+        requested = DEFAULT_ROLLOUT_STEPS if self.n_steps_requested is None else self.n_steps_requested
+        self.n_steps = max(requested, min_steps)
         check_batch_fits_rollout(self.batch_size, self.n_steps, self.n_copies)
         self.set_random_seed(self.seed)
 
@@ -281,21 +299,59 @@ class COMA(OnPolicyAlgorithm):
             **self.policy_kwargs,
         )
         self.policy = self.policy.to(self.device)
-        if self.prior_kl_coef > 0 and self.policy.actor.prior_theta is None:
-            raise ValueError(f"prior_kl_coef={self.prior_kl_coef!r} regularises toward the gain prior, but the policy "
-                             "has none: set policy_kwargs={'gain_prior': ...} or prior_kl_coef=0")
         self._ep_metrics: dict[str, deque] = {
             "f1": deque(maxlen=self._stats_window_size),
             "entropy": deque(maxlen=self._stats_window_size),
         }
+
+    def _drop_removed_settings(self) -> None:
+        """Forget what a model saved by an earlier version holds of the removed experimental
+        settings (:data:`REMOVED_ARGUMENTS`, :data:`REMOVED_POLICY_KWARGS`), with a one-line
+        warning where that changes what the model would do; refuse the one that changed the
+        network (a critic with a gain head)."""
+        changed = [
+            f"{key}={self.__dict__[key]!r}"
+            for key, default in REMOVED_ARGUMENTS.items()
+            if key in self.__dict__ and self.__dict__[key] != default
+        ]
+        for key in (*REMOVED_ARGUMENTS, *_REMOVED_STATE):
+            self.__dict__.pop(key, None)
+        kwargs = dict(self.policy_kwargs or {})
+        if kwargs.get("critic_gain"):
+            raise ValueError(
+                "this model was saved with policy_kwargs critic_gain=True, an experimental option that "
+                "sb3-coma no longer has (its critic holds an extra gain head): it cannot be loaded; "
+                "retrain it without critic_gain"
+            )
+        removed = [key for key in REMOVED_POLICY_KWARGS if key in kwargs]
+        for key in removed:
+            changed.append(f"policy_kwargs {key}={kwargs.pop(key)!r}")
+        self.policy_kwargs = kwargs
+        if changed:
+            warnings.warn(
+                f"saved model: ignoring settings that sb3-coma no longer has: {', '.join(changed)}",
+                UserWarning,
+                stacklevel=4,
+            )
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_restoring"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         """The policy holds actor, critic and target critic; both optimizers are saved too."""
         return ["policy", "policy.optimizer", "policy.critic_optimizer"], []
 
     # ----------------------------------------------------------- helpers
-    def _obs_tensors(self, obs: dict[str, np.ndarray], grouped: bool
-                     ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor | None]:
+    @property
+    def _agents(self) -> int:
+        """``n_agents``, known once the model is set up."""
+        if self.n_agents is None:
+            raise ValueError("n_agents is unknown: pass an env built by envs.make_vec_env")
+        return self.n_agents
+
+    def _obs_tensors(
+        self, obs: dict[str, np.ndarray], grouped: bool
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor | None]:
         """``local``, ``state``, ``mask`` and the actor's prior (``action_gain``, or ``None``) as
         tensors; ``grouped`` reshapes rows to ``(E, N, ...)``."""
         out: list[th.Tensor | None] = []
@@ -305,7 +361,7 @@ class COMA(OnPolicyAlgorithm):
                 continue
             x = th.as_tensor(obs[key], device=self.device).float()
             if grouped:
-                x = x.view(-1, self.n_agents, *x.shape[1:])
+                x = x.view(-1, self._agents, *x.shape[1:])
             out.append(x)
         return out[0], out[1], out[2], out[3]  # type: ignore[return-value]
 
@@ -318,23 +374,24 @@ class COMA(OnPolicyAlgorithm):
         """
         local, state, mask, prior = self._obs_tensors(obs, grouped=True)
         flat_local, flat_mask = local.flatten(0, 1), mask.flatten(0, 1)
-        probs = self.policy.action_probs(flat_local, flat_mask, prior=None if prior is None else prior.flatten(0, 1),
-                                         temperature=self.temperature)
+        probs = self.policy.action_probs(flat_local, flat_mask, prior=None if prior is None else prior.flatten(0, 1))
         actions = th.multinomial(probs, 1).view(local.shape[:2])
-        q = self.policy.q_values(local, state, actions, target=True, gain=prior)
+        q = self.policy.q_values(local, state, actions, target=True)
         return (probs.view(q.shape) * q).sum(-1)
 
     def _bootstrap_truncations(self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]) -> np.ndarray:
         """Add ``gamma * V(terminal state)`` where an episode was cut by a time limit, not ended."""
         truncated = [
-            i for i, done in enumerate(dones) if done and infos[i].get("TimeLimit.truncated", False)
-            and infos[i].get("terminal_observation") is not None
+            i
+            for i, done in enumerate(dones)
+            if done and infos[i].get("TimeLimit.truncated", False) and infos[i].get("terminal_observation") is not None
         ]
         if not truncated:
             return rewards
         rewards = np.array(rewards, dtype=np.float32, copy=True)
-        copies = sorted({i // self.n_agents for i in truncated})
-        rows = [c * self.n_agents + a for c in copies for a in range(self.n_agents)]
+        n = self._agents
+        copies = sorted({i // n for i in truncated})
+        rows = [c * n + a for c in copies for a in range(n)]
         terminal = {
             key: np.stack([infos[r]["terminal_observation"][key] for r in rows])
             for key in (layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK, layout.KEY_GAIN)
@@ -378,13 +435,11 @@ class COMA(OnPolicyAlgorithm):
         while buffer.pos < n_rollout_steps:
             progress = 1.0 - float(self.num_timesteps) / float(max(self._total_timesteps, 1))
             self.exploration_rate = self.exploration_schedule(progress)
-            self.temperature = self.temperature_schedule(progress)
             with th.no_grad():
                 local, _, mask, prior = self._obs_tensors(self._last_obs, grouped=False)  # type: ignore[arg-type]
-                actions = self.policy.act(local, mask, epsilon=self.exploration_rate, prior=prior,
-                                          temperature=self.temperature).cpu().numpy()
+                actions = self.policy.act(local, mask, epsilon=self.exploration_rate, prior=prior).cpu().numpy()
 
-            new_obs, rewards, dones, infos = env.step(actions)
+            new_obs, rewards, dones, infos = env.step(actions)  # type: ignore[assignment]
             self.num_timesteps += self.n_copies  # joint steps, not agent steps
 
             callback.update_locals(locals())
@@ -407,11 +462,10 @@ class COMA(OnPolicyAlgorithm):
         """TD(lambda) targets ``(T * E, N)`` from the target critic's Q at the taken joint actions."""
         data = self.rollout_buffer.time_major()
         T, E, N = data["actions"].shape
-        flat = {k: data[k].flatten(0, 1) for k in ("local", "state", "actions", "prior")}
+        flat = {k: data[k].flatten(0, 1) for k in ("local", "state", "actions")}
         q_taken = th.cat(
             [
-                self.policy.q_values(flat["local"][idx], flat["state"][idx], flat["actions"][idx], target=True,
-                                     gain=flat["prior"][idx])
+                self.policy.q_values(flat["local"][idx], flat["state"][idx], flat["actions"][idx], target=True)
                 .gather(-1, flat["actions"][idx].unsqueeze(-1))
                 .squeeze(-1)
                 for idx in th.arange(T * E).split(_SCORING_CHUNK)
@@ -420,13 +474,6 @@ class COMA(OnPolicyAlgorithm):
         next_values = th.cat([q_taken[1:], data["bootstrap"][None]], dim=0)
         targets = td_lambda_targets(data["rewards"], data["dones"], next_values, self.gamma, self.td_lambda)
         return targets.flatten(0, 1)
-
-    def _prior_kl(self, probs: th.Tensor, log_probs: th.Tensor, mask: th.Tensor, gain: th.Tensor) -> th.Tensor:
-        """Mean ``KL(pi || pi_prior)`` over the rows: how far the network's term moves the policy
-        away from the gain prior alone (the mixing weights are not pushed by this term)."""
-        with th.no_grad():
-            prior_log = th.log_softmax(mask_logits(self.policy.actor.prior_logits(gain), mask), dim=-1)
-        return (probs * (log_probs - prior_log)).sum(-1).mean()
 
     def _check_finite(self, name: str, loss: th.Tensor) -> None:
         """Stop before a non-finite loss reaches the weights: a NaN would silently spread to
@@ -446,14 +493,54 @@ class COMA(OnPolicyAlgorithm):
         opt.step()
         self._n_critic_updates += 1
         if self._n_critic_updates % self.target_update_interval == 0:
-            self.policy.sync_target(self.tau)
+            self.policy.sync_target()
             self._n_target_updates += 1
 
+    @th.no_grad()
+    def _advantages(self, data: dict[str, th.Tensor], q_all: th.Tensor,
+                    targets: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """COMA's advantage ``(T * E, N)`` per agent and the log-probability of the taken action
+        under the policy that collected the rollout.
+
+        ``A_i = X - b_i`` with the counterfactual baseline ``b_i = sum_u' pi(u'|o_i) Q(s, (u_-i, u'))``
+        over valid actions; ``X`` is the TD(lambda) return of the joint action taken
+        (``advantage="return"``) or the critic's ``Q(s, u)`` (``"q"``, the paper).
+        """
+        local, mask, actions = data["local"], data["mask"], data["actions"]
+        logits = self.policy.masked_logits(local.flatten(0, 1), mask.flatten(0, 1), data["prior"].flatten(0, 1))
+        log_probs = th.log_softmax(logits, dim=-1).view(*actions.shape, -1)
+        q_advantage, baseline, _ = counterfactual_advantage(q_all, actions, log_probs.exp())
+        advantage = targets - baseline if self.advantage == "return" else q_advantage
+        return advantage, log_probs.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+
+    def _actor_loss(self, data: dict[str, th.Tensor], idx: th.Tensor, advantage: th.Tensor,
+                    old_log_prob: th.Tensor) -> tuple[th.Tensor, float, float]:
+        """Clipped surrogate (or plain policy gradient) minus the entropy bonus on one minibatch
+        of joint steps; returns (loss, mean entropy, fraction of clipped ratios)."""
+        b_actions = data["actions"][idx].flatten()
+        logits = self.policy.masked_logits(data["local"][idx].flatten(0, 1), data["mask"][idx].flatten(0, 1),
+                                           data["prior"][idx].flatten(0, 1))
+        log_probs = th.log_softmax(logits, dim=-1)
+        advantage = advantage.flatten()
+        if self.normalize_advantage and advantage.numel() > 1:
+            advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
+        ratio = th.exp(log_probs.gather(-1, b_actions.unsqueeze(-1)).squeeze(-1) - old_log_prob.flatten())
+        surrogate = ratio * advantage
+        clip_fraction = 0.0
+        if self.clip_range is not None:
+            low, high = 1.0 - self.clip_range, 1.0 + self.clip_range
+            surrogate = th.min(surrogate, th.clamp(ratio, low, high) * advantage)
+            clip_fraction = float(((ratio < low) | (ratio > high)).float().mean())
+        entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
+        return -surrogate.mean() - self.ent_coef * entropy, entropy.item(), clip_fraction
+
     def train(self) -> None:
-        """Critic on TD(lambda) targets (``n_critic_epochs``), then one actor pass, per rollout.
+        """Per rollout: the critic on TD(lambda) targets (``n_critic_epochs``), then the actor on
+        COMA's counterfactual advantage (``n_epochs``, clipped surrogate).
 
         The advantages use the critic's Q from its last epoch (each minibatch as scored just
-        before its own update), which saves a full extra forward pass over the rollout.
+        before its own update), which saves a full extra forward pass over the rollout, and the
+        policy as it was when the rollout was collected.
         """
         self.policy.set_training_mode(True)
         progress = self._current_progress_remaining
@@ -463,14 +550,13 @@ class COMA(OnPolicyAlgorithm):
         targets = self._td_targets()
         data = self.rollout_buffer.joint_steps()
         local, state, mask, actions = data["local"], data["state"], data["mask"], data["actions"]
-        prior = data["prior"]
         n_joint = actions.shape[0]
         q_all = th.zeros(*actions.shape, self.policy.n_actions, device=self.device)
 
         critic_losses = []
         for epoch in range(self.n_critic_epochs):
             for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
-                q = self.policy.q_values(local[idx], state[idx], actions[idx], gain=prior[idx])
+                q = self.policy.q_values(local[idx], state[idx], actions[idx])
                 q_taken = q.gather(-1, actions[idx].unsqueeze(-1)).squeeze(-1)
                 loss = F.mse_loss(q_taken, targets[idx])
                 self._critic_step(loss)
@@ -478,45 +564,33 @@ class COMA(OnPolicyAlgorithm):
                 if epoch == self.n_critic_epochs - 1:
                     q_all[idx] = q.detach()
 
-        actor_losses, entropies, advantages, q_taken_all = [], [], [], []
-        for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
-            b_local, b_mask, b_actions = local[idx].flatten(0, 1), mask[idx].flatten(0, 1), actions[idx].flatten()
-            logits = self.policy.masked_logits(b_local, b_mask, prior[idx].flatten(0, 1), temperature=self.temperature)
-            log_probs = th.log_softmax(logits, dim=-1)
-            probs = log_probs.exp()
-            advantage, _, q_taken = counterfactual_advantage(q_all[idx].flatten(0, 1), b_actions, probs.detach())
-            advantages.append(advantage)
-            q_taken_all.append(q_taken)
-            if self.normalize_advantage and advantage.numel() > 1:
-                advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
-            log_prob_taken = log_probs.gather(-1, b_actions.unsqueeze(-1)).squeeze(-1)
-            entropy = -(probs * log_probs).sum(-1).mean()
-            loss = -(log_prob_taken * advantage).mean() - self.ent_coef * entropy
-            if self.prior_kl_coef > 0:
-                loss = loss + self.prior_kl_coef * self._prior_kl(probs, log_probs, b_mask, prior[idx].flatten(0, 1))
-            self._check_finite("actor", loss)
-
-            self.policy.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            th.nn.utils.clip_grad_norm_(self.policy.actor.parameters(), self.max_grad_norm)
-            self.policy.optimizer.step()
-            actor_losses.append(loss.item())
-            entropies.append(entropy.item())
+        advantage, old_log_prob = self._advantages(data, q_all, targets)
+        actor_losses, entropies, clipped = [], [], []
+        for _ in range(self.n_epochs):
+            for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
+                loss, entropy, clip_fraction = self._actor_loss(data, idx, advantage[idx], old_log_prob[idx])
+                self._check_finite("actor", loss)
+                self.policy.optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                th.nn.utils.clip_grad_norm_(self.policy.actor.parameters(), self.max_grad_norm)
+                self.policy.optimizer.step()
+                actor_losses.append(loss.item())
+                entropies.append(entropy)
+                clipped.append(clip_fraction)
         self._n_updates += 1
 
-        adv = th.cat(advantages)
+        self.logger.record("train/clip_fraction", float(np.mean(clipped)))
         q_taken_flat = q_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
         self.logger.record("train/critic_loss", float(np.mean(critic_losses)))
         self.logger.record("train/actor_loss", float(np.mean(actor_losses)))
         self.logger.record("train/q_mean", float(q_taken_flat.mean()))
-        self.logger.record("train/advantage_mean", float(adv.mean()))
-        self.logger.record("train/advantage_std", float(adv.std()) if adv.numel() > 1 else 0.0)
+        self.logger.record("train/advantage_mean", float(advantage.mean()))
+        self.logger.record("train/advantage_std", float(advantage.std()) if advantage.numel() > 1 else 0.0)
         self.logger.record(
             "train/explained_variance",
             float(explained_variance(q_taken_flat.flatten().cpu().numpy(), targets.flatten().cpu().numpy())),
         )
         self.logger.record("train/epsilon", self.exploration_rate)
-        self.logger.record("train/temperature", self.temperature)
         self.logger.record("train/entropy", float(np.mean(entropies)))
         self.logger.record("train/target_updates", self._n_target_updates)
         weights = self.policy.actor.prior_weights
@@ -555,7 +629,11 @@ class COMA(OnPolicyAlgorithm):
         progress_bar: bool = False,
     ) -> SelfCOMA:
         """Train for ``total_timesteps`` **joint** steps (one per env copy per step)."""
-        if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, (int, np.integer)) or total_timesteps < 1:
+        if (
+            isinstance(total_timesteps, bool)
+            or not isinstance(total_timesteps, (int, np.integer))
+            or total_timesteps < 1
+        ):
             raise ValueError(f"total_timesteps must be an integer >= 1 (joint steps), got {total_timesteps!r}")
         return super().learn(
             total_timesteps=total_timesteps,

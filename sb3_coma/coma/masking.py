@@ -5,6 +5,7 @@ probability of exactly 0 (``exp(-1e8)`` underflows to 0 in float32), so they are
 nor chosen by ``argmax``, while ``log_softmax``, entropies and gradients stay finite (``-inf``
 would turn ``0 * -inf`` into NaN in the entropy term).
 """
+
 from __future__ import annotations
 
 import torch as th

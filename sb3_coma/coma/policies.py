@@ -9,15 +9,15 @@ Shapes: the actor works per agent on ``(B, ...)``; the critic works on whole joi
 ``(B, N, ...)`` with ``N`` agents, because agent ``i``'s critic input depends on the other agents'
 actions.
 """
+
 from __future__ import annotations
 
 import copy
 import math
-from functools import partial
 from collections.abc import Sequence
-from typing import Any
+from functools import partial
+from typing import Any, cast
 
-import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
@@ -94,9 +94,16 @@ class _Actor(_Head):
     keeps the learning rate that keeps it stable.
     """
 
-    def __init__(self, features_extractor: BaseFeaturesExtractor, n_actions: int, gain: float,
-                 ortho_init: bool = True, prior_init: Sequence[float] = (),
-                 prior_speed: float = 1.0, correction_bound: float | None = None) -> None:
+    def __init__(
+        self,
+        features_extractor: BaseFeaturesExtractor,
+        n_actions: int,
+        gain: float,
+        ortho_init: bool = True,
+        prior_init: Sequence[float] = (),
+        prior_speed: float = 1.0,
+        correction_bound: float | None = None,
+    ) -> None:
         super().__init__(features_extractor, n_actions, gain, ortho_init)
         self.correction_bound = correction_bound
         self.prior_speed = float(prior_speed)
@@ -126,8 +133,10 @@ class _Actor(_Head):
         logits = self.network_logits(x)
         if self.prior_theta is not None:
             if prior is None:
-                raise ValueError(f"this actor adds observation[{layout.KEY_GAIN!r}] to its logits (gain_prior > 0), "
-                                 "but the observation has no such key: make the env with action_gain=True")
+                raise ValueError(
+                    f"this actor adds observation[{layout.KEY_GAIN!r}] to its logits (gain_prior > 0), "
+                    "but the observation has no such key: make the env with action_gain=True"
+                )
             logits = logits + self.prior_logits(prior)
         return logits
 
@@ -154,51 +163,28 @@ def _prior_init(gain_prior: Any, speed: Any, observation_space: spaces.Dict) -> 
     try:
         weights = [float(gain_prior)] if scalar else [float(w) for w in gain_prior]
     except (TypeError, ValueError):
-        raise ValueError(f"gain_prior={gain_prior!r}: must be a number or a list of numbers, one per "
-                         f"{layout.KEY_GAIN!r} row {layout.GAIN_WEIGHTINGS}") from None
+        raise ValueError(
+            f"gain_prior={gain_prior!r}: must be a number or a list of numbers, one per "
+            f"{layout.KEY_GAIN!r} row {layout.GAIN_WEIGHTINGS}"
+        ) from None
     if not weights or not all(w >= 0.0 and math.isfinite(w) for w in weights):
         raise ValueError(f"gain_prior={gain_prior!r}: weights must be finite numbers >= 0 (0 = no prior)")
     if not any(w > 0 for w in weights):
         return ()
     if layout.KEY_GAIN not in observation_space.spaces:
-        raise ValueError(f"gain_prior={gain_prior!r} needs observation[{layout.KEY_GAIN!r}]: make the env "
-                         "with action_gain=True (the default), or use gain_prior=0")
-    rows = observation_space[layout.KEY_GAIN].shape[0]
+        raise ValueError(
+            f"gain_prior={gain_prior!r} needs observation[{layout.KEY_GAIN!r}]: make the env "
+            "with action_gain=True (the default), or use gain_prior=0"
+        )
+    rows = int((observation_space[layout.KEY_GAIN].shape or (0,))[0])
     if scalar:
         return tuple(weights * rows)
     if len(weights) != rows:
-        raise ValueError(f"gain_prior={gain_prior!r}: needs one weight per {layout.KEY_GAIN!r} row, "
-                         f"{rows} ({', '.join(layout.GAIN_WEIGHTINGS)}), got {len(weights)}")
+        raise ValueError(
+            f"gain_prior={gain_prior!r}: needs one weight per {layout.KEY_GAIN!r} row, "
+            f"{rows} ({', '.join(layout.GAIN_WEIGHTINGS)}), got {len(weights)}"
+        )
     return tuple(weights)
-
-
-class _Critic(_Head):
-    """The critic's head, plus an optional term linear in the agent's per-action gains.
-
-    ``Q_i(s, u_-i, a) = net(critic input)(a) + W . flatten(gain_i) (a)``, ``W`` a zero-initialised
-    ``(K * A) -> A`` linear map: the centralised critic may read agent ``i``'s ``action_gain``
-    (part of its observation) so that the value of each move's expected information gain does
-    not have to be re-derived from the 11 x 11 maps (docs/training.md, "Gain prior"; policy
-    kwarg ``critic_gain``).
-    """
-
-    def __init__(self, features_extractor: BaseFeaturesExtractor, n_actions: int, gain: float,
-                 ortho_init: bool = True, gain_inputs: int = 0) -> None:
-        super().__init__(features_extractor, n_actions, gain, ortho_init)
-        self.gain_head: nn.Linear | None = None
-        if gain_inputs > 0:
-            self.gain_head = nn.Linear(gain_inputs, n_actions)
-            nn.init.zeros_(self.gain_head.weight)
-            nn.init.zeros_(self.gain_head.bias)
-
-    def forward(self, x: th.Tensor, gain: th.Tensor | None = None) -> th.Tensor:  # type: ignore[override]
-        q = super().forward(x)
-        if self.gain_head is not None:
-            if gain is None:
-                raise ValueError(f"this critic reads observation[{layout.KEY_GAIN!r}] (critic_gain=True), "
-                                 "but none was given: make the env with action_gain=True")
-            q = q + self.gain_head(gain.flatten(1))
-        return q
 
 
 class COMAPolicy(BasePolicy):
@@ -226,8 +212,6 @@ class COMAPolicy(BasePolicy):
     :param correction_bound: bound ``c`` on the network's term of the actor's logits, which
         becomes ``c * tanh(net / c)`` (``None``: unbounded, the paper's actor). With a gain prior
         it keeps the learned correction from swamping the prior (see ``_Actor.network_logits``)
-    :param critic_gain: the critic also reads the agent's ``action_gain`` (a zero-initialised
-        linear term, see ``_Critic``); needs the ``action_gain`` key
     """
 
     def __init__(
@@ -246,16 +230,9 @@ class COMAPolicy(BasePolicy):
         normalize_images: bool = False,
         gain_prior: float | Sequence[float] = 0.0,
         gain_prior_speed: float = 100.0,
-        critic_gain: bool = False,
         correction_bound: float | None = None,
     ) -> None:
         self.correction_bound = _correction_bound(correction_bound)
-        if not isinstance(critic_gain, (bool, np.bool_)):
-            raise ValueError(f"critic_gain={critic_gain!r}: must be true or false")
-        if critic_gain and layout.KEY_GAIN not in observation_space.spaces:
-            raise ValueError(f"critic_gain=True needs observation[{layout.KEY_GAIN!r}]: make the env with "
-                             "action_gain=True (the default), or use critic_gain=False")
-        self.critic_gain = bool(critic_gain)
         #: The starting weight of each gain row (empty without a prior).
         self.gain_prior_init = _prior_init(gain_prior, gain_prior_speed, observation_space)
         self.gain_prior = gain_prior if isinstance(gain_prior, (int, float)) else [float(w) for w in gain_prior]
@@ -281,8 +258,9 @@ class COMAPolicy(BasePolicy):
         self._build(lr_schedule, critic_lr_schedule or lr_schedule)
 
     def _build(self, lr_schedule: Schedule, critic_lr_schedule: Schedule) -> None:
-        local = self.observation_space[layout.KEY_LOCAL]
-        state = self.observation_space[layout.KEY_STATE]
+        observation_space = cast(spaces.Dict, self.observation_space)
+        local, state = observation_space[layout.KEY_LOCAL], observation_space[layout.KEY_STATE]
+        assert isinstance(local, spaces.Box) and isinstance(state, spaces.Box)
         channels = local.shape[0] + state.shape[0] + 1
         critic_space = spaces.Box(0.0, 1.0, (channels, *local.shape[1:]), dtype=local.dtype)
         actor_space = spaces.Box(0.0, 1.0, local.shape, dtype=local.dtype)
@@ -297,19 +275,21 @@ class COMAPolicy(BasePolicy):
             prior_speed=self.gain_prior_speed,
             correction_bound=self.correction_bound,
         )
-        self.critic = _Critic(
+        self.critic = _Head(
             self.critic_features_extractor_class(critic_space, **self.critic_features_extractor_kwargs),
             self.n_actions,
             gain=1.0,
             ortho_init=self.ortho_init,
-            gain_inputs=int(np.prod(self.observation_space[layout.KEY_GAIN].shape)) if self.critic_gain else 0,
         )
         self.critic_target = copy.deepcopy(self.critic)
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
 
-        self.optimizer = self.optimizer_class(self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
-        self.critic_optimizer = self.optimizer_class(
+        # SB3 types optimizer_class as Optimizer's own class, whose __init__ has no lr (SB3 ignores it too)
+        self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
+            self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+        )
+        self.critic_optimizer = self.optimizer_class(  # type: ignore[call-arg]
             self.critic.parameters(), lr=critic_lr_schedule(1), **self.optimizer_kwargs
         )
 
@@ -327,7 +307,6 @@ class COMAPolicy(BasePolicy):
             ortho_init=self.ortho_init,
             gain_prior=self.gain_prior,
             gain_prior_speed=self.gain_prior_speed,
-            critic_gain=self.critic_gain,
             correction_bound=self.correction_bound,
         )
         return data
@@ -339,25 +318,29 @@ class COMAPolicy(BasePolicy):
         self.training = mode
 
     # ----------------------------------------------------------------- actor
-    def masked_logits(self, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None,
-                      temperature: float = 1.0) -> th.Tensor:
-        """Actor logits divided by ``temperature``, invalid actions pushed to a large negative
-        value. ``(B, A)``. ``prior``: the ``action_gain`` rows, used when the actor has a gain prior."""
-        logits = self.actor(local, prior)
-        return mask_logits(logits if temperature == 1.0 else logits / temperature, mask)
+    def masked_logits(self, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:
+        """Actor logits with invalid actions pushed to a large negative value, ``(B, A)``.
+        ``prior``: the ``action_gain`` rows, used when the actor has a gain prior."""
+        return mask_logits(self.actor(local, prior), mask)
 
-    def action_probs(self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0,
-                     prior: th.Tensor | None = None, temperature: float = 1.0) -> th.Tensor:
-        """Behaviour probabilities (policy at ``temperature`` mixed with uniform-over-valid by ``epsilon``)."""
-        return behaviour_probs(self.masked_logits(local, mask, prior, temperature), mask, epsilon)
+    def action_probs(
+        self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0, prior: th.Tensor | None = None
+    ) -> th.Tensor:
+        """Behaviour probabilities (the policy mixed with uniform-over-valid by ``epsilon``)."""
+        return behaviour_probs(self.masked_logits(local, mask, prior), mask, epsilon)
 
-    def act(self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0, deterministic: bool = False,
-            prior: th.Tensor | None = None, temperature: float = 1.0) -> th.Tensor:
-        """One action per agent row; all agents of all env copies in a single forward pass.
-        Argmax actions (``deterministic``) do not depend on ``temperature``."""
+    def act(
+        self,
+        local: th.Tensor,
+        mask: th.Tensor,
+        epsilon: float = 0.0,
+        deterministic: bool = False,
+        prior: th.Tensor | None = None,
+    ) -> th.Tensor:
+        """One action per agent row; all agents of all env copies in a single forward pass."""
         if deterministic:
             return sample_actions(self.masked_logits(local, mask, prior), deterministic=True)
-        return sample_actions(self.action_probs(local, mask, epsilon, prior, temperature))
+        return sample_actions(self.action_probs(local, mask, epsilon, prior))
 
     def forward(self, obs: PyTorchObs, deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
         return self._predict(obs, deterministic)
@@ -370,32 +353,23 @@ class COMAPolicy(BasePolicy):
         return self.act(local, mask, deterministic=deterministic, prior=None if prior is None else prior.float())
 
     # ---------------------------------------------------------------- critic
-    def q_values(self, local: th.Tensor, state: th.Tensor, actions: th.Tensor, target: bool = False,
-                 gain: th.Tensor | None = None) -> th.Tensor:
+    def q_values(self, local: th.Tensor, state: th.Tensor, actions: th.Tensor, target: bool = False) -> th.Tensor:
         """``Q(s, u_-i, .)`` for every agent of every joint step: ``(B, N, A)`` in one pass.
 
         :param local: ``(B, N, 8, H, W)``
         :param state: ``(B, N, 3, H, W)``
         :param actions: ``(B, N)`` joint actions (agent ``i``'s own entry does not matter for row ``i``)
         :param target: use the target critic
-        :param gain: ``(B, N, K, A)`` each agent's ``action_gain``; read only with ``critic_gain``
         """
         batch, n_agents = actions.shape
         x = critic_input(local, state, actions).flatten(0, 1)
         net = self.critic_target if target else self.critic
-        g = gain.flatten(0, 1) if (self.critic_gain and gain is not None) else None
-        return net(x, g).view(batch, n_agents, self.n_actions)
+        return net(x).view(batch, n_agents, self.n_actions)
 
     @th.no_grad()
-    def sync_target(self, tau: float | None = None) -> None:
-        """Copy the critic into the target (``tau=None``) or move it by Polyak averaging."""
-        if tau is None:
-            self.critic_target.load_state_dict(self.critic.state_dict())
-            return
-        for target_param, param in zip(self.critic_target.parameters(), self.critic.parameters()):
-            target_param.mul_(1.0 - tau).add_(param, alpha=tau)
-        for target_buf, buf in zip(self.critic_target.buffers(), self.critic.buffers()):
-            target_buf.copy_(buf)
+    def sync_target(self) -> None:
+        """Copy the critic into the target critic."""
+        self.critic_target.load_state_dict(self.critic.state_dict())
 
 
 class CBAMPolicy(COMAPolicy):

@@ -3,6 +3,7 @@
 SB3's ``ProgressBarCallback`` advances by ``num_envs`` per step, i.e. by agent steps here; with
 ``N`` agents per env copy the bar would run ``N`` times too fast.
 """
+
 from __future__ import annotations
 
 from stable_baselines3.common.callbacks import ProgressBarCallback

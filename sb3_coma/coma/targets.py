@@ -2,6 +2,7 @@
 
 Both are standalone functions on tensors so they can be tested on hand-made numbers.
 """
+
 from __future__ import annotations
 
 import torch as th

@@ -3,9 +3,9 @@
 They run before any network is built, so a wrong env or hyperparameter fails at construction
 with a message saying what was expected, instead of a shape error deep inside a rollout.
 """
+
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -117,14 +117,6 @@ def check_non_negative(name: str, value: float) -> None:
         raise ValueError(f"{name} must be a number >= 0, got {value!r}")
     if not value >= 0:
         raise ValueError(f"{name} must be >= 0, got {value!r}")
-
-
-def check_positive_finite(name: str, value: float) -> None:
-    """A scale such as the policy temperature: a finite number > 0."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-    if not (value > 0 and math.isfinite(value)):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 
 
 def check_positive_int(name: str, value: int) -> None:

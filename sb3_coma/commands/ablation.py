@@ -10,39 +10,51 @@ give them one by one with ``--model sendfuse_cbam=PATH``. Writes ``ablation.md``
 ``ablation_curves.png`` (metrics vs step per noise level, Figure 4), ``ablation_bars.png`` and,
 with ``--training-logs``, ``training_reward.png`` (Figure 3).
 """
+
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
+from envs import DEFAULT_MAP
+from sb3_coma import ablation, plots
+from sb3_coma.cli import UserError, set_threads
+from sb3_coma.evaluation import write_per_step_csv, write_table_csv
 
 NAME = "ablation"
 HELP = "evaluate the SenDFuse / CBAM ablation models at three noise levels"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--threads", type=int, default=1,
-                        help="torch CPU threads (default 1, as sb3-coma reproduce: float reductions differ with the "
-                             "thread count, and a rare flipped argmax changes a whole mission)")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1, as sb3-coma reproduce: float reductions differ with the "
+        "thread count, and a rare flipped argmax changes a whole mission)",
+    )
     parser.add_argument("--models", default=None, help="directory with {fusion}_{extractor}.zip models")
-    parser.add_argument("--model", action="append", default=[], metavar="FUSION_EXTRACTOR=PATH",
-                        help="one model, e.g. sendfuse_cbam=runs/x/final.zip; repeatable")
-    parser.add_argument("--env", default="env3", help="map name (default env3, as in the paper)")
+    parser.add_argument(
+        "--model",
+        action="append",
+        default=[],
+        metavar="FUSION_EXTRACTOR=PATH",
+        help="one model, e.g. sendfuse_cbam=runs/x/final.zip; repeatable",
+    )
+    parser.add_argument("--env", default=DEFAULT_MAP, help=f"map name (default {DEFAULT_MAP}, as in the paper)")
     parser.add_argument("--noises", default="none,moderate,loud", help="comma-separated noise levels")
     parser.add_argument("--trials", type=int, default=10, help="missions per model and noise level (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="base seed: trial k uses SEED+k (default 0)")
     parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
     parser.add_argument("--out", default="results/ablation", help="output folder (default results/ablation)")
-    parser.add_argument("--training-logs", default=None,
-                        help="directory with {fusion}_{extractor} run dirs or CSVs for the reward plot")
+    parser.add_argument(
+        "--training-logs", default=None, help="directory with {fusion}_{extractor} run dirs or CSVs for the reward plot"
+    )
     parser.add_argument("--no-plots", action="store_true", help="skip the figures")
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma import ablation, plots
-    from sb3_coma.cli import UserError, set_threads
-    from sb3_coma.evaluation import write_per_step_csv, write_table_csv
-
     set_threads(args.threads)
     if args.trials < 1 or args.seed < 0:
         raise UserError("--trials must be >= 1 and --seed >= 0")
@@ -66,8 +78,9 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as exc:
         raise UserError(str(exc)) from None
     try:
-        result = ablation.run_ablation(source, env=args.env, noises=noises, n_trials=args.trials, seed=args.seed,
-                                       **options)
+        result = ablation.run_ablation(
+            source, env=args.env, noises=noises, n_trials=args.trials, seed=args.seed, **options
+        )
     except ValueError as exc:
         raise UserError(str(exc)) from None
     out = Path(args.out)
@@ -77,14 +90,28 @@ def run(args: argparse.Namespace) -> int:
         (out).mkdir(parents=True, exist_ok=True)
         (out / "ablation.md").write_text(
             f"{args.env}: F1-score and entropy at 33/67/100 % of the budget, mean ± std over {args.trials} trials; "
-            f"best of each noise level in bold.\n\n{result.markdown()}")
-        written += [out / "ablation.md", write_table_csv(rows, out / "ablation.csv", group_title="noise"),
-                    write_per_step_csv(rows, out / "ablation_per_step.csv", group_title="noise")]
+            f"best of each noise level in bold.\n\n{result.markdown()}"
+        )
+        written += [
+            out / "ablation.md",
+            write_table_csv(rows, out / "ablation.csv", group_title="noise"),
+            write_per_step_csv(rows, out / "ablation_per_step.csv", group_title="noise"),
+        ]
         if not args.no_plots:
-            written.append(plots.plot_metric_grid(result.by_noise(), out / "ablation_curves.png",
-                                                  title=f"{args.env}: F1 and entropy vs step per noise level"))
-            written.append(plots.plot_ablation({k: v for k, v in result.results.items()}, out / "ablation_bars.png",
-                                               title=f"{args.env}: ablation at 100 % of the budget"))
+            written.append(
+                plots.plot_metric_grid(
+                    result.by_noise(),
+                    out / "ablation_curves.png",
+                    title=f"{args.env}: F1 and entropy vs step per noise level",
+                )
+            )
+            written.append(
+                plots.plot_ablation(
+                    {k: v for k, v in result.results.items()},
+                    out / "ablation_bars.png",
+                    title=f"{args.env}: ablation at 100 % of the budget",
+                )
+            )
     if logs and not args.no_plots:
         written.append(plots.plot_training_reward(logs, out / "training_reward.png"))
     print()

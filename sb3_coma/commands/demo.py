@@ -1,16 +1,24 @@
 """``sb3-coma demo``: one mission with random valid actions, printing F1 and entropy per step."""
+
 from __future__ import annotations
 
 import argparse
 
 import numpy as np
 
+import envs
+from envs import layout
+
 NAME = "demo"
 HELP = "fly one mission with random valid actions and print F1 / entropy per step"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--env", default="env3", help="map name (env1, env2, env3) or gymnasium id")
+    parser.add_argument(
+        "--env",
+        default=envs.DEFAULT_MAP,
+        help=f"map name (env1, env2, env3) or gymnasium id (default {envs.DEFAULT_MAP})",
+    )
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud")
     parser.add_argument("--uavs", type=int, default=4)
     parser.add_argument("--budget", type=int, default=15)
@@ -18,9 +26,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import envs
-    from envs import layout
-
     env = envs.make_env(args.env, noise=args.noise, n_uavs=args.uavs, budget=args.budget)
     rng = np.random.default_rng(args.seed)
     obs, _ = env.reset(seed=args.seed)
@@ -33,6 +38,8 @@ def run(args: argparse.Namespace) -> int:
         obs, rewards, _, _, infos = env.step(actions)
         total += rewards["uav_0"]
         info = infos["uav_0"]
-        print(f"step {env._steps:2d}  f1={info['f1']:.3f}  entropy={info['entropy']:.3f}  reward={rewards['uav_0']:+.3f}")
+        print(
+            f"step {env._steps:2d}  f1={info['f1']:.3f}  entropy={info['entropy']:.3f}  reward={rewards['uav_0']:+.3f}"
+        )
     print(f"team return {total:+.3f}")
     return 0

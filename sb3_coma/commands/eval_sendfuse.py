@@ -1,8 +1,18 @@
 """``sb3-coma eval-sendfuse``: fused-map quality of SenDFuse vs the naive mean on held-out maps."""
+
 from __future__ import annotations
 
 import argparse
 import sys
+
+import torch
+from tqdm.auto import tqdm
+
+from envs import DEFAULT_MAP
+from sb3_coma.cli import UserError
+from sb3_coma.sendfuse.data import NOISE_PRESETS
+from sb3_coma.sendfuse.quality import evaluate_quality, format_table
+from sb3_coma.sendfuse.weights import load_weights
 
 NAME = "eval-sendfuse"
 HELP = "compare SenDFuse with the naive mean fusion (MSE vs the noise-free fused map) on held-out maps"
@@ -15,28 +25,27 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--env", default="env3", help="map: env3 (default), env2, env1, or a label with --map-path")
+    parser.add_argument("--env", default=DEFAULT_MAP, help=f"map (default {DEFAULT_MAP}), or a label with --map-path")
     parser.add_argument("--map-path", default=None, help="your own image as the ground truth (with --valuable)")
-    parser.add_argument("--valuable", default=None, help="rule that marks valuable pixels of --map-path (e.g. hottest:0.3)")
+    parser.add_argument(
+        "--valuable", default=None, help="rule that marks valuable pixels of --map-path (e.g. hottest:0.3)"
+    )
     parser.add_argument("--missions", type=int, default=20, help="missions per noise preset (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="seed of mission m is seed + m (default 0)")
     parser.add_argument("--uavs", type=int, default=4, help="number of UAVs (default 4)")
     parser.add_argument("--budget", type=int, default=15, help="decisions per UAV (default 15)")
-    parser.add_argument("--noise", nargs="+", default=None, metavar="PRESET",
-                        help="noise presets to score (default: none moderate loud)")
+    parser.add_argument(
+        "--noise",
+        nargs="+",
+        default=None,
+        metavar="PRESET",
+        help="noise presets to score (default: none moderate loud)",
+    )
     parser.add_argument("--weights", default=None, help="SenDFuse weights (default: the shipped file)")
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
-    from tqdm.auto import tqdm
-
-    from sb3_coma.cli import UserError
-    from sb3_coma.sendfuse.data import NOISE_PRESETS
-    from sb3_coma.sendfuse.quality import evaluate_quality, format_table
-    from sb3_coma.sendfuse.weights import load_weights
-
     if args.missions < 1:
         raise UserError(f"--missions must be >= 1, got {args.missions}")
     presets = tuple(args.noise) if args.noise else NOISE_PRESETS
@@ -51,13 +60,30 @@ def run(args: argparse.Namespace) -> int:
     network = load_weights(args.weights)
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     label = args.map_path or args.env
-    with tqdm(total=args.missions * len(presets), desc=f"eval {label}", unit="mission", file=sys.stderr,
-              leave=False, dynamic_ncols=True) as bar:
-        rows = evaluate_quality(network, args.env, missions=args.missions, seed=args.seed, presets=presets,
-                                n_uavs=args.uavs, budget=args.budget, progress=bar.update, **options)
+    with tqdm(
+        total=args.missions * len(presets),
+        desc=f"eval {label}",
+        unit="mission",
+        file=sys.stderr,
+        leave=False,
+        dynamic_ncols=True,
+    ) as bar:
+        rows = evaluate_quality(
+            network,
+            args.env,
+            missions=args.missions,
+            seed=args.seed,
+            presets=presets,
+            n_uavs=args.uavs,
+            budget=args.budget,
+            progress=bar.update,
+            **options,
+        )
     source = args.weights or "shipped weights"
-    print(f"SenDFuse fused-map quality on {label}: {args.uavs} UAVs, budget {args.budget}, {args.missions} "
-          f"missions per preset, seed {args.seed}, {source}")
+    print(
+        f"SenDFuse fused-map quality on {label}: {args.uavs} UAVs, budget {args.budget}, {args.missions} "
+        f"missions per preset, seed {args.seed}, {source}"
+    )
     print("MSE against the clean fused map (mean of the noise-free received maps); ratio < 1: SenDFuse better")
     print(format_table(rows, markdown=args.markdown))
     return 0

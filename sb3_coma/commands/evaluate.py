@@ -41,7 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fusion", default=None, choices=("mean", "sendfuse"),
                         help="fusion of received maps for models (default sendfuse; baselines always use mean)")
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud (default moderate)")
-    parser.add_argument("--trials", type=int, default=10, help="missions per method (default 10)")
+    parser.add_argument("--trials", type=int, default=None,
+                        help="missions per method (default 10; with --protocol the protocol's: paper 10, unseen 50)")
+    parser.add_argument("--protocol", default=None, choices=("paper", "unseen"),
+                        help="the missions: 'paper' (split paper, Table I) or 'unseen' (split test, random starts); "
+                             "default: the env options as given (split paper)")
     parser.add_argument("--seed", type=int, default=0, help="base seed: trial k uses SEED+k (default 0)")
     parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
@@ -127,6 +131,8 @@ def run(args: argparse.Namespace) -> int:
     from sb3_coma.cli import UserError, set_threads
 
     set_threads(args.threads)
+    if args.trials is None:
+        args.trials = ev.PROTOCOLS[args.protocol].n_trials if args.protocol else ev.DEFAULT_TRIALS
     _check_args(args)
     methods = _methods(args)
     env_names = _env_names(args)
@@ -148,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
             fusion = args.fusion if ev.is_model(method) else None
             try:
                 results.append(ev.evaluate(method, env=env_name, n_trials=args.trials, seed=args.seed, fusion=fusion,
-                                           n_envs=args.n_envs, label=label, **options))
+                                           n_envs=args.n_envs, label=label, protocol=args.protocol, **options))
             except (ValueError, TypeError) as exc:
                 raise UserError(f"{label or method} on {env_name}: {exc}") from None
     rows = ev.rows_for(results)
@@ -158,7 +164,9 @@ def run(args: argparse.Namespace) -> int:
     timing = ev.planning_time_markdown(rows)
     (out / "table.md").write_text(
         f"F1-score and entropy at 33/67/100 % of the budget, mean ± std over {args.trials} trials "
-        f"(seeds {args.seed}..{args.seed + args.trials - 1}), noise {args.noise}; best in bold.\n\n{markdown}")
+        f"(seeds {args.seed}..{args.seed + args.trials - 1}), noise {args.noise}"
+        f"{f', protocol {args.protocol}' if args.protocol else ''}; best in bold.\n\n{markdown}\n"
+        f"Team metrics (each UAV's own map):\n\n{ev.table_markdown(rows, metrics='team')}")
     (out / "planning_time.md").write_text(timing)
     written += [out / "table.md", out / "planning_time.md"]
     if not args.no_plots:

@@ -1,13 +1,26 @@
 """``sb3-coma export``: a trained model's actor and fusion network as ONNX files, for on-board use."""
+
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
-if TYPE_CHECKING:
-    from sb3_coma.export import ModelSource
+from sb3_coma.checkpoints import CheckpointError, load_checkpoint, validate_checkpoint
+from sb3_coma.cli import UserError
+from sb3_coma.coma import COMA
+from sb3_coma.export import (
+    MIN_OPSET,
+    OPSET,
+    ExportError,
+    ModelSource,
+    check_out_dir,
+    export_onnx,
+    resolve_model_source,
+    settings_of_source,
+)
+from sb3_coma.pretrained import PretrainedError, load_pretrained
 
 NAME = "export"
 HELP = "export a trained model's actor and its fusion network to ONNX (+ a JSON of inputs and env options)"
@@ -20,49 +33,37 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--model", required=True, metavar="NAME_OR_PATH",
-                        help="a shipped model name (env1, env2, env3, ...) or the path of a COMA model .zip")
+    parser.add_argument(
+        "--model",
+        required=True,
+        metavar="NAME_OR_PATH",
+        help="a shipped model name (env1, env2, env3, ...) or the path of a COMA model .zip",
+    )
     parser.add_argument("--out", required=True, metavar="DIR", help="folder to write the files into (created)")
-    parser.add_argument("--fusion", default=None, choices=("sendfuse", "mean"),
-                        help="fusion to export (default: the one the model was trained with, from models.json or "
-                             "the run folder's config.yml; needed for a bare .zip)")
+    parser.add_argument(
+        "--fusion",
+        default=None,
+        choices=("sendfuse", "mean"),
+        help="fusion to export (default: the one the model was trained with, from models.json or "
+        "the run folder's config.yml; needed for a bare .zip)",
+    )
     parser.add_argument("--opset", type=int, default=None, help="ONNX opset (default 17; at least 17)")
-    parser.add_argument("--no-verify", action="store_true",
-                        help="skip the onnxruntime-vs-PyTorch check of the written files")
+    parser.add_argument(
+        "--no-verify", action="store_true", help="skip the onnxruntime-vs-PyTorch check of the written files"
+    )
 
 
-def _load(source: ModelSource) -> Any:
+def _load(source: ModelSource) -> COMA:
     """Load the model the source names: a shipped one after its checksum, a zip after validation."""
-    from sb3_coma.cli import UserError
-
-    if source.shipped is not None:
-        from sb3_coma.pretrained import PretrainedError, load_pretrained
-
-        try:
-            return load_pretrained(source.given)
-        except PretrainedError as exc:
-            raise UserError(str(exc)) from None
-    from sb3_coma.evaluation import _load_model_file
-
     try:
-        return _load_model_file(source.path, None)
-    except ValueError as exc:  # CheckpointError is one too: corrupt, truncated, another algorithm
+        if source.shipped is not None:
+            return load_pretrained(source.given)
+        return load_checkpoint(source.path, env=None, device="cpu")
+    except (PretrainedError, CheckpointError) as exc:  # corrupt, truncated, another algorithm
         raise UserError(str(exc)) from None
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma.checkpoints import validate_checkpoint
-    from sb3_coma.cli import UserError
-    from sb3_coma.export import (
-        MIN_OPSET,
-        OPSET,
-        ExportError,
-        check_out_dir,
-        export_onnx,
-        resolve_model_source,
-        settings_of_source,
-    )
-
     opset = OPSET if args.opset is None else args.opset
     if opset < MIN_OPSET:
         raise UserError(f"--opset {opset}: must be at least {MIN_OPSET}")
@@ -76,12 +77,15 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from None
     fusion = args.fusion or (settings or {}).get("fusion")
     if fusion is None:
-        raise UserError(f"cannot tell which fusion model {args.model!r} was trained with (no models.json entry, no "
-                        f"run config.yml next to it): pass --fusion sendfuse or --fusion mean")
+        raise UserError(
+            f"cannot tell which fusion model {args.model!r} was trained with (no models.json entry, no "
+            f"run config.yml next to it): pass --fusion sendfuse or --fusion mean"
+        )
     model = _load(source)
     try:
-        paths = export_onnx(model, out, fusion=fusion, settings=settings, source=source, opset=opset,
-                            verify=not args.no_verify)
+        paths = export_onnx(
+            model, out, fusion=fusion, settings=settings, source=source, opset=opset, verify=not args.no_verify
+        )
     except ExportError as exc:
         raise UserError(str(exc)) from None
     _report(paths, fusion)
@@ -90,8 +94,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _report(paths: dict[str, Path], fusion: str) -> None:
     """What was written, what the actor reads, what the model was trained on, how well it matched."""
-    import json
-
     meta = json.loads(paths["metadata"].read_text())
     actor_inputs = ", ".join(f"{i['name']} {i['shape']}" for i in meta["actor"]["inputs"])
     fusion_inputs = ", ".join(f"{i['name']} {i['shape']}" for i in meta["fusion"]["inputs"])
@@ -103,11 +105,13 @@ def _report(paths: dict[str, Path], fusion: str) -> None:
     print(f"trained on {env['name']} with {options} (from {env['from']})")
     check = meta["check"]
     if check.get("done"):
-        print(f"checked with onnxruntime: max |ONNX - PyTorch| actor {check['actor_max_abs_diff']:.2g}, "
-              f"fusion {check['fusion_max_abs_diff']:.2g}")
+        print(
+            f"checked with onnxruntime: max |ONNX - PyTorch| actor {check['actor_max_abs_diff']:.2g}, "
+            f"fusion {check['fusion_max_abs_diff']:.2g}"
+        )
 
 
 if __name__ == "__main__":  # pragma: no cover
-    from sb3_coma.cli import main
+    from sb3_coma.cli import main  # the package's CLI (this file runs as __main__)
 
     sys.exit(main([NAME, *sys.argv[1:]]))

@@ -3,6 +3,7 @@
 With the defaults this reproduces the weights shipped in ``sb3_coma/pretrained/`` (same seed and
 thread count -> the same file, byte for byte): a few minutes on one CPU core.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -10,6 +11,13 @@ import math
 import platform
 import sys
 from pathlib import Path
+
+import numpy as np
+import torch
+
+from sb3_coma.cli import UserError
+from sb3_coma.sendfuse.pretrain import PretrainConfig, pretrain
+from sb3_coma.sendfuse.weights import default_weights_path, save_weights
 
 NAME = "pretrain-sendfuse"
 HELP = "pre-train the SenDFuse denoising autoencoder on env-generated data and save its weights"
@@ -22,29 +30,50 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from sb3_coma.sendfuse.pretrain import PretrainConfig
-
     d = PretrainConfig()
-    parser.add_argument("--samples", type=int, default=d.samples, help=f"training pairs to generate (default {d.samples})")
+    parser.add_argument(
+        "--samples", type=int, default=d.samples, help=f"training pairs to generate (default {d.samples})"
+    )
     parser.add_argument("--epochs", type=int, default=d.epochs, help=f"passes over the pairs (default {d.epochs})")
     parser.add_argument("--batch", type=int, default=d.batch, help=f"batch size (default {d.batch})")
     parser.add_argument("--lr", type=float, default=d.lr, help=f"Adam learning rate, cosine-decayed (default {d.lr:g})")
-    parser.add_argument("--seed", type=int, default=d.seed, help=f"seed of data, initialisation and batches (default {d.seed})")
-    parser.add_argument("--threads", type=int, default=d.threads,
-                        help=f"torch threads; results are reproducible for a fixed count (default {d.threads})")
+    parser.add_argument(
+        "--seed", type=int, default=d.seed, help=f"seed of data, initialisation and batches (default {d.seed})"
+    )
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=d.threads,
+        help=f"torch threads; results are reproducible for a fixed count (default {d.threads})",
+    )
     parser.add_argument("--no-calibrate", action="store_true", help="skip the fusion-scale calibration")
-    parser.add_argument("--calibration-fusions", type=int, default=d.calibration_fusions,
-                        help=f"fusions flown to calibrate the fusion scale (default {d.calibration_fusions})")
-    parser.add_argument("--out", default=None,
-                        help="output .safetensors (default: sendfuse_r44.safetensors in the current folder; "
-                             "never the package's shipped file)")
+    parser.add_argument(
+        "--calibration-fusions",
+        type=int,
+        default=d.calibration_fusions,
+        help=f"fusions flown to calibrate the fusion scale (default {d.calibration_fusions})",
+    )
+    parser.add_argument(
+        "--out",
+        default=None,
+        help="output .safetensors (default: sendfuse_r44.safetensors in the current folder; "
+        "never the package's shipped file)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def canonical_command(args: argparse.Namespace) -> str:
     """The command that reproduces the file (options that change the weights, not --out)."""
-    parts = ["sb3-coma", NAME, f"--samples {args.samples}", f"--epochs {args.epochs}", f"--batch {args.batch}",
-             f"--lr {args.lr:g}", f"--seed {args.seed}", f"--threads {args.threads}"]
+    parts = [
+        "sb3-coma",
+        NAME,
+        f"--samples {args.samples}",
+        f"--epochs {args.epochs}",
+        f"--batch {args.batch}",
+        f"--lr {args.lr:g}",
+        f"--seed {args.seed}",
+        f"--threads {args.threads}",
+    ]
     if args.no_calibrate:
         parts.append("--no-calibrate")
     else:
@@ -53,24 +82,26 @@ def canonical_command(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-    import torch
-
-    from sb3_coma.cli import UserError
-    from sb3_coma.sendfuse.pretrain import PretrainConfig, pretrain
-    from sb3_coma.sendfuse.weights import default_weights_path, save_weights
-
     try:
-        config = PretrainConfig(samples=args.samples, epochs=args.epochs, batch=args.batch, lr=args.lr,
-                                seed=args.seed, threads=args.threads, calibrate=not args.no_calibrate,
-                                calibration_fusions=args.calibration_fusions)
+        config = PretrainConfig(
+            samples=args.samples,
+            epochs=args.epochs,
+            batch=args.batch,
+            lr=args.lr,
+            seed=args.seed,
+            threads=args.threads,
+            calibrate=not args.no_calibrate,
+            calibration_fusions=args.calibration_fusions,
+        )
         config.validate()
     except ValueError as exc:
         raise UserError(str(exc)) from None
     out = Path(args.out) if args.out else Path(default_weights_path(config.grid_size).name)
     if out.resolve().parent == default_weights_path(config.grid_size).resolve().parent:
-        raise UserError(f"--out {str(out)!r} is inside the installed package; write the weights elsewhere "
-                        "(shipped weights change only through a release, with their SHA-256 recorded)")
+        raise UserError(
+            f"--out {str(out)!r} is inside the installed package; write the weights elsewhere "
+            "(shipped weights change only through a release, with their SHA-256 recorded)"
+        )
     if out.exists() and out.is_dir():
         raise UserError(f"--out {str(out)!r} is a directory; give a file name such as sendfuse.safetensors")
     command = canonical_command(args)
@@ -99,11 +130,16 @@ def run(args: argparse.Namespace) -> int:
         "python": platform.python_version(),
     }
     path = save_weights(result.model, out, metadata)  # sorted header: identical runs, identical bytes
-    print(f"final loss {final.total:.4f} (mse {final.mse:.3g}, mae {final.mae:.3g}, 1-ssim {final.ssim:.3g}); "
-          f"validation MSE {final.val_mse:.3g} vs noisy input {result.identity_val_mse:.3g}; "
-          f"fusion scale {result.scale:g}")
-    print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB, {result.model.num_parameters()} parameters) "
-          f"in {result.seconds:.0f}s", flush=True)
+    print(
+        f"final loss {final.total:.4f} (mse {final.mse:.3g}, mae {final.mae:.3g}, 1-ssim {final.ssim:.3g}); "
+        f"validation MSE {final.val_mse:.3g} vs noisy input {result.identity_val_mse:.3g}; "
+        f"fusion scale {result.scale:g}"
+    )
+    print(
+        f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB, {result.model.num_parameters()} parameters) "
+        f"in {result.seconds:.0f}s",
+        flush=True,
+    )
     return 0
 
 

@@ -1,10 +1,11 @@
-"""``sb3-coma reproduce``: the paper's Table I, ablation, generalisation and latency from the shipped models.
+"""``sb3-coma reproduce``: both evaluation protocols, ablation, noise sweep, costs -> results/ and docs/RESULTS.md.
 
 Examples::
 
-    sb3-coma reproduce                       # shipped models + baselines, env1-3, 10 trials -> results/, docs/RESULTS.md
+    sb3-coma reproduce                       # shipped models + baselines, env1-3 -> results/, docs/RESULTS.md
+    sb3-coma reproduce --unseen-missions 30  # fewer unseen missions (the default is the protocol's 50)
     sb3-coma reproduce --train               # retrain each env through zoo_configs/coma.yml first
-    sb3-coma reproduce --quick --out /tmp/r  # smoke run: 2 trials (and a tiny training with --train)
+    sb3-coma reproduce --quick --out /tmp/r  # smoke run: 2 missions everywhere (and a tiny training with --train)
 """
 from __future__ import annotations
 
@@ -12,13 +13,15 @@ import argparse
 from pathlib import Path
 
 NAME = "reproduce"
-HELP = ("reproduce Table I, the env3 ablation, generalisation and latency (shipped models or --train) into "
-        "results/ and docs/RESULTS.md")
+HELP = ("reproduce the paper protocol (Table I), the unseen protocol, the env3 ablation, the noise sweep and the "
+        "deployment cost table (shipped models or --train) into results/ and docs/RESULTS.md")
 DESCRIPTION = (
-    "Evaluate the shipped COMA models (or retrain them with --train through zoo_configs/coma.yml) against AG, "
-    "lawnmower and random on env1-env3 under moderate noise, 10 seeded trials each, and write Table I "
-    "(33/67/100 %% of the budget, mean +- std), an acceptance table, the SenDFuse x CBAM ablation on env3 under "
-    "none/moderate/loud noise, generalisation to other maps, deployment latency, figures and RESULTS.md."
+    "Evaluate the shipped COMA models (or retrain them with --train through zoo_configs/coma.yml) and every other "
+    "shipped model against AG (the map's validated weighting), AG with look-ahead 2 and 3, lawnmower and random on "
+    "env1-env3 under moderate noise: the paper protocol (split paper, 10 seeded trials, Table I at 33/67/100 %% of "
+    "the budget, mean +- std) and the unseen protocol (50 missions on split test, random starts), global and team "
+    "metrics, paired verdicts; the SenDFuse x CBAM ablation on env3; the noise sweep; generalisation; the cost per "
+    "UAV decision; figures and RESULTS.md."
 )
 
 
@@ -35,7 +38,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "gives the same model on any machine; float reductions differ with the thread count)")
     parser.add_argument("--out", default="results", help="output folder (default results/)")
     parser.add_argument("--env", default="env1,env2,env3", help="comma-separated maps (default env1,env2,env3)")
-    parser.add_argument("--trials", type=int, default=10, help="missions per method (default 10; --quick: 2)")
+    parser.add_argument("--trials", type=int, default=10,
+                        help="missions per method of the paper protocol and the ablation (default 10; --quick: 2)")
+    parser.add_argument("--unseen-missions", type=int, default=None, metavar="N",
+                        help="missions per method of the unseen protocol (default 50; 0 skips it; --quick: 2)")
+    parser.add_argument("--sweep-missions", type=int, default=None, metavar="N",
+                        help="missions per setting of the noise sweep (default 50, the unseen protocol's missions; 0 skips "
+                             "it; --quick: 2)")
     parser.add_argument("--seed", type=int, default=0, help="base evaluation seed: trial k uses SEED+k (default 0)")
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud (default moderate)")
     parser.add_argument("--train", action="store_true", help="retrain each env's model through the zoo config first")
@@ -59,6 +68,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-generalisation", action="store_true", help="skip the generalisation section")
     parser.add_argument("--no-ablation", action="store_true",
                         help="skip the env3 ablation (SenDFuse x CBAM arms at three noise levels)")
+    parser.add_argument("--no-costs", action="store_true", help="skip the deployment cost table")
+    parser.add_argument("--baselines-only", action="store_true",
+                        help="fly no learned model: every step with the baselines alone (maps without a shipped "
+                             "model get baseline rows anyway)")
     parser.add_argument("--wide-trials", type=int, default=None, metavar="N",
                         help="missions of the paired check of the verdicts: COMA vs AG per env and the full "
                              "model vs each ablation arm, same missions (default 50; 0 skips it)")
@@ -79,8 +92,13 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--seed must be >= 0, got {args.seed}")
     if args.ship and (not args.train or args.quick):
         raise UserError("--ship needs --train (and not --quick)")
+    if args.baselines_only and (args.train or args.record):
+        raise UserError("--baselines-only flies no model: not with --train or --record")
     if args.wide_trials is not None and (args.wide_trials < 0 or args.wide_trials == 1):
         raise UserError(f"--wide-trials must be 0 (skip) or >= 2, got {args.wide_trials}")
+    for flag, value in (("--unseen-missions", args.unseen_missions), ("--sweep-missions", args.sweep_missions)):
+        if value is not None and value < 0:
+            raise UserError(f"{flag} must be >= 0, got {value}")
     if args.timesteps is not None and args.timesteps < 1:
         raise UserError(f"--timesteps must be >= 1, got {args.timesteps}")
     docs = None
@@ -89,13 +107,15 @@ def run(args: argparse.Namespace) -> int:
             docs = Path(args.docs)
         elif not args.quick:
             docs = _repo_docs()
+    counts = {name: value for name, value in (("wide_trials", args.wide_trials), ("unseen_missions", args.unseen_missions),
+                                              ("sweep_missions", args.sweep_missions)) if value is not None}
     try:
         reproduce(out=args.out, env_names=envs, trials=args.trials, seed=args.seed, noise=args.noise, train=args.train,
                   quick=args.quick, timesteps=args.timesteps, fusion=args.fusion, docs=docs,
                   plots=not args.no_plots, ship=args.ship, generalisation=not args.no_generalisation,
                   deterministic=args.deterministic, record=args.record and not args.quick,
-                  ablation=not args.no_ablation,
-                  **({} if args.wide_trials is None else {"wide_trials": args.wide_trials}))
+                  ablation=not args.no_ablation, costs=not args.no_costs, baselines_only=args.baselines_only,
+                  **counts)
     except ValueError as exc:  # unknown/missing/corrupt shipped model, bad env options
         raise UserError(str(exc)) from None
     return 0

@@ -1,9 +1,18 @@
 """``sb3-coma train``: train COMA into a run folder (config, TensorBoard, checkpoints, metrics, model)."""
+
 from __future__ import annotations
 
 import argparse
 import signal
 import sys
+
+import yaml
+
+from sb3_coma import training
+from sb3_coma.checkpoints import CheckpointError
+from sb3_coma.cli import UserError, set_threads
+from sb3_coma.config import TrainingError, default_config_path, list_variants
+from sb3_coma.training import TrainingInterrupted
 
 NAME = "train"
 HELP = "train COMA on a map into a run folder (resume with --resume RUN_DIR)"
@@ -17,8 +26,6 @@ DESCRIPTION = (
 
 
 def _parse_set(text: str) -> tuple[str, object]:
-    import yaml
-
     key, sep, value = text.partition("=")
     if not sep or not key.strip():
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
@@ -30,64 +37,93 @@ def _parse_set(text: str) -> tuple[str, object]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--threads", type=int, default=1,
-                        help="torch CPU threads (default 1: as fast as 2 for these small networks, and training "
-                             "gives the same model on any machine; float reductions differ with the thread count)")
-    parser.add_argument("--env", default=None,
-                        help="map: env1, env2, env3 or a gymnasium id (default env3; with --resume the run's own)")
-    parser.add_argument("--config", default=None, metavar="YAML",
-                        help="rl-zoo style hyperparameter file (default zoo_configs/coma.yml)")
-    parser.add_argument("--variant", default=None,
-                        help="a name from the config's 'variants' (e.g. mean-cnn); see --list-variants")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1: as fast as 2 for these small networks, and training "
+        "gives the same model on any machine; float reductions differ with the thread count)",
+    )
+    parser.add_argument(
+        "--env",
+        default=None,
+        help="map: env1, env2, env3 or a gymnasium id (default env3; with --resume the run's own)",
+    )
+    parser.add_argument(
+        "--config", default=None, metavar="YAML", help="rl-zoo style hyperparameter file (default zoo_configs/coma.yml)"
+    )
+    parser.add_argument(
+        "--variant", default=None, help="a name from the config's 'variants' (e.g. mean-cnn); see --list-variants"
+    )
     parser.add_argument("--list-variants", action="store_true", help="print the config's variants and exit")
-    parser.add_argument("--timesteps", type=int, default=None, metavar="N",
-                        help="total joint steps to reach (default: the config's n_timesteps)")
+    parser.add_argument(
+        "--timesteps",
+        type=int,
+        default=None,
+        metavar="N",
+        help="total joint steps to reach (default: the config's n_timesteps)",
+    )
     parser.add_argument("--seed", type=int, default=None, help="seed of model and env (default: random, recorded)")
-    parser.add_argument("--resume", default=None, metavar="PATH",
-                        help="continue a run folder (its newest checkpoint) or a checkpoint .zip")
-    parser.add_argument("--run-dir", default=None, metavar="DIR",
-                        help="run folder (default runs/<env id>[-<variant>]_<n>; never reuses a non-empty folder)")
+    parser.add_argument(
+        "--resume",
+        default=None,
+        metavar="PATH",
+        help="continue a run folder (its newest checkpoint) or a checkpoint .zip",
+    )
+    parser.add_argument(
+        "--run-dir",
+        default=None,
+        metavar="DIR",
+        help="run folder (default runs/<env id>[-<variant>]_<n>; never reuses a non-empty folder)",
+    )
     parser.add_argument("--n-envs", type=int, default=None, help="env copies (default: the config's n_envs)")
-    parser.add_argument("--set", dest="overrides", action="append", type=_parse_set, default=[], metavar="KEY=VALUE",
-                        help="override a config key (YAML value), dots reach into mappings: "
-                             "--set batch_size=256 --set env_kwargs.noise=loud (repeatable)")
-    parser.add_argument("--save-freq", type=int, default=None, metavar="N",
-                        help="joint steps between checkpoints (default: a tenth of the run)")
-    parser.add_argument("--eval-freq", type=int, default=0, metavar="N",
-                        help="joint steps between evaluations (0: none; best model -> best_model.zip)")
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        type=_parse_set,
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config key (YAML value), dots reach into mappings: "
+        "--set batch_size=256 --set env_kwargs.noise=loud (repeatable)",
+    )
+    parser.add_argument(
+        "--save-freq",
+        type=int,
+        default=None,
+        metavar="N",
+        help="joint steps between checkpoints (default: a tenth of the run)",
+    )
+    parser.add_argument(
+        "--eval-freq",
+        type=int,
+        default=0,
+        metavar="N",
+        help="joint steps between evaluations (0: none; best model -> best_model.zip)",
+    )
     parser.add_argument("--eval-missions", type=int, default=5, help="missions per evaluation")
-    parser.add_argument("--eval-seed", type=int, default=None, metavar="SEED",
-                        help="env seed of the validation missions, the same at every evaluation "
-                             "(default 1000: disjoint from the test seeds 0..n-1 of evaluate/reproduce)")
+    parser.add_argument(
+        "--eval-seed",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help="env seed of the validation missions, the same at every evaluation "
+        "(default 1000: disjoint from the test seeds 0..n-1 of evaluate/reproduce)",
+    )
     parser.add_argument("--device", default="auto", help="torch device (auto, cpu, cuda)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    parser.add_argument("-v", "--verbose", type=int, default=1, choices=(0, 1, 2),
-                        help="0 quiet, 1 run information (default), 2 also SB3's training tables")
-
-
-def _user_error() -> type[Exception]:
-    """``sb3_coma.cli.UserError`` as the running CLI knows it.
-
-    Under ``python -m sb3_coma.cli`` the CLI module runs as ``__main__``, a second copy of
-    ``sb3_coma.cli`` whose ``UserError`` is the one it catches.
-    """
-    main = sys.modules.get("__main__")
-    spec = getattr(main, "__spec__", None)
-    if spec is not None and spec.name == "sb3_coma.cli" and hasattr(main, "UserError"):
-        return main.UserError  # type: ignore[no-any-return]
-    from sb3_coma.cli import UserError
-
-    return UserError
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        type=int,
+        default=1,
+        choices=(0, 1, 2),
+        help="0 quiet, 1 run information (default), 2 also SB3's training tables",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma.cli import set_threads
-
     set_threads(args.threads)
-    from sb3_coma.checkpoints import CheckpointError
-    from sb3_coma.training import TrainingError, TrainingInterrupted, default_config_path, list_variants, train
-
-    UserError = _user_error()
     try:
         if args.list_variants:
             variants = list_variants(args.config or default_config_path())
@@ -100,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
             value = getattr(args, name)
             if value is not None and value < 1:
                 raise UserError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
-        train(
+        training.train(
             env=args.env,
             config=args.config,
             variant=args.variant,
@@ -122,7 +158,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from exc
     except TrainingInterrupted as exc:
         if args.verbose < 1:  # train() already said it otherwise
-            print(f"sb3-coma train: interrupted at {exc.num_timesteps} joint steps; resume with: "
-                  f"sb3-coma train --resume {exc.run_dir}", file=sys.stderr)
+            print(
+                f"sb3-coma train: interrupted at {exc.num_timesteps} joint steps; resume with: "
+                f"sb3-coma train --resume {exc.run_dir}",
+                file=sys.stderr,
+            )
         return 128 + int(exc.signum) if exc.signum in (signal.SIGINT, signal.SIGTERM) else 130
     return 0

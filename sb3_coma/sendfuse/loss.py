@@ -6,6 +6,7 @@ the map (edges of observed footprints, blobs of valuable ground) rather than onl
 values. The paper only says the weights "balance the magnitude of the three loss components";
 the defaults below are chosen that way, from measured term magnitudes (see ``DEFAULT_WEIGHTS``).
 """
+
 from __future__ import annotations
 
 import math

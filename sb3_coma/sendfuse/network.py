@@ -24,8 +24,7 @@ zero, i.e. at the mean fusion), and (3) cells where a received map holds no data
 the channel noises only delivered cells) get no correction from that map, so "nothing arrived"
 stays neutral.
 
-This module imports only torch and the standard library, because the environment package
-(``envs``) imports it for its observation wrapper and must not pull in the rest of ``sb3_coma``.
+This module imports only torch and the standard library.
 
 No batch normalisation anywhere: fusion mixes encoder features of *different* sources, and a
 decoder whose normalisation statistics were learnt on single sources would see shifted inputs;
@@ -39,12 +38,17 @@ broadcast ``(w * f).sum(1)`` over a channels-last 5-D view was 3-4x slower); max
 max of four strided views (2x faster than ``max_pool2d`` there). Whatever the layout of the
 inputs, results are the same up to float rounding. Processes that fuse in a loop should call
 :func:`tune_cpu_allocator` once (glibc otherwise re-faults a few MB of freed memory every step).
-Time it with ``python -m sb3_coma.sendfuse.network [--tune-malloc]``.
+Time it with ``python -m sb3_coma.sendfuse [--tune-malloc]``.
 """
+
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import sys
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -131,8 +135,7 @@ class SenDFuseConfig:
             isinstance(c, int) and not isinstance(c, bool) and c > 0 for c in channels
         ):
             raise ValueError(
-                f"channels must be {N_SCALES} positive ints (one width per encoder scale), "
-                f"got {self.channels!r}"
+                f"channels must be {N_SCALES} positive ints (one width per encoder scale), got {self.channels!r}"
             )
         object.__setattr__(self, "channels", channels)
 
@@ -171,9 +174,7 @@ def _as_bool_mask(valid: Tensor | Any, shape: tuple[int, int], device: torch.dev
     """Turn a bool / 0-1 validity tensor into a bool mask of ``shape``, with a clear error."""
     valid = torch.as_tensor(valid, device=device)
     if tuple(valid.shape) != shape:
-        raise ValueError(
-            f"valid must have shape (B, n) = {shape} to match the sources, got {tuple(valid.shape)}"
-        )
+        raise ValueError(f"valid must have shape (B, n) = {shape} to match the sources, got {tuple(valid.shape)}")
     if valid.dtype != torch.bool:
         # Floats from an observation dict (0.0 / 1.0): threshold at 0.5 rather than test != 0,
         # so a flag that went through float arithmetic still reads as intended.
@@ -320,7 +321,7 @@ class SenDFuseNet(nn.Module):
     and double at each coarser scale, where pixels are 4x cheaper (see ``ENCODER_DEPTHS``). The
     maps are simple (levels 0, 0.5, 1 plus channel noise), so this capacity suffices for
     denoising, and with the residual output it only has to model the *change* noise makes.
-    Measure with ``python -m sb3_coma.sendfuse.network [--tune-malloc]``.
+    Measure with ``python -m sb3_coma.sendfuse [--tune-malloc]``.
 
     Parameters are kept channels-last (see the module docstring); ``state_dict`` values are the
     same numbers either way, and :mod:`sb3_coma.sendfuse.weights` stores them contiguous.
@@ -393,8 +394,7 @@ class SenDFuseNet(nn.Module):
             raise TypeError(f"{what} expects a torch.Tensor {layout}, got {type(x).__name__}")
         if x.dim() != 4 or tuple(x.shape[-2:]) != (r, r):
             raise ValueError(
-                f"{what} expects {layout} maps with R = {r} (this network's grid_size), "
-                f"got shape {tuple(x.shape)}"
+                f"{what} expects {layout} maps with R = {r} (this network's grid_size), got shape {tuple(x.shape)}"
             )
         if not x.is_floating_point():
             raise ValueError(f"{what} expects floating-point maps, got dtype {x.dtype}")
@@ -536,7 +536,7 @@ class SenDFuseNet(nn.Module):
         return f"grid_size={self.grid_size}, channels={self.channels}, fusion_alpha={self.fusion_alpha}"
 
     @classmethod
-    def from_config(cls, config: SenDFuseConfig | Mapping[str, Any], **kwargs: Any) -> "SenDFuseNet":
+    def from_config(cls, config: SenDFuseConfig | Mapping[str, Any], **kwargs: Any) -> SenDFuseNet:
         """Build an (untrained) network from a :class:`SenDFuseConfig` or a dict of its fields."""
         if not isinstance(config, SenDFuseConfig):
             config = SenDFuseConfig(**dict(config))
@@ -557,10 +557,6 @@ def tune_cpu_allocator(mmap_threshold: int = 16 << 20, trim_threshold: int = 64 
     fusion wrapper, benchmarks, the CLI) opt in. Returns True when applied, False where glibc's
     ``mallopt`` is unavailable (macOS, Windows, musl), which is harmless.
     """
-    import ctypes
-    import ctypes.util
-    import sys
-
     if not sys.platform.startswith("linux"):
         return False
     try:
@@ -570,58 +566,3 @@ def tune_cpu_allocator(mmap_threshold: int = 16 << 20, trim_threshold: int = 64 
         return False
     m_trim_threshold, m_mmap_threshold = -1, -3  # from glibc's <malloc.h>
     return bool(mallopt(m_mmap_threshold, int(mmap_threshold))) and bool(mallopt(m_trim_threshold, int(trim_threshold)))
-
-
-def _benchmark(argv: Sequence[str] | None = None) -> None:
-    """``python -m sb3_coma.sendfuse.network``: time one deployment step on the CPU.
-
-    Kept here (stdlib + torch only) so the figure quoted in the docs can be re-measured anywhere
-    without the environment. Reports wall time and the CPU time of the timing thread: on a
-    shared machine other processes inflate wall time, while thread CPU time stays close to what
-    an idle core would give.
-    """
-    import argparse
-    import statistics
-    import time
-
-    parser = argparse.ArgumentParser(description="Time SenDFuseNet.fuse for one multi-UAV step.")
-    parser.add_argument("--uavs", type=int, default=4, help="fusions per step (B)")
-    parser.add_argument("--sources", type=int, default=4, help="received maps per fusion (n)")
-    parser.add_argument("--grid", type=int, default=DEFAULT_GRID_SIZE, help="R")
-    parser.add_argument("--threads", type=int, default=1, help="torch.set_num_threads")
-    parser.add_argument("--repeats", type=int, default=500)
-    parser.add_argument(
-        "--tune-malloc", action="store_true", help="call tune_cpu_allocator() first (as the env wrapper may)"
-    )
-    args = parser.parse_args(argv)
-    tuned = tune_cpu_allocator() if args.tune_malloc else False
-    torch.set_num_threads(args.threads)
-    torch.manual_seed(0)
-    model = SenDFuseNet(grid_size=args.grid).eval()
-    maps = torch.rand(args.uavs, args.sources, args.grid, args.grid)
-    valid = torch.ones(args.uavs, args.sources, dtype=torch.bool)
-    wall: list[float] = []
-    cpu: list[float] = []
-    with torch.inference_mode():
-        for _ in range(30):  # warm-up: oneDNN primitive creation, allocator
-            model.fuse(maps, valid)
-        for _ in range(args.repeats):
-            start_wall, start_cpu = time.perf_counter(), time.thread_time()
-            model.fuse(maps, valid)
-            cpu.append((time.thread_time() - start_cpu) * 1e3)
-            wall.append((time.perf_counter() - start_wall) * 1e3)
-    print(
-        f"SenDFuse fuse: B={args.uavs} fusions x n={args.sources} sources, R={args.grid}, "
-        f"{args.threads} thread(s), {model.num_parameters()} parameters, "
-        f"allocator tuned: {'yes' if tuned else 'no'}"
-    )
-    for name, times in (("wall", sorted(wall)), ("thread CPU", sorted(cpu))):
-        median = statistics.median(times)
-        print(
-            f"  {name:>10}: median {median:.2f} ms, p10 {times[len(times) // 10]:.2f} ms, "
-            f"p90 {times[len(times) * 9 // 10]:.2f} ms per step; {median / args.uavs:.2f} ms per UAV-step"
-        )
-
-
-if __name__ == "__main__":
-    _benchmark()

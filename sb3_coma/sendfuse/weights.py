@@ -7,15 +7,21 @@ safetensors itself only validates the header: a flipped bit inside the tensor da
 load silently as slightly wrong weights. Every problem with a file is reported as
 :class:`SenDFuseWeightsError` (a ``ValueError``) whose message says what is wrong and what to do.
 """
+
 from __future__ import annotations
 
 import hashlib
+import json
 import os
+import struct
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
 from torch import Tensor
 
 from .network import ARCHITECTURE, DEFAULT_GRID_SIZE, SenDFuseConfig, SenDFuseNet
@@ -88,19 +94,16 @@ def canonicalize_safetensors(path: str | os.PathLike[str]) -> None:
     tensor bytes and their offsets, which are relative to the end of the header, are untouched.
     :func:`save_weights` does this itself; exposed for files written by other tools.
     """
-    import json
-    import struct
-
     target = Path(path)
     raw = target.read_bytes()
     (length,) = struct.unpack("<Q", raw[:8])
-    header = json.loads(raw[8:8 + length])
+    header = json.loads(raw[8 : 8 + length])
     if "__metadata__" in header:
         header["__metadata__"] = dict(sorted(header["__metadata__"].items()))
     text = json.dumps(header, sort_keys=True, separators=(",", ":")).encode()
     text += b" " * (-len(text) % 8)
     tmp = target.with_name(target.name + ".canonical.tmp")
-    tmp.write_bytes(struct.pack("<Q", len(text)) + text + raw[8 + length:])
+    tmp.write_bytes(struct.pack("<Q", len(text)) + text + raw[8 + length :])
     os.replace(tmp, target)
 
 
@@ -116,14 +119,14 @@ def save_weights(model: SenDFuseNet, path: str | os.PathLike[str], metadata: Map
         metadata: extra provenance strings (e.g. the command, seed, noise level, final loss);
             keys ``format`` and ``sendfuse.*`` are reserved for the architecture record.
     """
-    from safetensors.torch import save_file
-
     if not isinstance(model, SenDFuseNet):
         raise TypeError(f"save_weights expects a SenDFuseNet, got {type(model).__name__}")
     extra = dict(metadata or {})
     for key, value in extra.items():
         if not isinstance(key, str) or not isinstance(value, str):
-            raise ValueError(f"metadata keys and values must be str (safetensors stores strings), got {key!r}: {value!r}")
+            raise ValueError(
+                f"metadata keys and values must be str (safetensors stores strings), got {key!r}: {value!r}"
+            )
         if key == _KEY_FORMAT or key.startswith(_PREFIX):
             raise ValueError(f"metadata key {key!r} is reserved for the architecture record; pick another name")
     # Contiguous copies: the model keeps its parameters channels-last, safetensors needs plain
@@ -169,16 +172,16 @@ def _resolve(path: str | os.PathLike[str] | None) -> Path:
     if path is None:
         expected = SHIPPED_SHA256.get(DEFAULT_GRID_SIZE)
         if _file_sha256(target) != expected:
-            raise SenDFuseWeightsError(f"the shipped SenDFuse weights {target} do not match their recorded SHA-256 "
-                                       f"({expected}): the install is damaged or the file was replaced; reinstall "
-                                       f"sb3-coma, or pass your own file explicitly")
+            raise SenDFuseWeightsError(
+                f"the shipped SenDFuse weights {target} do not match their recorded SHA-256 "
+                f"({expected}): the install is damaged or the file was replaced; reinstall "
+                f"sb3-coma, or pass your own file explicitly"
+            )
     return target
 
 
 def read_metadata(path: str | os.PathLike[str] | None = None) -> dict[str, str]:
     """The string metadata of a weight file (architecture record plus provenance), unvalidated."""
-    from safetensors import safe_open
-
     target = _resolve(path)
     try:
         with safe_open(str(target), framework="pt") as handle:
@@ -255,13 +258,11 @@ def load_weights(
             not a SenDFuse file, unsupported version, missing or unexpected tensors, wrong
             shapes or dtypes, non-finite values, or a config mismatch.
     """
-    from safetensors import safe_open
-
     target = _resolve(path)
     try:
         with safe_open(str(target), framework="pt") as handle:
             meta = dict(handle.metadata() or {})
-            tensors = {name: handle.get_tensor(name) for name in handle.keys()}
+            tensors = {name: handle.get_tensor(name) for name in handle.keys()}  # noqa: SIM118 (not a dict)
     except Exception as exc:  # SafetensorError, OSError, ...: the header or the layout is broken
         raise SenDFuseWeightsError(
             f"{target} is not a readable safetensors file (truncated or corrupt?): {exc}; "

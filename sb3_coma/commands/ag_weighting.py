@@ -1,0 +1,62 @@
+"""``sb3-coma ag-weighting``: choose AG's entropy weighting per map family on validation missions.
+
+Example::
+
+    sb3-coma ag-weighting --env env1,env2,env3 --missions 60     # about 15 s
+
+Flies AG with the class-weighted and the plain entropy on the same ``split="train"`` validation
+missions (env seeds 2000.., never the test split nor the paper's mission), prints both weightings'
+means and the paired differences, and the weighting the rule picks (``sb3_coma.ag_weighting``).
+The shipped default (``sb3_coma.baselines.adaptive_gain.WEIGHTING_BY_MAP``) records this output.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+NAME = "ag-weighting"
+HELP = "choose AG's entropy weighting (class / plain) per map on validation missions (never test missions)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from sb3_coma.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED
+
+    parser.add_argument("--env", default="env1,env2,env3", help="comma-separated map families (default env1,env2,env3)")
+    parser.add_argument("--missions", type=int, default=VALIDATION_MISSIONS,
+                        help=f"validation missions per weighting (default {VALIDATION_MISSIONS})")
+    parser.add_argument("--seed", type=int, default=VALIDATION_SEED,
+                        help=f"first validation env seed (default {VALIDATION_SEED}; smaller seeds are refused)")
+    parser.add_argument("--noise", default="moderate", help="channel noise (default moderate)")
+    parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
+    parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
+    parser.add_argument("--json", default=None, metavar="PATH", help="also write the measurements as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    from sb3_coma.ag_weighting import pick_ag_weighting
+    from sb3_coma.baselines.adaptive_gain import WEIGHTING_BY_MAP
+    from sb3_coma.cli import UserError
+
+    names = [e.strip() for e in args.env.split(",") if e.strip()]
+    if not names:
+        raise UserError("--env is empty")
+    options = {k: v for k, v in (("n_uavs", args.uavs), ("budget", args.budget)) if v is not None}
+    choices = []
+    for name in names:
+        try:
+            choice = pick_ag_weighting(name, n_missions=args.missions, seed=args.seed, noise=args.noise,
+                                       log=lambda m: print(m, flush=True), **options)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+        choices.append(choice)
+    print()
+    for c in choices:
+        shipped = WEIGHTING_BY_MAP.get(c.env)
+        note = "" if shipped is None else (" (= the shipped default)" if shipped == c.choice
+                                           else f" (the shipped default is {shipped!r})")
+        print(f"#: {c.comment()}{note}")
+    if args.json:
+        Path(args.json).write_text(json.dumps([c.as_dict() for c in choices], indent=2) + "\n")
+        print(f"wrote {args.json}")
+    return 0

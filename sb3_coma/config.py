@@ -1,0 +1,546 @@
+"""The training config format: rl-zoo3 hyperparameter files with variants.
+
+One entry per gymnasium id (``zoo_configs/coma.yml``), keys are COMA's constructor arguments plus
+rl-zoo3's ``n_timesteps``, ``n_envs``, ``policy``, ``policy_kwargs``, ``env_kwargs``, ``callback``
+and ``vec_env_wrapper``; one addition rl-zoo3 ignores: a top-level ``variants`` mapping of named
+overrides (the ablation arms) merged into the env's entry. See ``docs/modules/cli.md``.
+
+This module reads and checks such files and turns an entry into what the library needs: COMA's
+keyword arguments (:func:`coma_kwargs`), the training vec env (:func:`make_training_env`) and the
+record of the env a model trains on (:func:`env_options_of`). Both trainers (``sb3-coma train``
+and ``python -m sb3_coma.zoo``) and ``sb3-coma export`` read configs through it.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import importlib
+import inspect
+import os
+import re
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import torch as th
+import yaml
+from rl_zoo3.utils import SimpleLinearSchedule
+from stable_baselines3.common.vec_env import VecEnv
+from torch import nn
+
+import envs
+from envs import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
+from sb3_coma.coma import COMA
+from sb3_coma.extractors import CBAMExtractor, CnnExtractor
+
+__all__ = [
+    "DEFAULT_ENV_ID",
+    "RESERVED_KEYS",
+    "RUN_KEY",
+    "UNSUPPORTED_KEYS",
+    "VARIANTS_KEY",
+    "ZOO_KEYS",
+    "TrainConfig",
+    "TrainingError",
+    "coma_kwargs",
+    "coma_parameter_names",
+    "config_entry",
+    "default_config_path",
+    "env_options_of",
+    "list_variants",
+    "load_config",
+    "make_training_env",
+    "make_vec_env_from_kwargs",
+    "named_objects",
+    "parse_schedule",
+    "plain",
+    "read_config_file",
+    "resolve_env_id",
+    "resolve_policy_kwargs",
+    "split_env_kwargs",
+    "validate_entry",
+]
+
+#: Top-level keys of a config file that are not gymnasium ids.
+VARIANTS_KEY = "variants"
+RUN_KEY = "run"
+#: rl-zoo3 keys that both trainers understand besides COMA's arguments.
+ZOO_KEYS = ("n_timesteps", "n_envs", "policy", "policy_kwargs", "env_kwargs", "callback", "vec_env_wrapper")
+#: Arguments set by the trainer, not by a config.
+RESERVED_KEYS = {
+    "seed": "pass --seed (sb3-coma train / rl-zoo3) or seed= (Python)",
+    "verbose": "pass --verbose",
+    "device": "pass --device",
+    "tensorboard_log": "TensorBoard logs go to the run folder (rl-zoo3: -tb)",
+    "env": "the env comes from the config key / --env",
+}
+#: rl-zoo3 keys that make no sense for a multi-agent Dict-observation vec env.
+UNSUPPORTED_KEYS = {
+    "normalize": "VecNormalize is not used: all observation maps are already in [0, 1]",
+    "frame_stack": "frame stacking is not supported for the multi-agent vec env",
+    "env_wrapper": "gymnasium wrappers cannot wrap the PettingZoo env; use vec_env_wrapper",
+    "monitor_kwargs": "the vec env is always wrapped in VecMonitor with f1 and entropy",
+    "noise_type": "action noise is for continuous actions; COMA explores with exploration_*_eps",
+    "noise_std": "action noise is for continuous actions; COMA explores with exploration_*_eps",
+    "replay_buffer_class": "COMA is on-policy (no replay buffer)",
+    "replay_buffer_kwargs": "COMA is on-policy (no replay buffer)",
+}
+#: The gymnasium id of ``envs.DEFAULT_MAP``: what ``sb3-coma train`` trains without ``--env``.
+DEFAULT_ENV_ID = next(env_id for env_id, name in ENV_IDS.items() if name == DEFAULT_MAP)
+_SCHEDULE_KEYS = ("learning_rate", "critic_learning_rate")
+_SCHEDULE_RE = re.compile(r"^lin_(?P<value>[-+0-9.eE]+)$")
+#: Names a ``policy_kwargs`` expression string may use (rl-zoo3 evaluates such strings too).
+_POLICY_KWARGS_NAMES: dict[str, Any] = {
+    "nn": nn,
+    "th": th,
+    "CBAMExtractor": CBAMExtractor,
+    "CnnExtractor": CnnExtractor,
+}
+
+
+class TrainingError(ValueError):
+    """A training input the user can fix (env id, variant, config file, key, resume path)."""
+
+
+# =========================================================================== env ids and files
+def resolve_env_id(env: str) -> str:
+    """``"env3"`` / ``"Env3"`` / ``"UavIpp-Env3-v0"`` -> ``"UavIpp-Env3-v0"``.
+
+    :raises TrainingError: not one of the registered maps
+    """
+    if isinstance(env, str):
+        if env in ENV_IDS:
+            return env
+        for env_id, name in ENV_IDS.items():
+            if env.lower() == name.lower():
+                return env_id
+    choices = sorted(ENV_IDS.values()) + sorted(ENV_IDS)
+    hint = difflib.get_close_matches(str(env), choices, n=1)
+    raise TrainingError(
+        f"unknown env {env!r}: use one of {', '.join(choices)}" + (f" (did you mean {hint[0]!r}?)" if hint else "")
+    )
+
+
+def default_config_path() -> Path:
+    """``zoo_configs/coma.yml`` of a source checkout, else the copy installed under ``sys.prefix``."""
+    candidates = [
+        Path(__file__).resolve().parent.parent / "zoo_configs" / "coma.yml",
+        Path(sys.prefix) / "zoo_configs" / "coma.yml",
+    ]
+    for path in candidates:
+        if path.is_file():
+            return path
+    raise TrainingError(
+        "no default config found (looked for " + ", ".join(str(p) for p in candidates) + "); pass --config PATH"
+    )
+
+
+def read_config_file(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Parse a YAML config file into a mapping.
+
+    :raises TrainingError: missing file, invalid YAML (with line and column), not a mapping
+    """
+    p = Path(path)
+    if not p.exists():
+        raise TrainingError(f"config file {p} does not exist")
+    if p.is_dir():
+        raise TrainingError(f"config file {p} is a folder")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise TrainingError(f"config file {p} cannot be read: {exc}") from exc
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        where = ""
+        mark = getattr(exc, "problem_mark", None)
+        if mark is not None:
+            where = f" at line {mark.line + 1}, column {mark.column + 1}"
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise TrainingError(f"config file {p} is not valid YAML{where}: {problem}") from exc
+    if not isinstance(data, dict):
+        raise TrainingError(
+            f"config file {p} must be a mapping of env ids to hyperparameters, got {type(data).__name__}"
+        )
+    return data
+
+
+def list_variants(path: str | os.PathLike[str] | None = None) -> dict[str, dict[str, Any]]:
+    """The ``variants`` mapping of a config file (name -> overrides)."""
+    p = Path(path) if path is not None else default_config_path()
+    variants = read_config_file(p).get(VARIANTS_KEY) or {}
+    if not isinstance(variants, dict):
+        raise TrainingError(f"config file {p}: '{VARIANTS_KEY}' must be a mapping of names to overrides")
+    return variants
+
+
+# =========================================================================== validation
+def coma_parameter_names() -> list[str]:
+    """COMA's constructor arguments a config may set (its signature, less the trainer's own)."""
+    skip = {"self", "policy", "env", "_init_setup_model", *RESERVED_KEYS}
+    return [n for n in inspect.signature(COMA.__init__).parameters if n not in skip]
+
+
+def _fail(where: str, message: str) -> None:
+    raise TrainingError(f"{where}: {message}")
+
+
+def is_int(value: Any) -> bool:
+    """An ``int`` that is not a ``bool``."""
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def positive_int(where: str, key: str, value: Any) -> int:
+    """``value`` as an int >= 1 (``2.0`` passes); :class:`TrainingError` naming ``where`` and ``key``."""
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not is_int(value) or value < 1:
+        _fail(where, f"{key} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[str, dict[str, Any], dict[str, Any]]:
+    """``(fusion, fusion_kwargs, env options)`` from an ``env_kwargs`` mapping (fusion default:
+    ``envs.DEFAULT_FUSION``, the same as ``envs.make_vec_env``'s)."""
+    options = dict(env_kwargs)
+    fusion = options.pop("fusion", DEFAULT_FUSION)
+    fusion_kwargs = options.pop("fusion_kwargs", None) or {}
+    return fusion, fusion_kwargs, options
+
+
+def _trainable_fusions() -> list[str]:
+    """Fusions a COMA model can train on: every available one but the raw observation."""
+    return [name for name in envs.available_fusions() if name != "none"]
+
+
+def _check_keys(entry: Mapping[str, Any], where: str) -> None:
+    allowed = set(coma_parameter_names()) | set(ZOO_KEYS)
+    for key in entry:
+        if key in RESERVED_KEYS:
+            _fail(where, f"{key!r} cannot be set in a config: {RESERVED_KEYS[key]}")
+        if key in UNSUPPORTED_KEYS:
+            _fail(where, f"rl-zoo3 key {key!r} is not supported with COMA: {UNSUPPORTED_KEYS[key]}")
+        if key not in allowed:
+            hint = difflib.get_close_matches(str(key), sorted(allowed), n=1)
+            _fail(
+                where,
+                f"COMA does not take {key!r}"
+                + (f" (did you mean {hint[0]!r}?)" if hint else "")
+                + f"; allowed keys: {', '.join(sorted(allowed))}",
+            )
+
+
+def _check_zoo_values(entry: Mapping[str, Any], where: str) -> None:
+    if "n_timesteps" not in entry:
+        _fail(where, "n_timesteps (joint steps to train) is missing")
+    positive_int(where, "n_timesteps", entry["n_timesteps"])
+    if "n_envs" in entry:
+        positive_int(where, "n_envs", entry["n_envs"])
+    if "policy" in entry and not isinstance(entry["policy"], str):
+        _fail(where, f"policy must be an alias (CBAMPolicy, CnnPolicy) or a dotted class path, got {entry['policy']!r}")
+    if "policy_kwargs" in entry and not isinstance(entry["policy_kwargs"], (dict, str)):
+        _fail(where, f"policy_kwargs must be a mapping or a Python expression string, got {entry['policy_kwargs']!r}")
+    for key in _SCHEDULE_KEYS:
+        value = entry.get(key)
+        if isinstance(value, str) and not _SCHEDULE_RE.match(value):
+            _fail(where, f"{key} must be a number or 'lin_<initial value>', got {value!r}")
+
+
+def _check_env_kwargs(entry: Mapping[str, Any], where: str, map_name: str | None) -> None:
+    env_kwargs = entry.get("env_kwargs", {}) or {}
+    if not isinstance(env_kwargs, dict):
+        _fail(where, f"env_kwargs must be a mapping of environment options, got {env_kwargs!r}")
+    fusion, fusion_kwargs, options = split_env_kwargs(env_kwargs)
+    if fusion not in _trainable_fusions():
+        _fail(where, f"env_kwargs.fusion must be one of {tuple(_trainable_fusions())}, got {fusion!r}")
+    if not isinstance(fusion_kwargs, dict):
+        _fail(where, f"env_kwargs.fusion_kwargs must be a mapping, got {fusion_kwargs!r}")
+    if map_name is not None:
+        try:
+            IppConfig.from_options(map_name, **options)
+        except (ConfigError, TypeError) as exc:
+            _fail(where, f"env_kwargs: {exc}")
+
+
+def validate_entry(entry: Mapping[str, Any], where: str, map_name: str | None = None) -> None:
+    """Check one resolved config entry; raise :class:`TrainingError` naming ``where`` and the key.
+
+    Checks key names (COMA's arguments + rl-zoo3's keys), the zoo keys' values, schedule
+    strings, and the environment options (through ``envs.IppConfig``). COMA's own value checks
+    (ranges, batch vs rollout) run when the model is built.
+    """
+    _check_keys(entry, where)
+    _check_zoo_values(entry, where)
+    _check_env_kwargs(entry, where, map_name)
+
+
+# =========================================================================== entries and variants
+def _merge(base: dict[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` updated by ``overrides``; ``env_kwargs`` and mapping ``policy_kwargs`` merge key by key."""
+    out = copy.deepcopy(base)
+    for key, value in overrides.items():
+        if key in ("env_kwargs", "policy_kwargs") and isinstance(value, dict) and isinstance(out.get(key), dict):
+            merged = dict(out[key])
+            merged.update(copy.deepcopy(value))
+            out[key] = merged
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _apply_overrides(entry: dict[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """Apply ``{"key": v, "env_kwargs.noise": v}`` style overrides (dots reach into mappings)."""
+    out = copy.deepcopy(entry)
+    for key, value in overrides.items():
+        parts = str(key).split(".")
+        target = out
+        for part in parts[:-1]:
+            nxt = target.get(part)
+            if nxt is None:
+                nxt = target[part] = {}
+            if not isinstance(nxt, dict):
+                raise TrainingError(f"override {key}={value!r}: {part!r} is not a mapping")
+            target = nxt
+        target[parts[-1]] = copy.deepcopy(value)
+    return out
+
+
+def _variant_overrides(data: Mapping[str, Any], path: Path, variant: str) -> dict[str, Any]:
+    variants = data.get(VARIANTS_KEY) or {}
+    if not isinstance(variants, dict):
+        raise TrainingError(f"config file {path}: '{VARIANTS_KEY}' must be a mapping of names to overrides")
+    if variant not in variants:
+        known = ", ".join(sorted(map(str, variants))) or "none defined"
+        raise TrainingError(f"unknown variant {variant!r} in config file {path} (variants: {known})")
+    extra = variants[variant] or {}
+    if not isinstance(extra, dict):
+        raise TrainingError(f"config file {path}: variant {variant!r} must be a mapping of overrides")
+    return extra
+
+
+def config_entry(
+    path: str | os.PathLike[str],
+    env_id: str,
+    variant: str | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    data: dict[str, Any] | None = None,
+    validate: bool = True,
+) -> dict[str, Any]:
+    """The env's entry of a config file, with a variant and overrides merged in, validated."""
+    p = Path(path)
+    data = read_config_file(p) if data is None else data
+    entry = data.get(env_id)
+    if entry is None:
+        present = [k for k in data if k in ENV_IDS] or [k for k in data if k not in (VARIANTS_KEY, RUN_KEY)]
+        raise TrainingError(
+            f"config file {p} has no entry for {env_id} (it has: {', '.join(map(str, present)) or 'none'})"
+        )
+    if not isinstance(entry, dict):
+        raise TrainingError(f"config file {p}: the entry for {env_id} must be a mapping, got {type(entry).__name__}")
+    where = f"config {p} [{env_id}]"
+    if variant is not None:
+        entry = _merge(entry, _variant_overrides(data, p, variant))
+        where = f"config {p} [{env_id}, variant {variant}]"
+    if overrides:
+        entry = _apply_overrides(entry, overrides)
+        where += " with overrides"
+    if validate:
+        validate_entry(entry, where, ENV_IDS[env_id])
+    return entry
+
+
+@dataclass
+class TrainConfig:
+    """A resolved training config: where it came from and the entry to train with."""
+
+    env_id: str
+    entry: dict[str, Any]
+    source: Path | None = None
+    variant: str | None = None
+    run: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def map_name(self) -> str:
+        return ENV_IDS[self.env_id]
+
+    @property
+    def n_timesteps(self) -> int:
+        return int(self.entry["n_timesteps"])
+
+    @property
+    def n_envs(self) -> int:
+        return int(self.entry.get("n_envs", 1))
+
+    @property
+    def env_kwargs(self) -> dict[str, Any]:
+        return dict(self.entry.get("env_kwargs") or {})
+
+    @property
+    def n_agents(self) -> int:
+        _, _, options = split_env_kwargs(self.env_kwargs)
+        return IppConfig.from_options(self.map_name, **options).n_uavs
+
+    @property
+    def where(self) -> str:
+        """``config <file> [<env id>, variant <v>]``: how error messages name this entry."""
+        return f"config {self.source} [{self.env_id}" + (f", variant {self.variant}]" if self.variant else "]")
+
+
+def load_config(
+    env: str | None = None,
+    config: str | os.PathLike[str] | None = None,
+    variant: str | None = None,
+    overrides: Mapping[str, Any] | None = None,
+) -> TrainConfig:
+    """Resolve env id (default :data:`DEFAULT_ENV_ID`), config file (default
+    :func:`default_config_path`) and variant into a :class:`TrainConfig`."""
+    env_id = resolve_env_id(env if env is not None else DEFAULT_ENV_ID)
+    path = Path(config) if config is not None else default_config_path()
+    entry = config_entry(path, env_id, variant, overrides)
+    return TrainConfig(env_id=env_id, entry=entry, source=path, variant=variant)
+
+
+# =========================================================================== building
+def import_dotted(name: str, what: str) -> Any:
+    """``module.attr`` imported; :class:`TrainingError` naming ``what`` when it cannot be."""
+    module_name, _, attr = name.rpartition(".")
+    if not module_name:
+        raise TrainingError(f"{what} {name!r} is neither a known alias nor a dotted path (module.Class)")
+    try:
+        return getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as exc:
+        raise TrainingError(f"{what} {name!r} cannot be imported: {exc}") from exc
+
+
+def resolve_policy_kwargs(value: Any) -> dict[str, Any]:
+    """``policy_kwargs`` from a mapping or an rl-zoo3 style expression string; ``*_class`` strings
+    (aliases ``CBAMExtractor``/``CnnExtractor`` or dotted paths) become classes."""
+    if value is None:
+        return {}
+    if isinstance(value, str):
+        try:
+            value = eval(value, dict(_POLICY_KWARGS_NAMES))  # noqa: S307 - rl-zoo3's documented format
+        except Exception as exc:  # any error in the user's expression
+            raise TrainingError(f"policy_kwargs {value!r} is not a valid Python expression: {exc}") from exc
+    if not isinstance(value, dict):
+        raise TrainingError(f"policy_kwargs must be a mapping, got {value!r}")
+    out = dict(value)
+    for key, item in list(out.items()):
+        if key.endswith("_class") and isinstance(item, str):
+            out[key] = _POLICY_KWARGS_NAMES.get(item) or import_dotted(item, f"policy_kwargs.{key}")
+    return out
+
+
+def parse_schedule(value: Any) -> Any:
+    """``"lin_<x>"`` -> rl-zoo3's linear schedule from ``x`` to 0; anything else as it is."""
+    if isinstance(value, str):
+        match = _SCHEDULE_RE.match(value)
+        if match:
+            return SimpleLinearSchedule(float(match.group("value")))
+    return value
+
+
+def coma_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
+    """COMA constructor arguments from a config entry (zoo keys removed, strings resolved)."""
+    kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS}
+    for key in _SCHEDULE_KEYS:
+        if key in kwargs:
+            kwargs[key] = parse_schedule(kwargs[key])
+    policy = entry.get("policy", "CBAMPolicy")
+    if isinstance(policy, str) and policy not in COMA.policy_aliases:
+        policy = import_dotted(policy, "policy")
+    kwargs["policy"] = policy
+    if "policy_kwargs" in entry:
+        kwargs["policy_kwargs"] = resolve_policy_kwargs(entry["policy_kwargs"])
+    return kwargs
+
+
+def named_objects(spec: Any, what: str) -> list[tuple[Any, dict[str, Any]]]:
+    """rl-zoo3's ``callback`` / ``vec_env_wrapper`` format: a name, a ``{name: kwargs}``, or a list."""
+    if spec is None:
+        return []
+    items = spec if isinstance(spec, list) else [spec]
+    out = []
+    for item in items:
+        kwargs: dict[str, Any] = {}
+        if isinstance(item, dict):
+            if len(item) != 1:
+                raise TrainingError(f"{what} entry {item!r} must map exactly one class name to its arguments")
+            item, kwargs = next(iter(item.items()))
+            kwargs = dict(kwargs or {})
+        target = import_dotted(item, what) if isinstance(item, str) else item
+        out.append((target, kwargs))
+    return out
+
+
+def construct(target: Any, kwargs: dict[str, Any], what: str, *args: Any) -> Any:
+    """``target(*args, **kwargs)`` for a config's ``callback`` / ``vec_env_wrapper``; bad arguments
+    become a :class:`TrainingError` naming the class and its arguments."""
+    try:
+        return target(*args, **kwargs)
+    except (TypeError, ValueError) as exc:
+        name = getattr(target, "__qualname__", repr(target))
+        raise TrainingError(f"{what} {name} with arguments {kwargs!r}: {exc}") from exc
+
+
+def make_vec_env_from_kwargs(
+    env_id: str, env_kwargs: Mapping[str, Any] | None, n_envs: int, seed: int | None
+) -> VecEnv:
+    """``envs.make_vec_env`` of a gymnasium id and a config's ``env_kwargs`` (``fusion``,
+    ``fusion_kwargs`` and env options); a bad option becomes a :class:`TrainingError`."""
+    fusion, fusion_kwargs, options = split_env_kwargs(env_kwargs or {})
+    if options.get("render_mode") == "human":  # rl-zoo3's default for enjoy; maps render headless
+        options.pop("render_mode")
+    try:
+        return envs.make_vec_env(
+            ENV_IDS[env_id], n_envs=n_envs, fusion=fusion, seed=seed, fusion_kwargs=fusion_kwargs or None, **options
+        )
+    except ValueError as exc:  # envs.ConfigError, an unavailable fusion, ...
+        raise TrainingError(f"cannot build {env_id} (fusion={fusion!r}, options {options}): {exc}") from exc
+
+
+def make_training_env(cfg: TrainConfig, n_envs: int | None = None, seed: int | None = None) -> VecEnv:
+    """The SB3 vec env of a config (``envs.make_vec_env`` + the config's ``vec_env_wrapper``)."""
+    env = make_vec_env_from_kwargs(cfg.env_id, cfg.env_kwargs, n_envs or cfg.n_envs, seed)
+    try:
+        for wrapper, wkwargs in named_objects(cfg.entry.get("vec_env_wrapper"), "vec_env_wrapper"):
+            env = construct(wrapper, wkwargs, "vec_env_wrapper", env)
+    except BaseException:
+        env.close()
+        raise
+    return env
+
+
+def plain(value: Any) -> Any:
+    """JSON/YAML-safe copy: tuples become lists, classes dotted paths, schedules ``lin_<x>``,
+    paths and other objects strings."""
+    if isinstance(value, Mapping):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, type):
+        return f"{value.__module__}.{value.__qualname__}"
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    initial = getattr(value, "initial_value", None)
+    if initial is not None:
+        return f"lin_{initial}"
+    return str(value)
+
+
+def env_options_of(map_name: str, env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """The record of the env a model trains on, as ``COMA.env_options`` keeps it (saved in the zip).
+
+    ``{"map": map_name, "fusion": ..., "fusion_kwargs": {...}}`` plus every :class:`envs.IppConfig`
+    option resolved (defaults included, so the record survives a later change of a default);
+    ``envs.make_vec_env(opts.pop("map"), **opts)`` rebuilds that env.
+    """
+    fusion, fusion_kwargs, options = split_env_kwargs(env_kwargs)
+    config = IppConfig.from_options(map_name, **options)
+    resolved = {f.name: getattr(config, f.name) for f in fields(config) if f.name != "map_name"}
+    return {"map": map_name, "fusion": fusion, "fusion_kwargs": plain(fusion_kwargs), **plain(resolved)}

@@ -1,0 +1,363 @@
+"""The two evaluation protocols over many methods, on shared missions, with paired verdicts.
+
+``run_protocol("paper" | "unseen", methods)`` flies every method of every map on the protocol's
+missions (``sb3_coma.evaluation.PROTOCOLS``: the paper's Table I on ``split="paper"``, or 50
+unseen missions on ``split="test"`` with random starts); trial ``k`` is env seed ``seed + k`` for
+every method, so the results are shared missions. :class:`ProtocolResult` holds them and writes:
+
+* Table I style tables (mean ± std at 33 / 67 / 100 % of the budget) for the paper's metrics on the
+  global map and for the team metrics on the UAVs' own beliefs (Markdown and CSV);
+* a compact table at 100 % with the planning time per UAV decision;
+* the verdicts: paired differences ``a - b`` at 100 % (± standard error; a difference within
+  ``sb3_coma.paired.TIE_SE`` standard errors is a tie) for the comparisons of
+  :func:`default_pairs`, on all four metrics.
+
+Methods (:class:`Method`): the baselines of :data:`BASELINE_METHODS` (AG with the map's weighting,
+AG with look-ahead 2 and 3, lawnmower, random) and whatever learned models exist: every shipped
+COMA model trained on the map (:func:`shipped_methods`) and, as a hook for when they are
+shipped, IPPO / MAPPO models (manifest entries with ``"algo": "ippo" | "mappo"``).
+"""
+from __future__ import annotations
+
+import csv
+import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sb3_coma.evaluation import (
+    ALL_METRICS,
+    EvaluationResult,
+    Protocol,
+    TableRow,
+    evaluate,
+    protocol_of,
+    table_markdown,
+    write_per_step_csv,
+    write_table_csv,
+)
+from sb3_coma.paired import PairedDifference, cell, paired_difference
+
+__all__ = ["BASELINE_METHODS", "LEARNED_BASELINES", "Comparison", "Method", "ProtocolResult", "default_pairs",
+           "run_protocol", "shipped_methods"]
+
+#: Kinds of learned methods besides COMA that get rows when their models exist (the hook: a
+#: manifest entry with ``"algo"`` one of these, loaded by ``sb3_coma.pretrained.load_pretrained``).
+LEARNED_BASELINES: tuple[str, ...] = ("ippo", "mappo")
+
+
+@dataclass(frozen=True)
+class Method:
+    """One row of a protocol: what to fly and how.
+
+    :param label: row label (unique per map)
+    :param policy: a baseline name, a model object, a ``.zip`` path or a shipped model name
+    :param kind: ``"baseline"``, ``"coma"``, ``"ippo"`` or ``"mappo"``
+    :param fusion: fusion of received maps (models; ``None``: evaluate's default)
+    :param deterministic: argmax (``True``) or seeded draws (``False``); ``None``: evaluate's default
+    :param planner_kwargs: baseline options (AG: ``lookahead``, ``weighting``)
+    :param note: shown next to the label in the models list (e.g. "outdated: trained on world v1")
+    """
+
+    label: str
+    policy: Any
+    kind: str = "baseline"
+    fusion: str | None = None
+    deterministic: bool | None = None
+    planner_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    note: str = ""
+
+    @property
+    def learned(self) -> bool:
+        return self.kind != "baseline"
+
+
+#: The baselines every protocol flies: AG (the map's weighting), AG searching 2 and 3 moves ahead,
+#: the lawnmower (the paper's NL) and random.
+BASELINE_METHODS: tuple[Method, ...] = (
+    Method("ag", "ag"),
+    Method("ag-k2", "ag", planner_kwargs={"lookahead": 2}),
+    Method("ag-k3", "ag", planner_kwargs={"lookahead": 3}),
+    Method("lawnmower", "lawnmower"),
+    Method("random", "random"),
+)
+
+
+def _manifest_models() -> dict[str, dict[str, Any]]:
+    try:
+        from sb3_coma.pretrained import read_manifest
+    except ImportError:
+        return {}
+    try:
+        return dict(read_manifest()["models"])
+    except ValueError:  # no manifest in this install
+        return {}
+
+
+def outdated_note(info: Mapping[str, Any]) -> str:
+    """"outdated: ..." when a shipped model was trained on another world version than this env's."""
+    try:
+        from envs import WORLD_VERSION
+    except ImportError:
+        return ""
+    world = info.get("world", 1)
+    return "" if world == WORLD_VERSION else f"outdated: trained on world v{world}, this is v{WORLD_VERSION}"
+
+
+def shipped_label(name: str, info: Mapping[str, Any], env: str) -> str:
+    """Row label of a shipped model: ``"coma"`` for the map's own model, ``"coma[sendfuse-cnn]"``
+    for another COMA model of that map, the algorithm name (``"ippo"``) for learned baselines."""
+    algo = str(info.get("algo", "coma")).lower()
+    suffix = name[len(env) + 1:] if name.startswith(env + "-") else ("" if name == env else name)
+    if algo != "coma":
+        return algo + (f"[{suffix}]" if suffix and suffix != algo else "")
+    return "coma" + (f"[{suffix}]" if suffix else "")
+
+
+def shipped_methods(env: str, loaded: Mapping[str, Any] | None = None, skip: Sequence[str] = (),
+                    log: Callable[[str], None] | None = None) -> list[Method]:
+    """The learned methods that exist for map ``env``: every shipped model whose manifest ``env`` is
+    this map, COMA first (the map's own model, then the others in manifest order), then IPPO /
+    MAPPO. ``loaded`` maps shipped names to models already loaded (reused, not reloaded); names in
+    ``skip`` are left out; a model that cannot be loaded is left out with a message."""
+    from sb3_coma.pretrained import load_pretrained
+
+    models = {k: v for k, v in _manifest_models().items() if v.get("env") == env and k not in skip}
+    order = sorted(models, key=lambda k: (str(models[k].get("algo", "coma")).lower() != "coma", k != env))
+    out = []
+    for name in order:
+        info = models[name]
+        algo = str(info.get("algo", "coma")).lower()
+        if algo not in ("coma",) + LEARNED_BASELINES:
+            continue
+        model = (loaded or {}).get(name)
+        if model is None:
+            try:
+                model = load_pretrained(name)
+            except (ValueError, RuntimeError, OSError, KeyError) as exc:
+                if log:
+                    log(f"leaving out shipped model {name!r}: {exc}")
+                continue
+        out.append(Method(shipped_label(name, info, env), model, kind=algo, fusion=info.get("fusion"),
+                          deterministic=info.get("deterministic"), note=outdated_note(info)))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# comparisons
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Comparison:
+    """``a - b`` on one map, on every metric (``sb3_coma.paired.PairedDifference`` each)."""
+
+    env: str
+    a: str
+    b: str
+    diffs: dict[str, PairedDifference]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"env": self.env, "a": self.a, "b": self.b, **{m: d.as_dict() for m, d in self.diffs.items()}}
+
+
+def default_pairs(methods: Sequence[Method]) -> list[tuple[str, str]]:
+    """Which ``(a, b)`` a protocol's verdict table compares, in order:
+
+    every learned model vs AG; the first learned model vs every other method; each look-ahead
+    AG vs AG; AG vs lawnmower and random; lawnmower vs random."""
+    labels = [m.label for m in methods]
+    learned = [m.label for m in methods if m.learned]
+    pairs: list[tuple[str, str]] = []
+
+    def add(a: str, b: str) -> None:
+        if a in labels and b in labels and a != b and (a, b) not in pairs and (b, a) not in pairs:
+            pairs.append((a, b))
+
+    for m in learned:
+        add(m, "ag")
+    if learned:
+        for other in labels:
+            add(learned[0], other)
+    for m in methods:
+        if not m.learned and m.label != "ag" and m.policy == "ag":
+            add(m.label, "ag")
+    for b in ("lawnmower", "random"):
+        add("ag", b)
+    add("lawnmower", "random")
+    return pairs
+
+
+# ---------------------------------------------------------------------------------------------
+# the run
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class ProtocolResult:
+    """Results of one protocol: ``results[(env, label)]``, the methods flown, what was skipped."""
+
+    protocol: Protocol
+    n_trials: int
+    seed: int
+    noise: str
+    env_options: dict[str, Any]
+    methods: dict[str, list[Method]] = field(default_factory=dict)
+    results: dict[tuple[str, str], EvaluationResult] = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def envs(self) -> list[str]:
+        return list(self.methods)
+
+    def result(self, env: str, label: str) -> EvaluationResult:
+        return self.results[(env, label)]
+
+    def rows(self) -> list[TableRow]:
+        return [TableRow(env, m.label, self.results[(env, m.label)]) for env, ms in self.methods.items()
+                for m in ms if (env, m.label) in self.results]
+
+    def comparisons(self, pairs: Mapping[str, Sequence[tuple[str, str]]] | None = None) -> list[Comparison]:
+        """Paired differences on every metric for :func:`default_pairs` (or ``pairs[env]``)."""
+        out = []
+        for env, ms in self.methods.items():
+            flown = [m for m in ms if (env, m.label) in self.results]
+            for a, b in (pairs or {}).get(env, default_pairs(flown)):
+                ra, rb = self.results[(env, a)], self.results[(env, b)]
+                out.append(Comparison(env, a, b, {m: paired_difference(ra, rb, m) for m in ALL_METRICS}))
+        return out
+
+    def describe(self) -> str:
+        """One sentence: which missions, how many, which noise."""
+        return (f"{self.protocol.description}; {self.n_trials} missions per method (env seeds {self.seed}.."
+                f"{self.seed + self.n_trials - 1}, the same for every method), channel noise `{self.noise}`")
+
+    # ---------------------------------------------------------------- markdown
+    def table(self, family: str = "global") -> str:
+        return table_markdown(self.rows(), metrics=family)
+
+    def final_table(self) -> str:
+        """At 100 % of the budget: the four metrics (mean ± std) and planning time per UAV decision."""
+        head = ["Env", "Method"] + [f"{ALL_METRICS[m][0]} {'↑' if ALL_METRICS[m][1] else '↓'}" for m in ALL_METRICS] \
+            + ["ms per UAV decision"]
+        lines = ["| " + " | ".join(head) + " |", "| --- | --- |" + " ---: |" * (len(head) - 2)]
+        previous = None
+        for row in self.rows():
+            r = row.result
+            cells = [f"{r.metric(m)[:, -1].mean():.4f} ± {r.metric(m)[:, -1].std():.4f}" for m in ALL_METRICS]
+            lines.append("| " + " | ".join([row.group if row.group != previous else "", row.method] + cells
+                                           + [f"{r.planning_time_ms.mean():.3f}"]) + " |")
+            previous = row.group
+        return "\n".join(lines) + "\n"
+
+    def verdict_table(self, comparisons: Sequence[Comparison] | None = None) -> str:
+        """One row per comparison: ``a - b`` ± s.e. (who is better, or tie) on each metric."""
+        comparisons = self.comparisons() if comparisons is None else comparisons
+        head = ["Env", "a", "b"] + [f"{ALL_METRICS[m][0]} a − b" for m in ALL_METRICS]
+        lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * len(head)) + " |"]
+        previous = None
+        for c in comparisons:
+            lines.append("| " + " | ".join([c.env if c.env != previous else "", c.a, c.b]
+                                           + [cell(c.diffs[m]) for m in ALL_METRICS]) + " |")
+            previous = c.env
+        return "\n".join(lines) + "\n"
+
+    # ---------------------------------------------------------------- files
+    def write(self, out: str | os.PathLike, stem: str | None = None) -> list[Path]:
+        """``{stem}_table.md/.csv`` (global), ``{stem}_team_table.md/.csv``, ``{stem}_per_step.csv``,
+        ``{stem}_verdicts.md/.csv``; stem defaults to the protocol's name."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        stem = stem or self.protocol.name
+        rows = self.rows()
+        comparisons = self.comparisons()
+        written = [write_table_csv(rows, out / f"{stem}_table.csv"),
+                   write_table_csv(rows, out / f"{stem}_team_table.csv", metrics="team"),
+                   write_per_step_csv(rows, out / f"{stem}_per_step.csv")]
+        for name, text in ((f"{stem}_table.md", self.table("global")), (f"{stem}_team_table.md", self.table("team")),
+                           (f"{stem}_verdicts.md", self.verdict_table(comparisons))):
+            (out / name).write_text(text)
+            written.append(out / name)
+        path = out / f"{stem}_verdicts.csv"
+        with path.open("w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(["env", "a", "b", "metric", "missions", "mean_a", "mean_b", "diff", "se", "verdict"])
+            for c in comparisons:
+                for m, d in c.diffs.items():
+                    writer.writerow([c.env, c.a, c.b, m, d.n, f"{d.mean_a:.6f}", f"{d.mean_b:.6f}", f"{d.diff:.6f}",
+                                     f"{d.se:.6f}", d.verdict])
+        written.append(path)
+        return written
+
+    def summary(self) -> dict[str, Any]:
+        """Numbers for summary.json: per (env, method) the 100 % means and stds, planning time;
+        the comparisons; what was skipped."""
+        table = {}
+        for (env, label), r in self.results.items():
+            s = r.summary()
+            table[f"{env}/{label}"] = {k: v for k, v in s.items() if k.endswith(("_100_mean", "_100_std"))
+                                       or k == "planning_ms_per_decision"}
+        return {"protocol": self.protocol.name, "split": self.env_options.get("split"),
+                "start": self.env_options.get("start"), "missions": self.n_trials, "seed": self.seed,
+                "noise": self.noise, "table": table, "comparisons": [c.as_dict() for c in self.comparisons()],
+                "skipped": dict(self.skipped),
+                "methods": {env: [{"label": m.label, "kind": m.kind, "planner_kwargs": dict(
+                    self.results[(env, m.label)].planner_kwargs) if (env, m.label) in self.results else {},
+                                   "note": m.note} for m in ms] for env, ms in self.methods.items()}}
+
+
+#: (policy name, planner options) already flown once in this process: numba compiled, caches warm.
+_WARM: set[tuple[str, str]] = set()
+
+
+def _warm_up(method: Method, env: str) -> None:
+    """Fly a one-step mission of a baseline once per process so that ``evaluate``'s planning time
+    does not include numba's compilation of the planner's kernels."""
+    key = (str(method.policy), repr(sorted(dict(method.planner_kwargs).items())))
+    if method.learned or key in _WARM:
+        return
+    evaluate(method.policy, env=env, n_trials=1, budget=1, record=0, planner_kwargs=dict(method.planner_kwargs) or None)
+    _WARM.add(key)
+
+
+def _fly(method: Method, env: str, protocol: str, n_trials: int, seed: int, noise: str,
+         env_options: Mapping[str, Any]) -> EvaluationResult:
+    _warm_up(method, env)
+    if method.learned:
+        import torch as th
+
+        th.manual_seed(seed)  # sampled actions (deterministic=False) come from torch's generator
+    return evaluate(method.policy, env=env, n_trials=n_trials, seed=seed, protocol=protocol, fusion=method.fusion,
+                    deterministic=method.deterministic, label=method.label, record=0,
+                    planner_kwargs=dict(method.planner_kwargs) or None, noise=noise, **env_options)
+
+
+def run_protocol(protocol: str, methods: Mapping[str, Sequence[Method]], n_trials: int | None = None, seed: int = 0,
+                 noise: str = "moderate", log: Callable[[str], None] | None = print,
+                 **env_options: Any) -> ProtocolResult:
+    """Fly ``methods[env]`` on every map of ``methods`` under ``protocol`` (module docstring).
+
+    :param n_trials: missions per method (default: the protocol's, 10 or 50)
+    :param env_options: further env options shared by every method (``budget``, ``n_uavs`` ...)
+
+    A learned model that fails to run (e.g. its fusion's weights are missing) is skipped with a
+    message in ``skipped``; a baseline that fails raises.
+    """
+    proto = protocol_of(protocol)
+    n = proto.n_trials if n_trials is None else int(n_trials)
+    out = ProtocolResult(proto, n, seed, noise, {**env_options, **proto.env_options()})
+    for env, ms in methods.items():
+        labels = [m.label for m in ms]
+        if len(set(labels)) != len(labels):
+            raise ValueError(f"duplicate method labels on {env}: {labels}")
+        out.methods[env] = list(ms)
+        for m in ms:
+            if log:
+                log(f"{proto.name} protocol: {m.label} on {env} ({n} missions) ...")
+            try:
+                out.results[(env, m.label)] = _fly(m, env, proto.name, n, seed, noise, env_options)
+            except (ValueError, RuntimeError, ImportError, FileNotFoundError) as exc:
+                if not m.learned:
+                    raise
+                out.skipped[f"{env}/{m.label}"] = f"{type(exc).__name__}: {exc}"
+                if log:
+                    log(f"  skipped {m.label} on {env}: {exc}")
+    return out
+

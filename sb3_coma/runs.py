@@ -1,0 +1,158 @@
+"""Run folders: what ``sb3-coma train`` writes for one training run, and how to find it again.
+
+::
+
+    runs/UavIpp-Env3-v0_1/
+        config.yml         the resolved config (itself a valid rl-zoo3 config file) + run info
+        tb/COMA_1/         TensorBoard logs (SB3's values, mission/* per mission)
+        checkpoints/       rl_model_<joint steps>_steps.zip, written atomically
+        metrics.csv        one row per mission: reward, length, final F1 and entropy
+        model.zip          the final model, written atomically when training completes
+        best_model.zip     with --eval-freq: the best checkpoint on the validation missions
+
+The layout is a data format: the trainer writes it, ``--resume`` and ``sb3-coma export`` read it.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import warnings
+from pathlib import Path
+
+import yaml
+
+from sb3_coma.checkpoints import CheckpointError, atomic_write_text, find_checkpoints, validate_checkpoint
+from sb3_coma.config import RUN_KEY, TrainConfig, TrainingError, config_entry, plain, read_config_file, resolve_env_id
+
+__all__ = [
+    "CHECKPOINT_DIR",
+    "CONFIG_FILE",
+    "METRICS_FILE",
+    "MODEL_FILE",
+    "TENSORBOARD_DIR",
+    "new_run_dir",
+    "newest_model",
+    "read_run_config",
+    "resolve_resume",
+    "run_folder_of",
+    "write_run_config",
+]
+
+CONFIG_FILE = "config.yml"
+MODEL_FILE = "model.zip"
+METRICS_FILE = "metrics.csv"
+CHECKPOINT_DIR = "checkpoints"
+TENSORBOARD_DIR = "tb"
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "-", text).strip("-") or "run"
+
+
+def new_run_dir(
+    run_dir: str | os.PathLike[str] | None,
+    env_id: str,
+    variant: str | None = None,
+    root: str | os.PathLike[str] = "runs",
+) -> Path:
+    """Create and return a fresh run folder; never reuses a folder that holds anything.
+
+    ``run_dir=None``: ``<root>/<env id>[-<variant>]_<n>`` with the next free ``n`` (rl-zoo3's
+    scheme). An explicit ``run_dir`` is used when it does not exist or is empty, else
+    ``<run_dir>_2``, ``<run_dir>_3``, ... Folders are created with ``mkdir`` (atomic), so two runs
+    started together never share one.
+    """
+    if run_dir is None:
+        base = Path(root) / _slug(env_id + (f"-{variant}" if variant else ""))
+        candidates = (Path(f"{base}_{n}") for n in range(1, 1_000_000))
+    else:
+        base = Path(run_dir)
+        if base.is_dir() and not any(base.iterdir()):
+            return base
+        if base.exists() and not base.is_dir():
+            raise TrainingError(f"run folder {base} exists and is a file")
+        candidates = (base if n == 1 else Path(f"{base}_{n}") for n in range(1, 1_000_000))
+    for candidate in candidates:
+        candidate.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            candidate.mkdir()
+        except FileExistsError:
+            continue
+        return candidate
+    raise TrainingError(f"no free run folder name next to {base}")  # pragma: no cover
+
+
+def write_run_config(run_dir: Path, cfg: TrainConfig) -> Path:
+    """``config.yml``: the entry the run trains with (a valid rl-zoo3 config) + the run record."""
+    header = (
+        "# sb3-coma run config: the entry below is what this run trained with (a valid rl-zoo3 config);\n"
+        "# 'run' records where it came from. Resume with: sb3-coma train --resume " + str(run_dir) + "\n"
+    )
+    body = {cfg.env_id: plain(cfg.entry), RUN_KEY: plain(cfg.run)}
+    return atomic_write_text(run_dir / CONFIG_FILE, header + yaml.safe_dump(body, sort_keys=False))
+
+
+def read_run_config(run_dir: Path) -> TrainConfig:
+    """The :class:`TrainConfig` a run folder's ``config.yml`` records (validated again)."""
+    path = run_dir / CONFIG_FILE
+    data = read_config_file(path)
+    run = data.get(RUN_KEY)
+    if not isinstance(run, dict) or "env" not in run:
+        raise TrainingError(f"{path} is not an sb3-coma run config (no '{RUN_KEY}.env')")
+    env_id = resolve_env_id(run["env"])
+    entry = config_entry(path, env_id, data=data)
+    return TrainConfig(env_id=env_id, entry=entry, source=path, variant=run.get("variant"), run=dict(run))
+
+
+def newest_model(run_dir: Path) -> Path | None:
+    """Newest valid checkpoint or final model of a run folder (by joint steps)."""
+    candidates = [p for _, p in find_checkpoints(run_dir / CHECKPOINT_DIR)]
+    if (run_dir / MODEL_FILE).is_file():
+        candidates.append(run_dir / MODEL_FILE)
+    best: tuple[int, Path] | None = None
+    for path in candidates:
+        try:
+            info = validate_checkpoint(path)
+        except CheckpointError as exc:
+            warnings.warn(f"skipping {exc}", stacklevel=3)
+            continue
+        if best is None or info.num_timesteps > best[0]:
+            best = (info.num_timesteps, path)
+    return best[1] if best else None
+
+
+def run_folder_of(zip_path: Path) -> Path | None:
+    """The run folder of a model zip: its own folder (``model.zip``, ``best_model.zip``) or the one
+    above ``checkpoints/``, when that holds a ``config.yml``."""
+    parent = zip_path.parent
+    for folder in (parent, parent.parent if parent.name == CHECKPOINT_DIR else None):
+        if folder is not None and (folder / CONFIG_FILE).is_file():
+            return folder
+    return None
+
+
+def resolve_resume(resume: str | os.PathLike[str]) -> tuple[Path | None, Path]:
+    """``(run folder or None, model zip)`` for ``--resume PATH``.
+
+    ``PATH`` is a run folder (its newest checkpoint or final model), a checkpoint or model zip
+    inside a run folder, or any COMA model zip (then a new run folder is made).
+
+    :raises TrainingError: the path does not exist, is a folder but not a run folder, or a run
+        folder without a usable checkpoint
+    :raises CheckpointError: the zip is truncated/corrupt or not a COMA model
+    """
+    p = Path(resume)
+    if not p.exists():
+        raise TrainingError(f"cannot resume from {p}: no such file or folder")
+    if p.is_dir():
+        if not (p / CONFIG_FILE).is_file():
+            raise TrainingError(
+                f"cannot resume from {p}: not a run folder (no {CONFIG_FILE}); pass a run folder or a checkpoint .zip"
+            )
+        model = newest_model(p)
+        if model is None:
+            raise TrainingError(f"cannot resume from {p}: the run folder has no valid checkpoint or {MODEL_FILE}")
+        return p, model
+    validate_checkpoint(p)
+    return run_folder_of(p), p

@@ -1,0 +1,68 @@
+"""``fusion="sendfuse"``: the fused channel from the pre-trained SenDFuse network.
+
+``envs.make_vec_env(..., fusion="sendfuse")`` finds this wrapper through the ``uav_ipp.fusion``
+entry point that sb3-coma's ``setup.cfg`` declares, so the environment package never imports
+``sb3_coma``. One batched forward pass fuses the received maps of every agent of every env copy
+at a step.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import torch
+from gymnasium.vector import VectorEnv
+
+from envs.config import ConfigError
+from envs.fusion import FusionWrapper
+from sb3_coma.sendfuse.network import SenDFuseNet
+from sb3_coma.sendfuse.weights import default_weights_path, load_weights
+
+__all__ = ["SenDFuseFusionWrapper"]
+
+
+class SenDFuseFusionWrapper(FusionWrapper):
+    """Fuses ``received`` with SenDFuse (denoise + attention fusion) into the 8th local channel.
+
+    :param weights: a safetensors file from ``sb3-coma pretrain-sendfuse``; ``None`` = the
+        weights shipped with the package for this communication grid.
+    :param network: an already built ``SenDFuseNet`` (overrides ``weights``; used by tools that
+        evaluate a network being trained).
+    :param alpha: channel- vs spatial-attention weight of the fusion (None = the network's).
+    """
+
+    name = "sendfuse"
+
+    def __init__(
+        self,
+        env: VectorEnv,
+        weights: str | os.PathLike[str] | None = None,
+        network: SenDFuseNet | None = None,
+        alpha: float | None = None,
+    ) -> None:
+        if alpha is not None and (
+            isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0.0 <= alpha <= 1.0
+        ):
+            raise ConfigError(
+                f"invalid option fusion_kwargs alpha={alpha!r}: a number in [0, 1] "
+                "(weight of channel vs spatial attention), or None for the network's own"
+            )
+        super().__init__(env)
+        grid = self.raw_observation_space["received"].shape[-1]
+        if network is None:
+            network = load_weights(weights if weights is not None else default_weights_path(grid))
+        if network.grid_size != grid:
+            raise ValueError(
+                f"SenDFuse network was built for a {network.grid_size} x {network.grid_size} "
+                f"communication grid, but the env uses comm_grid={grid}"
+            )
+        self.network = network.eval()
+        self.alpha = alpha
+
+    def fuse(self, received: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            maps = torch.from_numpy(np.ascontiguousarray(received, dtype=np.float32))
+            mask = torch.from_numpy(np.asarray(valid) > 0.5)
+            fused = self.network.fuse(maps, mask, alpha=self.alpha)
+        return fused.numpy()
