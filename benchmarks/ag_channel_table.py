@@ -7,6 +7,7 @@ and reaches the team metrics directly.
 
     python benchmarks/ag_channel_table.py [--trials 10] [--maps env1 env2 env3]
 """
+
 from __future__ import annotations
 
 import argparse

@@ -20,6 +20,7 @@ shared machine other processes inflate wall time, the thread's CPU time much les
 asserted. ``--profile`` adds ONNX Runtime's per-node profile of the fusion graph, grouped by
 network stage and by operator, to show where its time goes.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -157,11 +158,17 @@ def _profile(path: Path, feeds: dict[str, np.ndarray], repeats: int) -> None:
         by_op[e["args"].get("op_name", "?")] += e["dur"] / 1e3 / repeats
     total = sum(by_op.values())
     nodes = sum(1 for e in events if e.get("cat") == "Node" and e.get("name", "").endswith("_kernel_time")) // repeats
-    print(f"\nONNX Runtime profile of {path.name}: {nodes} kernels, {total:.3f} ms of kernel time per call "
-          "(profiling itself adds time)")
+    print(
+        f"\nONNX Runtime profile of {path.name}: {nodes} kernels, {total:.3f} ms of kernel time per call "
+        "(profiling itself adds time)"
+    )
     for title, table in (("by stage", by_stage), ("by operator", by_op)):
-        print(f"  {title}: " + ", ".join(f"{k} {v:.3f} ms ({100 * v / total:.0f}%)"
-                                        for k, v in sorted(table.items(), key=lambda kv: -kv[1])[:8]))
+        print(
+            f"  {title}: "
+            + ", ".join(
+                f"{k} {v:.3f} ms ({100 * v / total:.0f}%)" for k, v in sorted(table.items(), key=lambda kv: -kv[1])[:8]
+            )
+        )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -232,8 +239,10 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     np.testing.assert_allclose(ort_both()[0], torch_both()[0].numpy(), atol=1e-4)
 
     n_valid = int(raw[layout.KEY_RECEIVED_VALID].sum())
-    print(f"{which}; one UAV of {args.env} (own map + {n_valid - 1} received, all valid), 1 thread, "
-          f"{args.repeats} calls; torch {torch.__version__}, onnxruntime {_ort_version()}")
+    print(
+        f"{which}; one UAV of {args.env} (own map + {n_valid - 1} received, all valid), 1 thread, "
+        f"{args.repeats} calls; torch {torch.__version__}, onnxruntime {_ort_version()}"
+    )
     print(f"{'per decision (ms)':<44} {'median':>8} {'p10':>8} {'p90':>8} {'CPU med':>9}")
     _row("PyTorch actor (module call)", _time(torch_actor, args.repeats))
     _row("PyTorch actor (model.predict)", _time(lambda: model.predict(obs, deterministic=True), args.repeats))

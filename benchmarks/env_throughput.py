@@ -6,6 +6,7 @@ fusion wrapper (SuperSuit + adapter + VecMonitor), after a warm-up that compiles
 
     python benchmarks/env_throughput.py [--map env3] [--missions 200]
 """
+
 from __future__ import annotations
 
 import argparse

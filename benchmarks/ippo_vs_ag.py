@@ -1,7 +1,11 @@
-"""IPPO / MAPPO (SB3 PPO, parameter sharing) against AG and random on unseen missions.
+"""COMA, IPPO or MAPPO (SB3 PPO, parameter sharing) against AG and random on unseen missions.
 
     python benchmarks/ippo_vs_ag.py --algo ippo --missions 1000 --out /tmp/ippo_env1
     python benchmarks/ippo_vs_ag.py --algo mappo --missions 1000 --out /tmp/mappo_env1
+    python benchmarks/ippo_vs_ag.py --algo coma --trunk cbam --missions 1000 --out /tmp/coma_env1
+
+COMA uses its library defaults (the paper's actor: 8 local channels, no gain term; CBAM with
+``--trunk cbam``) and counts its timesteps in joint steps (``missions * budget``).
 
 Trains on ``split="train"`` (env1: random stars, random starts) with one torch thread, then flies
 the trained model (argmax actions), AG and random on the same ``--eval-missions`` seeded missions of
@@ -12,6 +16,7 @@ error (``sb3_coma.paired``). Missions are counted honestly: SB3 counts agent-ste
 ``total_timesteps = missions * n_uavs * budget``. The model zip, a metrics JSON and the learning
 curve CSV go to ``--out`` (keep them out of the repository).
 """
+
 from __future__ import annotations
 
 import os
@@ -52,14 +57,20 @@ class Curve(BaseCallback):
 
     def _on_rollout_end(self) -> None:
         buf = list(self.model.ep_info_buffer)
-        row = {"missions": self.num_timesteps / self.per_mission, "seconds": time.perf_counter() - self.tic,
-               "return": float(np.mean([e["r"] for e in buf])) if buf else float("nan"),
-               "f1": float(np.mean([e["f1"] for e in buf])) if buf else float("nan"),
-               "entropy": float(np.mean([e["entropy"] for e in buf])) if buf else float("nan")}
+        row = {
+            "missions": self.num_timesteps / self.per_mission,
+            "seconds": time.perf_counter() - self.tic,
+            "return": float(np.mean([e["r"] for e in buf])) if buf else float("nan"),
+            "f1": float(np.mean([e["f1"] for e in buf])) if buf else float("nan"),
+            "entropy": float(np.mean([e["entropy"] for e in buf])) if buf else float("nan"),
+        }
         self.rows.append(row)
         if len(self.rows) % self.every == 1:
-            print(f"  {row['missions']:7.0f} missions  {row['seconds']:6.0f} s  return {row['return']:+.3f}  "
-                  f"train F1 {row['f1']:.3f}  entropy {row['entropy']:.3f}", flush=True)
+            print(
+                f"  {row['missions']:7.0f} missions  {row['seconds']:6.0f} s  return {row['return']:+.3f}  "
+                f"train F1 {row['f1']:.3f}  entropy {row['entropy']:.3f}",
+                flush=True,
+            )
 
     def _on_training_end(self) -> None:
         with open(self.path, "w", newline="") as fh:
@@ -70,7 +81,7 @@ class Curve(BaseCallback):
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--algo", default="ippo", choices=["ippo", "mappo"])
+    p.add_argument("--algo", default="ippo", choices=["ippo", "mappo", "coma"])
     p.add_argument("--env", default="env1")
     p.add_argument("--missions", type=int, default=1000, help="training missions (SB3 timesteps / (n_uavs * budget))")
     p.add_argument("--n-envs", type=int, default=8, help="env copies (vec-env rows = n_envs * n_uavs)")
@@ -96,46 +107,67 @@ def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     th.set_num_threads(args.threads)
     import envs
-    from sb3_coma import evaluate
+    from sb3_coma import COMA, evaluate
     from sb3_coma.marl_baselines import make_ippo, make_mappo, missions_of, timesteps_for_missions
     from sb3_coma.paired import paired_difference
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     options = dict(n_uavs=args.uavs, budget=args.budget, noise=args.noise)
-    venv = envs.make_vec_env(args.env, n_envs=args.n_envs, fusion=args.fusion, seed=args.seed, split="train",
-                             reward=args.reward, **options)
-    factory = {"ippo": make_ippo, "mappo": make_mappo}[args.algo]
-    model = factory(venv, seed=args.seed,
-                    policy_kwargs=dict(features_extractor_kwargs=dict(trunk=args.trunk)))
-    timesteps = timesteps_for_missions(args.missions, venv)
+    if args.algo == "coma":
+        options["action_gain"] = False  # the paper's actor reads the 8 local channels only
+    venv = envs.make_vec_env(
+        args.env, n_envs=args.n_envs, fusion=args.fusion, seed=args.seed, split="train", reward=args.reward, **options
+    )
+    if args.algo == "coma":
+        model = COMA("CBAMPolicy" if args.trunk == "cbam" else "CnnPolicy", venv, seed=args.seed)
+        timesteps = args.missions * args.budget  # COMA counts joint steps
+    else:
+        factory = {"ippo": make_ippo, "mappo": make_mappo}[args.algo]
+        model = factory(venv, seed=args.seed, policy_kwargs=dict(features_extractor_kwargs=dict(trunk=args.trunk)))
+        timesteps = timesteps_for_missions(args.missions, venv)
     curve = Curve(args.uavs * args.budget, out / "curve.csv")
-    print(f"{args.algo}: {args.missions} missions = {timesteps} agent-steps on {args.env} split=train, "
-          f"{args.n_envs} copies x {args.uavs} UAVs, budget {args.budget}, noise {args.noise}, fusion {args.fusion}, "
-          f"reward {args.reward}, {sum(p.numel() for p in model.policy.parameters())} parameters", flush=True)
+    print(
+        f"{args.algo}: {args.missions} missions = {timesteps} agent-steps on {args.env} split=train, "
+        f"{args.n_envs} copies x {args.uavs} UAVs, budget {args.budget}, noise {args.noise}, fusion {args.fusion}, "
+        f"reward {args.reward}, {sum(p.numel() for p in model.policy.parameters())} parameters",
+        flush=True,
+    )
     tic = time.perf_counter()
     model.learn(total_timesteps=timesteps, callback=curve)
     train_s = time.perf_counter() - tic
-    flown = missions_of(model.num_timesteps, venv)
+    flown = model.num_timesteps / args.budget if args.algo == "coma" else missions_of(model.num_timesteps, venv)
     model.save(out / f"{args.algo}_{args.env}")
     venv.close()
     print(f"trained {flown:.0f} missions ({model.num_timesteps} agent-steps) in {train_s:.0f} s", flush=True)
 
-    eval_options = dict(env=args.env, n_trials=args.eval_missions, seed=args.eval_seed, fusion=args.fusion,
-                        split="test", **options)
-    results = {args.algo: evaluate(model, deterministic=True, label=args.algo, **eval_options),
-               "ag": evaluate("ag", **eval_options),
-               "random": evaluate("random", **eval_options)}
-    report: dict = {"command": "python " + " ".join([sys.argv[0], *(argv if argv is not None else sys.argv[1:])]),
-                    "args": vars(args), "train_seconds": train_s, "missions_trained": flown,
-                    "agent_steps": int(model.num_timesteps), "methods": {}, "paired": []}
+    eval_options = dict(
+        env=args.env, n_trials=args.eval_missions, seed=args.eval_seed, fusion=args.fusion, split="test", **options
+    )
+    results = {
+        args.algo: evaluate(model, deterministic=True, label=args.algo, **eval_options),
+        "ag": evaluate("ag", **{**eval_options, "action_gain": True}),
+        "random": evaluate("random", **{**eval_options, "action_gain": True}),
+    }
+    report: dict = {
+        "command": "python " + " ".join([sys.argv[0], *(argv if argv is not None else sys.argv[1:])]),
+        "args": vars(args),
+        "train_seconds": train_s,
+        "missions_trained": flown,
+        "agent_steps": int(model.num_timesteps),
+        "methods": {},
+        "paired": [],
+    }
     lines = ["| method | F1 | entropy | team F1 | team entropy |", "| --- | --- | --- | --- | --- |"]
     for name, res in results.items():
         finals = {m: np.asarray(getattr(res, m))[:, -1] for m in METRICS}
         report["methods"][name] = {m: {"mean": float(v.mean()), "std": float(v.std())} for m, v in finals.items()}
         lines.append(f"| {name} | " + " | ".join(fmt(finals[m]) for m in METRICS) + " |")
-    lines += ["", f"| paired ({args.eval_missions} missions) | " + " | ".join(METRICS) + " |",
-              "| --- | --- | --- | --- | --- |"]
+    lines += [
+        "",
+        f"| paired ({args.eval_missions} missions) | " + " | ".join(METRICS) + " |",
+        "| --- | --- | --- | --- | --- |",
+    ]
     for other in ("ag", "random"):
         cells = []
         for m in METRICS:
@@ -144,8 +176,10 @@ def main(argv: list[str] | None = None) -> dict:
             cells.append(f"{d.diff:+.4f} ± {d.se:.4f} ({d.winner or 'tie'})")
         lines.append(f"| {args.algo} - {other} | " + " | ".join(cells) + " |")
     table = "\n".join(lines)
-    print(f"\nfinal step ({args.budget}) on {args.eval_missions} missions of split=test, mean ± std over missions; "
-          f"paired: mean difference ± standard error\n\n{table}")
+    print(
+        f"\nfinal step ({args.budget}) on {args.eval_missions} missions of split=test, mean ± std over missions; "
+        f"paired: mean difference ± standard error\n\n{table}"
+    )
     report["table"] = table
     (out / "report.json").write_text(json.dumps(report, indent=2))
     return report

@@ -7,6 +7,7 @@ stepping outside the timer. ``copies`` sets how many missions decide in one batc
 one team of 4 UAVs deciding alone; larger batches show the amortised cost in evaluation. The COMA
 actor is an untrained ``CBAMPolicy`` (same network, same cost as a trained one) on CPU.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -72,8 +73,10 @@ def main(argv: list[str] | None = None) -> int:
             t = time_method(method, args.env, copies, args.missions, args.seed)
             if t.size == 0:
                 continue
-            print(f"{method:<10} {copies:>6} {t.mean():>15.3f} {np.percentile(t, 95):>14.3f} "
-                  f"{t.mean() / (copies * n_agents):>16.4f}")
+            print(
+                f"{method:<10} {copies:>6} {t.mean():>15.3f} {np.percentile(t, 95):>14.3f} "
+                f"{t.mean() / (copies * n_agents):>16.4f}"
+            )
     return 0
 
 

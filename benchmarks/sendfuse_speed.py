@@ -12,6 +12,7 @@ Two figures (DESIGN section 4; target <= 2 ms per UAV-step on one core):
 
 Run: ``python benchmarks/sendfuse_speed.py [--repeats 300] [--steps 600]``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -61,8 +62,14 @@ def time_fusion(uavs: int = 4, sources: int = 4, repeats: int = 300) -> dict[str
             network.fuse(maps, valid)
             cpu.append((time.thread_time() - c0) * 1e3)
             wall.append((time.perf_counter() - w0) * 1e3)
-    return {"wall_ms": statistics.median(wall), "cpu_ms": statistics.median(cpu),
-            "cpu_p10_ms": sorted(cpu)[len(cpu) // 10], "uavs": uavs, "sources": sources, "weights": which}
+    return {
+        "wall_ms": statistics.median(wall),
+        "cpu_ms": statistics.median(cpu),
+        "cpu_p10_ms": sorted(cpu)[len(cpu) // 10],
+        "uavs": uavs,
+        "sources": sources,
+        "weights": which,
+    }
 
 
 def env_rate(fusion: str, steps: int = 600, seed: int = 0) -> float:
@@ -101,9 +108,11 @@ def main(argv: list[str] | None = None) -> None:
     per_wall, per_cpu = t["wall_ms"] / t["uavs"], t["cpu_ms"] / t["uavs"]
     verdict = "meets" if per_cpu <= 2.0 else "MISSES"
     print(f"SenDFuse fusion, {t['uavs']} UAVs x {t['sources']} received maps, R = 44, 1 thread ({t['weights']}):")
-    print(f"  {t['wall_ms']:.2f} ms wall / {t['cpu_ms']:.2f} ms thread CPU per step -> "
-          f"{per_wall:.2f} ms wall / {per_cpu:.2f} ms CPU per UAV-step ({verdict} the 2 ms target); "
-          f"p10 {t['cpu_p10_ms'] / t['uavs']:.2f} ms CPU per UAV-step")
+    print(
+        f"  {t['wall_ms']:.2f} ms wall / {t['cpu_ms']:.2f} ms thread CPU per step -> "
+        f"{per_wall:.2f} ms wall / {per_cpu:.2f} ms CPU per UAV-step ({verdict} the 2 ms target); "
+        f"p10 {t['cpu_p10_ms'] / t['uavs']:.2f} ms CPU per UAV-step"
+    )
     rates = {fusion: env_rate(fusion, args.steps) for fusion in ("mean", "sendfuse")}
     print("env3 vec env, 4 UAVs, budget 15, 1 copy, random valid actions, 1 thread:")
     for fusion, rate in rates.items():

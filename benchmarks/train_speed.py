@@ -8,6 +8,7 @@ Prints joint steps/s, missions/s, the split between collecting rollouts (env + a
 training (critic + actor updates), and the projected wall-clock of the paper's 1200 missions.
 The first rollout is a warm-up (imports, allocator, oneDNN kernel selection) and is not timed.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -63,8 +64,9 @@ def main() -> None:
     import envs
     from sb3_coma.coma import COMA
 
-    venv = envs.make_vec_env(args.env, n_envs=args.n_envs, fusion=args.fusion, seed=args.seed,
-                             n_uavs=args.uavs, budget=args.budget)
+    venv = envs.make_vec_env(
+        args.env, n_envs=args.n_envs, fusion=args.fusion, seed=args.seed, n_uavs=args.uavs, budget=args.budget
+    )
     model = COMA(args.policy, venv, batch_size=args.batch_size, seed=args.seed)
     per_rollout = model.n_steps * model.n_copies  # joint steps
     model.learn(per_rollout)  # warm-up rollout + update, not timed
@@ -78,16 +80,24 @@ def main() -> None:
     steps_per_s = joint_steps / wall
     missions_per_s = steps_per_s / args.budget
     paper_s = PAPER_MISSIONS / missions_per_s
-    print(f"setting    : {args.env}, {args.uavs} UAVs, budget {args.budget}, fusion {args.fusion}, "
-          f"{args.policy}, batch {args.batch_size} joint steps, {args.n_envs} env copies x n_steps {model.n_steps}, "
-          f"{args.threads} torch threads")
+    print(
+        f"setting    : {args.env}, {args.uavs} UAVs, budget {args.budget}, fusion {args.fusion}, "
+        f"{args.policy}, batch {args.batch_size} joint steps, {args.n_envs} env copies x n_steps {model.n_steps}, "
+        f"{args.threads} torch threads"
+    )
     print(f"timed      : {joint_steps} joint steps ({args.rollouts} rollouts + updates) in {wall:.1f} s")
-    print(f"split      : rollouts {timer.rollout_s:.1f} s ({100 * timer.rollout_s / wall:.0f} %), "
-          f"training {wall - timer.rollout_s:.1f} s ({100 * (1 - timer.rollout_s / wall):.0f} %)")
-    print(f"throughput : {steps_per_s:.0f} joint steps/s = {missions_per_s:.2f} missions/s "
-          f"({steps_per_s * args.uavs:.0f} agent transitions/s)")
-    print(f"projection : {PAPER_MISSIONS} missions = {PAPER_MISSIONS * args.budget} joint steps in "
-          f"{paper_s:.0f} s ({paper_s / 60:.1f} min; target <= 5 min)")
+    print(
+        f"split      : rollouts {timer.rollout_s:.1f} s ({100 * timer.rollout_s / wall:.0f} %), "
+        f"training {wall - timer.rollout_s:.1f} s ({100 * (1 - timer.rollout_s / wall):.0f} %)"
+    )
+    print(
+        f"throughput : {steps_per_s:.0f} joint steps/s = {missions_per_s:.2f} missions/s "
+        f"({steps_per_s * args.uavs:.0f} agent transitions/s)"
+    )
+    print(
+        f"projection : {PAPER_MISSIONS} missions = {PAPER_MISSIONS * args.budget} joint steps in "
+        f"{paper_s:.0f} s ({paper_s / 60:.1f} min; target <= 5 min)"
+    )
 
 
 if __name__ == "__main__":

@@ -5,12 +5,14 @@ section 3). ``IppConfig.from_options(**options)`` is the single place where user
 checked, so a bad value fails at construction with a message naming the option, the value and
 what is allowed, instead of a traceback from deep inside a footprint kernel.
 """
+
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 #: Version of the world's rules. 2: per-cell local beliefs M_i fed by cell-level messages (issue #14);
 #: 1: local beliefs on the comm grid. A model trained on another version sees different observations.
@@ -119,7 +121,7 @@ class IppConfig:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_options(cls, name: str = "env1", **options: Any) -> "IppConfig":
+    def from_options(cls, name: str = "env1", **options: Any) -> IppConfig:
         """Build a config from ``make_env`` keyword options, rejecting unknown or bad ones."""
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(options) - known)
@@ -151,7 +153,7 @@ class IppConfig:
         config.validate()
         return config
 
-    def replace(self, **changes: Any) -> "IppConfig":
+    def replace(self, **changes: Any) -> IppConfig:
         """A validated copy with some options changed."""
         config = dataclasses.replace(self, **changes)
         config.validate()
@@ -160,6 +162,7 @@ class IppConfig:
     # ------------------------------------------------------------------ validation
     def validate(self) -> None:
         """Check every option; raise :class:`ConfigError` naming the first bad one."""
+
         def is_int(v: Any) -> bool:
             return isinstance(v, int) and not isinstance(v, bool)
 
@@ -181,7 +184,11 @@ class IppConfig:
         if not self.altitudes or any(not math.isfinite(a) or a <= 0 for a in self.altitudes):
             _fail("altitudes", self.altitudes, "a non-empty list of positive altitudes in metres")
         if len(self.altitudes) > 3:
-            _fail("altitudes", self.altitudes, "at most 3 altitude levels (the gain kernels carry 3 columns per weighting)")
+            _fail(
+                "altitudes",
+                self.altitudes,
+                "at most 3 altitude levels (the gain kernels carry 3 columns per weighting)",
+            )
         if list(self.altitudes) != sorted(set(self.altitudes)):
             _fail("altitudes", self.altitudes, "strictly increasing altitudes")
         if len(self.altitudes) > 1:
@@ -195,8 +202,11 @@ class IppConfig:
             _fail("flip_probability", dict(self.flip_probability), f"an entry for every altitude; missing {missing}")
         for alt, q in self.flip_probability.items():
             if not (0.0 < q < 0.5):
-                _fail("flip_probability", dict(self.flip_probability),
-                      f"probabilities strictly between 0 and 0.5 (altitude {alt} has {q})")
+                _fail(
+                    "flip_probability",
+                    dict(self.flip_probability),
+                    f"probabilities strictly between 0 and 0.5 (altitude {alt} has {q})",
+                )
         if not (is_number(self.fov_deg) and 0 < self.fov_deg < 180):
             _fail("fov_deg", self.fov_deg, "an angle in (0, 180) degrees")
         if self.start is not None and self.start not in STARTS:
@@ -204,8 +214,12 @@ class IppConfig:
         if self.split not in SPLITS:
             _fail("split", self.split, f"one of {list(SPLITS)}")
         if self.split != "paper" and self.map_path is not None:
-            _fail("split", self.split, "'paper' with map_path= (a user's image has no train / test scenes); "
-                  "use start='random' for random starts on it")
+            _fail(
+                "split",
+                self.split,
+                "'paper' with map_path= (a user's image has no train / test scenes); "
+                "use start='random' for random starts on it",
+            )
         if self.start_altitude not in self.altitudes:
             _fail("start_altitude", self.start_altitude, f"one of the altitudes {list(self.altitudes)}")
         if self.start_positions is not None:
@@ -226,15 +240,28 @@ class IppConfig:
             _fail("drop_probability", self.drop_probability, "a probability in [0, 1]")
         if not is_int(self.comm_grid) or self.comm_grid < 4 or self.comm_grid % 4 or self.comm_grid > self.grid:
             _fail("comm_grid", self.comm_grid, f"a multiple of 4 between 4 and grid ({self.grid})")
-        if not (is_number(self.alpha) and is_number(self.beta) and math.isfinite(self.alpha) and math.isfinite(self.beta)):
+        if not (
+            is_number(self.alpha) and is_number(self.beta) and math.isfinite(self.alpha) and math.isfinite(self.beta)
+        ):
             _fail("alpha/beta", (self.alpha, self.beta), "finite reward scale and offset")
         if max(abs(self.alpha), abs(self.beta)) > MAX_REWARD_SCALE:
-            _fail("alpha/beta", (self.alpha, self.beta),
-                  f"magnitudes at most {MAX_REWARD_SCALE:g}: larger rewards overflow float32 to inf")
+            _fail(
+                "alpha/beta",
+                (self.alpha, self.beta),
+                f"magnitudes at most {MAX_REWARD_SCALE:g}: larger rewards overflow float32 to inf",
+            )
         if self.reward_entropy not in ("plain", "weighted"):
-            _fail("reward_entropy", self.reward_entropy, "'plain' (binary entropy of every cell) or 'weighted' (ipp-marl's class weighting)")
+            _fail(
+                "reward_entropy",
+                self.reward_entropy,
+                "'plain' (binary entropy of every cell) or 'weighted' (ipp-marl's class weighting)",
+            )
         if self.reward not in REWARDS:
-            _fail("reward", self.reward, "'entropy' (the paper's entropy-drop reward) or 'metrics' (the change of F1 and valuable-cell entropy)")
+            _fail(
+                "reward",
+                self.reward,
+                "'entropy' (the paper's entropy-drop reward) or 'metrics' (the change of F1 and valuable-cell entropy)",
+            )
         if not isinstance(self.action_gain, bool):
             _fail("action_gain", self.action_gain, "True (observe each action's expected information gain) or False")
         if self.render_mode not in (None, "rgb_array", "ansi"):
@@ -253,7 +280,11 @@ class IppConfig:
             for coord in (x, y):
                 k = coord / self.spacing
                 if not (0 <= coord <= self.field_size) or abs(k - round(k)) > 1e-6:
-                    _fail("start_positions", p, f"x and y on the lattice: multiples of {self.spacing:g} m in [0, {self.field_size:g}]")
+                    _fail(
+                        "start_positions",
+                        p,
+                        f"x and y on the lattice: multiples of {self.spacing:g} m in [0, {self.field_size:g}]",
+                    )
             if z not in self.altitudes:
                 _fail("start_positions", p, f"z one of the altitudes {list(self.altitudes)}")
             col = (round(x / self.spacing), round(y / self.spacing))

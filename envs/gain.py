@@ -12,9 +12,10 @@ kernels keep, per UAV, the sum of each gain column over every *gain strip* cell 
 map M_i (``envs.geometry``: footprints are exact unions of strips), so the gain of any candidate
 footprint is a sum over a few hundred strip cells, exact, and never a pass over belief cells.
 """
+
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -76,7 +77,7 @@ def build_local_table(flip_probabilities: Sequence[float]) -> np.ndarray:
     table = np.zeros((len(p), kernels.L_GAIN0 + kernels.GAIN_SLOTS), dtype=np.float32)
     table[:, kernels.L_PROB] = p
     table[:, kernels.L_ENTROPY] = kernels.binary_entropy(p)
-    for w, weighting in enumerate(WEIGHTINGS):
+    for _w, weighting in enumerate(WEIGHTINGS):
         for level, q in enumerate(flip_probabilities):
             table[:, kernels.L_GAIN0 + gain_column(weighting, level)] = gain_density(p, q, weighting)
     return table

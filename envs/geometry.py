@@ -6,6 +6,7 @@ a measurement depends on the footprint's area and never on the size of the map.
 Conventions: arrays are indexed ``[y, x]`` (row = y), lattice index ``k`` sits at ``k * spacing``
 metres, belief cell ``i`` spans ``[i, i+1) * cell_size`` metres.
 """
+
 from __future__ import annotations
 
 import math
@@ -79,7 +80,8 @@ class FieldGeometry:
             raise ConfigError(
                 f"invalid options fov_deg={config.fov_deg!r} / field_size={config.field_size!r} / grid={config.grid!r}: "
                 f"the camera footprint at {config.altitudes[level]:g} m covers no belief cell "
-                f"(side {2 * self.half_side[level]:.3g} m, cell {self.cell:.3g} m)")
+                f"(side {2 * self.half_side[level]:.3g} m, cell {self.cell:.3g} m)"
+            )
         self.comm_cell_area = np.outer(self.cells_per_comm, self.cells_per_comm).astype(np.float32)
         self.comm_blocks, self.comm_weights = self._comm_block_weights()
         self._build_segments()
@@ -132,8 +134,8 @@ class FieldGeometry:
             nz = np.flatnonzero(a[:, c] > 0)
             if len(nz) > 2:
                 raise ValueError(f"comm_grid={self.comm_grid} is coarser than the lattice blocks; use a finer grid")
-            blocks[c, :len(nz)] = nz
-            weights[c, :len(nz)] = a[nz, c]
+            blocks[c, : len(nz)] = nz
+            weights[c, : len(nz)] = a[nz, c]
         return blocks, weights
 
     def _footprint_ranges(self) -> np.ndarray:

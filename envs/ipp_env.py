@@ -23,6 +23,7 @@ Semantics worth knowing (also in ``docs/environment.md``):
 * ``infos`` carry the paper's metrics on the global map (``f1``, ``entropy``) and the team metrics
   on the M_i (``team_f1``, ``team_entropy``) at every step.
 """
+
 from __future__ import annotations
 
 import functools
@@ -116,12 +117,12 @@ class UavIppEnv(ParallelEnv):
         self._id_ratio = ((np.arange(n) + 1) / n).astype(np.float32)[:, None, None]
         self._alt_ratio = (np.asarray(cfg.altitudes) / max(cfg.altitudes)).astype(np.float32)
         prior = self._ltab[kernels.OFFSET].astype(np.float64)
-        self._strip_prior = prior[kernels.L_GAIN0:, None, None] * np.outer(geo.strip_cells, geo.strip_cells)[None]
+        self._strip_prior = prior[kernels.L_GAIN0 :, None, None] * np.outer(geo.strip_cells, geo.strip_cells)[None]
 
     # ------------------------------------------------------------------ spaces
     def _build_spaces(self, n: int, r: int) -> None:
         L = self.config.lattice
-        entries = {
+        entries: dict[str, spaces.Space] = {
             layout.KEY_LOCAL: spaces.Box(0.0, 1.0, (layout.RAW_LOCAL_CHANNELS, L, L), np.float32),
             layout.KEY_RECEIVED: spaces.Box(*RECEIVED_RANGE, (n, r, r), np.float32),
             layout.KEY_RECEIVED_VALID: spaces.Box(0.0, 1.0, (n,), np.float32),
@@ -129,31 +130,42 @@ class UavIppEnv(ParallelEnv):
             layout.KEY_MASK: spaces.Box(0, 1, (layout.N_ACTIONS,), np.int8),
         }
         if self.config.action_gain:
-            entries[layout.KEY_GAIN] = spaces.Box(-1.0, 1.0, (len(layout.GAIN_WEIGHTINGS), layout.N_ACTIONS), np.float32)
+            entries[layout.KEY_GAIN] = spaces.Box(
+                -1.0, 1.0, (len(layout.GAIN_WEIGHTINGS), layout.N_ACTIONS), np.float32
+            )
         self._observation_space = spaces.Dict(entries)
         self._action_space = spaces.Discrete(layout.N_ACTIONS)
 
-    @functools.lru_cache(maxsize=None)
     def observation_space(self, agent: str) -> spaces.Dict:
+        """The same Dict space for every agent (parameter sharing); the object itself, never a copy."""
         return self._observation_space
 
-    @functools.lru_cache(maxsize=None)
     def action_space(self, agent: str) -> spaces.Discrete:
         return self._action_space
 
     # ------------------------------------------------------------------ maps
     def _load_truth(self, seed: int) -> GroundTruth:
         cfg = self.config
-        return load_ground_truth(cfg.map_name, seed=seed, map_path=cfg.map_path, valuable=cfg.valuable,
-                                 grid=cfg.grid, lattice=cfg.lattice, split=cfg.split)
+        return load_ground_truth(
+            cfg.map_name,
+            seed=seed,
+            map_path=cfg.map_path,
+            valuable=cfg.valuable,
+            grid=cfg.grid,
+            lattice=cfg.lattice,
+            split=cfg.split,
+        )
 
     def _set_truth(self, truth: GroundTruth) -> None:
         self._truth = truth
         self._truth_u8 = np.ascontiguousarray(truth.valuable, dtype=np.uint8)
         self._n_valuable = int(self._truth_u8.sum())
         if self._n_valuable < MIN_VALUABLE_CELLS:
-            warnings.warn(f"map {truth.name!r} has only {self._n_valuable} valuable cell(s): F1 and the entropy over "
-                          f"valuable cells measure almost nothing on it (fewer than {MIN_VALUABLE_CELLS})", stacklevel=3)
+            warnings.warn(
+                f"map {truth.name!r} has only {self._n_valuable} valuable cell(s): F1 and the entropy over "
+                f"valuable cells measure almost nothing on it (fewer than {MIN_VALUABLE_CELLS})",
+                stacklevel=3,
+            )
         self._no_fly = np.ascontiguousarray(truth.no_fly, dtype=np.bool_)
 
     @property
@@ -182,15 +194,28 @@ class UavIppEnv(ParallelEnv):
         cfg, n = self.config, self.config.n_uavs
         start_level = cfg.altitudes.index(cfg.start_altitude)
         if cfg.start_positions is not None:
-            pos = np.array([(round(x / cfg.spacing), round(y / cfg.spacing), cfg.altitudes.index(z))
-                            for x, y, z in cfg.start_positions], dtype=np.int64)
-            bad = [tuple(p) for p in cfg.start_positions if self._no_fly[round(p[1] / cfg.spacing), round(p[0] / cfg.spacing)]]
+            pos = np.array(
+                [
+                    (round(x / cfg.spacing), round(y / cfg.spacing), cfg.altitudes.index(z))
+                    for x, y, z in cfg.start_positions
+                ],
+                dtype=np.int64,
+            )
+            bad = [
+                tuple(p)
+                for p in cfg.start_positions
+                if self._no_fly[round(p[1] / cfg.spacing), round(p[0] / cfg.spacing)]
+            ]
             if bad:
-                raise ConfigError(f"invalid option start_positions={bad!r}: these columns are no-fly on map {self.ground_truth.name!r}")
+                raise ConfigError(
+                    f"invalid option start_positions={bad!r}: these columns are no-fly on map {self.ground_truth.name!r}"
+                )
             return pos
         free = self._default_columns()
         if len(free) < n:
-            raise ConfigError(f"invalid option n_uavs={n}: map {self.ground_truth.name!r} has only {len(free)} flyable columns")
+            raise ConfigError(
+                f"invalid option n_uavs={n}: map {self.ground_truth.name!r} has only {len(free)} flyable columns"
+            )
         if cfg.start_rule == "random":
             pick = self._rng.choice(len(free), size=n, replace=False)
             cols = [free[k] for k in pick]
@@ -246,7 +271,7 @@ class UavIppEnv(ParallelEnv):
         self._g_block[1] = geo.block_area
         self._g_block[2] = 0.0
         g0 = self._gtab[kernels.OFFSET]
-        self._g_scal[:] = (float(g0[kernels.G_REWARD]) * cfg.grid ** 2, float(self._n_valuable), 0.0, 0.0)
+        self._g_scal[:] = (float(g0[kernels.G_REWARD]) * cfg.grid**2, float(self._n_valuable), 0.0, 0.0)
         self._l_block[:, 0] = 0.5 * geo.block_area
         self._l_block[:, 1] = geo.block_area
         self._l_strip[:] = self._strip_prior
@@ -259,7 +284,7 @@ class UavIppEnv(ParallelEnv):
         self._measure_all()
         self._mark_visits()
         observations = self._observations()
-        infos = {agent: {} for agent in self.agents}
+        infos: dict[str, dict[str, Any]] = {agent: {} for agent in self.agents}
         return observations, infos
 
     def step(self, actions: dict[str, Any]):
@@ -343,12 +368,45 @@ class UavIppEnv(ParallelEnv):
         links, bound = self._links(pos_m)
         self._links_now = links  # links[r, s]: r received s's message this step
         kernels.measure_and_communicate(
-            self._pos, geo.footprint_ranges, self._increments, self._thresholds, links, bound, self._sigma,
-            cfg.decoder == "soft", self._slots, self._truth_u8, self._logodds, self._measured, self._local_logodds,
-            self._readings, self._gstep, self._lstep, self._ltab, self._normals, geo.seg_start, geo.seg_of_cell, geo.seg_block,
-            geo.seg_comm, geo.seg_strip, geo.block_of_cell, geo.comm_of_cell, geo.strip_of_cell, self._comm_area,
-            self._flip_state, self._comm_state, self._g_block, self._g_scal, self._l_block, self._l_strip,
-            self._l_scal, self._received, self._received_valid, self._comm_sum, self._comm_cnt)
+            self._pos,
+            geo.footprint_ranges,
+            self._increments,
+            self._thresholds,
+            links,
+            bound,
+            self._sigma,
+            cfg.decoder == "soft",
+            self._slots,
+            self._truth_u8,
+            self._logodds,
+            self._measured,
+            self._local_logodds,
+            self._readings,
+            self._gstep,
+            self._lstep,
+            self._ltab,
+            self._normals,
+            geo.seg_start,
+            geo.seg_of_cell,
+            geo.seg_block,
+            geo.seg_comm,
+            geo.seg_strip,
+            geo.block_of_cell,
+            geo.comm_of_cell,
+            geo.strip_of_cell,
+            self._comm_area,
+            self._flip_state,
+            self._comm_state,
+            self._g_block,
+            self._g_scal,
+            self._l_block,
+            self._l_strip,
+            self._l_scal,
+            self._received,
+            self._received_valid,
+            self._comm_sum,
+            self._comm_cnt,
+        )
 
     def _mark_visits(self) -> None:
         np.minimum(self._visits, 0.5, out=self._visits)
@@ -368,8 +426,8 @@ class UavIppEnv(ParallelEnv):
         local[r_idx, layout.ALTITUDE, self._pos[s_idx, 1], self._pos[s_idx, 0]] = alt_ratio[s_idx]
         local[:, layout.FOOTPRINT] = self._visits
         local[:, layout.SENSOR] = geo.to_lattice(self._received[:, 0])
-        local[:, layout.BELIEF:layout.BELIEF_ENTROPY + 1] = self._l_block / area
-        np.clip(local[:, layout.SENSOR:], 0.0, 1.0, out=local[:, layout.SENSOR:])
+        local[:, layout.BELIEF : layout.BELIEF_ENTROPY + 1] = self._l_block / area
+        np.clip(local[:, layout.SENSOR :], 0.0, 1.0, out=local[:, layout.SENSOR :])
         state = (self._g_block / area).astype(np.float32)
         np.clip(state, 0.0, 1.0, out=state)
         masks = self._masks
@@ -387,8 +445,9 @@ class UavIppEnv(ParallelEnv):
             for i, agent in enumerate(self.possible_agents)
         }
         if cfg.action_gain:
-            kernels.action_gains(self._pos, masks, ACTION_DELTAS, geo.footprint_strips, self._l_strip,
-                                 self._alt_levels, self._gains)
+            kernels.action_gains(
+                self._pos, masks, ACTION_DELTAS, geo.footprint_strips, self._l_strip, self._alt_levels, self._gains
+            )
             gains = self._gains.astype(np.float32)
             for i, agent in enumerate(self.possible_agents):
                 observations[agent][layout.KEY_GAIN] = gains[i]
@@ -396,8 +455,10 @@ class UavIppEnv(ParallelEnv):
 
     def _global_metrics(self) -> dict[str, float]:
         tp, pp = self._g_scal[kernels.S_TP], self._g_scal[kernels.S_PP]
-        return {"f1": _f1(tp, pp, self._n_valuable),
-                "entropy": _mean_entropy(self._g_scal[kernels.S_ENT_TRUE], self._n_valuable)}
+        return {
+            "f1": _f1(tp, pp, self._n_valuable),
+            "entropy": _mean_entropy(self._g_scal[kernels.S_ENT_TRUE], self._n_valuable),
+        }
 
     def metrics(self) -> dict[str, float]:
         """The paper's metrics on the global belief (``f1``, ``entropy`` over valuable cells) and the
@@ -408,7 +469,7 @@ class UavIppEnv(ParallelEnv):
         out["team_f1"] = sum(_f1(tp, pp, n_val) for _, tp, pp in per_uav) / n
         out["team_entropy"] = sum(_mean_entropy(ent, n_val) for ent, _, _ in per_uav) / n
         out["reward_entropy"] = float(self._g_scal[kernels.S_REWARD])
-        out["coverage"] = float(self._g_block[2].sum() / self.config.grid ** 2)
+        out["coverage"] = float(self._g_block[2].sum() / self.config.grid**2)
         out["budget_left"] = int(self._budget_left)
         return out
 
@@ -434,7 +495,7 @@ class UavIppEnv(ParallelEnv):
         cell: the summed expected gain of one reading, from the UAV's own M_i (what AG plans with)."""
         n, s = self.n_uavs, self.geometry.n_strips
         sums = self._l_strip.reshape(n, len(WEIGHTINGS), gain.MAX_LEVELS, s, s)
-        return sums[:, :, :self._alt_levels].copy()
+        return sums[:, :, : self._alt_levels].copy()
 
     def lattice_positions(self) -> np.ndarray:
         """(N, 3) int64 lattice indices (ix, iy, altitude level) of the UAVs."""
@@ -458,6 +519,7 @@ class UavIppEnv(ParallelEnv):
             pos = ", ".join(f"({x:g},{y:g},{z:g})" for x, y, z in self.positions_m())
             return f"step {self._steps}/{self.config.budget} f1={m['f1']:.3f} entropy={m['entropy']:.3f} uavs={pos}"
         from .render import render_rgb
+
         return render_rgb(self)
 
     def close(self) -> None:

@@ -18,6 +18,7 @@ Why it looks like this (measured, ``benchmarks/env_throughput.py``, docs/environ
 Streams are seeded from the env's ``numpy.random.Generator`` at every reset: same seed, same
 mission, bit for bit.
 """
+
 from __future__ import annotations
 
 import math
@@ -165,19 +166,27 @@ GAIN_SLOTS = 6
 @numba.njit(cache=True, inline="always")
 def _gain_delta(acc, ltab, io, inw):
     """``acc`` plus the change of the six gain columns from table row ``io`` to row ``inw``."""
-    return (acc[0] + (ltab[inw, L_GAIN0] - ltab[io, L_GAIN0]),
-            acc[1] + (ltab[inw, L_GAIN0 + 1] - ltab[io, L_GAIN0 + 1]),
-            acc[2] + (ltab[inw, L_GAIN0 + 2] - ltab[io, L_GAIN0 + 2]),
-            acc[3] + (ltab[inw, L_GAIN0 + 3] - ltab[io, L_GAIN0 + 3]),
-            acc[4] + (ltab[inw, L_GAIN0 + 4] - ltab[io, L_GAIN0 + 4]),
-            acc[5] + (ltab[inw, L_GAIN0 + 5] - ltab[io, L_GAIN0 + 5]))
+    return (
+        acc[0] + (ltab[inw, L_GAIN0] - ltab[io, L_GAIN0]),
+        acc[1] + (ltab[inw, L_GAIN0 + 1] - ltab[io, L_GAIN0 + 1]),
+        acc[2] + (ltab[inw, L_GAIN0 + 2] - ltab[io, L_GAIN0 + 2]),
+        acc[3] + (ltab[inw, L_GAIN0 + 3] - ltab[io, L_GAIN0 + 3]),
+        acc[4] + (ltab[inw, L_GAIN0 + 4] - ltab[io, L_GAIN0 + 4]),
+        acc[5] + (ltab[inw, L_GAIN0 + 5] - ltab[io, L_GAIN0 + 5]),
+    )
 
 
 @numba.njit(cache=True, inline="always")
 def _gain_step(acc, lstep, row):
     """``acc`` plus the six gain-column changes of one step-table row (see :func:`step_table`)."""
-    return (acc[0] + lstep[row, L_GAIN0], acc[1] + lstep[row, L_GAIN0 + 1], acc[2] + lstep[row, L_GAIN0 + 2],
-            acc[3] + lstep[row, L_GAIN0 + 3], acc[4] + lstep[row, L_GAIN0 + 4], acc[5] + lstep[row, L_GAIN0 + 5])
+    return (
+        acc[0] + lstep[row, L_GAIN0],
+        acc[1] + lstep[row, L_GAIN0 + 1],
+        acc[2] + lstep[row, L_GAIN0 + 2],
+        acc[3] + lstep[row, L_GAIN0 + 3],
+        acc[4] + lstep[row, L_GAIN0 + 4],
+        acc[5] + lstep[row, L_GAIN0 + 5],
+    )
 
 
 @numba.njit(cache=True, inline="always")
@@ -200,9 +209,38 @@ def _flush_comm(received, slot_map, comm_sum, comm_cnt, comm_area, ca, cb, cc, c
 
 
 @numba.njit(cache=True, fastmath=True)
-def sense(r0, r1, c0, c1, level, increment, threshold, truth, glob, measured, local, readings, gstep, lstep,
-          seg_start, seg_of_cell, seg_block, seg_comm, seg_strip, block_of_cell, comm_of_cell,
-          strip_of_cell, flip_state, g_block, g_scal, l_block, l_strip, l_scal, comm_sum, comm_cnt):
+def sense(
+    r0,
+    r1,
+    c0,
+    c1,
+    level,
+    increment,
+    threshold,
+    truth,
+    glob,
+    measured,
+    local,
+    readings,
+    gstep,
+    lstep,
+    seg_start,
+    seg_of_cell,
+    seg_block,
+    seg_comm,
+    seg_strip,
+    block_of_cell,
+    comm_of_cell,
+    strip_of_cell,
+    flip_state,
+    g_block,
+    g_scal,
+    l_block,
+    l_strip,
+    l_scal,
+    comm_sum,
+    comm_cnt,
+):
     """One UAV's measurement over a footprint: fold the readings into the global map and into the
     UAV's own local map M_i (the same readings, the same increments), store them in ``readings``
     (footprint-relative) for the messages, and keep every derived sum up to date.
@@ -308,9 +346,35 @@ def sense(r0, r1, c0, c1, level, increment, threshold, truth, glob, measured, lo
 
 
 @numba.njit(cache=True, fastmath=True)
-def receive(r0, r1, c0, c1, increment, alpha_low, sigma, soft, key, truth, local, readings, ltab, normals,
-            seg_start, seg_of_cell, seg_block, seg_comm, seg_strip, comm_of_cell, strip_of_cell, grid,
-            l_block, l_strip, l_scal, comm_sum, comm_cnt):
+def receive(
+    r0,
+    r1,
+    c0,
+    c1,
+    increment,
+    alpha_low,
+    sigma,
+    soft,
+    key,
+    truth,
+    local,
+    readings,
+    ltab,
+    normals,
+    seg_start,
+    seg_of_cell,
+    seg_block,
+    seg_comm,
+    seg_strip,
+    comm_of_cell,
+    strip_of_cell,
+    grid,
+    l_block,
+    l_strip,
+    l_scal,
+    comm_sum,
+    comm_cnt,
+):
     """One receiver decodes one sender's message into its local map M_r.
 
     The sender's 0/1 image ``readings`` arrives cell by cell as ``I_r = a I + n``, ``a ~ U(alpha_low,
@@ -345,7 +409,9 @@ def receive(r0, r1, c0, c1, increment, alpha_low, sigma, soft, key, truth, local
                 value = a * float(readings[i - r0, j - c0]) + noise
                 if soft:
                     e = min(max(value, 0.0), 1.0)
-                    d = np.int32(incf * (2.0 * e - 1.0) + (CLAMP + 0.5)) - CLAMP  # round half up (truncation of a positive)
+                    d = (
+                        np.int32(incf * (2.0 * e - 1.0) + (CLAMP + 0.5)) - CLAMP
+                    )  # round half up (truncation of a positive)
                 else:
                     d = inc * (2 * np.int32(value > 0.5) - 1)
                 s_val += value
@@ -378,12 +444,46 @@ def receive(r0, r1, c0, c1, increment, alpha_low, sigma, soft, key, truth, local
 
 
 @numba.njit(cache=True)
-def measure_and_communicate(pos, ranges, increments, thresholds, links, alpha_low, sigma, soft, slots,
-                            truth, glob, measured, local, readings, gstep, lstep, ltab, normals,
-                            seg_start, seg_of_cell, seg_block, seg_comm, seg_strip,
-                            block_of_cell, comm_of_cell, strip_of_cell, comm_area,
-                            flip_state, comm_state, g_block, g_scal, l_block, l_strip, l_scal,
-                            received, received_valid, comm_sum, comm_cnt):
+def measure_and_communicate(
+    pos,
+    ranges,
+    increments,
+    thresholds,
+    links,
+    alpha_low,
+    sigma,
+    soft,
+    slots,
+    truth,
+    glob,
+    measured,
+    local,
+    readings,
+    gstep,
+    lstep,
+    ltab,
+    normals,
+    seg_start,
+    seg_of_cell,
+    seg_block,
+    seg_comm,
+    seg_strip,
+    block_of_cell,
+    comm_of_cell,
+    strip_of_cell,
+    comm_area,
+    flip_state,
+    comm_state,
+    g_block,
+    g_scal,
+    l_block,
+    l_strip,
+    l_scal,
+    received,
+    received_valid,
+    comm_sum,
+    comm_cnt,
+):
     """A whole step of sensing and messaging, in one call (the per-call overhead of numba is paid
     once per step): every UAV measures, then every message ``links[r, s]`` (r != s) is delivered.
 
@@ -398,11 +498,49 @@ def measure_and_communicate(pos, ranges, increments, thresholds, links, alpha_lo
         r1 = ranges[pos[u, 1], lev, 1]
         c0 = ranges[pos[u, 0], lev, 0]
         c1 = ranges[pos[u, 0], lev, 1]
-        sense(r0, r1, c0, c1, lev, increments[lev], thresholds[lev], truth, glob, measured, local[u], readings[u],
-              gstep, lstep, seg_start, seg_of_cell, seg_block, seg_comm, seg_strip, block_of_cell, comm_of_cell,
-              strip_of_cell, flip_state, g_block, g_scal, l_block[u], l_strip[u], l_scal[u], comm_sum, comm_cnt)
-        _flush_comm(received[u], received[u, 0], comm_sum, comm_cnt, comm_area, comm_of_cell[r0],
-                    comm_of_cell[r1 - 1] + 1, comm_of_cell[c0], comm_of_cell[c1 - 1] + 1)
+        sense(
+            r0,
+            r1,
+            c0,
+            c1,
+            lev,
+            increments[lev],
+            thresholds[lev],
+            truth,
+            glob,
+            measured,
+            local[u],
+            readings[u],
+            gstep,
+            lstep,
+            seg_start,
+            seg_of_cell,
+            seg_block,
+            seg_comm,
+            seg_strip,
+            block_of_cell,
+            comm_of_cell,
+            strip_of_cell,
+            flip_state,
+            g_block,
+            g_scal,
+            l_block[u],
+            l_strip[u],
+            l_scal[u],
+            comm_sum,
+            comm_cnt,
+        )
+        _flush_comm(
+            received[u],
+            received[u, 0],
+            comm_sum,
+            comm_cnt,
+            comm_area,
+            comm_of_cell[r0],
+            comm_of_cell[r1 - 1] + 1,
+            comm_of_cell[c0],
+            comm_of_cell[c1 - 1] + 1,
+        )
     for s in range(n):
         lev = pos[s, 2]
         r0 = ranges[pos[s, 1], lev, 0]
@@ -413,13 +551,48 @@ def measure_and_communicate(pos, ranges, increments, thresholds, links, alpha_lo
             if r == s or not links[r, s]:
                 continue
             key = _next(comm_state)
-            receive(r0, r1, c0, c1, increments[lev], alpha_low[r, s], sigma, soft, key, truth, local[r],
-                    readings[s], ltab, normals, seg_start, seg_of_cell, seg_block, seg_comm, seg_strip,
-                    comm_of_cell, strip_of_cell, grid, l_block[r], l_strip[r], l_scal[r], comm_sum, comm_cnt)
+            receive(
+                r0,
+                r1,
+                c0,
+                c1,
+                increments[lev],
+                alpha_low[r, s],
+                sigma,
+                soft,
+                key,
+                truth,
+                local[r],
+                readings[s],
+                ltab,
+                normals,
+                seg_start,
+                seg_of_cell,
+                seg_block,
+                seg_comm,
+                seg_strip,
+                comm_of_cell,
+                strip_of_cell,
+                grid,
+                l_block[r],
+                l_strip[r],
+                l_scal[r],
+                comm_sum,
+                comm_cnt,
+            )
             slot = slots[r, s]
             received_valid[r, slot] = 1.0
-            _flush_comm(received[r], received[r, slot], comm_sum, comm_cnt, comm_area, comm_of_cell[r0],
-                        comm_of_cell[r1 - 1] + 1, comm_of_cell[c0], comm_of_cell[c1 - 1] + 1)
+            _flush_comm(
+                received[r],
+                received[r, slot],
+                comm_sum,
+                comm_cnt,
+                comm_area,
+                comm_of_cell[r0],
+                comm_of_cell[r1 - 1] + 1,
+                comm_of_cell[c0],
+                comm_of_cell[c1 - 1] + 1,
+            )
 
 
 @numba.njit(cache=True)

@@ -7,12 +7,14 @@ seeded missions, at every noise level; the table has one group per noise level (
 columns = F1 / entropy at 33/67/100 % of the budget). A variant whose fusion cannot be built yet
 (``make_vec_env(fusion="sendfuse")`` raises) is skipped with a message saying why.
 """
+
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 from sb3_coma.evaluation import EvaluationResult, TableRow, evaluate, table_markdown, table_text
 
@@ -61,8 +63,10 @@ def find_models(source: Mapping[Any, Any] | str | os.PathLike) -> dict[Variant, 
                     models[(f, e)] = path
     if not models:
         names = ", ".join(f"{f}_{e}.zip" for f in FUSIONS for e in EXTRACTORS)
-        raise ValueError(f"no ablation models found in {os.fspath(source) if not isinstance(source, Mapping) else 'the mapping'}; "
-                         f"expected files named {names}")
+        raise ValueError(
+            f"no ablation models found in {os.fspath(source) if not isinstance(source, Mapping) else 'the mapping'}; "
+            f"expected files named {names}"
+        )
     order = [(f, e) for f in FUSIONS for e in EXTRACTORS]
     return {v: models[v] for v in order if v in models}
 
@@ -109,8 +113,12 @@ class AblationResult:
     def rows(self) -> list[TableRow]:
         """Table rows grouped by noise level, variants in the paper's order."""
         labels = list(dict.fromkeys(label for label, _ in self.results))
-        return [TableRow(noise, label, self.results[(label, noise)])
-                for noise in self.noises for label in labels if (label, noise) in self.results]
+        return [
+            TableRow(noise, label, self.results[(label, noise)])
+            for noise in self.noises
+            for label in labels
+            if (label, noise) in self.results
+        ]
 
     def markdown(self) -> str:
         return table_markdown(self.rows(), group_title="Noise")
@@ -122,9 +130,15 @@ class AblationResult:
         return {n: [r for (label, noise), r in self.results.items() if noise == n] for n in self.noises}
 
 
-def run_ablation(models: Mapping[Any, Any] | str | os.PathLike, env: str = "env3",
-                 noises: Sequence[str] = NOISES, n_trials: int = 10, seed: int = 0,
-                 log: Callable[[str], None] | None = print, **env_options: Any) -> AblationResult:
+def run_ablation(
+    models: Mapping[Any, Any] | str | os.PathLike,
+    env: str = "env3",
+    noises: Sequence[str] = NOISES,
+    n_trials: int = 10,
+    seed: int = 0,
+    log: Callable[[str], None] | None = print,
+    **env_options: Any,
+) -> AblationResult:
     """Evaluate every available variant at every noise level on the same seeded missions."""
     if "noise" in env_options:
         raise ValueError("pass noise levels with noises=..., not noise=")
@@ -145,6 +159,7 @@ def run_ablation(models: Mapping[Any, Any] | str | os.PathLike, env: str = "env3
         for noise in noises:
             if log:
                 log(f"evaluating {label} ({variant[0]}_{variant[1]}) on {env}, noise {noise} ...")
-            out.results[(label, noise)] = evaluate(model, env=env, n_trials=n_trials, seed=seed, fusion=variant[0],
-                                                   label=label, noise=noise, **env_options)
+            out.results[(label, noise)] = evaluate(
+                model, env=env, n_trials=n_trials, seed=seed, fusion=variant[0], label=label, noise=noise, **env_options
+            )
     return out

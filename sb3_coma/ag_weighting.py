@@ -17,6 +17,7 @@ on the paper's fixed mission, and picks by a paired test (``sb3_coma.paired``):
 The result is recorded by hand in ``sb3_coma.baselines.adaptive_gain.WEIGHTING_BY_MAP`` with the
 command and numbers in a comment; ``sb3-coma ag-weighting`` reruns the measurement.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
@@ -44,8 +45,10 @@ def validation_options(noise: str = "moderate", **env_options: Any) -> dict[str,
     Refuses a ``split`` of its own: the point of the picker is never to look at test missions."""
     bad = [k for k in _FIXED if k in env_options]
     if bad:
-        raise ValueError(f"pick_ag_weighting chooses on split={VALIDATION_SPLIT!r} validation missions; "
-                         f"do not pass {', '.join(bad)}= (got {', '.join(repr(env_options[k]) for k in bad)})")
+        raise ValueError(
+            f"pick_ag_weighting chooses on split={VALIDATION_SPLIT!r} validation missions; "
+            f"do not pass {', '.join(bad)}= (got {', '.join(repr(env_options[k]) for k in bad)})"
+        )
     return {**env_options, "split": VALIDATION_SPLIT, "noise": noise}
 
 
@@ -69,16 +72,26 @@ class WeightingChoice:
         m = self.means
         e = self.paired.get("entropy", {})
         f = self.paired.get("f1", {})
-        return (f"{self.env}: {self.choice!r} ({self.reason}); entropy class {m['class']['entropy']:.4f} / "
-                f"plain {m['plain']['entropy']:.4f} (plain - class {e.get('diff', float('nan')):+.4f} ± "
-                f"{e.get('se', float('nan')):.4f}), F1 class {m['class']['f1']:.4f} / plain {m['plain']['f1']:.4f} "
-                f"(plain - class {f.get('diff', float('nan')):+.4f} ± {f.get('se', float('nan')):.4f}); "
-                f"{self.missions} missions, split {self.env_options.get('split')!r}, seeds "
-                f"{self.seed}..{self.seed + self.missions - 1}, noise {self.env_options.get('noise')!r}")
+        return (
+            f"{self.env}: {self.choice!r} ({self.reason}); entropy class {m['class']['entropy']:.4f} / "
+            f"plain {m['plain']['entropy']:.4f} (plain - class {e.get('diff', float('nan')):+.4f} ± "
+            f"{e.get('se', float('nan')):.4f}), F1 class {m['class']['f1']:.4f} / plain {m['plain']['f1']:.4f} "
+            f"(plain - class {f.get('diff', float('nan')):+.4f} ± {f.get('se', float('nan')):.4f}); "
+            f"{self.missions} missions, split {self.env_options.get('split')!r}, seeds "
+            f"{self.seed}..{self.seed + self.missions - 1}, noise {self.env_options.get('noise')!r}"
+        )
 
     def as_dict(self) -> dict[str, Any]:
-        return {"env": self.env, "choice": self.choice, "reason": self.reason, "missions": self.missions,
-                "seed": self.seed, "env_options": dict(self.env_options), "means": self.means, "paired": self.paired}
+        return {
+            "env": self.env,
+            "choice": self.choice,
+            "reason": self.reason,
+            "missions": self.missions,
+            "seed": self.seed,
+            "env_options": dict(self.env_options),
+            "means": self.means,
+            "paired": self.paired,
+        }
 
 
 def _decide(paired: Mapping[str, Any]) -> tuple[str, str]:
@@ -91,9 +104,16 @@ def _decide(paired: Mapping[str, Any]) -> tuple[str, str]:
     return "class", "tie on entropy and F1: ipp-marl's class weighting"
 
 
-def pick_ag_weighting(name: str, n_missions: int = VALIDATION_MISSIONS, seed: int = VALIDATION_SEED,
-                      noise: str = "moderate", lookahead: int = 1, log: Callable[[str], None] | None = None,
-                      evaluate: Callable[..., Any] | None = None, **env_options: Any) -> WeightingChoice:
+def pick_ag_weighting(
+    name: str,
+    n_missions: int = VALIDATION_MISSIONS,
+    seed: int = VALIDATION_SEED,
+    noise: str = "moderate",
+    lookahead: int = 1,
+    log: Callable[[str], None] | None = None,
+    evaluate: Callable[..., Any] | None = None,
+    **env_options: Any,
+) -> WeightingChoice:
     """Fly AG with each weighting on the same validation missions of map ``name`` and pick one.
 
     :param name: map family (``"env1"``, ``"env2"``, ``"env3"``) or anything ``evaluate`` takes
@@ -111,19 +131,45 @@ def pick_ag_weighting(name: str, n_missions: int = VALIDATION_MISSIONS, seed: in
     if isinstance(n_missions, bool) or not isinstance(n_missions, int) or n_missions < 2:
         raise ValueError(f"n_missions={n_missions!r}: a paired test needs an integer >= 2")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < VALIDATION_SEED:
-        raise ValueError(f"seed={seed!r}: validation seeds start at {VALIDATION_SEED} (below are the seeds the "
-                         f"protocols and the training's checkpoint validation use)")
+        raise ValueError(
+            f"seed={seed!r}: validation seeds start at {VALIDATION_SEED} (below are the seeds the "
+            f"protocols and the training's checkpoint validation use)"
+        )
     options = validation_options(noise=noise, **env_options)
     results = {}
     for weighting in WEIGHTINGS:
         if log:
-            log(f"ag weighting {weighting!r} on {name}: {n_missions} validation missions (split "
-                f"{options['split']!r}, seeds {seed}..{seed + n_missions - 1}) ...")
-        results[weighting] = evaluate("ag", env=name, n_trials=n_missions, seed=seed, record=0, label=weighting,
-                                      planner_kwargs={"weighting": weighting, "lookahead": lookahead}, **options)
-    means = {w: {m: float(getattr(r, m)[:, -1].mean()) for m in ("f1", "entropy", "team_f1", "team_entropy")
-                 if getattr(r, m, None) is not None} for w, r in results.items()}
+            log(
+                f"ag weighting {weighting!r} on {name}: {n_missions} validation missions (split "
+                f"{options['split']!r}, seeds {seed}..{seed + n_missions - 1}) ..."
+            )
+        results[weighting] = evaluate(
+            "ag",
+            env=name,
+            n_trials=n_missions,
+            seed=seed,
+            record=0,
+            label=weighting,
+            planner_kwargs={"weighting": weighting, "lookahead": lookahead},
+            **options,
+        )
+    means = {
+        w: {
+            m: float(getattr(r, m)[:, -1].mean())
+            for m in ("f1", "entropy", "team_f1", "team_entropy")
+            if getattr(r, m, None) is not None
+        }
+        for w, r in results.items()
+    }
     paired = {m: paired_difference(results["plain"], results["class"], m) for m in ("entropy", "f1")}
     choice, reason = _decide(paired)
-    return WeightingChoice(env=str(name), choice=choice, reason=reason, missions=n_missions, seed=seed,
-                           env_options=options, means=means, paired={m: d.as_dict() for m, d in paired.items()})
+    return WeightingChoice(
+        env=str(name),
+        choice=choice,
+        reason=reason,
+        missions=n_missions,
+        seed=seed,
+        env_options=options,
+        means=means,
+        paired={m: d.as_dict() for m, d in paired.items()},
+    )

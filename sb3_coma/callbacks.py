@@ -542,6 +542,21 @@ class MissionEvalCallback(EvalCallback):
         super()._init_callback()
         copies = max(self.training_env.num_envs // _agents_per_copy(self.model, self.training_env), 1)
         self.eval_freq = max(self.eval_freq_joint // copies, 1)
+        self._restore_history()
+
+    def _restore_history(self) -> None:
+        """On resume, continue the run's evaluation record: keep its earlier evaluations and its
+        best score, so the first evaluation after a resume cannot replace a better
+        ``best_model.zip`` (SB3's callback starts from -inf and would)."""
+        path = f"{self.log_path}.npz" if self.log_path is not None else None
+        if path is None or not os.path.isfile(path):
+            return
+        with np.load(path) as data:
+            self.evaluations_timesteps = [int(t) for t in data["timesteps"]]
+            self.evaluations_results = [list(r) for r in data["results"]]
+            self.evaluations_length = [list(e) for e in data["ep_lengths"]]
+        if self.evaluations_results:
+            self.best_mean_reward = float(max(np.mean(r) for r in self.evaluations_results))
 
     def _on_step(self) -> bool:
         if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:

@@ -14,6 +14,7 @@ Torch runs with ``torch.set_num_threads(1)`` (restored afterwards), ONNX Runtime
 thread; the numba AG kernels are single-threaded. ``benchmarks/decision_latency.py`` is the
 stand-alone version of the model rows with a per-node ONNX profile.
 """
+
 from __future__ import annotations
 
 import statistics
@@ -95,6 +96,7 @@ def _torch_fusion(fusion: str, n_agents: int, comm: int, lattice: int) -> Callab
     valid = th.ones((1, n_agents), dtype=th.bool)
     a = th.as_tensor(overlap_matrix(comm, float(lattice - 1), lattice).astype(np.float32))
     if fusion == "mean":
+
         def fuse() -> Any:
             return received.mean(dim=1)
     else:
@@ -108,11 +110,13 @@ def _torch_fusion(fusion: str, n_agents: int, comm: int, lattice: int) -> Callab
     def run() -> Any:
         with th.inference_mode():
             return th.clamp(a @ fuse() @ a.T, 0.0, 1.0)
+
     return run
 
 
-def model_costs(label: str, model: Any, env: str, fusion: str, repeats: int = 200, onnx: bool = True,
-                **env_options: Any) -> list[CostRow]:
+def model_costs(
+    label: str, model: Any, env: str, fusion: str, repeats: int = 200, onnx: bool = True, **env_options: Any
+) -> list[CostRow]:
     """PyTorch (and ONNX Runtime) rows of one trained model (module docstring)."""
     from envs import layout
 
@@ -131,24 +135,32 @@ def model_costs(label: str, model: Any, env: str, fusion: str, repeats: int = 20
         def both() -> Any:
             fuse()
             return model.predict(one, deterministic=True)
+
         total = time_call(both, repeats)
-    rows += [CostRow(f"{label}: fusion ({fusion})", env, "PyTorch", *fusion_ms),
-             CostRow(f"{label}: actor (model.predict)", env, "PyTorch", *actor_ms),
-             CostRow(f"{label}: fusion + actor", env, "PyTorch", *total)]
+    rows += [
+        CostRow(f"{label}: fusion ({fusion})", env, "PyTorch", *fusion_ms),
+        CostRow(f"{label}: actor (model.predict)", env, "PyTorch", *actor_ms),
+        CostRow(f"{label}: fusion + actor", env, "PyTorch", *total),
+    ]
     if not onnx:
         return rows
     try:
         from sb3_coma.export import export_onnx, onnx_feeds, onnx_session
     except ImportError as exc:
-        return rows + [CostRow(f"{label}: fusion + actor", env, "ONNX Runtime", None, None,
-                               f"sb3_coma.export not importable ({exc})")]
+        return rows + [
+            CostRow(
+                f"{label}: fusion + actor", env, "ONNX Runtime", None, None, f"sb3_coma.export not importable ({exc})"
+            )
+        ]
     try:
         with tempfile.TemporaryDirectory(prefix="sb3_coma_cost_") as folder:
             paths = export_onnx(model, Path(folder), fusion=fusion, verify=False)
             actor, fusion_s = onnx_session(paths["actor"]), onnx_session(paths["fusion"])
         rng = np.random.default_rng(0)
-        fusion_feeds = {"received": rng.random((1, n, comm, comm), dtype=np.float32),
-                        "received_valid": np.ones((1, n), dtype=np.float32)}
+        fusion_feeds = {
+            "received": rng.random((1, n, comm, comm), dtype=np.float32),
+            "received_valid": np.ones((1, n), dtype=np.float32),
+        }
         fusion_feeds = onnx_feeds(fusion_s, fusion_feeds)
         raw_local = one[layout.KEY_LOCAL][:, :-1].astype(np.float32)
         actor_feeds = onnx_feeds(actor, one)
@@ -157,18 +169,34 @@ def model_costs(label: str, model: Any, env: str, fusion: str, repeats: int = 20
             _, channel = fusion_s.run(None, fusion_feeds)
             local = np.concatenate([raw_local, channel[:, None].astype(np.float32)], axis=1)
             return actor.run(None, {**actor_feeds, "local": local.astype(actor_feeds["local"].dtype)})
-        rows += [CostRow(f"{label}: fusion ({fusion})", env, "ONNX Runtime",
-                         *time_call(lambda: fusion_s.run(None, fusion_feeds), repeats)),
-                 CostRow(f"{label}: actor", env, "ONNX Runtime", *time_call(lambda: actor.run(None, actor_feeds), repeats)),
-                 CostRow(f"{label}: fusion + actor", env, "ONNX Runtime", *time_call(ort_both, repeats))]
+
+        rows += [
+            CostRow(
+                f"{label}: fusion ({fusion})",
+                env,
+                "ONNX Runtime",
+                *time_call(lambda: fusion_s.run(None, fusion_feeds), repeats),
+            ),
+            CostRow(f"{label}: actor", env, "ONNX Runtime", *time_call(lambda: actor.run(None, actor_feeds), repeats)),
+            CostRow(f"{label}: fusion + actor", env, "ONNX Runtime", *time_call(ort_both, repeats)),
+        ]
     except Exception as exc:  # noqa: BLE001 - onnx / onnxruntime missing or an export failure: say so, keep the table
-        rows.append(CostRow(f"{label}: fusion + actor", env, "ONNX Runtime", None, None,
-                            f"unavailable ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"))
+        rows.append(
+            CostRow(
+                f"{label}: fusion + actor",
+                env,
+                "ONNX Runtime",
+                None,
+                None,
+                f"unavailable ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})",
+            )
+        )
     return rows
 
 
-def ag_cost(env: str, lookahead: int = 1, weighting: str | None = None, repeats: int = 50,
-            **env_options: Any) -> CostRow:
+def ag_cost(
+    env: str, lookahead: int = 1, weighting: str | None = None, repeats: int = 50, **env_options: Any
+) -> CostRow:
     """AG's ms per UAV decision with ``lookahead`` (default weighting: the map family's)."""
     from sb3_coma.baselines import make_planner
     from sb3_coma.baselines.adaptive_gain import default_weighting
@@ -183,18 +211,24 @@ def ag_cost(env: str, lookahead: int = 1, weighting: str | None = None, repeats:
     return CostRow(f"{label} ({weighting})", env, "numba", median / n, p90 / n)
 
 
-def decision_costs(models: Mapping[str, tuple[Any, ...]], envs: Sequence[str] = ("env3",),
-                   lookaheads: Sequence[int] = (1, 2, 3), repeats: int = 200,
-                   log: Callable[[str], None] | None = None, onnx: bool = True,
-                   **env_options: Any) -> list[CostRow]:
+def decision_costs(
+    models: Mapping[str, tuple[Any, ...]],
+    envs: Sequence[str] = ("env3",),
+    lookaheads: Sequence[int] = (1, 2, 3),
+    repeats: int = 200,
+    log: Callable[[str], None] | None = None,
+    onnx: bool = True,
+    **env_options: Any,
+) -> list[CostRow]:
     """The cost table: ``models`` maps a label to ``(model, fusion)`` or ``(model, fusion, env)``
     (timed on that env, default ``envs[0]``), then AG for every look-ahead on every map of ``envs``."""
     rows: list[CostRow] = []
     for label, (model, fusion, *where) in models.items():
         if log:
             log(f"cost: {label} (PyTorch{', ONNX' if onnx else ''}) ...")
-        rows += model_costs(label, model, where[0] if where else envs[0], fusion, repeats=repeats, onnx=onnx,
-                            **env_options)
+        rows += model_costs(
+            label, model, where[0] if where else envs[0], fusion, repeats=repeats, onnx=onnx, **env_options
+        )
     for env in envs:
         for k in lookaheads:
             if log:
@@ -204,8 +238,10 @@ def decision_costs(models: Mapping[str, tuple[Any, ...]], envs: Sequence[str] = 
 
 
 def costs_markdown(rows: Sequence[CostRow]) -> str:
-    lines = ["| What | Env | Backend | ms per UAV decision (median) | p90 (ms) | note |",
-             "| --- | --- | --- | ---: | ---: | --- |"]
+    lines = [
+        "| What | Env | Backend | ms per UAV decision (median) | p90 (ms) | note |",
+        "| --- | --- | --- | ---: | ---: | --- |",
+    ]
     for r in rows:
         ms = "n/a" if r.ms is None else f"{r.ms:.3f}"
         p90 = "" if r.p90_ms is None else f"{r.p90_ms:.3f}"

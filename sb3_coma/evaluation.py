@@ -30,6 +30,7 @@ unless ``planner_kwargs`` names one.
 Planning time is the wall time of the ``predict`` call of each joint step divided by the
 number of UAV decisions it produced (all trials of a batch decide in one call).
 """
+
 from __future__ import annotations
 
 import csv
@@ -37,11 +38,15 @@ import functools
 import inspect
 import os
 import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
+
+from sb3_coma.checkpoints import training_options
+from sb3_coma.pretrained import shipped_env_options
 
 #: Budget fractions of the paper's Table I and their column labels.
 FRACTIONS: tuple[float, ...] = (1 / 3, 2 / 3, 1.0)
@@ -70,10 +75,16 @@ class Protocol:
 
 #: ``evaluate(..., protocol=NAME)``: the paper's Table I and the unseen missions (module docstring).
 PROTOCOLS: dict[str, Protocol] = {
-    "paper": Protocol("paper", "paper", None, 10, "the paper's Table I: split `paper` (the fixed map and start "
-                      "corners)"),
-    "unseen": Protocol("unseen", "test", "random", 50, "unseen missions: split `test` (held-out scenes / stars, "
-                       "each in one of 8 flips / rotations), random starts"),
+    "paper": Protocol(
+        "paper", "paper", None, 10, "the paper's Table I: split `paper` (the fixed map and start corners)"
+    ),
+    "unseen": Protocol(
+        "unseen",
+        "test",
+        "random",
+        50,
+        "unseen missions: split `test` (held-out scenes / stars, each in one of 8 flips / rotations), random starts",
+    ),
 }
 #: Missions when neither ``n_trials`` nor a protocol says otherwise (Table I's count).
 DEFAULT_TRIALS = 10
@@ -173,8 +184,10 @@ class EvaluationResult:
 
     def __repr__(self) -> str:
         f1, ent = self.mean_std("f1", 1.0), self.mean_std("entropy", 1.0)
-        return (f"EvaluationResult(method={self.method!r}, env={self.env!r}, n_trials={self.n_trials}, "
-                f"f1@100%={f1[0]:.4f}+-{f1[1]:.4f}, entropy@100%={ent[0]:.4f}+-{ent[1]:.4f})")
+        return (
+            f"EvaluationResult(method={self.method!r}, env={self.env!r}, n_trials={self.n_trials}, "
+            f"f1@100%={f1[0]:.4f}+-{f1[1]:.4f}, entropy@100%={ent[0]:.4f}+-{ent[1]:.4f})"
+        )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -210,11 +223,15 @@ def _load_model_file(path: Path, venv: Any) -> Any:
     try:
         return COMA.load(str(path), env=venv, device="cpu")
     except pickle.UnpicklingError as exc:  # torch's "Weights only load failed ..." on a damaged member
-        raise ValueError(f"cannot load model {str(path)!r}: it is corrupt (a network or optimizer member is not "
-                         "a readable PyTorch file)") from exc
+        raise ValueError(
+            f"cannot load model {str(path)!r}: it is corrupt (a network or optimizer member is not "
+            "a readable PyTorch file)"
+        ) from exc
     except (ValueError, KeyError, AssertionError, RuntimeError, EOFError) as exc:
-        raise ValueError(f"cannot load model {str(path)!r} for this environment: {exc} (was it trained with "
-                         f"another number of UAVs or observation layout?)") from exc
+        raise ValueError(
+            f"cannot load model {str(path)!r} for this environment: {exc} (was it trained with "
+            f"another number of UAVs or observation layout?)"
+        ) from exc
 
 
 def _load_pretrained(name: str, venv: Any) -> Any:
@@ -223,16 +240,20 @@ def _load_pretrained(name: str, venv: Any) -> Any:
     except ModuleNotFoundError as exc:
         if exc.name not in ("sb3_coma.pretrained",):
             raise
-        raise ValueError(f"{name!r} is neither a baseline ({', '.join(baseline_names())}) nor an existing model "
-                         f"file, and shipped models are not available in this install (sb3_coma.pretrained "
-                         f"is missing): pass the path of a saved COMA .zip") from None
+        raise ValueError(
+            f"{name!r} is neither a baseline ({', '.join(baseline_names())}) nor an existing model "
+            f"file, and shipped models are not available in this install (sb3_coma.pretrained "
+            f"is missing): pass the path of a saved COMA .zip"
+        ) from None
     try:
         if "env" in inspect.signature(load_pretrained).parameters:
             return load_pretrained(name, env=venv)
         return load_pretrained(name)
     except (KeyError, ValueError) as exc:
-        raise ValueError(f"unknown method {name!r}: not a baseline ({', '.join(baseline_names())}), not a model "
-                         f"file, and not a shipped model ({exc})") from exc
+        raise ValueError(
+            f"unknown method {name!r}: not a baseline ({', '.join(baseline_names())}), not a model "
+            f"file, and not a shipped model ({exc})"
+        ) from exc
 
 
 def is_model(policy_or_name: Any) -> bool:
@@ -246,7 +267,9 @@ def is_model(policy_or_name: Any) -> bool:
 
 def check_policy(policy_or_name: Any) -> None:
     """Fail early, before any env is built, on names and paths that cannot resolve."""
-    if isinstance(policy_or_name, os.PathLike) or (isinstance(policy_or_name, str) and not _is_baseline(policy_or_name)):
+    if isinstance(policy_or_name, os.PathLike) or (
+        isinstance(policy_or_name, str) and not _is_baseline(policy_or_name)
+    ):
         text = os.fspath(policy_or_name)
         path = Path(text)
         if path.is_file() or Path(text + ".zip").is_file():
@@ -260,22 +283,29 @@ def check_policy(policy_or_name: Any) -> None:
         except ModuleNotFoundError as exc:
             if exc.name != "sb3_coma.pretrained":
                 raise
-            raise ValueError(f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a model "
-                             f"file, and shipped models are unavailable (sb3_coma.pretrained is missing)") from None
+            raise ValueError(
+                f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a model "
+                f"file, and shipped models are unavailable (sb3_coma.pretrained is missing)"
+            ) from None
         model_info = getattr(pretrained, "model_info", None)
         if model_info is not None:  # an unknown name fails here, not after building the env
             try:
                 model_info(text)
             except ValueError as exc:
-                raise ValueError(f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a "
-                                 f"model file, and not a shipped model ({exc})") from None
+                raise ValueError(
+                    f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a "
+                    f"model file, and not a shipped model ({exc})"
+                ) from None
     elif not isinstance(policy_or_name, str) and not callable(getattr(policy_or_name, "predict", None)):
-        raise TypeError(f"cannot evaluate {type(policy_or_name).__name__}: pass a baseline name, a model path "
-                        f"or an object with SB3's predict(observation, deterministic=...)")
+        raise TypeError(
+            f"cannot evaluate {type(policy_or_name).__name__}: pass a baseline name, a model path "
+            f"or an object with SB3's predict(observation, deterministic=...)"
+        )
 
 
-def resolve_policy(policy_or_name: Any, venv: Any, seed: int | None,
-                   planner_kwargs: Mapping[str, Any] | None = None) -> tuple[Any, str]:
+def resolve_policy(
+    policy_or_name: Any, venv: Any, seed: int | None, planner_kwargs: Mapping[str, Any] | None = None
+) -> tuple[Any, str]:
     """(predictor with SB3's ``predict``, label) for a baseline name, model path/name or object."""
     from sb3_coma.baselines import Planner, make_planner, planner_class
 
@@ -291,8 +321,10 @@ def resolve_policy(policy_or_name: Any, venv: Any, seed: int | None,
         return _load_pretrained(text, venv), text
     if isinstance(policy_or_name, Planner):
         if policy_or_name.uses_env_state and policy_or_name.venv is not venv:
-            raise ValueError(f"a {policy_or_name.name!r} planner reads its own vec env's state: pass its name "
-                             f"({policy_or_name.name!r}) so that evaluate builds it on the evaluation env")
+            raise ValueError(
+                f"a {policy_or_name.name!r} planner reads its own vec env's state: pass its name "
+                f"({policy_or_name.name!r}) so that evaluate builds it on the evaluation env"
+            )
         return policy_or_name, policy_or_name.name
     return policy_or_name, MODEL_LABEL
 
@@ -315,7 +347,9 @@ class _FinalSnapshots:
         for c, env in enumerate(self.copies):
             env.reset = functools.partial(self._snapshot_then_reset, c, type(env).reset.__get__(env), keep_belief[c])
 
-    def _snapshot_then_reset(self, c: int, reset: Callable[..., Any], keep_belief: bool, *args: Any, **kwargs: Any) -> Any:
+    def _snapshot_then_reset(
+        self, c: int, reset: Callable[..., Any], keep_belief: bool, *args: Any, **kwargs: Any
+    ) -> Any:
         env = self.copies[c]
         if self.trajectory[c] is None:
             self.trajectory[c] = env.trajectory()
@@ -333,8 +367,7 @@ def _env_copies(venv: Any) -> list[Any] | None:
     return list(copies) if copies is not None else None
 
 
-def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int, frames: bool
-               ) -> dict[str, Any]:
+def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int, frames: bool) -> dict[str, Any]:
     """Fly one mission in every copy of ``venv`` (already seeded) and collect the metrics."""
     n_agents = int(venv.n_agents)
     copies = venv.num_envs // n_agents
@@ -390,15 +423,39 @@ def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int
         final_beliefs = []
     if frames and final_beliefs and final_beliefs[0] is not None:
         belief_frames.append(final_beliefs[0].astype(np.float16))
-    return {"f1": f1, "entropy": ent, **team, "returns": returns, "truth": truth, "plan_ms": plan_ms, "trajectories": trajectories,
-            "final_beliefs": [b for b in final_beliefs if b is not None],
-            "belief_frames": np.stack(belief_frames) if frames and len(belief_frames) == budget + 1 else None}
+    return {
+        "f1": f1,
+        "entropy": ent,
+        **team,
+        "returns": returns,
+        "truth": truth,
+        "plan_ms": plan_ms,
+        "trajectories": trajectories,
+        "final_beliefs": [b for b in final_beliefs if b is not None],
+        "belief_frames": np.stack(belief_frames) if frames and len(belief_frames) == budget + 1 else None,
+    }
 
 
 def _check_int(name: str, value: Any, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise ValueError(f"{name}={value!r}: must be an integer >= {minimum}")
     return int(value)
+
+
+#: Env options that shape a model's observation: ``evaluate`` takes them from the model's training
+#: options unless the caller sets them. The mission (map, split, start, noise, team size) stays the
+#: caller's choice.
+OBSERVATION_OPTIONS = ("action_gain", "comm_grid", "lattice", "grid", "altitudes", "field_size", "fov_deg")
+
+
+def _trained_options(policy_or_name: Any, shipped: dict[str, Any]) -> dict[str, Any]:
+    """The env options a model was trained with (``sb3_coma.training_options``); ``{}`` for
+    baselines and for models that do not record them."""
+    if not is_model(policy_or_name):
+        return {}
+    if isinstance(policy_or_name, str) and not policy_or_name.endswith(".zip") and shipped:
+        return shipped_env_options(policy_or_name) or {}
+    return training_options(policy_or_name) or {}
 
 
 def _shipped_info(policy_or_name: Any) -> dict[str, Any]:
@@ -435,8 +492,9 @@ def planner_options(policy_or_name: Any, config: Any, planner_kwargs: Mapping[st
     return options
 
 
-def _protocol_options(protocol: str | None, n_trials: int | None, env_options: dict[str, Any]
-                      ) -> tuple[str | None, int, dict[str, Any]]:
+def _protocol_options(
+    protocol: str | None, n_trials: int | None, env_options: dict[str, Any]
+) -> tuple[str | None, int, dict[str, Any]]:
     """(protocol name, missions, env options) after applying a protocol's rules."""
     if protocol is None:
         return None, DEFAULT_TRIALS if n_trials is None else n_trials, env_options
@@ -444,15 +502,27 @@ def _protocol_options(protocol: str | None, n_trials: int | None, env_options: d
     fixed = proto.env_options()
     for key, value in fixed.items():
         if key in env_options and env_options[key] != value:
-            raise ValueError(f"protocol {proto.name!r} flies {key}={value!r}; got {key}={env_options[key]!r} "
-                             f"(drop protocol= to choose the missions yourself)")
+            raise ValueError(
+                f"protocol {proto.name!r} flies {key}={value!r}; got {key}={env_options[key]!r} "
+                f"(drop protocol= to choose the missions yourself)"
+            )
     return proto.name, proto.n_trials if n_trials is None else n_trials, {**env_options, **fixed}
 
 
-def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int | None = None, seed: int = 0,
-             fusion: str | None = None, deterministic: bool | None = None, n_envs: int | None = None,
-             record: int = 1, label: str | None = None, planner_kwargs: Mapping[str, Any] | None = None,
-             protocol: str | None = None, **env_options: Any) -> EvaluationResult:
+def evaluate(
+    policy_or_name: Any,
+    env: str = "env3",
+    n_trials: int | None = None,
+    seed: int = 0,
+    fusion: str | None = None,
+    deterministic: bool | None = None,
+    n_envs: int | None = None,
+    record: int = 1,
+    label: str | None = None,
+    planner_kwargs: Mapping[str, Any] | None = None,
+    protocol: str | None = None,
+    **env_options: Any,
+) -> EvaluationResult:
     """Run a trained model or a baseline for ``n_trials`` seeded missions (see module docstring).
 
     :param policy_or_name: ``"random"``, ``"lawnmower"``, ``"ag"`` (or ``"nl"``); a COMA model
@@ -487,8 +557,12 @@ def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int | None = None
     n_envs = n_trials if n_envs is None else min(_check_int("n_envs", n_envs, 1), n_trials)
     check_policy(policy_or_name)
     shipped = _shipped_info(policy_or_name)
+    trained = _trained_options(policy_or_name, shipped)
+    for key in OBSERVATION_OPTIONS:  # what the network's inputs are made of follows the model
+        if key in trained and key not in env_options:
+            env_options[key] = trained[key]
     if fusion is None:
-        fusion = shipped.get("fusion") or ("sendfuse" if is_model(policy_or_name) else "mean")
+        fusion = trained.get("fusion") or shipped.get("fusion") or ("sendfuse" if is_model(policy_or_name) else "mean")
     if deterministic is None:
         deterministic = bool(shipped.get("deterministic", True))
     predictor: Any = None
@@ -521,20 +595,31 @@ def evaluate(policy_or_name: Any, env: str = "env3", n_trials: int | None = None
         venv.close()
     finals = [b for p in parts for b in p["final_beliefs"]][:record]
     return EvaluationResult(
-        method=str(name), env=str(env), seed=seed, n_trials=n_trials, budget=int(config.budget),
-        n_agents=int(config.n_uavs), fusion=fusion, env_options=dict(env_options),
-        f1=np.concatenate([p["f1"] for p in parts]), entropy=np.concatenate([p["entropy"] for p in parts]),
+        method=str(name),
+        env=str(env),
+        seed=seed,
+        n_trials=n_trials,
+        budget=int(config.budget),
+        n_agents=int(config.n_uavs),
+        fusion=fusion,
+        env_options=dict(env_options),
+        f1=np.concatenate([p["f1"] for p in parts]),
+        entropy=np.concatenate([p["entropy"] for p in parts]),
         team_f1=np.concatenate([p["team_f1"] for p in parts]),
         team_entropy=np.concatenate([p["team_entropy"] for p in parts]),
-        protocol=protocol, planner_kwargs=flown_kwargs if isinstance(policy_or_name, str) and
-        _is_baseline(policy_or_name) else {},
+        protocol=protocol,
+        planner_kwargs=flown_kwargs if isinstance(policy_or_name, str) and _is_baseline(policy_or_name) else {},
         returns=np.concatenate([p["returns"] for p in parts]),
-        planning_time_ms=np.average(np.stack([p["plan_ms"] for p in parts]), axis=0,
-                                    weights=[len(p["returns"]) for p in parts]),
+        planning_time_ms=np.average(
+            np.stack([p["plan_ms"] for p in parts]), axis=0, weights=[len(p["returns"]) for p in parts]
+        ),
         trajectories=np.concatenate([p["trajectories"] for p in parts]),
-        ground_truth=np.asarray(first_truth.valuable, dtype=bool), no_fly=np.asarray(first_truth.no_fly, dtype=bool),
-        field_size=float(config.field_size), altitudes=tuple(float(a) for a in config.altitudes),
-        final_beliefs=np.stack(finals) if finals else None, belief_frames=parts[0]["belief_frames"],
+        ground_truth=np.asarray(first_truth.valuable, dtype=bool),
+        no_fly=np.asarray(first_truth.no_fly, dtype=bool),
+        field_size=float(config.field_size),
+        altitudes=tuple(float(a) for a in config.altitudes),
+        final_beliefs=np.stack(finals) if finals else None,
+        belief_frames=parts[0]["belief_frames"],
     )
 
 
@@ -555,12 +640,16 @@ METRIC_FAMILIES: dict[str, tuple[str, ...]] = {"global": tuple(METRICS), "team":
 
 
 def _metric_names(metrics: Sequence[str] | str) -> tuple[str, ...]:
-    names = METRIC_FAMILIES[metrics] if isinstance(metrics, str) and metrics in METRIC_FAMILIES else tuple(
-        [metrics] if isinstance(metrics, str) else metrics)
+    names = (
+        METRIC_FAMILIES[metrics]
+        if isinstance(metrics, str) and metrics in METRIC_FAMILIES
+        else tuple([metrics] if isinstance(metrics, str) else metrics)
+    )
     unknown = [m for m in names if m not in ALL_METRICS]
     if unknown or not names:
-        raise ValueError(f"unknown metrics {unknown or names}; choose from {sorted(ALL_METRICS)} or "
-                         f"{sorted(METRIC_FAMILIES)}")
+        raise ValueError(
+            f"unknown metrics {unknown or names}; choose from {sorted(ALL_METRICS)} or {sorted(METRIC_FAMILIES)}"
+        )
     return names
 
 
@@ -587,15 +676,17 @@ def _best_flags(rows: Sequence[TableRow], digits: int, metrics: Sequence[str] = 
     return flags
 
 
-def table_markdown(rows: Sequence[TableRow], group_title: str = "Env", digits: int = 4,
-                   metrics: Sequence[str] | str = "global") -> str:
+def table_markdown(
+    rows: Sequence[TableRow], group_title: str = "Env", digits: int = 4, metrics: Sequence[str] | str = "global"
+) -> str:
     """The paper's Table I as Markdown: mean +- std, best mean of each group in bold.
 
     :param metrics: ``"global"`` (the paper's F1 / entropy of the global map), ``"team"``
         (``team_f1`` / ``team_entropy``) or a list of metric names"""
     metrics = _metric_names(metrics)
-    head = [group_title, "Method"] + [f"{ALL_METRICS[n][0]} {'↑' if ALL_METRICS[n][1] else '↓'} {lab}"
-                                       for n in metrics for lab in FRACTION_LABELS]
+    head = [group_title, "Method"] + [
+        f"{ALL_METRICS[n][0]} {'↑' if ALL_METRICS[n][1] else '↓'} {lab}" for n in metrics for lab in FRACTION_LABELS
+    ]
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join([" --- "] * 2 + [" ---: "] * (len(head) - 2)) + "|"]
     flags = _best_flags(rows, digits, metrics)
     previous = None
@@ -610,16 +701,19 @@ def table_markdown(rows: Sequence[TableRow], group_title: str = "Env", digits: i
     return "\n".join(lines) + "\n"
 
 
-def table_text(rows: Sequence[TableRow], group_title: str = "Env", digits: int = 4,
-               metrics: Sequence[str] | str = "global") -> str:
+def table_text(
+    rows: Sequence[TableRow], group_title: str = "Env", digits: int = 4, metrics: Sequence[str] | str = "global"
+) -> str:
     """Plain-text Table I for terminals: the best mean of each group marked with ``*``."""
     metrics = _metric_names(metrics)
     head = [group_title, "Method"] + [f"{n} {lab}" for n in metrics for lab in FRACTION_LABELS]
     flags = _best_flags(rows, digits, metrics)
     body = []
     for row, bold in zip(rows, flags):
-        cells = [f"{'*' if b else ' '}{mean:.{digits}f}±{std:.{digits}f}"
-                 for (mean, std), b in zip(_cell_values(row.result, metrics), bold)]
+        cells = [
+            f"{'*' if b else ' '}{mean:.{digits}f}±{std:.{digits}f}"
+            for (mean, std), b in zip(_cell_values(row.result, metrics), bold)
+        ]
         body.append([row.group, row.method] + cells)
     widths = [max(len(str(r[i])) for r in [head] + body) for i in range(len(head))]
 
@@ -630,12 +724,17 @@ def table_text(rows: Sequence[TableRow], group_title: str = "Env", digits: int =
 
 
 def table_columns(metrics: Sequence[str] | str = "global") -> list[str]:
-    return [f"{name}_{lab[:-1]}_{stat}" for name in _metric_names(metrics) for lab in FRACTION_LABELS
-            for stat in ("mean", "std")]
+    return [
+        f"{name}_{lab[:-1]}_{stat}"
+        for name in _metric_names(metrics)
+        for lab in FRACTION_LABELS
+        for stat in ("mean", "std")
+    ]
 
 
-def write_table_csv(rows: Sequence[TableRow], path: str | os.PathLike, group_title: str = "env",
-                    metrics: Sequence[str] | str = "global") -> Path:
+def write_table_csv(
+    rows: Sequence[TableRow], path: str | os.PathLike, group_title: str = "env", metrics: Sequence[str] | str = "global"
+) -> Path:
     """Wide CSV of Table I: one line per (group, method), ``f1_33_mean, f1_33_std, ...``
     (``metrics="team"`` or a list: other metric columns; ``"all"``-style lists work too)."""
     path = Path(path)
@@ -643,14 +742,18 @@ def write_table_csv(rows: Sequence[TableRow], path: str | os.PathLike, group_tit
     columns = table_columns(metrics)
     with path.open("w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow([group_title, "method", "n_trials", "budget"] + columns
-                        + ["return_mean", "return_std", "planning_ms_per_decision"])
+        writer.writerow(
+            [group_title, "method", "n_trials", "budget"]
+            + columns
+            + ["return_mean", "return_std", "planning_ms_per_decision"]
+        )
         for row in rows:
             s = row.result.summary()
-            writer.writerow([row.group, row.method, row.result.n_trials, row.result.budget]
-                            + [f"{s[c]:.6f}" for c in columns]
-                            + [f"{s['return_mean']:.6f}", f"{s['return_std']:.6f}",
-                               f"{s['planning_ms_per_decision']:.6f}"])
+            writer.writerow(
+                [row.group, row.method, row.result.n_trials, row.result.budget]
+                + [f"{s[c]:.6f}" for c in columns]
+                + [f"{s['return_mean']:.6f}", f"{s['return_std']:.6f}", f"{s['planning_ms_per_decision']:.6f}"]
+            )
     return path
 
 
@@ -664,8 +767,10 @@ def write_per_step_csv(rows: Sequence[TableRow], path: str | os.PathLike, group_
         for row in rows:
             r = row.result
             for t in range(r.budget + 1):
-                writer.writerow([row.group, row.method, t] + [f"{v:.6f}" for m in ALL_METRICS
-                                                              for v in (r.metric(m)[:, t].mean(), r.metric(m)[:, t].std())])
+                writer.writerow(
+                    [row.group, row.method, t]
+                    + [f"{v:.6f}" for m in ALL_METRICS for v in (r.metric(m)[:, t].mean(), r.metric(m)[:, t].std())]
+                )
     return path
 
 
@@ -692,6 +797,8 @@ def write_planning_time_csv(rows: Sequence[TableRow], path: str | os.PathLike) -
     return path
 
 
-def rows_for(results: Iterable[EvaluationResult], group: Callable[[EvaluationResult], str] | None = None) -> list[TableRow]:
+def rows_for(
+    results: Iterable[EvaluationResult], group: Callable[[EvaluationResult], str] | None = None
+) -> list[TableRow]:
     """Table rows grouped by env (or by ``group(result)``), in the given order."""
     return [TableRow(group(r) if group else r.env, r.method, r) for r in results]

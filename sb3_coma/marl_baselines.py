@@ -24,6 +24,7 @@ Counting: SB3 counts agent-steps, one per vec-env row per step, so ``total_times
 Models save and load with ``PPO.save`` / ``PPO.load``; every class here is importable by its dotted
 path (``sb3_coma.marl_baselines.IPPOPolicy`` ...), which is what the saved zip names.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -44,8 +45,19 @@ from envs import layout
 from sb3_coma.coma.masking import mask_logits
 from sb3_coma.extractors import CBAMExtractor, CnnExtractor
 
-__all__ = ["ACTOR_KEYS", "CRITIC_KEYS", "DEFAULT_PPO_KWARGS", "IPPOPolicy", "MAPPOPolicy", "MapsExtractor",
-           "MaskedActorCriticPolicy", "make_ippo", "make_mappo", "missions_of", "timesteps_for_missions"]
+__all__ = [
+    "ACTOR_KEYS",
+    "CRITIC_KEYS",
+    "DEFAULT_PPO_KWARGS",
+    "IPPOPolicy",
+    "MAPPOPolicy",
+    "MapsExtractor",
+    "MaskedActorCriticPolicy",
+    "make_ippo",
+    "make_mappo",
+    "missions_of",
+    "timesteps_for_missions",
+]
 
 #: What the actor reads (besides the mask): the decentralised observation.
 ACTOR_KEYS: tuple[str, ...] = (layout.KEY_LOCAL,)
@@ -71,8 +83,14 @@ class MapsExtractor(BaseFeaturesExtractor):
     :param trunk_kwargs: further arguments of the trunk (``channels``, and for CBAM ``residual`` ...)
     """
 
-    def __init__(self, observation_space: spaces.Dict, keys: Sequence[str] = ACTOR_KEYS, features_dim: int = 256,
-                 trunk: str = "cnn", **trunk_kwargs: Any) -> None:
+    def __init__(
+        self,
+        observation_space: spaces.Dict,
+        keys: Sequence[str] = ACTOR_KEYS,
+        features_dim: int = 256,
+        trunk: str = "cnn",
+        **trunk_kwargs: Any,
+    ) -> None:
         if not isinstance(observation_space, spaces.Dict):
             raise ValueError(f"MapsExtractor needs a Dict observation space, got {observation_space}")
         keys = tuple(keys) if not isinstance(keys, str) else (keys,)
@@ -112,49 +130,74 @@ class MaskedActorCriticPolicy(ActorCriticPolicy):
     Every other argument is ``ActorCriticPolicy``'s.
     """
 
-    def __init__(self, observation_space: spaces.Dict, action_space: spaces.Discrete, lr_schedule: Schedule,
-                 net_arch: list[int] | dict[str, list[int]] | None = None,
-                 activation_fn: type[nn.Module] = nn.ReLU,
-                 features_extractor_class: type[BaseFeaturesExtractor] = MapsExtractor,
-                 features_extractor_kwargs: dict[str, Any] | None = None,
-                 share_features_extractor: bool = True,
-                 normalize_images: bool = False,
-                 vf_features_extractor_kwargs: dict[str, Any] | None = None,
-                 mask_key: str = layout.KEY_MASK,
-                 **kwargs: Any) -> None:
+    def __init__(
+        self,
+        observation_space: spaces.Dict,
+        action_space: spaces.Discrete,
+        lr_schedule: Schedule,
+        net_arch: list[int] | dict[str, list[int]] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        features_extractor_class: type[BaseFeaturesExtractor] = MapsExtractor,
+        features_extractor_kwargs: dict[str, Any] | None = None,
+        share_features_extractor: bool = True,
+        normalize_images: bool = False,
+        vf_features_extractor_kwargs: dict[str, Any] | None = None,
+        mask_key: str = layout.KEY_MASK,
+        **kwargs: Any,
+    ) -> None:
         if not isinstance(action_space, spaces.Discrete):
             raise ValueError(f"{type(self).__name__} needs a Discrete action space, got {action_space}")
         if not isinstance(observation_space, spaces.Dict) or mask_key not in observation_space.spaces:
-            raise ValueError(f"{type(self).__name__} needs a Dict observation with {mask_key!r}, got {observation_space}")
+            raise ValueError(
+                f"{type(self).__name__} needs a Dict observation with {mask_key!r}, got {observation_space}"
+            )
         if observation_space[mask_key].shape != (action_space.n,):
-            raise ValueError(f"observation[{mask_key!r}] has shape {observation_space[mask_key].shape}, "
-                             f"expected ({action_space.n},)")
+            raise ValueError(
+                f"observation[{mask_key!r}] has shape {observation_space[mask_key].shape}, expected ({action_space.n},)"
+            )
         if vf_features_extractor_kwargs is not None and share_features_extractor:
-            raise ValueError("vf_features_extractor_kwargs needs share_features_extractor=False "
-                             "(a shared trunk cannot read other inputs for the value function)")
+            raise ValueError(
+                "vf_features_extractor_kwargs needs share_features_extractor=False "
+                "(a shared trunk cannot read other inputs for the value function)"
+            )
         # Plain attributes, read by _build() during ActorCriticPolicy.__init__.
         self.mask_key = mask_key
-        self.vf_features_extractor_kwargs = None if vf_features_extractor_kwargs is None else dict(vf_features_extractor_kwargs)
-        super().__init__(observation_space, action_space, lr_schedule, net_arch=[] if net_arch is None else net_arch,
-                         activation_fn=activation_fn, features_extractor_class=features_extractor_class,
-                         features_extractor_kwargs=features_extractor_kwargs,
-                         share_features_extractor=share_features_extractor, normalize_images=normalize_images,
-                         **kwargs)
+        self.vf_features_extractor_kwargs = (
+            None if vf_features_extractor_kwargs is None else dict(vf_features_extractor_kwargs)
+        )
+        super().__init__(
+            observation_space,
+            action_space,
+            lr_schedule,
+            net_arch=[] if net_arch is None else net_arch,
+            activation_fn=activation_fn,
+            features_extractor_class=features_extractor_class,
+            features_extractor_kwargs=features_extractor_kwargs,
+            share_features_extractor=share_features_extractor,
+            normalize_images=normalize_images,
+            **kwargs,
+        )
         assert isinstance(self.action_dist, CategoricalDistribution)
 
     def _build(self, lr_schedule: Schedule) -> None:
         if not self.share_features_extractor and self.vf_features_extractor_kwargs is not None:
             vf = self.features_extractor_class(self.observation_space, **self.vf_features_extractor_kwargs)
             if vf.features_dim != self.features_dim:
-                raise ValueError(f"the value function's features_dim ({vf.features_dim}) must equal the actor's "
-                                 f"({self.features_dim})")
+                raise ValueError(
+                    f"the value function's features_dim ({vf.features_dim}) must equal the actor's "
+                    f"({self.features_dim})"
+                )
             self.vf_features_extractor = vf
         super()._build(lr_schedule)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        data.update(share_features_extractor=self.share_features_extractor, normalize_images=self.normalize_images,
-                    vf_features_extractor_kwargs=self.vf_features_extractor_kwargs, mask_key=self.mask_key)
+        data.update(
+            share_features_extractor=self.share_features_extractor,
+            normalize_images=self.normalize_images,
+            vf_features_extractor_kwargs=self.vf_features_extractor_kwargs,
+            mask_key=self.mask_key,
+        )
         return data
 
     # ----------------------------------------------------------------- masking
@@ -243,11 +286,15 @@ def _check_venv(venv: VecEnv) -> None:
     space = venv.observation_space
     need = (layout.KEY_LOCAL, layout.KEY_MASK)
     if not isinstance(space, spaces.Dict) or any(k not in space.spaces for k in need):
-        raise ValueError(f"needs an envs.make_vec_env vec env with fusion 'mean' or 'sendfuse' (observation entries "
-                         f"{list(need)}), got observation space {space}")
+        raise ValueError(
+            f"needs an envs.make_vec_env vec env with fusion 'mean' or 'sendfuse' (observation entries "
+            f"{list(need)}), got observation space {space}"
+        )
     if space[layout.KEY_LOCAL].shape[0] != layout.LOCAL_CHANNELS:
-        raise ValueError(f"observation['local'] has {space[layout.KEY_LOCAL].shape[0]} channels, expected "
-                         f"{layout.LOCAL_CHANNELS}: build the vec env with fusion='mean' or 'sendfuse', not 'none'")
+        raise ValueError(
+            f"observation['local'] has {space[layout.KEY_LOCAL].shape[0]} channels, expected "
+            f"{layout.LOCAL_CHANNELS}: build the vec env with fusion='mean' or 'sendfuse', not 'none'"
+        )
 
 
 def _make(policy: type[MaskedActorCriticPolicy], venv: VecEnv, ppo_kwargs: dict[str, Any]) -> PPO:

@@ -15,6 +15,7 @@ Every setting flies the same missions (env seeds ``seed .. seed + n - 1`` of ``s
 the unseen protocol's ``"test"`` with random starts), so each arm is compared with AG mission by
 mission (``sb3_coma.paired``).
 """
+
 from __future__ import annotations
 
 import csv
@@ -31,8 +32,19 @@ from sb3_coma.evaluation import ALL_METRICS, EvaluationResult, evaluate
 from sb3_coma.paired import PairedDifference, cell, paired_difference
 from sb3_coma.protocols import Method
 
-__all__ = ["ALPHA_LOWS", "AXES", "CENTRE", "DECODERS", "DROP_PROBABILITIES", "QUICK_AXES", "SIGMAS", "NoiseSweepResult",
-           "SweepPoint", "run_noise_sweep", "sweep_points"]
+__all__ = [
+    "ALPHA_LOWS",
+    "AXES",
+    "CENTRE",
+    "DECODERS",
+    "DROP_PROBABILITIES",
+    "QUICK_AXES",
+    "SIGMAS",
+    "NoiseSweepResult",
+    "SweepPoint",
+    "run_noise_sweep",
+    "sweep_points",
+]
 
 SIGMAS: tuple[float, ...] = (0.0, 0.02, 0.06, 0.1, 0.2, 0.3)
 ALPHA_LOWS: tuple[float, ...] = (1.0, 0.8, 0.6, 0.4)
@@ -59,8 +71,13 @@ class SweepPoint:
     axis: str = "centre"
 
     def env_options(self) -> dict[str, Any]:
-        return {"noise": "moderate", "sigma": float(self.sigma), "alpha_low": float(self.alpha_low),
-                "drop_probability": float(self.drop_probability), "decoder": self.decoder}
+        return {
+            "noise": "moderate",
+            "sigma": float(self.sigma),
+            "alpha_low": float(self.alpha_low),
+            "drop_probability": float(self.drop_probability),
+            "decoder": self.decoder,
+        }
 
     def value(self, axis: str) -> float:
         return float(getattr(self, axis))
@@ -69,12 +86,15 @@ class SweepPoint:
         return (self.sigma, self.alpha_low, self.drop_probability, self.decoder)
 
     def label(self) -> str:
-        return (f"sigma={self.sigma:g}, a_low={self.alpha_low:g}, drop={self.drop_probability:g}, "
-                f"{self.decoder}")
+        return f"sigma={self.sigma:g}, a_low={self.alpha_low:g}, drop={self.drop_probability:g}, {self.decoder}"
 
 
-def sweep_points(axes: Mapping[str, Sequence[float]] = AXES, decoders: Sequence[str] = DECODERS,
-                 grid: bool = False, centre: Mapping[str, float] = CENTRE) -> list[SweepPoint]:
+def sweep_points(
+    axes: Mapping[str, Sequence[float]] = AXES,
+    decoders: Sequence[str] = DECODERS,
+    grid: bool = False,
+    centre: Mapping[str, float] = CENTRE,
+) -> list[SweepPoint]:
     """The settings to fly: per decoder, the centre and each axis value with the others at the
     centre (one axis at a time), or with ``grid`` every combination."""
     unknown = sorted(set(axes) - set(CENTRE))
@@ -126,9 +146,15 @@ class NoiseSweepResult:
             for arm in self.arms:
                 if (arm, point) not in self.results:
                     continue
-                row: dict[str, Any] = {"axis": point.axis, "sigma": point.sigma, "alpha_low": point.alpha_low,
-                                       "drop_probability": point.drop_probability, "decoder": point.decoder,
-                                       "arm": arm, "missions": self.n_missions}
+                row: dict[str, Any] = {
+                    "axis": point.axis,
+                    "sigma": point.sigma,
+                    "alpha_low": point.alpha_low,
+                    "drop_probability": point.drop_probability,
+                    "decoder": point.decoder,
+                    "arm": arm,
+                    "missions": self.n_missions,
+                }
                 for m in ALL_METRICS:
                     v = self.final(arm, point, m)
                     row[f"{m}_mean"] = float(v.mean())
@@ -141,8 +167,11 @@ class NoiseSweepResult:
 
     def markdown(self) -> str:
         """The table: one line per setting and arm (mean ± s.e. over the missions at 100 %)."""
-        head = ["sigma", "a_low", "drop p", "decoder", "arm"] + [ALL_METRICS[m][0] for m in ALL_METRICS] + \
-            [f"entropy − {self.reference}", f"team entropy − {self.reference}"]
+        head = (
+            ["sigma", "a_low", "drop p", "decoder", "arm"]
+            + [ALL_METRICS[m][0] for m in ALL_METRICS]
+            + [f"entropy − {self.reference}", f"team entropy − {self.reference}"]
+        )
         lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---:"] * 3 + ["---"] * 2 + ["---:"] * 6) + " |"]
         for point in self.points:
             setting = [f"{point.sigma:g}", f"{point.alpha_low:g}", f"{point.drop_probability:g}", point.decoder]
@@ -155,8 +184,9 @@ class NoiseSweepResult:
                     se = v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else float("nan")
                     values.append(f"{v.mean():.4f} ± {se:.4f}")
                 paired = [self.vs_reference(arm, point, m) for m in ("entropy", "team_entropy")]
-                lines.append("| " + " | ".join(setting + [arm] + values + ["" if d is None else cell(d) for d in paired])
-                             + " |")
+                lines.append(
+                    "| " + " | ".join(setting + [arm] + values + ["" if d is None else cell(d) for d in paired]) + " |"
+                )
                 setting = [""] * 4
         return "\n".join(lines) + "\n"
 
@@ -164,9 +194,11 @@ class NoiseSweepResult:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         rows = self.rows()
-        columns = ["axis", "sigma", "alpha_low", "drop_probability", "decoder", "arm", "missions"] + \
-            [f"{m}_{s}" for m in ALL_METRICS for s in ("mean", "se")] + \
-            [f"{m}_vs_{self.reference}_{k}" for m in ("entropy", "team_entropy") for k in ("diff", "se", "verdict")]
+        columns = (
+            ["axis", "sigma", "alpha_low", "drop_probability", "decoder", "arm", "missions"]
+            + [f"{m}_{s}" for m in ALL_METRICS for s in ("mean", "se")]
+            + [f"{m}_vs_{self.reference}_{k}" for m in ("entropy", "team_entropy") for k in ("diff", "se", "verdict")]
+        )
         with path.open("w", newline="") as fh:
             writer = csv.writer(fh)
             writer.writerow(columns)
@@ -181,8 +213,14 @@ class NoiseSweepResult:
 
     def curves(self, axis: str, arm: str, decoder: str, metric: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(axis values, means, standard errors) of one arm along one axis (the centre included)."""
-        points = sorted((p for p in self.points if p.decoder == decoder and p.axis in (axis, "centre")
-                         and (arm, p) in self.results), key=lambda p: p.value(axis))
+        points = sorted(
+            (
+                p
+                for p in self.points
+                if p.decoder == decoder and p.axis in (axis, "centre") and (arm, p) in self.results
+            ),
+            key=lambda p: p.value(axis),
+        )
         x = np.array([p.value(axis) for p in points])
         vals = [self.final(arm, p, metric) for p in points]
         mean = np.array([v.mean() for v in vals])
@@ -190,15 +228,31 @@ class NoiseSweepResult:
         return x, mean, se
 
     def summary(self) -> dict[str, Any]:
-        return {"env": self.env, "missions": self.n_missions, "seed": self.seed, "env_options": self.env_options,
-                "arms": self.arms, "reference": self.reference, "points": len(self.points), "rows": self.rows(),
-                "skipped": dict(self.skipped)}
+        return {
+            "env": self.env,
+            "missions": self.n_missions,
+            "seed": self.seed,
+            "env_options": self.env_options,
+            "arms": self.arms,
+            "reference": self.reference,
+            "points": len(self.points),
+            "rows": self.rows(),
+            "skipped": dict(self.skipped),
+        }
 
 
-def run_noise_sweep(arms: Sequence[Method], env: str = "env3", n_missions: int = 20, seed: int = 0,
-                    points: Sequence[SweepPoint] | None = None, quick: bool = False, grid: bool = False,
-                    split: str = "test", log: Callable[[str], None] | None = print,
-                    **env_options: Any) -> NoiseSweepResult:
+def run_noise_sweep(
+    arms: Sequence[Method],
+    env: str = "env3",
+    n_missions: int = 20,
+    seed: int = 0,
+    points: Sequence[SweepPoint] | None = None,
+    quick: bool = False,
+    grid: bool = False,
+    split: str = "test",
+    log: Callable[[str], None] | None = print,
+    **env_options: Any,
+) -> NoiseSweepResult:
     """Fly every arm at every setting on the same missions (module docstring).
 
     :param arms: the methods (``sb3_coma.protocols.Method``); the first baseline AG among them is
@@ -216,8 +270,14 @@ def run_noise_sweep(arms: Sequence[Method], env: str = "env3", n_missions: int =
     if points is None:
         points = sweep_points(QUICK_AXES if quick else AXES, grid=grid)
     options = {"split": split, **({"start": "random"} if split != "paper" else {}), **env_options}
-    reference = next((a.label for a in arms if not a.learned and a.policy == "ag" and
-                      not dict(a.planner_kwargs).get("lookahead", 1) > 1), arms[0].label)
+    reference = next(
+        (
+            a.label
+            for a in arms
+            if not a.learned and a.policy == "ag" and not dict(a.planner_kwargs).get("lookahead", 1) > 1
+        ),
+        arms[0].label,
+    )
     out = NoiseSweepResult(env, n_missions, seed, options, list(points), [a.label for a in arms], reference)
     for arm in arms:
         for k, point in enumerate(points):
@@ -229,9 +289,18 @@ def run_noise_sweep(arms: Sequence[Method], env: str = "env3", n_missions: int =
                 th.manual_seed(seed)
             try:
                 out.results[(arm.label, point)] = evaluate(
-                    arm.policy, env=env, n_trials=n_missions, seed=seed, fusion=arm.fusion,
-                    deterministic=arm.deterministic, label=arm.label, record=0,
-                    planner_kwargs=dict(arm.planner_kwargs) or None, **options, **point.env_options())
+                    arm.policy,
+                    env=env,
+                    n_trials=n_missions,
+                    seed=seed,
+                    fusion=arm.fusion,
+                    deterministic=arm.deterministic,
+                    label=arm.label,
+                    record=0,
+                    planner_kwargs=dict(arm.planner_kwargs) or None,
+                    **options,
+                    **point.env_options(),
+                )
             except (ValueError, RuntimeError, ImportError, FileNotFoundError) as exc:
                 if not arm.learned:
                     raise

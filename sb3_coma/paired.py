@@ -11,6 +11,7 @@ and a check on more missions than Table I (``--wide-trials``, default 50).
 Metrics: the paper's ``f1`` / ``entropy`` of the global map and the team metrics ``team_f1`` /
 ``team_entropy`` on the UAVs' own local beliefs (lower entropy is better either way).
 """
+
 from __future__ import annotations
 
 import math
@@ -61,8 +62,17 @@ class PairedDifference:
         return None if v == "tie" else v[: -len(" better")]
 
     def as_dict(self) -> dict[str, object]:
-        return {"a": self.a, "b": self.b, "metric": self.metric, "n": self.n, "mean_a": self.mean_a,
-                "mean_b": self.mean_b, "diff": self.diff, "se": self.se, "verdict": self.verdict}
+        return {
+            "a": self.a,
+            "b": self.b,
+            "metric": self.metric,
+            "n": self.n,
+            "mean_a": self.mean_a,
+            "mean_b": self.mean_b,
+            "diff": self.diff,
+            "se": self.se,
+            "verdict": self.verdict,
+        }
 
 
 def paired_difference(a: object, b: object, metric: str = "entropy") -> PairedDifference:
@@ -82,20 +92,44 @@ def paired_difference(a: object, b: object, metric: str = "entropy") -> PairedDi
     vb = np.asarray(getattr(b, metric))[:, -1].astype(np.float64)
     d = va - vb
     se = float(d.std(ddof=1) / math.sqrt(len(d))) if len(d) > 1 else float("nan")
-    return PairedDifference(a=str(a.method), b=str(b.method), metric=metric, n=len(d), mean_a=float(va.mean()),
-                            mean_b=float(vb.mean()), diff=float(d.mean()), se=se)
+    return PairedDifference(
+        a=str(a.method),
+        b=str(b.method),
+        metric=metric,
+        n=len(d),
+        mean_a=float(va.mean()),
+        mean_b=float(vb.mean()),
+        diff=float(d.mean()),
+        se=se,
+    )
 
 
-def paired_markdown(rows: Sequence[PairedDifference], first_column: Sequence[str] | None = None,
-                    first_title: str = "Env") -> str:
+def paired_markdown(
+    rows: Sequence[PairedDifference], first_column: Sequence[str] | None = None, first_title: str = "Env"
+) -> str:
     """A Markdown table: one row per comparison (optionally led by a label column)."""
-    head = ([first_title] if first_column is not None else []) + \
-        ["a", "b", "metric @100%", "missions", "mean a", "mean b", "a - b (± s.e.)", "verdict"]
+    head = ([first_title] if first_column is not None else []) + [
+        "a",
+        "b",
+        "metric @100%",
+        "missions",
+        "mean a",
+        "mean b",
+        "a - b (± s.e.)",
+        "verdict",
+    ]
     lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * len(head)) + " |"]
     for i, r in enumerate(rows):
         cells = ([first_column[i]] if first_column is not None else []) + [
-            r.a, r.b, r.metric, str(r.n), f"{r.mean_a:.4f}", f"{r.mean_b:.4f}", f"{r.diff:+.4f} ± {r.se:.4f}",
-            r.verdict]
+            r.a,
+            r.b,
+            r.metric,
+            str(r.n),
+            f"{r.mean_a:.4f}",
+            f"{r.mean_b:.4f}",
+            f"{r.diff:+.4f} ± {r.se:.4f}",
+            r.verdict,
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -21,14 +21,16 @@ Training logs understood by :func:`load_training_log` (first match wins):
 
 A directory is searched for ``metrics.csv``, then ``*monitor.csv``, then event files.
 """
+
 from __future__ import annotations
 
 import csv
 import io
 import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -47,8 +49,14 @@ PathLike = str | os.PathLike
 REWARD_TAGS = ("mission/reward", "episode/reward", "rollout/ep_rew_mean")
 ALTITUDE_CMAP = "viridis"
 UAV_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:grey")
-METHOD_COLOURS = {"coma": "tab:red", "ours": "tab:red", "ag": "tab:blue", "lawnmower": "tab:green", "nl": "tab:green",
-                  "random": "tab:grey"}
+METHOD_COLOURS = {
+    "coma": "tab:red",
+    "ours": "tab:red",
+    "ag": "tab:blue",
+    "lawnmower": "tab:green",
+    "nl": "tab:green",
+    "random": "tab:grey",
+}
 
 
 def _save(fig: plt.Figure, path: PathLike, **kwargs) -> Path:
@@ -66,7 +74,7 @@ def _colour(label: str, k: int) -> str:
 # ---------------------------------------------------------------------------------------------
 # Figures 4 / 5: metrics vs step
 # ---------------------------------------------------------------------------------------------
-def _curves(ax: plt.Axes, results: Sequence["EvaluationResult"], metric: str, labels: Sequence[str]) -> None:
+def _curves(ax: plt.Axes, results: Sequence[EvaluationResult], metric: str, labels: Sequence[str]) -> None:
     for k, (res, label) in enumerate(zip(results, labels)):
         values = res.metric(metric)
         steps = np.arange(values.shape[1])
@@ -79,8 +87,9 @@ def _curves(ax: plt.Axes, results: Sequence["EvaluationResult"], metric: str, la
     ax.grid(alpha=0.3)
 
 
-def plot_metric_curves(results: Sequence["EvaluationResult"], path: PathLike, title: str | None = None,
-                       labels: Sequence[str] | None = None) -> Path:
+def plot_metric_curves(
+    results: Sequence[EvaluationResult], path: PathLike, title: str | None = None, labels: Sequence[str] | None = None
+) -> Path:
     """F1 (left) and entropy (right) vs step, mean +- std over trials, one line per result."""
     if not results:
         raise ValueError("plot_metric_curves needs at least one result")
@@ -98,8 +107,12 @@ def plot_metric_curves(results: Sequence["EvaluationResult"], path: PathLike, ti
     return _save(fig, path, dpi=120)
 
 
-def plot_metric_grid(results: Mapping[str, Sequence["EvaluationResult"]], path: PathLike,
-                     title: str | None = None, labels: Mapping[str, Sequence[str]] | None = None) -> Path:
+def plot_metric_grid(
+    results: Mapping[str, Sequence[EvaluationResult]],
+    path: PathLike,
+    title: str | None = None,
+    labels: Mapping[str, Sequence[str]] | None = None,
+) -> Path:
     """F1 (top) and entropy (bottom) vs step, one column per group (e.g. noise level)."""
     groups = [g for g in results if results[g]]
     if not groups:
@@ -160,10 +173,14 @@ def _read_tensorboard(path: Path, tag: str | None) -> TrainingCurve:
     acc.Reload()
     tags = acc.Tags().get("scalars", [])
     if tag is None:
-        tag = next((t for t in REWARD_TAGS if t in tags), None) or next((t for t in tags if "reward" in t.lower()), None)
+        tag = next((t for t in REWARD_TAGS if t in tags), None) or next(
+            (t for t in tags if "reward" in t.lower()), None
+        )
     if tag is None or tag not in tags:
-        raise ValueError(f"{path}: no reward scalar{'' if tag is None else f' {tag!r}'} in the TensorBoard log; "
-                         f"scalars are {sorted(tags)}")
+        raise ValueError(
+            f"{path}: no reward scalar{'' if tag is None else f' {tag!r}'} in the TensorBoard log; "
+            f"scalars are {sorted(tags)}"
+        )
     events = acc.Scalars(tag)
     rewards = np.array([e.value for e in events], dtype=np.float64)
     return TrainingCurve(np.arange(1, len(rewards) + 1, dtype=np.float64), rewards, f"{path}:{tag}")
@@ -198,8 +215,13 @@ def _rolling_mean(values: np.ndarray, window: int) -> np.ndarray:
     return (csum[idx] - csum[lo]) / (idx - lo)
 
 
-def plot_training_reward(logs: PathLike | TrainingCurve | Mapping[str, PathLike | TrainingCurve], path: PathLike,
-                         window: int = 20, agents_per_episode: int = 1, title: str | None = None) -> Path:
+def plot_training_reward(
+    logs: PathLike | TrainingCurve | Mapping[str, PathLike | TrainingCurve],
+    path: PathLike,
+    window: int = 20,
+    agents_per_episode: int = 1,
+    title: str | None = None,
+) -> Path:
     """Team reward vs training episode (Figure 3): raw values faint, a trailing mean on top."""
     if isinstance(logs, (str, os.PathLike, TrainingCurve)):
         logs = {"reward": logs}
@@ -233,8 +255,18 @@ def _no_fly_overlay(ax: plt.Axes, no_fly: np.ndarray | None, field_size: float) 
     half = field_size / (lat - 1) / 2
     for iy, ix in zip(*np.nonzero(no_fly)):
         x, y = ix * field_size / (lat - 1), iy * field_size / (lat - 1)
-        ax.add_patch(plt.Rectangle((max(x - half, 0), max(y - half, 0)), 2 * half, 2 * half, fill=True,
-                                   facecolor=(0.85, 0.2, 0.2, 0.35), edgecolor="tab:red", hatch="//", lw=0.5))
+        ax.add_patch(
+            plt.Rectangle(
+                (max(x - half, 0), max(y - half, 0)),
+                2 * half,
+                2 * half,
+                fill=True,
+                facecolor=(0.85, 0.2, 0.2, 0.35),
+                edgecolor="tab:red",
+                hatch="//",
+                lw=0.5,
+            )
+        )
 
 
 def _trail_2d(ax: plt.Axes, traj: np.ndarray, norm: colors.Normalize, upto: int | None = None) -> None:
@@ -250,14 +282,14 @@ def _trail_2d(ax: plt.Axes, traj: np.ndarray, norm: colors.Normalize, upto: int 
         ax.plot(pts[-1, 0], pts[-1, 1], "^", ms=8, color=UAV_COLOURS[u % len(UAV_COLOURS)], mec="k")
 
 
-def _check_recorded(result: "EvaluationResult", trial: int) -> None:
+def _check_recorded(result: EvaluationResult, trial: int) -> None:
     if not 0 <= trial < result.n_trials:
         raise ValueError(f"trial {trial} out of range: the result has {result.n_trials} trials")
     if np.isnan(result.trajectories[trial]).any():
         raise ValueError("this result has no trajectories (evaluated on an env without recorded copies)")
 
 
-def plot_mission(result: "EvaluationResult", path: PathLike, trial: int = 0) -> Path:
+def plot_mission(result: EvaluationResult, path: PathLike, trial: int = 0) -> Path:
     """Ground truth, final global belief, and the UAVs' 3-D trajectories coloured by altitude."""
     _check_recorded(result, trial)
     if result.final_beliefs is None or trial >= len(result.final_beliefs):
@@ -284,9 +316,17 @@ def plot_mission(result: "EvaluationResult", path: PathLike, trial: int = 0) -> 
         ax.set_ylabel("y (m)")
     ax3 = fig.add_subplot(1, 3, 3, projection="3d")
     small = _block_mean(result.ground_truth, 32)  # a coarse floor keeps the 3-D draw fast
-    gy, gx = np.mgrid[0:small.shape[0], 0:small.shape[1]] * (size / small.shape[0])
-    ax3.plot_surface(gx, gy, np.zeros_like(gx), facecolors=plt.get_cmap("Greys")(0.15 + 0.6 * small),
-                     shade=False, rstride=1, cstride=1, linewidth=0)
+    gy, gx = np.mgrid[0 : small.shape[0], 0 : small.shape[1]] * (size / small.shape[0])
+    ax3.plot_surface(
+        gx,
+        gy,
+        np.zeros_like(gx),
+        facecolors=plt.get_cmap("Greys")(0.15 + 0.6 * small),
+        shade=False,
+        rstride=1,
+        cstride=1,
+        linewidth=0,
+    )
     cmap = plt.get_cmap(ALTITUDE_CMAP)
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
@@ -322,7 +362,7 @@ def _figure_rgb(fig: plt.Figure) -> np.ndarray:
     return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
 
-def animate_mission(result: "EvaluationResult", path: PathLike, fps: float = 2.0, max_side: int = 247) -> Path:
+def animate_mission(result: EvaluationResult, path: PathLike, fps: float = 2.0, max_side: int = 247) -> Path:
     """GIF of trial 0 step by step: the global belief, each UAV's path (coloured by altitude) and
     its position, with F1 and entropy in the title."""
     from PIL import Image
@@ -339,14 +379,22 @@ def animate_mission(result: "EvaluationResult", path: PathLike, fps: float = 2.0
     images = []
     for t in range(frames.shape[0]):
         ax.clear()
-        ax.imshow(frames[t, ::stride, ::stride].astype(np.float32), origin="lower", extent=(0, size, 0, size),
-                  cmap="Greys", vmin=0, vmax=1)
+        ax.imshow(
+            frames[t, ::stride, ::stride].astype(np.float32),
+            origin="lower",
+            extent=(0, size, 0, size),
+            cmap="Greys",
+            vmin=0,
+            vmax=1,
+        )
         _no_fly_overlay(ax, result.no_fly, size)
         _trail_2d(ax, traj, norm, upto=t + 1)
         ax.set_xlim(0, size)
         ax.set_ylim(0, size)
-        ax.set_title(f"{result.method} step {t}/{result.budget}  F1 {result.f1[0, t]:.3f}  H {result.entropy[0, t]:.3f}",
-                     fontsize=9)
+        ax.set_title(
+            f"{result.method} step {t}/{result.budget}  F1 {result.f1[0, t]:.3f}  H {result.entropy[0, t]:.3f}",
+            fontsize=9,
+        )
         ax.set_xticks([])
         ax.set_yticks([])
         fig.tight_layout()
@@ -355,16 +403,23 @@ def animate_mission(result: "EvaluationResult", path: PathLike, fps: float = 2.0
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     duration = int(round(1000.0 / fps))
-    images[0].save(path, save_all=True, append_images=images[1:], duration=[duration] * (len(images) - 1) + [3 * duration],
-                   loop=0, optimize=True)
+    images[0].save(
+        path,
+        save_all=True,
+        append_images=images[1:],
+        duration=[duration] * (len(images) - 1) + [3 * duration],
+        loop=0,
+        optimize=True,
+    )
     return path
 
 
 # ---------------------------------------------------------------------------------------------
 # ablation
 # ---------------------------------------------------------------------------------------------
-def plot_ablation(results: Mapping[tuple[str, str], "EvaluationResult"], path: PathLike,
-                  title: str | None = None) -> Path:
+def plot_ablation(
+    results: Mapping[tuple[str, str], EvaluationResult], path: PathLike, title: str | None = None
+) -> Path:
     """Grouped bars: final F1 (left) and entropy (right) +- std per noise level and variant.
 
     ``results`` maps (variant label, noise level) to its result.
@@ -424,24 +479,44 @@ def plot_noise_sweep(result: object, path: PathLike, title: str | None = None) -
                 for decoder in decoders:
                     if any(p.axis == "grid" for p in result.points):  # a grid: average over the other axes
                         xs = sorted({p.value(axis) for p in result.points})
-                        ys = [np.mean([result.final(arm, p, metric).mean() for p in result.points
-                                       if p.decoder == decoder and p.value(axis) == x and (arm, p) in result.results])
-                              for x in xs]
+                        ys = [
+                            np.mean(
+                                [
+                                    result.final(arm, p, metric).mean()
+                                    for p in result.points
+                                    if p.decoder == decoder and p.value(axis) == x and (arm, p) in result.results
+                                ]
+                            )
+                            for x in xs
+                        ]
                         x, mean, se = np.array(xs), np.array(ys), None
                     else:
                         x, mean, se = result.curves(axis, arm, decoder, metric)
                     if len(x) == 0:
                         continue
-                    ax.errorbar(x, mean, yerr=se, color=_colour(arm, k), ls=styles.get(decoder, ":"), marker="o",
-                                ms=3, lw=1.4, capsize=2, label=f"{arm} ({decoder})")
+                    ax.errorbar(
+                        x,
+                        mean,
+                        yerr=se,
+                        color=_colour(arm, k),
+                        ls=styles.get(decoder, ":"),
+                        marker="o",
+                        ms=3,
+                        lw=1.4,
+                        capsize=2,
+                        label=f"{arm} ({decoder})",
+                    )
             ax.set_xlabel(AXIS_TITLES[axis])
             if col == 0:
                 ax.set_ylabel(f"{name} at 100 %")
             ax.grid(alpha=0.3)
     handles, labels = grid[0][0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 5), fontsize=8, frameon=False)
-    fig.suptitle(title or f"{result.env}: entropy vs channel noise ({result.n_missions} shared missions; "
-                          "solid: soft decoder, dashed: threshold)")
+    fig.suptitle(
+        title
+        or f"{result.env}: entropy vs channel noise ({result.n_missions} shared missions; "
+        "solid: soft decoder, dashed: threshold)"
+    )
     rows_of_legend = -(-len(labels) // 5)
     fig.tight_layout(rect=(0, 0.035 * rows_of_legend + 0.01, 1, 1))
     return _save(fig, path, dpi=120)

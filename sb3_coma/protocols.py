@@ -17,6 +17,7 @@ AG with look-ahead 2 and 3, lawnmower, random) and whatever learned models exist
 COMA model trained on the map (:func:`shipped_methods`) and, as a hook for when they are
 shipped, IPPO / MAPPO models (manifest entries with ``"algo": "ippo" | "mappo"``).
 """
+
 from __future__ import annotations
 
 import csv
@@ -39,8 +40,16 @@ from sb3_coma.evaluation import (
 )
 from sb3_coma.paired import PairedDifference, cell, paired_difference
 
-__all__ = ["BASELINE_METHODS", "LEARNED_BASELINES", "Comparison", "Method", "ProtocolResult", "default_pairs",
-           "run_protocol", "shipped_methods"]
+__all__ = [
+    "BASELINE_METHODS",
+    "LEARNED_BASELINES",
+    "Comparison",
+    "Method",
+    "ProtocolResult",
+    "default_pairs",
+    "run_protocol",
+    "shipped_methods",
+]
 
 #: Kinds of learned methods besides COMA that get rows when their models exist (the hook: a
 #: manifest entry with ``"algo"`` one of these, loaded by ``sb3_coma.pretrained.load_pretrained``).
@@ -96,7 +105,7 @@ def _manifest_models() -> dict[str, dict[str, Any]]:
 
 
 def outdated_note(info: Mapping[str, Any]) -> str:
-    """"outdated: ..." when a shipped model was trained on another world version than this env's."""
+    """ "outdated: ..." when a shipped model was trained on another world version than this env's."""
     try:
         from envs import WORLD_VERSION
     except ImportError:
@@ -109,14 +118,18 @@ def shipped_label(name: str, info: Mapping[str, Any], env: str) -> str:
     """Row label of a shipped model: ``"coma"`` for the map's own model, ``"coma[sendfuse-cnn]"``
     for another COMA model of that map, the algorithm name (``"ippo"``) for learned baselines."""
     algo = str(info.get("algo", "coma")).lower()
-    suffix = name[len(env) + 1:] if name.startswith(env + "-") else ("" if name == env else name)
+    suffix = name[len(env) + 1 :] if name.startswith(env + "-") else ("" if name == env else name)
     if algo != "coma":
         return algo + (f"[{suffix}]" if suffix and suffix != algo else "")
     return "coma" + (f"[{suffix}]" if suffix else "")
 
 
-def shipped_methods(env: str, loaded: Mapping[str, Any] | None = None, skip: Sequence[str] = (),
-                    log: Callable[[str], None] | None = None) -> list[Method]:
+def shipped_methods(
+    env: str,
+    loaded: Mapping[str, Any] | None = None,
+    skip: Sequence[str] = (),
+    log: Callable[[str], None] | None = None,
+) -> list[Method]:
     """The learned methods that exist for map ``env``: every shipped model whose manifest ``env`` is
     this map, COMA first (the map's own model, then the others in manifest order), then IPPO /
     MAPPO. ``loaded`` maps shipped names to models already loaded (reused, not reloaded); names in
@@ -139,8 +152,16 @@ def shipped_methods(env: str, loaded: Mapping[str, Any] | None = None, skip: Seq
                 if log:
                     log(f"leaving out shipped model {name!r}: {exc}")
                 continue
-        out.append(Method(shipped_label(name, info, env), model, kind=algo, fusion=info.get("fusion"),
-                          deterministic=info.get("deterministic"), note=outdated_note(info)))
+        out.append(
+            Method(
+                shipped_label(name, info, env),
+                model,
+                kind=algo,
+                fusion=info.get("fusion"),
+                deterministic=info.get("deterministic"),
+                note=outdated_note(info),
+            )
+        )
     return out
 
 
@@ -211,8 +232,12 @@ class ProtocolResult:
         return self.results[(env, label)]
 
     def rows(self) -> list[TableRow]:
-        return [TableRow(env, m.label, self.results[(env, m.label)]) for env, ms in self.methods.items()
-                for m in ms if (env, m.label) in self.results]
+        return [
+            TableRow(env, m.label, self.results[(env, m.label)])
+            for env, ms in self.methods.items()
+            for m in ms
+            if (env, m.label) in self.results
+        ]
 
     def comparisons(self, pairs: Mapping[str, Sequence[tuple[str, str]]] | None = None) -> list[Comparison]:
         """Paired differences on every metric for :func:`default_pairs` (or ``pairs[env]``)."""
@@ -226,8 +251,10 @@ class ProtocolResult:
 
     def describe(self) -> str:
         """One sentence: which missions, how many, which noise."""
-        return (f"{self.protocol.description}; {self.n_trials} missions per method (env seeds {self.seed}.."
-                f"{self.seed + self.n_trials - 1}, the same for every method), channel noise `{self.noise}`")
+        return (
+            f"{self.protocol.description}; {self.n_trials} missions per method (env seeds {self.seed}.."
+            f"{self.seed + self.n_trials - 1}, the same for every method), channel noise `{self.noise}`"
+        )
 
     # ---------------------------------------------------------------- markdown
     def table(self, family: str = "global") -> str:
@@ -235,15 +262,25 @@ class ProtocolResult:
 
     def final_table(self) -> str:
         """At 100 % of the budget: the four metrics (mean ± std) and planning time per UAV decision."""
-        head = ["Env", "Method"] + [f"{ALL_METRICS[m][0]} {'↑' if ALL_METRICS[m][1] else '↓'}" for m in ALL_METRICS] \
+        head = (
+            ["Env", "Method"]
+            + [f"{ALL_METRICS[m][0]} {'↑' if ALL_METRICS[m][1] else '↓'}" for m in ALL_METRICS]
             + ["ms per UAV decision"]
+        )
         lines = ["| " + " | ".join(head) + " |", "| --- | --- |" + " ---: |" * (len(head) - 2)]
         previous = None
         for row in self.rows():
             r = row.result
             cells = [f"{r.metric(m)[:, -1].mean():.4f} ± {r.metric(m)[:, -1].std():.4f}" for m in ALL_METRICS]
-            lines.append("| " + " | ".join([row.group if row.group != previous else "", row.method] + cells
-                                           + [f"{r.planning_time_ms.mean():.3f}"]) + " |")
+            lines.append(
+                "| "
+                + " | ".join(
+                    [row.group if row.group != previous else "", row.method]
+                    + cells
+                    + [f"{r.planning_time_ms.mean():.3f}"]
+                )
+                + " |"
+            )
             previous = row.group
         return "\n".join(lines) + "\n"
 
@@ -254,8 +291,11 @@ class ProtocolResult:
         lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * len(head)) + " |"]
         previous = None
         for c in comparisons:
-            lines.append("| " + " | ".join([c.env if c.env != previous else "", c.a, c.b]
-                                           + [cell(c.diffs[m]) for m in ALL_METRICS]) + " |")
+            lines.append(
+                "| "
+                + " | ".join([c.env if c.env != previous else "", c.a, c.b] + [cell(c.diffs[m]) for m in ALL_METRICS])
+                + " |"
+            )
             previous = c.env
         return "\n".join(lines) + "\n"
 
@@ -268,11 +308,16 @@ class ProtocolResult:
         stem = stem or self.protocol.name
         rows = self.rows()
         comparisons = self.comparisons()
-        written = [write_table_csv(rows, out / f"{stem}_table.csv"),
-                   write_table_csv(rows, out / f"{stem}_team_table.csv", metrics="team"),
-                   write_per_step_csv(rows, out / f"{stem}_per_step.csv")]
-        for name, text in ((f"{stem}_table.md", self.table("global")), (f"{stem}_team_table.md", self.table("team")),
-                           (f"{stem}_verdicts.md", self.verdict_table(comparisons))):
+        written = [
+            write_table_csv(rows, out / f"{stem}_table.csv"),
+            write_table_csv(rows, out / f"{stem}_team_table.csv", metrics="team"),
+            write_per_step_csv(rows, out / f"{stem}_per_step.csv"),
+        ]
+        for name, text in (
+            (f"{stem}_table.md", self.table("global")),
+            (f"{stem}_team_table.md", self.table("team")),
+            (f"{stem}_verdicts.md", self.verdict_table(comparisons)),
+        ):
             (out / name).write_text(text)
             written.append(out / name)
         path = out / f"{stem}_verdicts.csv"
@@ -281,8 +326,20 @@ class ProtocolResult:
             writer.writerow(["env", "a", "b", "metric", "missions", "mean_a", "mean_b", "diff", "se", "verdict"])
             for c in comparisons:
                 for m, d in c.diffs.items():
-                    writer.writerow([c.env, c.a, c.b, m, d.n, f"{d.mean_a:.6f}", f"{d.mean_b:.6f}", f"{d.diff:.6f}",
-                                     f"{d.se:.6f}", d.verdict])
+                    writer.writerow(
+                        [
+                            c.env,
+                            c.a,
+                            c.b,
+                            m,
+                            d.n,
+                            f"{d.mean_a:.6f}",
+                            f"{d.mean_b:.6f}",
+                            f"{d.diff:.6f}",
+                            f"{d.se:.6f}",
+                            d.verdict,
+                        ]
+                    )
         written.append(path)
         return written
 
@@ -292,15 +349,34 @@ class ProtocolResult:
         table = {}
         for (env, label), r in self.results.items():
             s = r.summary()
-            table[f"{env}/{label}"] = {k: v for k, v in s.items() if k.endswith(("_100_mean", "_100_std"))
-                                       or k == "planning_ms_per_decision"}
-        return {"protocol": self.protocol.name, "split": self.env_options.get("split"),
-                "start": self.env_options.get("start"), "missions": self.n_trials, "seed": self.seed,
-                "noise": self.noise, "table": table, "comparisons": [c.as_dict() for c in self.comparisons()],
-                "skipped": dict(self.skipped),
-                "methods": {env: [{"label": m.label, "kind": m.kind, "planner_kwargs": dict(
-                    self.results[(env, m.label)].planner_kwargs) if (env, m.label) in self.results else {},
-                                   "note": m.note} for m in ms] for env, ms in self.methods.items()}}
+            table[f"{env}/{label}"] = {
+                k: v for k, v in s.items() if k.endswith(("_100_mean", "_100_std")) or k == "planning_ms_per_decision"
+            }
+        return {
+            "protocol": self.protocol.name,
+            "split": self.env_options.get("split"),
+            "start": self.env_options.get("start"),
+            "missions": self.n_trials,
+            "seed": self.seed,
+            "noise": self.noise,
+            "table": table,
+            "comparisons": [c.as_dict() for c in self.comparisons()],
+            "skipped": dict(self.skipped),
+            "methods": {
+                env: [
+                    {
+                        "label": m.label,
+                        "kind": m.kind,
+                        "planner_kwargs": dict(self.results[(env, m.label)].planner_kwargs)
+                        if (env, m.label) in self.results
+                        else {},
+                        "note": m.note,
+                    }
+                    for m in ms
+                ]
+                for env, ms in self.methods.items()
+            },
+        }
 
 
 #: (policy name, planner options) already flown once in this process: numba compiled, caches warm.
@@ -317,21 +393,39 @@ def _warm_up(method: Method, env: str) -> None:
     _WARM.add(key)
 
 
-def _fly(method: Method, env: str, protocol: str, n_trials: int, seed: int, noise: str,
-         env_options: Mapping[str, Any]) -> EvaluationResult:
+def _fly(
+    method: Method, env: str, protocol: str, n_trials: int, seed: int, noise: str, env_options: Mapping[str, Any]
+) -> EvaluationResult:
     _warm_up(method, env)
     if method.learned:
         import torch as th
 
         th.manual_seed(seed)  # sampled actions (deterministic=False) come from torch's generator
-    return evaluate(method.policy, env=env, n_trials=n_trials, seed=seed, protocol=protocol, fusion=method.fusion,
-                    deterministic=method.deterministic, label=method.label, record=0,
-                    planner_kwargs=dict(method.planner_kwargs) or None, noise=noise, **env_options)
+    return evaluate(
+        method.policy,
+        env=env,
+        n_trials=n_trials,
+        seed=seed,
+        protocol=protocol,
+        fusion=method.fusion,
+        deterministic=method.deterministic,
+        label=method.label,
+        record=0,
+        planner_kwargs=dict(method.planner_kwargs) or None,
+        noise=noise,
+        **env_options,
+    )
 
 
-def run_protocol(protocol: str, methods: Mapping[str, Sequence[Method]], n_trials: int | None = None, seed: int = 0,
-                 noise: str = "moderate", log: Callable[[str], None] | None = print,
-                 **env_options: Any) -> ProtocolResult:
+def run_protocol(
+    protocol: str,
+    methods: Mapping[str, Sequence[Method]],
+    n_trials: int | None = None,
+    seed: int = 0,
+    noise: str = "moderate",
+    log: Callable[[str], None] | None = print,
+    **env_options: Any,
+) -> ProtocolResult:
     """Fly ``methods[env]`` on every map of ``methods`` under ``protocol`` (module docstring).
 
     :param n_trials: missions per method (default: the protocol's, 10 or 50)
@@ -360,4 +454,3 @@ def run_protocol(protocol: str, methods: Mapping[str, Sequence[Method]], n_trial
                 if log:
                     log(f"  skipped {m.label} on {env}: {exc}")
     return out
-

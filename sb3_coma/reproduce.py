@@ -24,6 +24,7 @@ when such models are shipped) in named steps (:data:`STEPS`), writing into ``out
 Every "A beats B" in the report is a paired test on shared missions (``sb3_coma.paired``);
 everything in it is measured by the run that writes it; nothing is copied in.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -49,13 +50,14 @@ QUICK_TIMESTEPS = 32
 QUICK_OVERRIDES = {"n_envs": 2, "n_steps": 8, "batch_size": 16, "n_critic_epochs": 1}
 #: evaluation seed base; training seed of the shipped models
 TRAIN_SEED = 0
-#: zoo-config variant of each shipped SenDFuse model: env2's prior starts at AG's greedy choice,
-#: the start that scored best on env2's validation missions (sb3_coma/pretrained/MODELS.md)
-SHIPPED_VARIANTS = {"env1": "fast", "env2": "fast-greedy", "env3": "fast"}
-#: the shipped models are the best of the run's checkpoints on the SAME 20 validation missions
-#: (env seeds 1000..1019, never the test seeds), scored every 1024 joint steps (``best_model.zip``)
-TRAIN_EVAL_FREQ = 1024
-TRAIN_EVAL_MISSIONS = 20
+#: the shipped SenDFuse models train on their map's default config entry (no variant); a mean-fusion
+#: retrain uses the ablation's "CBAM only" arm
+MEAN_FUSION_VARIANT = "mean-cbam"
+#: the shipped models are the best of the run's checkpoints on the SAME 10 validation missions
+#: (split train, env seeds 1000..1009, never the test split), scored every 3000 joint steps
+#: (``best_model.zip``)
+TRAIN_EVAL_FREQ = 3000
+TRAIN_EVAL_MISSIONS = 10
 #: the map of the paper's ablation and the shipped models of its three other arms (the fourth,
 #: SenDFuse + CBAM, is the env3 model itself)
 ABLATION_ENV = "env3"
@@ -165,13 +167,13 @@ class ModelSource:
     env: str
     model: Any
     fusion: str
-    source: str                      # "shipped" or the run folder
+    source: str  # "shipped" or the run folder
     command: str
     train_wall_s: float | None
     timesteps: int | None
     training_curve: list[float] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
-    deterministic: bool = True       # argmax actions (True) or seeded draws from the policy (False)
+    deterministic: bool = True  # argmax actions (True) or seeded draws from the policy (False)
 
 
 @dataclass
@@ -227,8 +229,9 @@ def manifest_value(env: str, key: str, default: Any = None) -> Any:
 # ---------------------------------------------------------------------------------------------
 # the run
 # ---------------------------------------------------------------------------------------------
-def reproduce(out: str | Path = "results", *, log: Callable[[str], None] | None = print,
-              **options: Any) -> dict[str, Any]:
+def reproduce(
+    out: str | Path = "results", *, log: Callable[[str], None] | None = print, **options: Any
+) -> dict[str, Any]:
     """Run the reproduction (see module docstring) and return the summary dict.
 
     ``options`` are the fields of :class:`ReproduceOptions` (``env_names``, ``trials``,
@@ -270,8 +273,12 @@ def load_models(run: Run) -> None:
     for env, src in run.sources.items():
         note = outdated_note(src.info) if src.source == "shipped" else ""
         own = Method("coma", src.model, kind="coma", fusion=src.fusion, deterministic=src.deterministic, note=note)
-        others = attempt(run, f"other shipped models of {env}", shipped_methods, env, loaded=loaded, skip=(env,),
-                         log=run.say) or []
+        others = (
+            attempt(
+                run, f"other shipped models of {env}", shipped_methods, env, loaded=loaded, skip=(env,), log=run.say
+            )
+            or []
+        )
         extra = [Method(label, model, kind=_kind_of(label)) for label, model in o.extra_models.get(env, {}).items()]
         run.methods[env] = [own, *others, *extra, *BASELINE_METHODS]
     for env in o.env_names:
@@ -311,14 +318,15 @@ def sendfuse_available() -> bool:
         return False
 
 
-def _variant_for(env: str, fusion: str) -> str:
-    """The zoo config variant with the shipped models' settings for an env and a fusion."""
-    return SHIPPED_VARIANTS.get(env, "fast") if fusion == "sendfuse" else "fast-mean"
+def _variant_for(env: str, fusion: str) -> str | None:
+    """The zoo config variant of a shipped model's settings for a fusion (None: the map's entry)."""
+    return None if fusion == "sendfuse" else MEAN_FUSION_VARIANT
 
 
 def train_command(env: str, fusion: str, seed: int = TRAIN_SEED, validate: bool = True) -> str:
     """The command that retrains a shipped model (with ``validate``, its ``best_model.zip`` is the model)."""
-    command = f"sb3-coma train --env {env} --variant {_variant_for(env, fusion)} --seed {seed}"
+    variant = _variant_for(env, fusion)
+    command = f"sb3-coma train --env {env}" + (f" --variant {variant}" if variant else "") + f" --seed {seed}"
     return command + (f" --eval-freq {TRAIN_EVAL_FREQ} --eval-missions {TRAIN_EVAL_MISSIONS}" if validate else "")
 
 
@@ -353,8 +361,15 @@ def _retrained_model(run: Run, env: str) -> ModelSource:
     return _train_model(env, fusion, run.out, o.quick, o.timesteps, run.say, deterministic)
 
 
-def _train_model(env: str, fusion: str, out: Path, quick: bool, timesteps: int | None, log: Callable[[str], None],
-                 deterministic: bool = True) -> ModelSource:
+def _train_model(
+    env: str,
+    fusion: str,
+    out: Path,
+    quick: bool,
+    timesteps: int | None,
+    log: Callable[[str], None],
+    deterministic: bool = True,
+) -> ModelSource:
     from sb3_coma import COMA
     from sb3_coma.training import train
 
@@ -367,18 +382,37 @@ def _train_model(env: str, fusion: str, out: Path, quick: bool, timesteps: int |
         shutil.rmtree(run_dir)
     log(f"training COMA on {env} (fusion {fusion}{', quick' if quick else ''}) ...")
     tic = time.perf_counter()
-    _, run_path = train(env=env, variant=variant, seed=seed, total_timesteps=total, run_dir=run_dir,
-                        overrides=overrides or None, progress_bar=False, verbose=0, handle_signals=False,
-                        save_freq=10 ** 9, eval_freq=0 if quick else TRAIN_EVAL_FREQ,
-                        eval_missions=TRAIN_EVAL_MISSIONS)
+    _, run_path = train(
+        env=env,
+        variant=variant,
+        seed=seed,
+        total_timesteps=total,
+        run_dir=run_dir,
+        overrides=overrides or None,
+        progress_bar=False,
+        verbose=0,
+        handle_signals=False,
+        save_freq=10**9,
+        eval_freq=0 if quick else TRAIN_EVAL_FREQ,
+        eval_missions=TRAIN_EVAL_MISSIONS,
+    )
     wall = time.perf_counter() - tic
     model = COMA.load(str(_chosen_model(Path(run_path))), env=None, device="cpu")
     command = train_command(env, fusion, seed, validate=not quick) + (f" --timesteps {total}" if total else "")
     if overrides:
         command += "".join(f" --set {k}={v}" for k, v in overrides.items())
     log(f"  trained {env} in {wall:.1f} s -> {run_path}")
-    return ModelSource(env, model, fusion, str(run_path), command, wall, int(model.num_timesteps),
-                       _curve_from_metrics(Path(run_path) / "metrics.csv"), deterministic=deterministic)
+    return ModelSource(
+        env,
+        model,
+        fusion,
+        str(run_path),
+        command,
+        wall,
+        int(model.num_timesteps),
+        _curve_from_metrics(Path(run_path) / "metrics.csv"),
+        deterministic=deterministic,
+    )
 
 
 def _chosen_model(run_path: Path) -> Path:
@@ -394,8 +428,18 @@ def _shipped_model(env: str, deterministic: bool | None = None) -> ModelSource:
     model = load_pretrained(env)
     info = model.pretrained_info
     det = bool(info.get("deterministic", True)) if deterministic is None else deterministic
-    return ModelSource(env, model, info.get("fusion", "sendfuse"), "shipped", info.get("command", ""),
-                       info.get("train_wall_s"), info.get("timesteps"), list(info.get("training_curve", [])), info, det)
+    return ModelSource(
+        env,
+        model,
+        info.get("fusion", "sendfuse"),
+        "shipped",
+        info.get("command", ""),
+        info.get("train_wall_s"),
+        info.get("timesteps"),
+        list(info.get("training_curve", [])),
+        info,
+        det,
+    )
 
 
 def ablation_models(full_model: Any, say: Callable[[str], None] = print) -> dict[tuple[str, str], Any]:
@@ -435,12 +479,14 @@ def paper_protocol(run: Run) -> None:
     baselines = list(dict.fromkeys(m.label for ms in run.methods.values() for m in ms if m.kind != "coma"))
     accept = acceptance(run.results, baselines=baselines)
     (run.out / "acceptance.md").write_text(_report().acceptance_markdown(accept))
-    run.summary.update(table={f"{r.env}/{r.method}": r.summary() for r in run.results}, acceptance=accept,
-                       paper=run.paper.summary())
+    run.summary.update(
+        table={f"{r.env}/{r.method}": r.summary() for r in run.results}, acceptance=accept, paper=run.paper.summary()
+    )
 
 
-def acceptance(results: Sequence[Any], model_label: str = "coma",
-               baselines: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
+def acceptance(
+    results: Sequence[Any], model_label: str = "coma", baselines: Sequence[str] | None = None
+) -> dict[str, dict[str, Any]]:
     """Per env: does ``model_label`` beat every baseline on F1 and on entropy at 100 %, each by a
     paired test on the shared missions (``sb3_coma.paired``: a tie is not a win)?
 
@@ -455,28 +501,40 @@ def acceptance(results: Sequence[Any], model_label: str = "coma",
         if model_label not in group:
             continue
         mine = group[model_label]
-        others = {k: v for k, v in group.items() if k != model_label and
-                  (k in baselines if baselines is not None else not k.startswith(model_label))}
+        others = {
+            k: v
+            for k, v in group.items()
+            if k != model_label and (k in baselines if baselines is not None else not k.startswith(model_label))
+        }
         diffs = {k: {m: paired_difference(mine, v, m) for m in ("f1", "entropy")} for k, v in others.items()}
         finals = {k: _final(v) for k, v in others.items()}
         best_f1 = max(finals.items(), key=lambda kv: kv[1]["f1"]) if finals else None
         best_en = min(finals.items(), key=lambda kv: kv[1]["entropy"]) if finals else None
         beats = {m: all(d[m].winner == model_label for d in diffs.values()) for m in ("f1", "entropy")}
-        out[env] = {"coma": _final(mine), "best_f1_baseline": best_f1[0] if best_f1 else None,
-                    "best_f1": best_f1[1]["f1"] if best_f1 else None,
-                    "best_entropy_baseline": best_en[0] if best_en else None,
-                    "best_entropy": best_en[1]["entropy"] if best_en else None,
-                    "paired": {k: {m: d.as_dict() for m, d in v.items()} for k, v in diffs.items()},
-                    "beats_f1": beats["f1"], "beats_entropy": beats["entropy"],
-                    "beats_all": beats["f1"] and beats["entropy"], "missions": mine.n_trials}
+        out[env] = {
+            "coma": _final(mine),
+            "best_f1_baseline": best_f1[0] if best_f1 else None,
+            "best_f1": best_f1[1]["f1"] if best_f1 else None,
+            "best_entropy_baseline": best_en[0] if best_en else None,
+            "best_entropy": best_en[1]["entropy"] if best_en else None,
+            "paired": {k: {m: d.as_dict() for m, d in v.items()} for k, v in diffs.items()},
+            "beats_f1": beats["f1"],
+            "beats_entropy": beats["entropy"],
+            "beats_all": beats["f1"] and beats["entropy"],
+            "missions": mine.n_trials,
+        }
     return out
 
 
 def _final(result: Any) -> dict[str, float]:
     """Mean and std (over the missions) of F1 and entropy at 100 % of the budget."""
     f1, en = np.asarray(result.f1)[:, -1], np.asarray(result.entropy)[:, -1]
-    return {"f1": float(f1.mean()), "f1_std": float(f1.std()), "entropy": float(en.mean()),
-            "entropy_std": float(en.std())}
+    return {
+        "f1": float(f1.mean()),
+        "f1_std": float(f1.std()),
+        "entropy": float(en.mean()),
+        "entropy_std": float(en.std()),
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -490,19 +548,24 @@ def ablation_step(run: Run) -> None:
     from sb3_coma import evaluation as ev
     from sb3_coma.paired import paired_difference
 
-    run.ablation = ab.run_ablation(run.arms, env=ABLATION_ENV, n_trials=run.opts.trials, seed=run.opts.seed,
-                                   log=run.say)
+    run.ablation = ab.run_ablation(
+        run.arms, env=ABLATION_ENV, n_trials=run.opts.trials, seed=run.opts.seed, log=run.say
+    )
     ev.write_table_csv(run.ablation.rows(), run.out / "ablation.csv", group_title="noise")
     run.sections["ablation"] = run.ablation.markdown()
     (run.out / "ablation.md").write_text(run.sections["ablation"])
     full = ab.LABELS[ABLATION_FULL]
-    paired = [(noise, paired_difference(run.ablation.results[(full, noise)], r, "entropy"))
-              for (label, noise), r in run.ablation.results.items() if label != full
-              and (full, noise) in run.ablation.results]
+    paired = [
+        (noise, paired_difference(run.ablation.results[(full, noise)], r, "entropy"))
+        for (label, noise), r in run.ablation.results.items()
+        if label != full and (full, noise) in run.ablation.results
+    ]
     run.sections["ablation_paired"] = _report().paired_table(paired, "noise")
     run.arms = {v: m for v, m in run.arms.items() if ab.LABELS[v] not in run.ablation.skipped}  # flown above
-    run.summary["ablation"] = {**ablation_acceptance(run.ablation),
-                               "paired": [{"noise": n, **d.as_dict()} for n, d in paired]}
+    run.summary["ablation"] = {
+        **ablation_acceptance(run.ablation),
+        "paired": [{"noise": n, **d.as_dict()} for n, d in paired],
+    }
 
 
 def ablation_acceptance(result: Any, noise: str = ABLATION_CHECK_NOISE) -> dict[str, Any]:
@@ -514,7 +577,11 @@ def ablation_acceptance(result: Any, noise: str = ABLATION_CHECK_NOISE) -> dict[
     full = LABELS[ABLATION_FULL]
     entropy = {label: float(r.mean_std("entropy", 1.0)[0]) for (label, n), r in result.results.items() if n == noise}
     others = {k: v for k, v in entropy.items() if k != full}
-    met = None if full not in entropy or len(others) < len(LABELS) - 1 else all(entropy[full] <= v for v in others.values())
+    met = (
+        None
+        if full not in entropy or len(others) < len(LABELS) - 1
+        else all(entropy[full] <= v for v in others.values())
+    )
     return {"noise": noise, "full": full, "entropy": entropy, "met": met}
 
 
@@ -524,8 +591,7 @@ def wide_paired_check(run: Run) -> None:
     if not run.opts.wide_trials or not (run.sources or run.arms):
         run.summary["paired"] = None
         return
-    numbers, table = _paired_check(run.sources, run.arms, run.opts.wide_trials, run.opts.seed, run.opts.noise,
-                                   run.say)
+    numbers, table = _paired_check(run.sources, run.arms, run.opts.wide_trials, run.opts.seed, run.opts.noise, run.say)
     (run.out / "paired.md").write_text(table)
     run.sections["paired"] = table
     run.summary["paired"] = numbers
@@ -538,12 +604,28 @@ def _evaluate_model(src: ModelSource, env: str, trials: int, seed: int, noise: s
     from sb3_coma import evaluation as ev
 
     th.manual_seed(seed)
-    return ev.evaluate(src.model, env=env, n_trials=trials, seed=seed, fusion=src.fusion, label=label,
-                       deterministic=src.deterministic, noise=noise, record=0, **extra)
+    return ev.evaluate(
+        src.model,
+        env=env,
+        n_trials=trials,
+        seed=seed,
+        fusion=src.fusion,
+        label=label,
+        deterministic=src.deterministic,
+        noise=noise,
+        record=0,
+        **extra,
+    )
 
 
-def _paired_check(sources: dict[str, ModelSource], arms: dict[tuple[str, str], Any], trials: int, seed: int,
-                  noise: str, say: Callable[[str], None]) -> tuple[dict[str, Any], str]:
+def _paired_check(
+    sources: dict[str, ModelSource],
+    arms: dict[tuple[str, str], Any],
+    trials: int,
+    seed: int,
+    noise: str,
+    say: Callable[[str], None],
+) -> tuple[dict[str, Any], str]:
     from sb3_coma import ablation as ab
     from sb3_coma import evaluation as ev
     from sb3_coma.paired import paired_difference, paired_markdown
@@ -558,24 +640,42 @@ def _paired_check(sources: dict[str, ModelSource], arms: dict[tuple[str, str], A
     for variant, model in arms.items():
         label = ab.LABELS[variant]
         say(f"paired check: {label} on {ABLATION_ENV}, noise {ABLATION_CHECK_NOISE} ({trials} missions) ...")
-        runs[label] = ev.evaluate(model, env=ABLATION_ENV, n_trials=trials, seed=seed, fusion=variant[0],
-                                  label=label, noise=ABLATION_CHECK_NOISE, record=0)
+        runs[label] = ev.evaluate(
+            model,
+            env=ABLATION_ENV,
+            n_trials=trials,
+            seed=seed,
+            fusion=variant[0],
+            label=label,
+            noise=ABLATION_CHECK_NOISE,
+            record=0,
+        )
     full = ab.LABELS[ABLATION_FULL]
     diffs = [paired_difference(runs[full], r, "entropy") for label, r in runs.items() if label != full and full in runs]
     met = all(d.diff <= 0 for d in diffs) if len(diffs) == len(ABLATION_ARMS) else None
 
     missions = f"{trials} missions (env seeds {seed}..{seed + trials - 1})"
-    parts = [f"COMA vs AG on the same {missions} per env, noise `{noise}`:\n",
-             paired_markdown([d for _, d in table1], [env for env, _ in table1])]
+    parts = [
+        f"COMA vs AG on the same {missions} per env, noise `{noise}`:\n",
+        paired_markdown([d for _, d in table1], [env for env, _ in table1]),
+    ]
     if diffs:
         verdict = "at most" if met else "NOT at most"
-        parts += [f"\nThe full model against each other ablation arm on the same {missions}, "
-                  f"`{ABLATION_CHECK_NOISE}` noise: its mean entropy is {verdict} every other arm's "
-                  f"(the verdict column says which differences exceed two standard errors).\n",
-                  paired_markdown(diffs, [ABLATION_CHECK_NOISE] * len(diffs), first_title="noise")]
-    numbers = {"trials": trials, "seed": seed, "noise": noise,
-               "table1": [{"env": env, **d.as_dict()} for env, d in table1],
-               "ablation": [d.as_dict() for d in diffs], "ablation_noise": ABLATION_CHECK_NOISE, "ablation_met": met}
+        parts += [
+            f"\nThe full model against each other ablation arm on the same {missions}, "
+            f"`{ABLATION_CHECK_NOISE}` noise: its mean entropy is {verdict} every other arm's "
+            f"(the verdict column says which differences exceed two standard errors).\n",
+            paired_markdown(diffs, [ABLATION_CHECK_NOISE] * len(diffs), first_title="noise"),
+        ]
+    numbers = {
+        "trials": trials,
+        "seed": seed,
+        "noise": noise,
+        "table1": [{"env": env, **d.as_dict()} for env, d in table1],
+        "ablation": [d.as_dict() for d in diffs],
+        "ablation_noise": ABLATION_CHECK_NOISE,
+        "ablation_met": met,
+    }
     return numbers, "\n".join(parts)
 
 
@@ -589,8 +689,9 @@ def unseen_protocol(run: Run) -> None:
     from sb3_coma.protocols import run_protocol
 
     o = run.opts
-    run.unseen = run_protocol("unseen", run.methods, n_trials=o.unseen_missions, seed=o.seed, noise=o.noise,
-                              log=run.say)
+    run.unseen = run_protocol(
+        "unseen", run.methods, n_trials=o.unseen_missions, seed=o.seed, noise=o.noise, log=run.say
+    )
     run.unseen.write(run.out, "unseen")
     run.skipped.update({f"unseen protocol: {k}": v for k, v in run.unseen.skipped.items()})
     run.summary["unseen"] = run.unseen.summary()
@@ -607,19 +708,23 @@ def generalisation_step(run: Run) -> None:
     gen: list[dict[str, Any]] = []
     if o.generalisation:
         # quick: only the fresh env1 layout (the cross-map runs are the same code path)
-        targets = ([] if o.quick else [(e, {}) for e in o.env_names]) + \
-            [(f"env1 (map_seed={FRESH_ENV1_SEED})", {"map_seed": FRESH_ENV1_SEED})]
+        targets = ([] if o.quick else [(e, {}) for e in o.env_names]) + [
+            (f"env1 (map_seed={FRESH_ENV1_SEED})", {"map_seed": FRESH_ENV1_SEED})
+        ]
         fresh_label = targets[-1][0]
         for env, src in run.sources.items():
             for target, extra in targets:
                 if target == env:
                     continue  # in Table I
                 run.say(f"generalisation: {env} model on {target} ...")
-                r = _evaluate_model(src, "env1" if extra else target, o.trials, o.seed, o.noise, f"coma[{env}]", **extra)
+                r = _evaluate_model(
+                    src, "env1" if extra else target, o.trials, o.seed, o.noise, f"coma[{env}]", **extra
+                )
                 gen.append({"model": env, "target": target, **_final(r)})
         for name in BASELINES:
-            r = ev.evaluate(name, env="env1", n_trials=o.trials, seed=o.seed, noise=o.noise, record=0,
-                            map_seed=FRESH_ENV1_SEED)
+            r = ev.evaluate(
+                name, env="env1", n_trials=o.trials, seed=o.seed, noise=o.noise, record=0, map_seed=FRESH_ENV1_SEED
+            )
             gen.append({"model": name, "target": fresh_label, **_final(r)})
     for r in run.results:  # own-map numbers for reference
         if r.method == "coma":
@@ -660,11 +765,26 @@ def untrained_prior_step(run: Run) -> None:
         if policy is None:
             continue
         run.say(f"evaluating the untrained gain prior of the {env} model ...")
-        r = ev.evaluate(policy, env=env, n_trials=o.trials, seed=o.seed, fusion=src.fusion, deterministic=True,
-                        noise=o.noise, label="prior", record=0)
-        rows.append({"env": env, "prior": _final(r), "trained": _final(run.paper.result(env, "coma")),
-                     "weights_start": [float(w) for w in policy.gain_prior_init],
-                     "weights_trained": [round(float(w), 3) for w in src.model.policy.actor.prior_weights.detach()]})
+        r = ev.evaluate(
+            policy,
+            env=env,
+            n_trials=o.trials,
+            seed=o.seed,
+            fusion=src.fusion,
+            deterministic=True,
+            noise=o.noise,
+            label="prior",
+            record=0,
+        )
+        rows.append(
+            {
+                "env": env,
+                "prior": _final(r),
+                "trained": _final(run.paper.result(env, "coma")),
+                "weights_start": [float(w) for w in policy.gain_prior_init],
+                "weights_trained": [round(float(w), 3) for w in src.model.policy.actor.prior_weights.detach()],
+            }
+        )
     run.summary["untrained_prior"] = rows
 
 
@@ -694,8 +814,9 @@ def noise_sweep_step(run: Run) -> None:
     from sb3_coma.noise_sweep import run_noise_sweep
 
     env, arms = sweep_arms(run)
-    run.sweep = run_noise_sweep(arms, env=env, n_missions=run.opts.sweep_missions, seed=run.opts.seed,
-                                quick=run.opts.quick, log=run.say)
+    run.sweep = run_noise_sweep(
+        arms, env=env, n_missions=run.opts.sweep_missions, seed=run.opts.seed, quick=run.opts.quick, log=run.say
+    )
     run.sweep.write_csv(run.out / "noise_sweep.csv")
     run.skipped.update({f"noise sweep: {k}": v for k, v in run.sweep.skipped.items()})
     run.sections["noise_sweep"] = run.sweep.markdown()
@@ -713,8 +834,9 @@ def cost_models(run: Run) -> dict[str, tuple[Any, str, str]]:
 
     out: dict[str, tuple[Any, str, str]] = {}
     seen = set()
-    candidates = [(f"COMA {src.env}", src.model, src.fusion, src.env) for src in run.sources.values()] + \
-        [(f"COMA {ab.LABELS[v]}", m, v[0], ABLATION_ENV) for v, m in run.arms.items()]
+    candidates = [(f"COMA {src.env}", src.model, src.fusion, src.env) for src in run.sources.values()] + [
+        (f"COMA {ab.LABELS[v]}", m, v[0], ABLATION_ENV) for v, m in run.arms.items()
+    ]
     for label, model, fusion, env in candidates:
         arch = (fusion, type(model.policy.actor.features_extractor).__name__)
         if arch not in seen:
@@ -735,8 +857,9 @@ def cost_table(run: Run) -> None:
     models = cost_models(run)
     if o.quick:
         models = dict(list(models.items())[:1])
-    rows = decision_costs(models, envs=list(o.cost_envs or o.env_names), repeats=QUICK_REPEATS if o.quick else
-                          COST_REPEATS, log=run.say)
+    rows = decision_costs(
+        models, envs=list(o.cost_envs or o.env_names), repeats=QUICK_REPEATS if o.quick else COST_REPEATS, log=run.say
+    )
     run.sections["latency"] = costs_markdown(rows)
     (run.out / "latency.md").write_text(run.sections["latency"])
     run.summary["latency"] = [r.as_dict() for r in rows]
@@ -768,10 +891,12 @@ def ship_or_record(run: Run) -> None:
 
 
 def _metrics_entry(res: Any) -> dict[str, Any]:
-    return {"metrics": {k: round(v, 4) for k, v in res.summary().items()},
-            "metrics_note": f"measured by sb3-coma reproduce: {res.n_trials} trials, env seeds "
-                            f"{res.seed}..{res.seed + res.n_trials - 1}, noise {res.env_options.get('noise')}, "
-                            f"fusion {res.fusion}"}
+    return {
+        "metrics": {k: round(v, 4) for k, v in res.summary().items()},
+        "metrics_note": f"measured by sb3-coma reproduce: {res.n_trials} trials, env seeds "
+        f"{res.seed}..{res.seed + res.n_trials - 1}, noise {res.env_options.get('noise')}, "
+        f"fusion {res.fusion}",
+    }
 
 
 def record_metrics(results: Sequence[Any], say: Callable[[str], None] = print) -> None:
@@ -798,9 +923,14 @@ def _ship(sources: dict[str, ModelSource], results: Sequence[Any], say: Callable
         res = next(r for r in results if r.env == env and r.method == "coma")
         manifest["models"][env] = {
             **pt.save_for_shipping(src.model, f"coma_{env}.zip", directory),
-            "env": env, "fusion": src.fusion, "variant": _variant_for(env, src.fusion), "seed": shipped_seed(env),
+            "env": env,
+            "fusion": src.fusion,
+            "variant": _variant_for(env, src.fusion),
+            "seed": shipped_seed(env),
             "deterministic": src.deterministic,
-            "timesteps": src.timesteps, "command": src.command, "train_wall_s": round(float(src.train_wall_s or 0), 1),
+            "timesteps": src.timesteps,
+            "command": src.command,
+            "train_wall_s": round(float(src.train_wall_s or 0), 1),
             **_metrics_entry(res),
             "training_curve": src.training_curve,
         }
@@ -828,26 +958,51 @@ def figures_step(run: Run) -> None:
 
     fig_dir = run.out / "figures"
     o = run.opts
-    paper = {env: [run.paper.result(env, m.label) for m in ms if (env, m.label) in run.paper.results]
-             for env, ms in run.methods.items()}
-    run.figures.append(pl.plot_metric_grid(paper, fig_dir / "table1_curves.png",
-                                           title=f"paper protocol: F1 and entropy vs step, noise {o.noise}, "
-                                                 f"{o.trials} trials"))
+    paper = {
+        env: [run.paper.result(env, m.label) for m in ms if (env, m.label) in run.paper.results]
+        for env, ms in run.methods.items()
+    }
+    run.figures.append(
+        pl.plot_metric_grid(
+            paper,
+            fig_dir / "table1_curves.png",
+            title=f"paper protocol: F1 and entropy vs step, noise {o.noise}, {o.trials} trials",
+        )
+    )
     if run.unseen is not None:
-        unseen = {env: [run.unseen.result(env, m.label) for m in ms if (env, m.label) in run.unseen.results]
-                  for env, ms in run.methods.items()}
-        run.figures.append(pl.plot_metric_grid(unseen, fig_dir / "unseen_curves.png",
-                                               title=f"unseen protocol: F1 and entropy vs step, noise {o.noise}, "
-                                                     f"{run.unseen.n_trials} missions"))
-    curves = {env: pl.TrainingCurve(np.arange(1, len(s.training_curve) + 1), np.asarray(s.training_curve), s.source)
-              for env, s in run.sources.items() if s.training_curve}
+        unseen = {
+            env: [run.unseen.result(env, m.label) for m in ms if (env, m.label) in run.unseen.results]
+            for env, ms in run.methods.items()
+        }
+        run.figures.append(
+            pl.plot_metric_grid(
+                unseen,
+                fig_dir / "unseen_curves.png",
+                title=f"unseen protocol: F1 and entropy vs step, noise {o.noise}, {run.unseen.n_trials} missions",
+            )
+        )
+    curves = {
+        env: pl.TrainingCurve(np.arange(1, len(s.training_curve) + 1), np.asarray(s.training_curve), s.source)
+        for env, s in run.sources.items()
+        if s.training_curve
+    }
     if curves:
         run.figures.append(pl.plot_training_reward(curves, fig_dir / "training_reward.png"))
     if run.ablation is not None and run.ablation.results:
-        run.figures.append(pl.plot_metric_grid(run.ablation.by_noise(), fig_dir / "ablation_curves.png",
-                                               title=f"{ABLATION_ENV}: F1 and entropy vs step per noise level"))
-        run.figures.append(pl.plot_ablation(dict(run.ablation.results), fig_dir / "ablation_bars.png",
-                                            title=f"{ABLATION_ENV}: ablation at 100 % of the budget"))
+        run.figures.append(
+            pl.plot_metric_grid(
+                run.ablation.by_noise(),
+                fig_dir / "ablation_curves.png",
+                title=f"{ABLATION_ENV}: F1 and entropy vs step per noise level",
+            )
+        )
+        run.figures.append(
+            pl.plot_ablation(
+                dict(run.ablation.results),
+                fig_dir / "ablation_bars.png",
+                title=f"{ABLATION_ENV}: ablation at 100 % of the budget",
+            )
+        )
     if run.sweep is not None and run.sweep.results:
         run.figures.append(pl.plot_noise_sweep(run.sweep, fig_dir / "noise_sweep.png"))
 
@@ -857,17 +1012,37 @@ def write_results(run: Run) -> None:
     o = run.opts
     report = _report()
     run.summary.update(
-        command=" ".join(["sb3-coma reproduce"] + (["--train"] if o.train else []) + (["--quick"] if o.quick else [])
-                         + (["--record"] if o.record and not o.train else [])),
-        command_line=command_line(o), date=time.strftime("%Y-%m-%d %H:%M:%S %Z"), python=sys.version.split()[0],
-        machine=f"{platform.machine()} {platform.processor() or ''}".strip(), trials=o.trials, seed=o.seed,
-        noise=o.noise, envs=list(o.env_names), ag_weighting=_ag_weightings(o.env_names),
-        models={env: {"source": s.source, "fusion": s.fusion, "command": s.command, "train_wall_s": s.train_wall_s,
-                      "timesteps": s.timesteps, "deterministic": s.deterministic,
-                      "note": next((m.note for m in run.methods.get(env, []) if m.label == "coma"), "")}
-                for env, s in run.sources.items()},
-        skipped=dict(run.skipped), step_seconds=dict(run.timings),
-        wall_s=round(time.perf_counter() - run.started, 1))
+        command=" ".join(
+            ["sb3-coma reproduce"]
+            + (["--train"] if o.train else [])
+            + (["--quick"] if o.quick else [])
+            + (["--record"] if o.record and not o.train else [])
+        ),
+        command_line=command_line(o),
+        date=time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+        python=sys.version.split()[0],
+        machine=f"{platform.machine()} {platform.processor() or ''}".strip(),
+        trials=o.trials,
+        seed=o.seed,
+        noise=o.noise,
+        envs=list(o.env_names),
+        ag_weighting=_ag_weightings(o.env_names),
+        models={
+            env: {
+                "source": s.source,
+                "fusion": s.fusion,
+                "command": s.command,
+                "train_wall_s": s.train_wall_s,
+                "timesteps": s.timesteps,
+                "deterministic": s.deterministic,
+                "note": next((m.note for m in run.methods.get(env, []) if m.label == "coma"), ""),
+            }
+            for env, s in run.sources.items()
+        },
+        skipped=dict(run.skipped),
+        step_seconds=dict(run.timings),
+        wall_s=round(time.perf_counter() - run.started, 1),
+    )
     (run.out / "summary.json").write_text(json.dumps(run.summary, indent=2, default=_jsonable) + "\n")
     (run.out / "RESULTS.md").write_text(report.results_markdown(run, run.figures, run.out))
     if o.docs is not None:
@@ -882,8 +1057,10 @@ def write_results(run: Run) -> None:
         run.say(report.acceptance_markdown(run.summary["acceptance"]))
     if run.summary.get("ablation"):
         run.say(report.ablation_verdict(run.summary["ablation"]))
-    run.say(f"wrote {run.out}/ (table.md, team_table.md, paper_verdicts.md, acceptance.md, unseen_*.md, "
-            f"noise_sweep.md, generalisation.md, latency.md, summary.json, RESULTS.md) in {run.summary['wall_s']} s")
+    run.say(
+        f"wrote {run.out}/ (table.md, team_table.md, paper_verdicts.md, acceptance.md, unseen_*.md, "
+        f"noise_sweep.md, generalisation.md, latency.md, summary.json, RESULTS.md) in {run.summary['wall_s']} s"
+    )
 
 
 def _jsonable(value: Any) -> Any:
@@ -902,11 +1079,18 @@ def _ag_weightings(env_names: Sequence[str]) -> dict[str, str]:
 
 def command_line(o: ReproduceOptions) -> str:
     """The ``sb3-coma reproduce`` command line that gives these options."""
-    parts = ["sb3-coma reproduce"] + (["--train"] if o.train else []) + (["--quick"] if o.quick else []) + \
-        (["--record"] if o.record and not o.train else [])
+    parts = (
+        ["sb3-coma reproduce"]
+        + (["--train"] if o.train else [])
+        + (["--quick"] if o.quick else [])
+        + (["--record"] if o.record and not o.train else [])
+    )
     defaults = ReproduceOptions()
-    for name, flag in (("unseen_missions", "--unseen-missions"), ("sweep_missions", "--sweep-missions"),
-                       ("wide_trials", "--wide-trials")):
+    for name, flag in (
+        ("unseen_missions", "--unseen-missions"),
+        ("sweep_missions", "--sweep-missions"),
+        ("wide_trials", "--wide-trials"),
+    ):
         if not o.quick and getattr(o, name) != getattr(defaults, name):
             parts.append(f"{flag} {getattr(o, name)}")
     if list(o.env_names) != list(DEFAULT_ENVS):
@@ -918,6 +1102,16 @@ def command_line(o: ReproduceOptions) -> str:
 
 #: The named steps of :func:`reproduce`, in order.
 STEPS: tuple[Callable[[Run], None], ...] = (
-    load_models, paper_protocol, ablation_step, wide_paired_check, unseen_protocol, generalisation_step,
-    untrained_prior_step, noise_sweep_step, cost_table, ship_or_record, figures_step, write_results,
+    load_models,
+    paper_protocol,
+    ablation_step,
+    wide_paired_check,
+    unseen_protocol,
+    generalisation_step,
+    untrained_prior_step,
+    noise_sweep_step,
+    cost_table,
+    ship_or_record,
+    figures_step,
+    write_results,
 )

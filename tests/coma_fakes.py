@@ -8,6 +8,7 @@ Q-row of agent ``i`` differs between actions only through ``[u_i == g_i]``. Mask
 off the lattice and, at random, some other actions, but never the good one; an invalid action
 given anyway means "hover" and is counted in ``invalid_actions``.
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterator
@@ -105,10 +106,7 @@ class FakeUavVecEnv(VecEnv):
         for a in range(self._n_agents):
             x, y, z = self.pos[e, a]
             geo = np.array(
-                [
-                    0 <= x + dx < SIZE and 0 <= y + dy < SIZE and 0 <= z + dz < 3
-                    for dx, dy, dz in MOVES
-                ],
+                [0 <= x + dx < SIZE and 0 <= y + dy < SIZE and 0 <= z + dz < 3 for dx, dy, dz in MOVES],
                 dtype=bool,
             )
             valid = np.flatnonzero(geo)
@@ -229,7 +227,7 @@ def random_valid_return(venv: VecEnv, episodes: int, seed: int = 0) -> float:
     venv.seed(seed)
     obs = venv.reset()
     returns: list[float] = []
-    n_agents = getattr(venv, "n_agents")
+    n_agents = venv.n_agents
     while len(returns) < episodes:
         mask = obs[layout.KEY_MASK]
         actions = np.array([rng.choice(np.flatnonzero(m > 0.5)) for m in mask])

@@ -4,6 +4,7 @@ The suite runs as ``pytest -n 2`` on two cores: each worker keeps torch (and the
 subprocesses it starts) on one thread, because oversubscribed, spin-waiting thread pools made
 small COMA runs up to 20x slower on a loaded 2-core machine.
 """
+
 from __future__ import annotations
 
 import os

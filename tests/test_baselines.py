@@ -1,4 +1,5 @@
 """Baseline planners: random, lawnmower (NL) and adaptive gain (AG)."""
+
 from __future__ import annotations
 
 import itertools
@@ -8,9 +9,9 @@ import pytest
 
 import envs
 from envs import layout
-from envs.ipp_env import ACTION_DELTAS
 from envs.gain import gain_density
-from sb3_coma.baselines import PLANNERS, make_planner, planner_class, plan_team
+from envs.ipp_env import ACTION_DELTAS
+from sb3_coma.baselines import PLANNERS, make_planner, plan_team, planner_class
 from sb3_coma.baselines.lawnmower import axis_ranges, best_lanes, union_length
 from sb3_coma.baselines.navigation import best_move, distance_field
 
@@ -44,14 +45,25 @@ def _ag(sums, pos, mask, discount=0.5, lookahead=1, geometry=None):
     """Run the AG kernel on one team; return (actions, scores)."""
     n = pos.shape[0]
     actions, scores = np.zeros(n, np.int64), np.zeros((n, 6))
-    plan_team(np.ascontiguousarray(sums), pos, mask, np.zeros((11, 11), bool), ACTION_DELTAS,
-              geometry.footprint_strips, discount, lookahead, np.zeros((n, 6)), scores, actions)
+    plan_team(
+        np.ascontiguousarray(sums),
+        pos,
+        mask,
+        np.zeros((11, 11), bool),
+        ACTION_DELTAS,
+        geometry.footprint_strips,
+        discount,
+        lookahead,
+        np.zeros((n, 6)),
+        scores,
+        actions,
+    )
     return actions, scores
 
 
 def _brute_gain(geometry, belief, flips, target, weighting="class"):
     fp = geometry.footprint(*(int(v) for v in target))
-    return gain_density(belief[fp.r0:fp.r1, fp.c0:fp.c1], flips[target[2]], weighting).sum()
+    return gain_density(belief[fp.r0 : fp.r1, fp.c0 : fp.c1], flips[target[2]], weighting).sum()
 
 
 def _fly(method, name="env1", n_envs=1, seed=0, **options):
@@ -233,7 +245,7 @@ def test_ag_discount_separates_two_uavs(geometry, flips):
         for u in range(2):
             fp = geometry.footprint(*(int(v) for v in pos[u] + ACTION_DELTAS[actions[u]]))
             box = np.zeros((geometry.grid, geometry.grid), bool)
-            box[fp.r0:fp.r1, fp.c0:fp.c1] = True
+            box[fp.r0 : fp.r1, fp.c0 : fp.c1] = True
             boxes.append(box)
         return (boxes[0] & boxes[1]).sum()
 

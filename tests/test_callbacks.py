@@ -1,4 +1,5 @@
 """Callbacks: mission metrics equal the env's infos, checkpoints, stop-on-target, atomic writes."""
+
 from __future__ import annotations
 
 import csv
@@ -22,9 +23,9 @@ from sb3_coma.coma import COMA
 N_AGENTS, BUDGET = 2, 3
 
 
-
 # Runs write run folders and logs into the working directory: keep them in tmp_path.
 pytestmark = pytest.mark.usefixtures("tmp_cwd")
+
 
 class Recorder(VecEnvWrapper):
     """Keeps (dones, infos) of every step, as the learner receives them."""
@@ -50,8 +51,15 @@ class Recorder(VecEnvWrapper):
             for row in range(0, len(infos), self.n_agents):
                 if dones[row]:
                     info = infos[row]
-                    out.append({"env_copy": row // self.n_agents, "reward": info["episode"]["r"],
-                                "length": info["episode"]["l"], "f1": info["f1"], "entropy": info["entropy"]})
+                    out.append(
+                        {
+                            "env_copy": row // self.n_agents,
+                            "reward": info["episode"]["r"],
+                            "length": info["episode"]["l"],
+                            "f1": info["f1"],
+                            "entropy": info["entropy"],
+                        }
+                    )
         return out
 
 
@@ -73,16 +81,26 @@ def make_env(n_envs: int = 2, seed: int = 0) -> Recorder:
 
 def make_model(env, batch_size: int = 6) -> COMA:
     # 2 copies, batch 6 -> 3 steps per copy per rollout = 6 joint steps = one mission per copy.
-    return COMA("CnnPolicy", env, batch_size=batch_size, n_steps=batch_size // 2, learning_rate=1e-4,
-                critic_learning_rate=1e-3, seed=0,
-                device="cpu", policy_kwargs={"features_extractor_kwargs": {"features_dim": 16, "channels": (8, 8, 8)}})
+    return COMA(
+        "CnnPolicy",
+        env,
+        batch_size=batch_size,
+        n_steps=batch_size // 2,
+        learning_rate=1e-4,
+        critic_learning_rate=1e-3,
+        seed=0,
+        device="cpu",
+        policy_kwargs={"features_extractor_kwargs": {"features_dim": 16, "channels": (8, 8, 8)}},
+    )
 
 
 def test_mission_metrics_equal_env_infos(tmp_path):
     env = make_env()
     model = make_model(env)
     capture = Capture()
-    model.set_logger(Logger(folder=None, output_formats=[capture, make_output_format("tensorboard", str(tmp_path / "tb"))]))
+    model.set_logger(
+        Logger(folder=None, output_formats=[capture, make_output_format("tensorboard", str(tmp_path / "tb"))])
+    )
     eval_env = make_env(n_envs=1, seed=5)
     metrics = EpisodeMetricsCallback(csv_path=tmp_path / "metrics.csv")
     evaluation = MissionEvalCallback(eval_env, eval_freq=12, n_eval_missions=2, verbose=0)
@@ -189,12 +207,21 @@ def test_seeded_evaluations_fly_the_same_missions(eval_seed, tmp_path):
     """With ``eval_seed`` every evaluation re-seeds: a policy that does not change (lr 1e-12) scores the same
     each time (without it the missions run on and the scores differ)."""
     env = make_env()
-    model = COMA("CnnPolicy", env, batch_size=6, n_steps=3, learning_rate=1e-12, critic_learning_rate=1e-12, seed=0,
-                 device="cpu",
-                 policy_kwargs={"features_extractor_kwargs": {"features_dim": 16, "channels": (8, 8, 8)}})
+    model = COMA(
+        "CnnPolicy",
+        env,
+        batch_size=6,
+        n_steps=3,
+        learning_rate=1e-12,
+        critic_learning_rate=1e-12,
+        seed=0,
+        device="cpu",
+        policy_kwargs={"features_extractor_kwargs": {"features_dim": 16, "channels": (8, 8, 8)}},
+    )
     eval_env = make_env(n_envs=1, seed=5)
-    evaluation = MissionEvalCallback(eval_env, eval_freq=6, n_eval_missions=3, verbose=0, eval_seed=eval_seed,
-                                     log_path=tmp_path)
+    evaluation = MissionEvalCallback(
+        eval_env, eval_freq=6, n_eval_missions=3, verbose=0, eval_seed=eval_seed, log_path=tmp_path
+    )
     model.learn(18, callback=evaluation)
     scores = [float(np.mean(r)) for r in evaluation.evaluations_results]
     assert len(scores) == 3
@@ -207,3 +234,42 @@ def test_seeded_evaluations_fly_the_same_missions(eval_seed, tmp_path):
 def test_eval_seed_must_be_an_integer():
     with pytest.raises(ValueError, match="eval_seed must be an integer or None, got 1.5"):
         MissionEvalCallback(make_env(n_envs=1), eval_freq=6, eval_seed=1.5, verbose=0)
+
+
+def test_resumed_evaluation_keeps_the_earlier_record_and_best(tmp_path):
+    """A resumed run continues evaluations.npz and its best score: the first evaluation after a
+    resume must not replace a better best_model.zip (SB3's callback would start from -inf)."""
+    env = make_env()
+    model = make_model(env)
+    first = MissionEvalCallback(
+        make_env(n_envs=1, seed=5),
+        eval_freq=6,
+        n_eval_missions=2,
+        verbose=0,
+        eval_seed=7,
+        log_path=tmp_path,
+        best_model_save_path=tmp_path,
+    )
+    model.learn(12, callback=first)
+    earlier = [float(np.mean(r)) for r in first.evaluations_results]
+    assert len(earlier) == 2
+    # pretend the record holds a score no later checkpoint can reach
+    data = dict(np.load(tmp_path / "evaluations.npz"))
+    data["results"] = data["results"].copy()
+    data["results"][0] = 1e6
+    np.savez(tmp_path / "evaluations.npz", **data)
+    best = (tmp_path / "best_model.zip").read_bytes()
+    resumed = MissionEvalCallback(
+        make_env(n_envs=1, seed=5),
+        eval_freq=6,
+        n_eval_missions=2,
+        verbose=0,
+        eval_seed=7,
+        log_path=tmp_path,
+        best_model_save_path=tmp_path,
+    )
+    model.learn(12, callback=resumed, reset_num_timesteps=False)
+    assert resumed.best_mean_reward == 1e6
+    assert len(resumed.evaluations_results) == 4  # two earlier + two new, one file
+    assert len(np.load(tmp_path / "evaluations.npz")["timesteps"]) == 4
+    assert (tmp_path / "best_model.zip").read_bytes() == best  # not replaced by a worse model

@@ -1,4 +1,5 @@
 """COMA as an SB3 algorithm: joint-step counting, logging, save/load, seeding, argument errors."""
+
 from __future__ import annotations
 
 import json
@@ -8,8 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch as th
-from coma_fakes import FakeUavVecEnv, capture_logger, make_fake_vec_env, obs_space
-from coma_fakes import one_torch_thread  # noqa: F401 (autouse fixture)
+from coma_fakes import (
+    FakeUavVecEnv,
+    capture_logger,
+    make_fake_vec_env,
+    obs_space,
+    one_torch_thread,  # noqa: F401 (autouse fixture)
+)
 from gymnasium import spaces
 
 from sb3_coma.coma import COMA, CBAMPolicy, CnnPolicy
@@ -24,8 +30,13 @@ def make(policy: str = "CnnPolicy", seed: int = 0, n_envs: int = 2, n_agents: in
 
 
 def test_timesteps_are_joint_steps_and_logs_are_written() -> None:
-    model = make(exploration_initial_eps=0.5, exploration_final_eps=0.1, exploration_fraction=0.5,
-                 target_update_interval=1, n_critic_epochs=1)
+    model = make(
+        exploration_initial_eps=0.5,
+        exploration_final_eps=0.1,
+        exploration_fraction=0.5,
+        target_update_interval=1,
+        n_critic_epochs=1,
+    )
     logger, out = capture_logger()
     model.set_logger(logger)
     model.learn(3 * 16)  # 3 rollouts of 8 steps x 2 copies
@@ -34,9 +45,18 @@ def test_timesteps_are_joint_steps_and_logs_are_written() -> None:
     assert model.rollout_buffer.local.shape[:3] == (8, 2, 2)
     last = out.dumps[-1]
     for key in (
-        "train/critic_loss", "train/actor_loss", "train/q_mean", "train/advantage_mean",
-        "train/advantage_std", "train/explained_variance", "train/epsilon", "train/entropy",
-        "train/target_updates", "rollout/ep_rew_mean", "rollout/ep_f1", "rollout/ep_entropy",
+        "train/critic_loss",
+        "train/actor_loss",
+        "train/q_mean",
+        "train/advantage_mean",
+        "train/advantage_std",
+        "train/explained_variance",
+        "train/epsilon",
+        "train/entropy",
+        "train/target_updates",
+        "rollout/ep_rew_mean",
+        "rollout/ep_f1",
+        "rollout/ep_entropy",
     ):
         assert key in last, key
     assert last["time/total_timesteps"] == 48
@@ -169,8 +189,14 @@ def test_zip_with_removed_settings_loads_with_one_warning(tmp_path: Path) -> Non
 
     def older(data: dict) -> None:
         data["policy_kwargs"]["critic_gain"] = False
-        data.update(tau=None, prior_kl_coef=0.0, temperature_initial=1.0, temperature_final=0.25,
-                    temperature_fraction=1.0, temperature=0.5)
+        data.update(
+            tau=None,
+            prior_kl_coef=0.0,
+            temperature_initial=1.0,
+            temperature_final=0.25,
+            temperature_fraction=1.0,
+            temperature=0.5,
+        )
 
     _rewrite_saved_data(path, older)
     with pytest.warns(UserWarning) as caught:
@@ -329,8 +355,9 @@ def test_advantage_is_the_chosen_term_minus_the_counterfactual_baseline(kind: st
     targets = th.randn(*actions.shape, generator=gen)
     advantage, old_log_prob = model._advantages(data, q_all, targets)
     with th.no_grad():
-        logits = model.policy.masked_logits(data["local"].flatten(0, 1), data["mask"].flatten(0, 1),
-                                            data["prior"].flatten(0, 1))
+        logits = model.policy.masked_logits(
+            data["local"].flatten(0, 1), data["mask"].flatten(0, 1), data["prior"].flatten(0, 1)
+        )
     probs = th.softmax(logits, -1).view(*actions.shape, 6)
     baseline = (probs * q_all).sum(-1)
     first = targets if kind == "return" else q_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
@@ -351,10 +378,15 @@ def test_clipped_and_plain_actor_updates_train() -> None:
             assert all(c == 0.0 for c in clip_fraction)
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"advantage": "gae"}, "advantage"), ({"clip_range": 0}, "clip_range"), ({"clip_range": True}, "clip_range"),
-    ({"n_epochs": 0}, "n_epochs"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"advantage": "gae"}, "advantage"),
+        ({"clip_range": 0}, "clip_range"),
+        ({"clip_range": True}, "clip_range"),
+        ({"n_epochs": 0}, "n_epochs"),
+    ],
+)
 def test_bad_actor_update_options(kwargs, match) -> None:
     with pytest.raises(ValueError, match=match):
         make(**kwargs)

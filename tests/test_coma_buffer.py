@@ -1,4 +1,5 @@
 """Joint-step regrouping: rows e * N + a become (e, a), and minibatches keep joint steps whole."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,5 @@
 """The centralised critic: its action channel, Q(s, u_-i, .) independence of u_i, the baseline."""
+
 from __future__ import annotations
 
 import pytest
@@ -53,8 +54,14 @@ def test_critic_input_stacks_twelve_channels() -> None:
 
 @pytest.fixture(scope="module")
 def model() -> COMA:
-    return COMA("CBAMPolicy", make_fake_vec_env(n_envs=2, n_agents=3, seed=0), batch_size=8, n_steps=4, seed=0,
-                policy_kwargs=SMALL)
+    return COMA(
+        "CBAMPolicy",
+        make_fake_vec_env(n_envs=2, n_agents=3, seed=0),
+        batch_size=8,
+        n_steps=4,
+        seed=0,
+        policy_kwargs=SMALL,
+    )
 
 
 def joint_obs(model: COMA) -> tuple[th.Tensor, th.Tensor, th.Tensor]:

@@ -1,4 +1,5 @@
 """End-to-end on the real environment: COMA trains, logs, saves and loads on envs.make_vec_env."""
+
 from __future__ import annotations
 
 from pathlib import Path

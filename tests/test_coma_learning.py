@@ -14,6 +14,7 @@ entropy over valuable cells 0.906. The margins below (reward entropy <= 97 % of 
 >= random + 0.3, entropy over valuable cells at least 0.02 (~2 s.e.) below random's) hold with
 room for every seed.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,7 +24,6 @@ from coma_fakes import make_fake_vec_env, one_torch_thread, random_valid_return 
 from sb3_coma.coma import COMA
 
 E, N, BUDGET = 8, 2, 4
-
 
 
 def deterministic_return(model: COMA, episodes: int, seed: int) -> float:

@@ -1,4 +1,5 @@
 """Invalid actions are never sampled nor chosen, with or without epsilon exploration."""
+
 from __future__ import annotations
 
 import torch as th

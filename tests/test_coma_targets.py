@@ -1,4 +1,5 @@
 """TD(lambda) targets and COMA's counterfactual advantage on hand-made numbers."""
+
 from __future__ import annotations
 
 import pytest

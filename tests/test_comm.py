@@ -1,4 +1,5 @@
 """World v2: per-cell local beliefs M_i fed by cell-level messages through the paper's channel."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -31,9 +32,9 @@ def test_uav_out_of_range_holds_only_its_own_readings():
     for u, (ix, iy) in enumerate([(0, 0), (10, 10)]):
         fp = geo.footprint(ix, iy, 2)
         inside = np.zeros_like(glob, bool)
-        inside[fp.r0:fp.r1, fp.c0:fp.c1] = True
+        inside[fp.r0 : fp.r1, fp.c0 : fp.c1] = True
         np.testing.assert_array_equal(local[u][inside], glob[inside])  # its own readings, exactly
-        assert np.all(local[u][~inside] == 0)                           # nothing else
+        assert np.all(local[u][~inside] == 0)  # nothing else
         np.testing.assert_array_equal(obs[f"uav_{u}"][layout.KEY_RECEIVED_VALID], [1, 0])
 
 
@@ -64,10 +65,17 @@ def test_loud_soft_channel_raises_team_entropy_threshold_much_less():
     assert abs(hard_loud - clean) < 0.2 * (soft_loud - clean)
 
 
-@pytest.mark.parametrize("channel", [
-    {"noise": "loud"}, {"noise": "loud", "decoder": "threshold"}, {"attenuation": "distance"},
-    {"drop_probability": 0.5}, {"alpha_low": 0.1, "sigma": 0.3}, {"comm_range": 0.0},
-])
+@pytest.mark.parametrize(
+    "channel",
+    [
+        {"noise": "loud"},
+        {"noise": "loud", "decoder": "threshold"},
+        {"attenuation": "distance"},
+        {"drop_probability": 0.5},
+        {"alpha_low": 0.1, "sigma": 0.3},
+        {"comm_range": 0.0},
+    ],
+)
 def test_global_map_and_paper_metrics_ignore_every_channel_setting(channel):
     base, base_obs, base_infos = fly(noise="none")
     other, other_obs, other_infos = fly(**channel)
@@ -106,13 +114,21 @@ def test_received_map_is_the_comm_grid_average_of_the_noisy_image():
     assert got[seen].sum() == pytest.approx(0.8 * own[seen].sum(), rel=0.05)
 
 
-@pytest.mark.parametrize("options,name", [
-    ({"alpha_low": 1.5}, "alpha_low"), ({"alpha_low": "x"}, "alpha_low"), ({"sigma": -0.1}, "sigma"),
-    ({"sigma": float("nan")}, "sigma"), ({"attenuation": "cubic"}, "attenuation"),
-    ({"decoder": "fuzzy"}, "decoder"), ({"split": "validation"}, "split"),
-    ({"altitudes": [5.0, 10.0, 15.0, 20.0]}, "altitudes"), ({"fov_deg": 0.001}, "fov_deg"),
-    ({"alpha": 1e300}, "alpha"),
-])
+@pytest.mark.parametrize(
+    "options,name",
+    [
+        ({"alpha_low": 1.5}, "alpha_low"),
+        ({"alpha_low": "x"}, "alpha_low"),
+        ({"sigma": -0.1}, "sigma"),
+        ({"sigma": float("nan")}, "sigma"),
+        ({"attenuation": "cubic"}, "attenuation"),
+        ({"decoder": "fuzzy"}, "decoder"),
+        ({"split": "validation"}, "split"),
+        ({"altitudes": [5.0, 10.0, 15.0, 20.0]}, "altitudes"),
+        ({"fov_deg": 0.001}, "fov_deg"),
+        ({"alpha": 1e300}, "alpha"),
+    ],
+)
 def test_new_channel_options_are_validated(options, name):
     with pytest.raises(ConfigError, match=name):
         envs.make_env("env1", **options)

@@ -7,6 +7,7 @@ COMA runs on the real environment (env1, 2 UAVs, budget 4, mean fusion) for 96 j
 both optimizer states at the end. Torch runs on one thread here (CPU kernels are deterministic
 for a fixed thread count; the test pins it so that it also holds on machines with many cores).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -48,9 +49,19 @@ def _one_thread():
 def _train(seed: int, policy: str = "CnnPolicy") -> tuple[list[dict[str, float]], dict[str, torch.Tensor], list]:
     venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4, noise="moderate")
     try:
-        model = COMA(policy, venv, batch_size=16, n_steps=16, n_critic_epochs=2, exploration_initial_eps=0.3,
-                     exploration_final_eps=0.05, ent_coef=0.01, seed=seed, device="cpu",
-                     policy_kwargs=SMALL_CNN)
+        model = COMA(
+            policy,
+            venv,
+            batch_size=16,
+            n_steps=16,
+            n_critic_epochs=2,
+            exploration_initial_eps=0.3,
+            exploration_final_eps=0.05,
+            ent_coef=0.01,
+            seed=seed,
+            device="cpu",
+            policy_kwargs=SMALL_CNN,
+        )
         capture = _Capture()
         model.set_logger(Logger(folder=None, output_formats=[capture]))
         model.learn(JOINT_STEPS)

@@ -1,4 +1,5 @@
 """The IPP environment: API compliance, physics, bookkeeping, determinism and bad input."""
+
 from __future__ import annotations
 
 import math
@@ -101,12 +102,39 @@ def _sense_once(env, local_logodds, truth, level, threshold, seed=7):
     comm_sum = np.zeros((geo.comm_grid, geo.comm_grid))
     comm_cnt = np.zeros_like(comm_sum)
     glob = np.zeros_like(local_logodds)
-    kernels.sense(r0, r1, r0, r1, level, inc, threshold, truth, glob, np.zeros_like(truth), local_logodds, readings,
-                  env._gstep, env._lstep, geo.seg_start, geo.seg_of_cell, geo.seg_block, geo.seg_comm, geo.seg_strip,
-                  geo.block_of_cell, geo.comm_of_cell, geo.strip_of_cell, np.array([seed], np.uint64),
-                  np.zeros((3, 11, 11)), np.zeros(4), np.zeros((2, 11, 11)), np.zeros((6, geo.n_strips, geo.n_strips)),
-                  np.zeros(3), comm_sum, comm_cnt)
-    return readings[:r1 - r0, :r1 - r0], comm_sum, comm_cnt, (slice(r0, r1), slice(r0, r1))
+    kernels.sense(
+        r0,
+        r1,
+        r0,
+        r1,
+        level,
+        inc,
+        threshold,
+        truth,
+        glob,
+        np.zeros_like(truth),
+        local_logodds,
+        readings,
+        env._gstep,
+        env._lstep,
+        geo.seg_start,
+        geo.seg_of_cell,
+        geo.seg_block,
+        geo.seg_comm,
+        geo.seg_strip,
+        geo.block_of_cell,
+        geo.comm_of_cell,
+        geo.strip_of_cell,
+        np.array([seed], np.uint64),
+        np.zeros((3, 11, 11)),
+        np.zeros(4),
+        np.zeros((2, 11, 11)),
+        np.zeros((6, geo.n_strips, geo.n_strips)),
+        np.zeros(3),
+        comm_sum,
+        comm_cnt,
+    )
+    return readings[: r1 - r0, : r1 - r0], comm_sum, comm_cnt, (slice(r0, r1), slice(r0, r1))
 
 
 def test_belief_update_matches_closed_form():
@@ -133,8 +161,9 @@ def test_sensor_flip_rate_matches_altitude_table():
     env = envs.make_env("env1")
     truth = np.ones((493, 493), np.uint8)
     for level, q in enumerate((0.01, 0.265, 0.375)):
-        readings, comm_sum, comm_cnt, _ = _sense_once(env, np.zeros((493, 493), np.int16), truth, level,
-                                                      kernels.flip_threshold(q), seed=11)
+        readings, comm_sum, comm_cnt, _ = _sense_once(
+            env, np.zeros((493, 493), np.int16), truth, level, kernels.flip_threshold(q), seed=11
+        )
         count = readings.size
         assert comm_cnt.sum() == count and comm_sum.sum() == readings.sum()
         flips = 1 - readings.mean()
@@ -148,11 +177,36 @@ def _received_image(env, image, alpha_low, sigma, soft, increment):
     r0, r1 = geo.footprint_ranges[5, 2]
     local = np.zeros((493, 493), np.int16)
     readings = np.zeros((geo.max_footprint, geo.max_footprint), np.uint8)
-    readings[:r1 - r0, :r1 - r0] = image
-    kernels.receive(r0, r1, r0, r1, increment, alpha_low, sigma, soft, np.uint64(99), np.zeros((493, 493), np.uint8),
-                    local, readings, env._ltab, env._normals, geo.seg_start, geo.seg_of_cell, geo.seg_block,
-                    geo.seg_comm, geo.seg_strip, geo.comm_of_cell, geo.strip_of_cell, 493, np.zeros((2, 11, 11)),
-                    np.zeros((6, geo.n_strips, geo.n_strips)), np.zeros(3), np.zeros((44, 44)), np.zeros((44, 44)))
+    readings[: r1 - r0, : r1 - r0] = image
+    kernels.receive(
+        r0,
+        r1,
+        r0,
+        r1,
+        increment,
+        alpha_low,
+        sigma,
+        soft,
+        np.uint64(99),
+        np.zeros((493, 493), np.uint8),
+        local,
+        readings,
+        env._ltab,
+        env._normals,
+        geo.seg_start,
+        geo.seg_of_cell,
+        geo.seg_block,
+        geo.seg_comm,
+        geo.seg_strip,
+        geo.comm_of_cell,
+        geo.strip_of_cell,
+        493,
+        np.zeros((2, 11, 11)),
+        np.zeros((6, geo.n_strips, geo.n_strips)),
+        np.zeros(3),
+        np.zeros((44, 44)),
+        np.zeros((44, 44)),
+    )
     return local[r0:r1, r0:r1].astype(np.float64)
 
 
@@ -175,8 +229,9 @@ def test_channel_noise_statistics(preset):
     # threshold decoding: a full +-increment, flipped only where the noise crosses 0.5
     hard = _received_image(env, ones, lo, sigma, False, inc)
     assert set(np.unique(hard)) <= {-inc, inc}
-    assert (hard > 0).mean() == pytest.approx((rng.uniform(lo, 1, 400_000) + rng.normal(0, sigma, 400_000) > 0.5).mean(),
-                                               abs=3e-3)
+    assert (hard > 0).mean() == pytest.approx(
+        (rng.uniform(lo, 1, 400_000) + rng.normal(0, sigma, 400_000) > 0.5).mean(), abs=3e-3
+    )
 
 
 def test_incremental_bookkeeping_matches_full_recompute():
@@ -205,8 +260,9 @@ def test_incremental_bookkeeping_matches_full_recompute():
     for u, agent in enumerate(env.possible_agents):
         local = obs[agent][layout.KEY_LOCAL]
         np.testing.assert_allclose(local[layout.BELIEF], _block_means(geo, beliefs[u]), atol=1e-4)
-        np.testing.assert_allclose(local[layout.BELIEF_ENTROPY], _block_means(geo, kernels.binary_entropy(beliefs[u])),
-                                   atol=1e-4)
+        np.testing.assert_allclose(
+            local[layout.BELIEF_ENTROPY], _block_means(geo, kernels.binary_entropy(beliefs[u])), atol=1e-4
+        )
         np.testing.assert_allclose(local[layout.SENSOR], np.clip(geo.to_lattice(env.sensor_maps()[u]), 0, 1), atol=1e-4)
     # team metrics: each UAV's own M_i scored like the global map, then averaged
     f1s = [2 * np.sum((b > 0.5) & truth) / ((b > 0.5).sum() + truth.sum()) for b in beliefs]
@@ -237,7 +293,7 @@ def test_action_gain_is_the_exact_footprint_gain_of_own_belief():
             for act in np.flatnonzero(mask):
                 x, y, z = np.clip(env._pos[u] + ACTION_DELTAS[act], 0, [10, 10, 2])
                 fp = geo.footprint(int(x), int(y), int(z))
-                cells = beliefs[u, fp.r0:fp.r1, fp.c0:fp.c1]
+                cells = beliefs[u, fp.r0 : fp.r1, fp.c0 : fp.c1]
                 raw[act] = gain.gain_density(cells, flips[z], weighting).sum()
             expected = raw / np.abs(raw).max()
             np.testing.assert_allclose(obs[agent][layout.KEY_GAIN][w], expected, atol=2e-4)
@@ -251,8 +307,14 @@ def test_metrics_on_hand_made_map(tmp_path):
     img[:, :50] = 255
     path = tmp_path / "half.png"
     cv2.imwrite(str(path), img)
-    env = envs.make_env("mine", map_path=str(path), valuable="threshold:0.5", n_uavs=1,
-                        flip_probability={5.0: 1e-9, 10.0: 1e-9, 15.0: 1e-9}, budget=1)
+    env = envs.make_env(
+        "mine",
+        map_path=str(path),
+        valuable="threshold:0.5",
+        n_uavs=1,
+        flip_probability={5.0: 1e-9, 10.0: 1e-9, 15.0: 1e-9},
+        budget=1,
+    )
     env.reset(seed=0)
     truth = env.ground_truth.valuable
     assert truth[:, :240].all() and not truth[:, 260:].any()

@@ -1,4 +1,5 @@
 """Property tests (hypothesis): invariants of the environment for any options and actions."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,14 +9,16 @@ from hypothesis import strategies as st
 import envs
 from envs import layout
 
-options = st.fixed_dictionaries({
-    "n_uavs": st.integers(1, 5),
-    "budget": st.integers(1, 6),
-    "noise": st.sampled_from(["none", "moderate", "loud"]),
-    "comm_range": st.sampled_from([0.0, 10.0, 25.0, 1e9]),
-    "drop_probability": st.sampled_from([0.0, 0.3]),
-    "start": st.sampled_from(["fixed", "random"]),
-})
+options = st.fixed_dictionaries(
+    {
+        "n_uavs": st.integers(1, 5),
+        "budget": st.integers(1, 6),
+        "noise": st.sampled_from(["none", "moderate", "loud"]),
+        "comm_range": st.sampled_from([0.0, 10.0, 25.0, 1e9]),
+        "drop_probability": st.sampled_from([0.0, 0.3]),
+        "start": st.sampled_from(["fixed", "random"]),
+    }
+)
 PROPERTY_SETTINGS = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 

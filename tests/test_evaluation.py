@@ -1,4 +1,5 @@
 """The evaluation protocol, Table I output, the ``evaluate`` / ``ablation`` commands and their errors."""
+
 from __future__ import annotations
 
 import csv
@@ -75,8 +76,11 @@ def test_table_numbers_equal_mean_and_std(results, tmp_path):
         cells = [c.strip() for c in line.strip("|").split("|")]
         assert cells[1] == r.method
         values = [_numbers(c) for c in cells[2:]]
-        expected = [(r.metric(m)[:, r.step_of(f)].mean(), r.metric(m)[:, r.step_of(f)].std())
-                    for m in ("f1", "entropy") for f in FRACTIONS]
+        expected = [
+            (r.metric(m)[:, r.step_of(f)].mean(), r.metric(m)[:, r.step_of(f)].std())
+            for m in ("f1", "entropy")
+            for f in FRACTIONS
+        ]
         assert np.allclose(values, expected, atol=5e-5)
     assert [r.step_of(f) for f in FRACTIONS] == [1, 2, 3]
     # bold = best mean per column: F1 highest, entropy lowest
@@ -128,13 +132,35 @@ def test_pretrained_name_without_pretrained_module(capsys):
 
 def test_cli_writes_table_and_plots(tmp_path, capsys):
     out = tmp_path / "res"
-    code = main(["evaluate", "--env", "env1", "--methods", "ag,nl", "--trials", "2", "--budget", "3",
-                 "--out", str(out), "--no-gif"])
+    code = main(
+        [
+            "evaluate",
+            "--env",
+            "env1",
+            "--methods",
+            "ag,nl",
+            "--trials",
+            "2",
+            "--budget",
+            "3",
+            "--out",
+            str(out),
+            "--no-gif",
+        ]
+    )
     assert code == 0
     printed = capsys.readouterr().out
     assert "| env1 | ag |" in printed and "lawnmower" in printed and "ms per UAV decision" in printed
-    for name in ("table.md", "table.csv", "per_step.csv", "planning_time.md", "planning_time.csv",
-                 "curves_env1.png", "mission_env1_ag.png", "mission_env1_lawnmower.png"):
+    for name in (
+        "table.md",
+        "table.csv",
+        "per_step.csv",
+        "planning_time.md",
+        "planning_time.csv",
+        "curves_env1.png",
+        "mission_env1_ag.png",
+        "mission_env1_lawnmower.png",
+    ):
         assert (out / name).stat().st_size > 0
     assert "**" in (out / "table.md").read_text()
 
@@ -180,12 +206,30 @@ def test_ablation_finds_models_and_skips_missing_fusion(model_path, tmp_path, mo
     with pytest.raises(FileNotFoundError):
         ablation.find_models(tmp_path / "nope")
     real = ablation.fusion_unavailable
-    monkeypatch.setattr(ablation, "fusion_unavailable",
-                        lambda env, fusion, **kw: "not built yet" if fusion == "sendfuse" else real(env, fusion, **kw))
+    monkeypatch.setattr(
+        ablation,
+        "fusion_unavailable",
+        lambda env, fusion, **kw: "not built yet" if fusion == "sendfuse" else real(env, fusion, **kw),
+    )
     messages = []
-    result = ablation.run_ablation(tmp_path, env="env1", noises=("none", "loud"), n_trials=1, budget=2,
-                                   log=messages.append)
+    result = ablation.run_ablation(
+        tmp_path, env="env1", noises=("none", "loud"), n_trials=1, budget=2, log=messages.append
+    )
     assert set(result.results) == {("Base", "none"), ("Base", "loud")}
     assert "SenDFuse+CBAM" in result.skipped and any("skipping SenDFuse+CBAM" in m for m in messages)
     md = result.markdown()
     assert "| none | Base |" in md and "| loud | Base |" in md
+
+
+def test_evaluate_uses_the_models_observation_options():
+    """A model trained without the action_gain key is evaluated without it, with no word from the
+    caller: the network's inputs follow the model's recorded training options."""
+    import envs
+    from sb3_coma import COMA, evaluate
+
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=3, action_gain=False)
+    model = COMA("CnnPolicy", venv, seed=0, n_steps=4, batch_size=4, device="cpu")
+    model.env_options = {"map": "env1", "fusion": "mean", "action_gain": False}
+    result = evaluate(model, env="env1", n_trials=2, n_uavs=2, budget=3)
+    assert result.fusion == "mean" and result.env_options["action_gain"] is False
+    assert result.f1.shape == (2, 4)

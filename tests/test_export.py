@@ -6,6 +6,7 @@ env's own fusion wrappers, so the same recordings check the fusion graph (agains
 and the actor graph (against ``model.predict(obs, deterministic=True)``). Models are small fresh
 COMA models, one per fusion, so nothing depends on the shipped files except one CLI test.
 """
+
 from __future__ import annotations
 
 import json
@@ -92,16 +93,20 @@ def test_actor_argmax_equals_predict(exported):
 
     with th.no_grad():
         gain = obs.get(layout.KEY_GAIN)
-        ref = model.policy.masked_logits(th.as_tensor(obs[layout.KEY_LOCAL]), th.as_tensor(obs[layout.KEY_MASK]),
-                                         None if gain is None else th.as_tensor(gain)).numpy()
+        ref = model.policy.masked_logits(
+            th.as_tensor(obs[layout.KEY_LOCAL]),
+            th.as_tensor(obs[layout.KEY_MASK]),
+            None if gain is None else th.as_tensor(gain),
+        ).numpy()
     np.testing.assert_allclose(logits, ref, rtol=1e-5, atol=1e-5)
 
 
 def test_fusion_graph_equals_pytorch_fusion(exported):
     _, paths, obs, raw, wrapper = exported
     session = onnx_session(paths["fusion"])
-    fused, channel = session.run(None, {"received": raw[layout.KEY_RECEIVED],
-                                        "received_valid": raw[layout.KEY_RECEIVED_VALID]})
+    fused, channel = session.run(
+        None, {"received": raw[layout.KEY_RECEIVED], "received_valid": raw[layout.KEY_RECEIVED_VALID]}
+    )
     want = wrapper.fuse(raw[layout.KEY_RECEIVED], raw[layout.KEY_RECEIVED_VALID])
     np.testing.assert_allclose(fused, want, rtol=0, atol=1e-5)
     np.testing.assert_allclose(channel, obs[layout.KEY_LOCAL][:, layout.FUSED], rtol=0, atol=1e-5)
@@ -114,8 +119,9 @@ def test_onboard_pipeline_acts_like_the_model(exported):
     """fusion.onnx -> 8th channel -> actor.onnx on raw observations gives the model's actions."""
     model, paths, obs, raw, _ = exported
     fusion, actor = onnx_session(paths["fusion"]), onnx_session(paths["actor"])
-    _, channel = fusion.run(None, {"received": raw[layout.KEY_RECEIVED],
-                                   "received_valid": raw[layout.KEY_RECEIVED_VALID]})
+    _, channel = fusion.run(
+        None, {"received": raw[layout.KEY_RECEIVED], "received_valid": raw[layout.KEY_RECEIVED_VALID]}
+    )
     onboard = dict(raw, local=np.concatenate([raw[layout.KEY_LOCAL], channel[:, None]], axis=1))
     _, actions = actor.run(None, _actor_feeds(actor, onboard))
     np.testing.assert_array_equal(actions, model.predict(obs, deterministic=True)[0])
@@ -125,7 +131,11 @@ def test_metadata_describes_the_graphs(exported):
     model, paths, _, _, wrapper = exported
     meta = json.loads(paths["metadata"].read_text())
     assert set(paths) == {"actor", "fusion", "metadata"} and all(p.is_file() for p in paths.values())
-    assert [p.name for p in (paths["actor"], paths["fusion"], paths["metadata"])] == [ACTOR_FILE, FUSION_FILE, METADATA_FILE]
+    assert [p.name for p in (paths["actor"], paths["fusion"], paths["metadata"])] == [
+        ACTOR_FILE,
+        FUSION_FILE,
+        METADATA_FILE,
+    ]
     assert meta["opset"] >= 17 and meta["check"]["done"]
     for block, path in (("actor", paths["actor"]), ("fusion", paths["fusion"])):
         session = onnx_session(path)
@@ -146,8 +156,13 @@ def test_metadata_describes_the_graphs(exported):
 
 def test_export_needs_a_known_fusion(tmp_path):
     venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=3)
-    model = COMA("CnnPolicy", venv, seed=0, device="cpu",
-                 policy_kwargs={"features_extractor_kwargs": {"features_dim": 8, "channels": [4, 4, 4]}})
+    model = COMA(
+        "CnnPolicy",
+        venv,
+        seed=0,
+        device="cpu",
+        policy_kwargs={"features_extractor_kwargs": {"features_dim": 8, "channels": [4, 4, 4]}},
+    )
     model.save(tmp_path / "bare.zip")
     with pytest.raises(ExportError, match="fusion='telepathy'"):
         export_onnx(model, tmp_path / "out", fusion="telepathy")
@@ -169,10 +184,18 @@ def test_export_needs_a_known_fusion(tmp_path):
     # a checkpoint of an `sb3-coma train` run folder: fusion and env options come from its config.yml
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
-    (run / "config.yml").write_text(yaml.safe_dump({
-        "UavIpp-Env1-v0": {"n_timesteps": 8, "policy": "CnnPolicy", "env_kwargs": {"fusion": "mean", "n_uavs": 2,
-                                                                                 "budget": 3, "noise": "loud"}},
-        "run": {"env": "UavIpp-Env1-v0"}}))
+    (run / "config.yml").write_text(
+        yaml.safe_dump(
+            {
+                "UavIpp-Env1-v0": {
+                    "n_timesteps": 8,
+                    "policy": "CnnPolicy",
+                    "env_kwargs": {"fusion": "mean", "n_uavs": 2, "budget": 3, "noise": "loud"},
+                },
+                "run": {"env": "UavIpp-Env1-v0"},
+            }
+        )
+    )
     model.save(run / "checkpoints" / "rl_model_8_steps.zip")
     rc = cli_main(["export", "--model", str(run / "checkpoints" / "rl_model_8_steps.zip"), "--out", str(run / "onnx")])
     assert rc == 0
@@ -206,7 +229,9 @@ def test_cli_bad_inputs_fail_before_any_work(tmp_path, capsys, monkeypatch):
     else:  # root may write anywhere: stand in for a read-only folder
         real_access = os.access
         monkeypatch.setattr(os, "access", lambda p, mode: False if str(p) == str(locked) else real_access(p, mode))
-    cases.append((["--model", "env1", "--out", str(locked / "onnx")], f"--out {str(locked / 'onnx')!r} is not writable"))
+    cases.append(
+        (["--model", "env1", "--out", str(locked / "onnx")], f"--out {str(locked / 'onnx')!r} is not writable")
+    )
     for argv, message in cases:
         assert cli_main(["export", *argv]) == 2, argv
         line = _error_line(capsys)
@@ -222,6 +247,6 @@ def test_cli_exports_a_shipped_model(tmp_path, capsys):
     assert "actor.onnx" in text and "fusion.onnx" in text and "sendfuse" in text
     meta = json.loads((tmp_path / "env1" / METADATA_FILE).read_text())
     assert meta["env"]["name"] == "env1" and meta["env"]["fusion"] == "sendfuse"
-    assert "models.json entry 'env1'" in meta["env"]["from"] and meta["source"]["shipped"]
-    assert [i["name"] for i in meta["actor"]["inputs"]] == ["local", "action_mask", "action_gain"]
+    assert "coma_env1.zip" in meta["env"]["from"] and meta["source"]["shipped"]  # the zip records its options
+    assert [i["name"] for i in meta["actor"]["inputs"]] == ["local", "action_mask"]  # the paper's actor
     assert meta["check"]["actor_max_abs_diff"] < 1e-4 and meta["check"]["fusion_max_abs_diff"] < 1e-5

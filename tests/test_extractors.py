@@ -1,4 +1,5 @@
 """CBAM and plain-CNN extractors: shapes on the 11 x 11 maps, gates in [0, 1], clear errors."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -82,8 +83,11 @@ def test_open_gates_keep_the_trunk_scale() -> None:
 
     x = th.rand(16, *LOCAL.shape)
     stds = {}
-    for name, ext in (("paper", CBAMExtractor(LOCAL)), ("open", CBAMExtractor(LOCAL, gate_bias=3.0)),
-                      ("cnn", CnnExtractor(LOCAL))):
+    for name, ext in (
+        ("paper", CBAMExtractor(LOCAL)),
+        ("open", CBAMExtractor(LOCAL, gate_bias=3.0)),
+        ("cnn", CnnExtractor(LOCAL)),
+    ):
         th.manual_seed(0)
         ext.apply(partial(BasePolicy.init_weights, gain=np.sqrt(2)))  # as the COMA policy initialises trunks
         with th.no_grad():

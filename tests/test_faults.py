@@ -7,6 +7,7 @@ budget 4, the config's ``mean-cnn`` variant (mean fusion) and a checkpoint every
 (8 joint steps). A throttle callback (active only while ``SB3_COMA_TEST_THROTTLE`` is set)
 slows the first run down so that the kill always lands mid-run, whatever the machine's speed.
 """
+
 from __future__ import annotations
 
 import csv
@@ -28,8 +29,8 @@ from sb3_coma.checkpoints import CheckpointError, atomic_save, find_checkpoints,
 
 REPO = Path(__file__).resolve().parent.parent
 ENV_ID = "UavIpp-Env1-v0"
-TOTAL = 96        # joint steps: 12 rollouts of 8, 24 missions of 4
-SAVE_FREQ = 8     # one rollout (batch_size 8, one env copy -> n_steps 8)
+TOTAL = 96  # joint steps: 12 rollouts of 8, 24 missions of 4
+SAVE_FREQ = 8  # one rollout (batch_size 8, one env copy -> n_steps 8)
 SMALL_CNN = {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}}
 CONFIG = {
     ENV_ID: {
@@ -103,12 +104,31 @@ def test_sigkill_mid_run_resumes_from_last_checkpoint(tmp_path):
     config = tmp_path / "faults.yml"
     config.write_text(yaml.safe_dump(CONFIG, sort_keys=False))
     run = tmp_path / "run"
-    command = [sys.executable, "-m", "sb3_coma.cli", "train", "--env", "env1", "--config", str(config),
-               "--variant", "mean-cnn", "--seed", "0", "--run-dir", str(run), "--save-freq", str(SAVE_FREQ),
-               "--no-progress", "-v", "0"]
+    command = [
+        sys.executable,
+        "-m",
+        "sb3_coma.cli",
+        "train",
+        "--env",
+        "env1",
+        "--config",
+        str(config),
+        "--variant",
+        "mean-cnn",
+        "--seed",
+        "0",
+        "--run-dir",
+        str(run),
+        "--save-freq",
+        str(SAVE_FREQ),
+        "--no-progress",
+        "-v",
+        "0",
+    ]
     log = (tmp_path / "first.log").open("wb")
-    proc = subprocess.Popen(command, cwd=tmp_path, env=_env(tmp_path, throttle=0.03), stdout=log,
-                            stderr=subprocess.STDOUT)
+    proc = subprocess.Popen(
+        command, cwd=tmp_path, env=_env(tmp_path, throttle=0.03), stdout=log, stderr=subprocess.STDOUT
+    )
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and proc.poll() is None:
@@ -137,9 +157,14 @@ def test_sigkill_mid_run_resumes_from_last_checkpoint(tmp_path):
     assert reached - last <= SAVE_FREQ, f"killed at {reached} joint steps, last checkpoint {last}"
 
     # Resume: from the newest checkpoint, to exactly the requested total, same run folder.
-    done = subprocess.run([sys.executable, "-m", "sb3_coma.cli", "train", "--resume", str(run), "--no-progress",
-                           "-v", "1"], cwd=tmp_path, env=_env(tmp_path, throttle=None), capture_output=True,
-                          text=True, timeout=300)
+    done = subprocess.run(
+        [sys.executable, "-m", "sb3_coma.cli", "train", "--resume", str(run), "--no-progress", "-v", "1"],
+        cwd=tmp_path,
+        env=_env(tmp_path, throttle=None),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stdout + done.stderr
     assert f"at {last} joint steps" in done.stdout
     assert validate_checkpoint(run / "model.zip").num_timesteps == TOTAL
@@ -265,9 +290,19 @@ def test_nan_in_a_loss_stops_training_without_saving_a_model(tmp_path, single_th
     config.write_text(yaml.safe_dump({ENV_ID: {k: v for k, v in CONFIG[ENV_ID].items() if k != "callback"}}))
     run = tmp_path / "run"
     with pytest.raises(Exception, match=r"(?i)\bnan\b|non-finite|not finite") as info:
-        train(env="env1", config=config, overrides={"env_kwargs.fusion": "mean", "policy": "CnnPolicy"},
-              total_timesteps=SAVE_FREQ, seed=0, run_dir=run, save_freq=SAVE_FREQ, callbacks=[PoisonCritic()],
-              progress_bar=False, verbose=0, handle_signals=False)
+        train(
+            env="env1",
+            config=config,
+            overrides={"env_kwargs.fusion": "mean", "policy": "CnnPolicy"},
+            total_timesteps=SAVE_FREQ,
+            seed=0,
+            run_dir=run,
+            save_freq=SAVE_FREQ,
+            callbacks=[PoisonCritic()],
+            progress_bar=False,
+            verbose=0,
+            handle_signals=False,
+        )
     assert "loss" in str(info.value).lower()
     assert not (run / "model.zip").exists()
     assert not list((run / "checkpoints").glob("*.zip"))

@@ -4,6 +4,7 @@ The env computes, for each UAV, the expected information gain of every action's 
 the UAV's own local belief (``obs["action_gain"]``, two entropy weightings); the actor can add a
 learned mix of them to its logits (``policy_kwargs={"gain_prior": ...}``).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -39,10 +40,21 @@ def test_action_gain_is_normalised_masked_and_matches_ag():
         assert np.all(gains[~np.repeat(masks[:, None], 2, axis=1)] == 0.0)
         np.testing.assert_allclose(np.abs(np.where(masks[:, None], gains, 0)).max(-1), 1.0, rtol=1e-6)
         sums = env.gain_strip_sums()
-        for row, weighting in enumerate(layout.GAIN_WEIGHTINGS):
+        for row, _weighting in enumerate(layout.GAIN_WEIGHTINGS):
             scores, actions = np.zeros((4, 6)), np.zeros(4, np.int64)
-            plan_team(np.ascontiguousarray(sums[:, row]), _positions(env), masks, env.no_fly_columns(), ACTION_DELTAS,
-                      geometry.footprint_strips, 0.0, 1, np.zeros((4, 6)), scores, actions)
+            plan_team(
+                np.ascontiguousarray(sums[:, row]),
+                _positions(env),
+                masks,
+                env.no_fly_columns(),
+                ACTION_DELTAS,
+                geometry.footprint_strips,
+                0.0,
+                1,
+                np.zeros((4, 6)),
+                scores,
+                actions,
+            )
             # UAV 0 decides first, so AG's scores, normalised, are exactly its own gains.
             own = scores[0][masks[0]]
             np.testing.assert_allclose(gains[0, row][masks[0]], own / np.abs(own).max(), rtol=1e-5, atol=1e-6)
@@ -126,15 +138,18 @@ def test_no_prior_ignores_the_gain_key():
     venv.close()
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"gain_prior": -1.0}, "gain_prior=-1.0"),
-    ({"gain_prior": float("nan")}, "gain_prior=nan"),
-    ({"gain_prior": 1.0, "gain_prior_speed": 0.0}, "gain_prior_speed=0.0"),
-    ({"gain_prior": "lots"}, "gain_prior='lots'"),
-    ({"gain_prior": [1.0, 2.0, 3.0]}, r"one weight per 'action_gain' row, 2 \(class, plain\), got 3"),
-    ({"gain_prior": [1.0, -2.0]}, r"gain_prior=\[1.0, -2.0\]: weights must be finite numbers >= 0"),
-    ({"gain_prior": [1.0, "x"]}, r"gain_prior=\[1.0, 'x'\]: must be a number or a list of numbers"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"gain_prior": -1.0}, "gain_prior=-1.0"),
+        ({"gain_prior": float("nan")}, "gain_prior=nan"),
+        ({"gain_prior": 1.0, "gain_prior_speed": 0.0}, "gain_prior_speed=0.0"),
+        ({"gain_prior": "lots"}, "gain_prior='lots'"),
+        ({"gain_prior": [1.0, 2.0, 3.0]}, r"one weight per 'action_gain' row, 2 \(class, plain\), got 3"),
+        ({"gain_prior": [1.0, -2.0]}, r"gain_prior=\[1.0, -2.0\]: weights must be finite numbers >= 0"),
+        ({"gain_prior": [1.0, "x"]}, r"gain_prior=\[1.0, 'x'\]: must be a number or a list of numbers"),
+    ],
+)
 def test_bad_gain_prior_options(kwargs, match):
     with pytest.raises(ValueError, match=match):
         _small_model(**kwargs)
@@ -200,7 +215,9 @@ def test_correction_bound_caps_the_network_term_and_round_trips(tmp_path: Path):
     loaded = COMA.load(tmp_path / "m.zip", env=venv)
     assert loaded.policy.correction_bound == 2.0 and loaded.policy.actor.correction_bound == 2.0
     with th.no_grad():
-        th.testing.assert_close(loaded.policy.masked_logits(local, mask, prior), model.policy.masked_logits(local, mask, prior))
+        th.testing.assert_close(
+            loaded.policy.masked_logits(local, mask, prior), model.policy.masked_logits(local, mask, prior)
+        )
     venv.close()
 
 

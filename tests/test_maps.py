@@ -1,4 +1,5 @@
 """Ground-truth maps: the shipped images, the env1 star, user images with every rule, and errors."""
+
 from __future__ import annotations
 
 import time
@@ -50,7 +51,7 @@ def test_env3_other_sizes_and_override():
     exg = load_ground_truth("env3", valuable="excess-green")
     assert 0.05 < exg.valuable.mean() < 0.95
     assert np.array_equal(exg.no_fly, load_ground_truth("env3").no_fly)  # rule never moves buildings
-    hot = load_ground_truth("Env2", valuable="hottest:0.1")                 # names are case-insensitive
+    hot = load_ground_truth("Env2", valuable="hottest:0.1")  # names are case-insensitive
     assert hot.valuable.mean() == pytest.approx(0.1, abs=0.01)
 
 
@@ -66,7 +67,7 @@ def test_env1_seed_determinism_and_variety():
 
 def test_env1_fraction_range_and_speed():
     fractions = [load_ground_truth("env1", seed=s).valuable.mean() for s in range(60)]
-    assert 0.2 <= min(fractions) and max(fractions) <= 0.45
+    assert min(fractions) >= 0.2 and max(fractions) <= 0.45
     t0 = time.perf_counter()
     for s in range(50):
         load_ground_truth("env1", seed=1000 + s)
@@ -85,7 +86,7 @@ def test_block_index_and_fraction():
     k = block_index(493, 11)
     assert k[0] == 0 and k[-1] == 10 and np.all(np.diff(k) >= 0)
     counts = np.bincount(k)
-    assert counts[0] < counts[5] and counts[10] < counts[5]          # half squares at the borders
+    assert counts[0] < counts[5] and counts[10] < counts[5]  # half squares at the borders
     centres = (np.arange(493) + 0.5) * 50 / 493
     np.testing.assert_array_equal(k, np.argmin(np.abs(centres[:, None] - 5.0 * np.arange(11)), axis=1))
     np.testing.assert_allclose(block_fraction(np.ones((493, 493), bool), 11), 1.0)
@@ -98,12 +99,12 @@ def test_block_index_and_fraction():
 # ------------------------------------------------------------------ user images
 @pytest.fixture
 def images(tmp_path):
-    gray = np.tile(np.linspace(0, 255, 64).round().astype(np.uint8), (48, 1))   # left dark, right bright
+    gray = np.tile(np.linspace(0, 255, 64).round().astype(np.uint8), (48, 1))  # left dark, right bright
     colour = np.zeros((40, 80, 3), np.uint8)
-    colour[:, :30] = (40, 200, 40)                                                 # green (BGR)
-    colour[:, 30:] = (150, 140, 160)                                               # greyish
+    colour[:, :30] = (40, 200, 40)  # green (BGR)
+    colour[:, 30:] = (150, 140, 160)  # greyish
     drawing = np.full((70, 50), 255, np.uint8)
-    cv2.circle(drawing, (25, 35), 15, 0, -1)                                       # black disc on white
+    cv2.circle(drawing, (25, 35), 15, 0, -1)  # black disc on white
     gray16 = (np.tile(np.linspace(0, 65535, 64), (64, 1))).astype(np.uint16)
     paths = {}
     for name, img in (("gray.png", gray), ("colour.png", colour), ("drawing.png", drawing), ("gray16.png", gray16)):
@@ -112,10 +113,18 @@ def images(tmp_path):
     return paths
 
 
-@pytest.mark.parametrize("rule,expected", [
-    ("threshold:0.5", 0.5), ("threshold", 0.5), (None, 0.5), ("dark:0.25", 0.25), ("dark", 0.5),
-    ("hottest:0.3", 0.3), ("coldest:0.2", 0.2),
-])
+@pytest.mark.parametrize(
+    "rule,expected",
+    [
+        ("threshold:0.5", 0.5),
+        ("threshold", 0.5),
+        (None, 0.5),
+        ("dark:0.25", 0.25),
+        ("dark", 0.5),
+        ("hottest:0.3", 0.3),
+        ("coldest:0.2", 0.2),
+    ],
+)
 def test_user_gray_rules(images, rule, expected):
     g = load_ground_truth("mine", map_path=images["gray.png"], valuable=rule, grid=64, lattice=5)
     assert g.name == "mine" and g.valuable.shape == (64, 64) and g.no_fly.shape == (5, 5)
@@ -139,38 +148,41 @@ def test_user_excess_green(images, rule):
 
 def test_user_dark_drawing_and_name_from_stem(images):
     g = load_ground_truth("env3", map_path=images["drawing.png"], valuable="dark:0.5", grid=100, lattice=11)
-    assert g.name == "drawing"                       # a built-in name next to map_path is only a default
+    assert g.name == "drawing"  # a built-in name next to map_path is only a default
     assert g.valuable[50, 50] and not g.valuable[2, 2]
-    assert g.valuable.mean() == pytest.approx(np.pi * 15 ** 2 / (70 * 50), abs=0.03)
+    assert g.valuable.mean() == pytest.approx(np.pi * 15**2 / (70 * 50), abs=0.03)
     assert "drawing.png" in g.source
 
 
 # ------------------------------------------------------------------ errors
-@pytest.mark.parametrize("kwargs,match", [
-    ({"name": "env7"}, "env7"),
-    ({"name": "env7"}, "env1"),                                   # lists what is allowed
-    ({"name": "my_map.png"}, "map_path"),
-    ({"name": 3}, "3"),
-    ({"map_path": "/nonexistent/map.png"}, "/nonexistent/map.png"),
-    ({"valuable": "hottest:abc", "name": "env2"}, "abc"),
-    ({"valuable": "hottest:1.5", "name": "env2"}, "1.5"),
-    ({"valuable": "hottest:0", "name": "env2"}, "between 0 and 1"),
-    ({"valuable": "hottest", "name": "env2"}, "fraction"),
-    ({"valuable": "hottest:", "name": "env2"}, "hottest:"),
-    ({"valuable": "magic:0.3", "name": "env2"}, "magic"),
-    ({"valuable": "magic:0.3", "name": "env2"}, "excess-green"),  # lists what is allowed
-    ({"valuable": "threshold:nan", "name": "env2"}, "nan"),
-    ({"valuable": "threshold:2", "name": "env2"}, "2"),
-    ({"valuable": 0.3, "name": "env2"}, "0.3"),
-    ({"valuable": "ndvi", "name": "env2"}, "near-infrared"),
-    ({"lattice": 1}, "lattice=1"),
-    ({"lattice": 2.5}, "lattice=2.5"),
-    ({"grid": 5}, "grid=5"),
-    ({"grid": True}, "grid=True"),
-    ({"grid": 100_000}, "grid=100000"),
-    ({"seed": -1}, "seed=-1"),
-    ({"seed": "abc"}, "seed='abc'"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"name": "env7"}, "env7"),
+        ({"name": "env7"}, "env1"),  # lists what is allowed
+        ({"name": "my_map.png"}, "map_path"),
+        ({"name": 3}, "3"),
+        ({"map_path": "/nonexistent/map.png"}, "/nonexistent/map.png"),
+        ({"valuable": "hottest:abc", "name": "env2"}, "abc"),
+        ({"valuable": "hottest:1.5", "name": "env2"}, "1.5"),
+        ({"valuable": "hottest:0", "name": "env2"}, "between 0 and 1"),
+        ({"valuable": "hottest", "name": "env2"}, "fraction"),
+        ({"valuable": "hottest:", "name": "env2"}, "hottest:"),
+        ({"valuable": "magic:0.3", "name": "env2"}, "magic"),
+        ({"valuable": "magic:0.3", "name": "env2"}, "excess-green"),  # lists what is allowed
+        ({"valuable": "threshold:nan", "name": "env2"}, "nan"),
+        ({"valuable": "threshold:2", "name": "env2"}, "2"),
+        ({"valuable": 0.3, "name": "env2"}, "0.3"),
+        ({"valuable": "ndvi", "name": "env2"}, "near-infrared"),
+        ({"lattice": 1}, "lattice=1"),
+        ({"lattice": 2.5}, "lattice=2.5"),
+        ({"grid": 5}, "grid=5"),
+        ({"grid": True}, "grid=True"),
+        ({"grid": 100_000}, "grid=100000"),
+        ({"seed": -1}, "seed=-1"),
+        ({"seed": "abc"}, "seed='abc'"),
+    ],
+)
 def test_bad_inputs_raise_map_error(kwargs, match):
     with pytest.raises(MapError, match=match.replace(".", r"\.").replace("(", r"\(")):
         load_ground_truth(**{"name": "env1", **kwargs})
@@ -203,7 +215,7 @@ def test_degenerate_masks(tmp_path, images):
     with pytest.raises(MapError, match="dark:0.5.*no pixel"):
         load_ground_truth(map_path=flat, valuable="dark:0.5", grid=10, lattice=2)
     with pytest.raises(MapError, match="no pixel"):
-        load_ground_truth(map_path=flat, grid=10, lattice=2)        # Otsu on a constant image
+        load_ground_truth(map_path=flat, grid=10, lattice=2)  # Otsu on a constant image
     with pytest.raises(MapError, match="colour"):
         load_ground_truth(map_path=images["gray.png"], valuable="excess-green", grid=64, lattice=5)
     with pytest.raises(MapError, match="near-infrared"):

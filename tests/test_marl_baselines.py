@@ -1,4 +1,5 @@
 """IPPO / MAPPO (sb3_coma.marl_baselines): masking, what the actor reads, save/load, a short run."""
+
 from __future__ import annotations
 
 import time

@@ -1,4 +1,5 @@
 """Paired comparisons on shared missions (sb3_coma.paired): differences, standard errors, verdicts."""
+
 from __future__ import annotations
 
 from types import SimpleNamespace
@@ -9,8 +10,9 @@ import pytest
 from sb3_coma.paired import PairedDifference, paired_difference, paired_markdown
 
 
-def _result(method: str, final_entropy: list[float], final_f1: list[float] | None = None, seed: int = 0,
-            env: str = "env3") -> SimpleNamespace:
+def _result(
+    method: str, final_entropy: list[float], final_f1: list[float] | None = None, seed: int = 0, env: str = "env3"
+) -> SimpleNamespace:
     n = len(final_entropy)
     entropy = np.ones((n, 4))
     entropy[:, -1] = final_entropy

@@ -1,4 +1,5 @@
 """Figures: metric curves, training reward, mission picture and GIF, ablation bars."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,15 +48,18 @@ def test_ablation_bars(results, tmp_path):
 def test_training_reward_from_csv_monitor_and_tensorboard(tmp_path):
     rewards = np.linspace(-2, 3, 60) + np.sin(np.arange(60))
     metrics = tmp_path / "metrics.csv"
-    metrics.write_text("episode,timesteps,reward,f1\n" + "".join(f"{i + 1},{15 * (i + 1)},{r},0.5\n"
-                                                                   for i, r in enumerate(rewards)))
+    metrics.write_text(
+        "episode,timesteps,reward,f1\n" + "".join(f"{i + 1},{15 * (i + 1)},{r},0.5\n" for i, r in enumerate(rewards))
+    )
     curve = plots.load_training_log(metrics)
     assert np.allclose(curve.rewards, rewards) and curve.episodes[0] == 1
     # VecMonitor over 4 agents: one row per agent of each mission, averaged back to one point
     monitor = tmp_path / "run" / "monitor.csv"
     monitor.parent.mkdir()
-    monitor.write_text('#{"t_start": 0, "env_id": "env1"}\nr,l,t\n'
-                       + "".join(f"{r},15,{i}\n" for i, r in enumerate(np.repeat(rewards[:10], 4))))
+    monitor.write_text(
+        '#{"t_start": 0, "env_id": "env1"}\nr,l,t\n'
+        + "".join(f"{r},15,{i}\n" for i, r in enumerate(np.repeat(rewards[:10], 4)))
+    )
     curve = plots.load_training_log(monitor.parent, agents_per_episode=4)
     assert np.allclose(curve.rewards, rewards[:10])
     # TensorBoard: the callbacks' per-mission scalar

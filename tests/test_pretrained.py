@@ -1,4 +1,5 @@
 """Shipped models: load_pretrained verifies the checksum, returns a COMA that honours masks."""
+
 from __future__ import annotations
 
 import json
@@ -11,6 +12,7 @@ import envs
 from sb3_coma import COMA
 from sb3_coma import load_pretrained as exported
 from sb3_coma import pretrained as pt
+from sb3_coma.checkpoints import training_options
 from sb3_coma.pretrained import PretrainedError, load_pretrained
 
 pytestmark = pytest.mark.skipif(not (pt.pretrained_dir() / pt.MANIFEST).is_file(), reason="no shipped models")
@@ -23,8 +25,8 @@ def test_manifest_records_checksums_commands_metrics():
         path = pt.pretrained_dir() / entry["file"]
         assert path.is_file() and path.stat().st_size == entry["size_bytes"]
         assert pt.sha256_file(path) == entry["sha256"]
-        assert entry["command"].startswith(f"sb3-coma train --env {entry['env']} --variant {entry['variant']} "
-                                           f"--seed {entry['seed']}")
+        variant = f" --variant {entry['variant']}" if entry["variant"] else ""
+        assert entry["command"].startswith(f"sb3-coma train --env {entry['env']}{variant} --seed {entry['seed']}")
         assert entry["train_wall_s"] > 0 and entry["timesteps"] > 0
         if "ablation_arm" in entry:  # flown by `sb3-coma reproduce` in the ablation table
             assert name == f"{entry['env']}-{entry['ablation_arm'][0]}-{entry['ablation_arm'][1]}"
@@ -39,7 +41,10 @@ def test_ablation_arms_are_shipped_with_their_fusion_and_extractor():
 
     for (fusion, extractor), name in ABLATION_ARMS.items():
         model = load_pretrained(name)
-        assert model.pretrained_info["fusion"] == fusion and model.pretrained_info["ablation_arm"] == [fusion, extractor]
+        assert model.pretrained_info["fusion"] == fusion and model.pretrained_info["ablation_arm"] == [
+            fusion,
+            extractor,
+        ]
         assert isinstance(model.policy.actor.features_extractor, CBAMExtractor) == (extractor == "cbam")
 
 
@@ -48,7 +53,10 @@ def test_load_pretrained_predict_honours_masks():
     model = load_pretrained("env3")
     assert isinstance(model, COMA) and model.pretrained_info["env"] == "env3"
     assert pt.model_info("UavIpp-Env3-v0")["file"] == model.pretrained_info["file"]
-    venv = envs.make_vec_env("env3", n_envs=2, fusion=model.pretrained_info["fusion"], seed=0)
+    trained = training_options(model)
+    venv = envs.make_vec_env(
+        "env3", n_envs=2, fusion=trained["fusion"], seed=0, action_gain=trained["action_gain"], split="test"
+    )
     obs = venv.reset()
     rng = np.random.default_rng(0)
     for _ in range(2):
@@ -64,7 +72,9 @@ def test_load_pretrained_predict_honours_masks():
 
 
 def test_unknown_name_is_a_clear_error():
-    with pytest.raises(PretrainedError, match=r"unknown shipped model 'env9'; available: env1, env2, env3, env3-mean-cbam"):
+    with pytest.raises(
+        PretrainedError, match=r"unknown shipped model 'env9'; available: env1, env2, env3, env3-mean-cbam"
+    ):
         load_pretrained("env9")
     assert issubclass(PretrainedError, ValueError)
 
@@ -98,3 +108,34 @@ def test_missing_file_and_manifest(tmp_path):
     (tmp_path / pt.MANIFEST).write_text(json.dumps({"nothing": 1}))
     with pytest.raises(PretrainedError, match="no 'models' mapping"):
         load_pretrained("env1", directory=tmp_path)
+
+
+def test_shipped_form_is_compact_and_flies_like_the_full_model(tmp_path):
+    import zipfile
+
+    import numpy as np
+    import torch as th
+
+    import envs
+    from sb3_coma.pretrained import save_for_shipping
+
+    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, n_uavs=2, budget=4)
+    model = COMA("CBAMPolicy", venv, seed=0, n_steps=8, batch_size=8, n_epochs=1, device="cpu")
+    model.learn(64)
+    full = tmp_path / "full.zip"
+    model.save(full)
+    info = save_for_shipping(model, "small.zip", tmp_path)
+    small = tmp_path / "small.zip"
+    assert info["size_bytes"] == small.stat().st_size < 0.2 * full.stat().st_size
+    with zipfile.ZipFile(small) as archive:
+        assert all(entry.compress_type == zipfile.ZIP_DEFLATED for entry in archive.infolist())
+    reference, shipped = COMA.load(full, device="cpu"), COMA.load(small, device="cpu")
+    for a, b in zip(shipped.policy.critic.state_dict().values(), shipped.policy.critic_target.state_dict().values()):
+        assert th.equal(a, b)  # the target critic is rebuilt as the critic
+    obs = venv.reset()
+    for _ in range(8):
+        expected = reference.predict(obs, deterministic=True)[0]
+        np.testing.assert_array_equal(shipped.predict(obs, deterministic=True)[0], expected)
+        obs, *_ = venv.step(expected)
+    shipped.set_env(venv)
+    shipped.learn(16)  # a shipped model still trains

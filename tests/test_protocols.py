@@ -2,6 +2,7 @@
 
 Everything here runs with the baselines only, tiny budgets and a few missions, seeded.
 """
+
 from __future__ import annotations
 
 import csv
@@ -41,7 +42,10 @@ def test_protocols_fly_their_missions_end_to_end_with_baselines_only(unseen, tmp
     # paper: fixed corners; unseen: random starts, the same for every method
     assert paper.result("env1", "ag").trajectories[0, 0].tolist()[0] == [10, 10, 15]
     starts = {label: r.trajectories[:, 0].tolist() for (_, label), r in unseen.results.items()}
-    assert len({json.dumps(s) for s in starts.values()}) == 1 and starts["ag"] != paper.result("env1", "ag").trajectories[:, 0].tolist()
+    assert (
+        len({json.dumps(s) for s in starts.values()}) == 1
+        and starts["ag"] != paper.result("env1", "ag").trajectories[:, 0].tolist()
+    )
     final = unseen.final_table()
     assert all(h in final for h in METRIC_HEADS) and "ms per UAV decision" in final
     assert "team entropy ↓ 100%" in unseen.table("team") and "Entropy ↓ 100%" in unseen.table("global")
@@ -57,11 +61,16 @@ def test_protocols_fly_their_missions_end_to_end_with_baselines_only(unseen, tmp
 
 
 def test_default_pairs_compare_models_with_ag_and_lookahead_with_ag():
-    methods = [Method("coma", object(), kind="coma"), Method("coma[mean-cnn]", object(), kind="coma"),
-               *BASELINE_METHODS]
+    methods = [
+        Method("coma", object(), kind="coma"),
+        Method("coma[mean-cnn]", object(), kind="coma"),
+        *BASELINE_METHODS,
+    ]
     pairs = default_pairs(methods)
     assert pairs[:2] == [("coma", "ag"), ("coma[mean-cnn]", "ag")]
-    assert {("coma", "lawnmower"), ("ag-k2", "ag"), ("ag-k3", "ag"), ("ag", "random"), ("lawnmower", "random")} <= set(pairs)
+    assert {("coma", "lawnmower"), ("ag-k2", "ag"), ("ag-k3", "ag"), ("ag", "random"), ("lawnmower", "random")} <= set(
+        pairs
+    )
     assert len(pairs) == len(set(pairs))
     assert default_pairs(list(BASELINE_METHODS))[0] == ("ag-k2", "ag")
 
@@ -70,8 +79,17 @@ def _fake(method, final, n=4, team=None, split="test"):
     values = np.ones((n, 2))
     values[:, -1] = final
     tvalues = values.copy() if team is None else np.column_stack([np.ones(n), team])
-    return SimpleNamespace(method=method, env="env1", seed=0, n_trials=n, env_options={"split": split},
-                           f1=1 - values, entropy=values, team_f1=1 - tvalues, team_entropy=tvalues)
+    return SimpleNamespace(
+        method=method,
+        env="env1",
+        seed=0,
+        n_trials=n,
+        env_options={"split": split},
+        f1=1 - values,
+        entropy=values,
+        team_f1=1 - tvalues,
+        team_entropy=tvalues,
+    )
 
 
 def test_verdicts_call_a_difference_within_the_standard_error_a_tie():
@@ -81,9 +99,15 @@ def test_verdicts_call_a_difference_within_the_standard_error_a_tie():
     assert abs(d.diff) < d.se and d.verdict == "tie" and d.winner is None
     clear = _fake("c", [0.40, 0.42, 0.39, 0.41])
     assert paired_difference(clear, b, "entropy").winner == "c"
-    result = ProtocolResult(PROTOCOLS["unseen"], 4, 0, "moderate", {"split": "test"},
-                            methods={"env1": [Method("a", "ag"), Method("b", "random")]},
-                            results={("env1", "a"): a, ("env1", "b"): b})
+    result = ProtocolResult(
+        PROTOCOLS["unseen"],
+        4,
+        0,
+        "moderate",
+        {"split": "test"},
+        methods={"env1": [Method("a", "ag"), Method("b", "random")]},
+        results={("env1", "a"): a, ("env1", "b"): b},
+    )
     (c,) = result.comparisons({"env1": [("a", "b")]})
     assert c.diffs["entropy"].verdict == "tie" and c.diffs["team_entropy"].verdict == "tie"
     assert "(tie)" in result.verdict_table([c]) and "(a)" not in result.verdict_table([c])
@@ -123,8 +147,12 @@ def test_ag_default_weighting_is_per_map_unless_given():
     r = evaluate("ag", env="env3", n_trials=1, budget=1, record=0)
     assert r.planner_kwargs["weighting"] == WEIGHTING_BY_MAP["env3"]
     other = "class" if WEIGHTING_BY_MAP["env3"] == "plain" else "plain"
-    assert evaluate("ag", env="env3", n_trials=1, budget=1, record=0,
-                    planner_kwargs={"weighting": other}).planner_kwargs["weighting"] == other
+    assert (
+        evaluate("ag", env="env3", n_trials=1, budget=1, record=0, planner_kwargs={"weighting": other}).planner_kwargs[
+            "weighting"
+        ]
+        == other
+    )
     assert evaluate("lawnmower", env="env3", n_trials=1, budget=1, record=0).planner_kwargs == {}
 
 
@@ -156,9 +184,18 @@ def test_ag_weighting_rule_prefers_entropy_then_f1_then_class():
         def run(method, **kwargs):
             w = kwargs["planner_kwargs"]["weighting"]
             e, f = np.asarray(entropy[w]), np.asarray(f1[w])
-            return SimpleNamespace(method=w, env="e", seed=kwargs["seed"], n_trials=len(e), env_options=kwargs,
-                                   f1=np.column_stack([f, f]), entropy=np.column_stack([e, e]),
-                                   team_f1=None, team_entropy=None)
+            return SimpleNamespace(
+                method=w,
+                env="e",
+                seed=kwargs["seed"],
+                n_trials=len(e),
+                env_options=kwargs,
+                f1=np.column_stack([f, f]),
+                entropy=np.column_stack([e, e]),
+                team_f1=None,
+                team_entropy=None,
+            )
+
         return run
 
     lower = {"class": [0.5, 0.6, 0.55], "plain": [0.4, 0.52, 0.46]}
@@ -175,8 +212,10 @@ def test_sweep_points_one_axis_at_a_time_and_grid():
     points = sweep_points()
     assert len(points) == 2 * (1 + 5 + 3 + 1)  # centre + the other values of each axis, per decoder
     assert {p.decoder for p in points} == {"soft", "threshold"}
-    assert all(sum(getattr(p, a) != c for a, c in (("sigma", 0.02), ("alpha_low", 0.8), ("drop_probability", 0.0))) <= 1
-               for p in points)
+    assert all(
+        sum(getattr(p, a) != c for a, c in (("sigma", 0.02), ("alpha_low", 0.8), ("drop_probability", 0.0))) <= 1
+        for p in points
+    )
     assert len(sweep_points(grid=True)) == 2 * 6 * 4 * 2
     assert len(sweep_points(QUICK_AXES)) == 2 * 4
     with pytest.raises(ValueError, match="unknown noise-sweep axes"):
@@ -209,7 +248,11 @@ def test_noise_sweep_quick_table_has_both_metric_families(tmp_path):
 def test_noise_sweep_command_quick(tmp_path, capsys):
     out = tmp_path / "sweep"
     assert main(["noise-sweep", "--quick", "--arms", "ag", "--env", "env1", "--budget", "2", "--out", str(out)]) == 0
-    assert (out / "noise_sweep.md").is_file() and (out / "noise_sweep.csv").is_file() and (out / "noise_sweep.png").is_file()
+    assert (
+        (out / "noise_sweep.md").is_file()
+        and (out / "noise_sweep.csv").is_file()
+        and (out / "noise_sweep.png").is_file()
+    )
     assert "team entropy" in capsys.readouterr().out
     assert main(["noise-sweep", "--quick", "--arms", "", "--out", str(out)]) == 2
 
@@ -220,8 +263,7 @@ def test_cost_table_times_ag_for_every_lookahead():
 
     rows = decision_costs({}, envs=["env1"], lookaheads=(1, 2, 3), repeats=8, budget=3)
     w = WEIGHTING_BY_MAP["env1"]
-    assert [r.what for r in rows] == [f"AG ({w})", f"AG, look-ahead k=2 ({w})",
-                                      f"AG, look-ahead k=3 ({w})"]
+    assert [r.what for r in rows] == [f"AG ({w})", f"AG, look-ahead k=2 ({w})", f"AG, look-ahead k=3 ({w})"]
     assert all(r.ms is not None and r.ms > 0 for r in rows)
     assert "AG, look-ahead k=3" in costs_markdown(rows)
 
@@ -237,13 +279,30 @@ def test_reproduce_quick_with_baselines_only(tmp_path):
     assert summary["paper"]["split"] == "paper" and summary["unseen"]["split"] == "test"
     assert summary["unseen"]["missions"] == 2 and summary["noise_sweep"]["arms"] == ["ag"]
     assert {r["what"].split(" (")[0] for r in summary["latency"]} == {"AG", "AG, look-ahead k=2", "AG, look-ahead k=3"}
-    for name in ("table.md", "team_table.md", "paper_verdicts.md", "unseen_table.md", "unseen_team_table.md",
-                 "unseen_verdicts.md", "noise_sweep.md", "latency.md", "summary.json", "RESULTS.md",
-                 "figures/noise_sweep.png", "figures/unseen_curves.png"):
+    for name in (
+        "table.md",
+        "team_table.md",
+        "paper_verdicts.md",
+        "unseen_table.md",
+        "unseen_team_table.md",
+        "unseen_verdicts.md",
+        "noise_sweep.md",
+        "latency.md",
+        "summary.json",
+        "RESULTS.md",
+        "figures/noise_sweep.png",
+        "figures/unseen_curves.png",
+    ):
         assert (out / name).is_file(), name
     text = docs.read_text()
-    for section in ("## Paragraph for README's results section", "## Table I (paper protocol)", "## Unseen protocol",
-                    "## Noise sweep", "## Deployment latency and cost", "team entropy"):
+    for section in (
+        "## Paragraph for README's results section",
+        "## Table I (paper protocol)",
+        "## Unseen protocol",
+        "## Noise sweep",
+        "## Deployment latency and cost",
+        "team entropy",
+    ):
         assert section in text, section
     assert (docs.parent / "figures" / "noise_sweep.png").is_file()
 

@@ -1,4 +1,5 @@
 """``sb3-coma reproduce --quick`` end to end into a temporary folder."""
+
 from __future__ import annotations
 
 import json
@@ -16,16 +17,35 @@ def test_reproduce_quick_end_to_end(tmp_path, capsys):
     out = tmp_path / "res"
     docs = tmp_path / "docs" / "RESULTS.md"
     assert main(["reproduce", "--quick", "--env", "env1", "--out", str(out), "--docs", str(docs)]) == 0
-    for name in ("table.md", "table.csv", "acceptance.md", "generalisation.md", "latency.md", "summary.json",
-                 "RESULTS.md", "figures/table1_curves.png", "figures/training_reward.png"):
+    for name in (
+        "table.md",
+        "table.csv",
+        "acceptance.md",
+        "generalisation.md",
+        "latency.md",
+        "summary.json",
+        "RESULTS.md",
+        "figures/table1_curves.png",
+        "figures/training_reward.png",
+    ):
         assert (out / name).is_file(), name
     summary = json.loads((out / "summary.json").read_text())
     assert summary["trials"] == 2 and summary["models"]["env1"]["source"] == "shipped"
-    assert set(summary["table"]) == {"env1/coma", "env1/ag", "env1/ag-k2", "env1/ag-k3", "env1/lawnmower", "env1/random"}
+    assert set(summary["table"]) == {
+        "env1/coma",
+        "env1/ag",
+        "env1/ag-k2",
+        "env1/ag-k3",
+        "env1/lawnmower",
+        "env1/random",
+    }
     assert {g["target"] for g in summary["generalisation"] if g["model"] == "env1"} >= {"env1 (map_seed=7)"}
     text = docs.read_text()
     assert "## Table I" in text and "## Generalisation" in text and "## Deployment latency" in text
-    assert "![table1_curves](figures/table1_curves.png)" in text and (docs.parent / "figures" / "table1_curves.png").is_file()
+    assert (
+        "![table1_curves](figures/table1_curves.png)" in text
+        and (docs.parent / "figures" / "table1_curves.png").is_file()
+    )
     assert "sb3-coma reproduce --quick" in text
 
 
@@ -52,22 +72,42 @@ def test_acceptance_logic():
     acc = acceptance([R("e", "coma", 0.8, 0.3), R("e", "ag", 0.7, 0.2), R("e", "random", 0.5, 0.7)])["e"]
     assert acc["beats_f1"] and not acc["beats_entropy"] and not acc["beats_all"]
     assert acc["best_entropy_baseline"] == "ag" and acc["best_f1_baseline"] == "ag"
-    assert acc["paired"]["ag"]["entropy"]["verdict"] == "ag better" and acc["paired"]["random"]["f1"]["verdict"] == "coma better"
+    assert (
+        acc["paired"]["ag"]["entropy"]["verdict"] == "ag better"
+        and acc["paired"]["random"]["f1"]["verdict"] == "coma better"
+    )
 
 
 def test_reproduce_quick_train(tmp_path):
     out = tmp_path / "res"
-    assert main(["reproduce", "--quick", "--train", "--env", "env1", "--out", str(out), "--no-docs", "--no-plots",
-                 "--no-generalisation"]) == 0
+    assert (
+        main(
+            [
+                "reproduce",
+                "--quick",
+                "--train",
+                "--env",
+                "env1",
+                "--out",
+                str(out),
+                "--no-docs",
+                "--no-plots",
+                "--no-generalisation",
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     model = summary["models"]["env1"]
     assert model["source"] == str(out / "runs" / "env1") and model["timesteps"] >= 32
     from sb3_coma.reproduce import shipped_seed
 
     seed = shipped_seed("env1")  # --train retrains the shipped model's seed
-    assert model["command"].startswith(f"sb3-coma train --env env1 --variant fast --seed {seed} --timesteps 32")
+    assert model["command"].startswith(f"sb3-coma train --env env1 --seed {seed} --timesteps 32")  # the map's entry
     assert "--eval-freq" not in model["command"]  # the tiny training does not validate
-    assert (out / "runs" / "env1" / "model.zip").is_file() and summary["command"] == "sb3-coma reproduce --train --quick"
+    assert (out / "runs" / "env1" / "model.zip").is_file() and summary[
+        "command"
+    ] == "sb3-coma reproduce --train --quick"
 
 
 def test_fusion_latency_is_measured_for_both_fusions():
@@ -81,8 +121,22 @@ def test_fusion_latency_is_measured_for_both_fusions():
 def test_reproduce_quick_ablation(tmp_path):
     """env3 brings the ablation: the env3 model plus the three shipped arms at three noise levels."""
     out = tmp_path / "res"
-    assert main(["reproduce", "--quick", "--env", "env3", "--out", str(out), "--no-docs", "--no-plots",
-                 "--no-generalisation"]) == 0
+    assert (
+        main(
+            [
+                "reproduce",
+                "--quick",
+                "--env",
+                "env3",
+                "--out",
+                str(out),
+                "--no-docs",
+                "--no-plots",
+                "--no-generalisation",
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     ablation = summary["ablation"]
     assert ablation["noise"] == "loud" and ablation["full"] == "SenDFuse+CBAM"
@@ -112,8 +166,13 @@ def test_ablation_acceptance_logic():
 
     class Result:
         def __init__(self, full, cnn):
-            self.results = {("SenDFuse+CBAM", "loud"): R(full), ("SenDFuse", "loud"): R(cnn),
-                            ("CBAM", "loud"): R(0.5), ("Base", "loud"): R(0.6), ("SenDFuse+CBAM", "none"): R(0.9)}
+            self.results = {
+                ("SenDFuse+CBAM", "loud"): R(full),
+                ("SenDFuse", "loud"): R(cnn),
+                ("CBAM", "loud"): R(0.5),
+                ("Base", "loud"): R(0.6),
+                ("SenDFuse+CBAM", "none"): R(0.9),
+            }
 
     assert ablation_acceptance(Result(0.40, 0.41))["met"] is True
     assert ablation_acceptance(Result(0.42, 0.41))["met"] is False
@@ -126,7 +185,8 @@ def test_retraining_uses_the_shipped_run_length(monkeypatch):
     """A shipped model trained with --timesteps records train_timesteps; --train retrains as long."""
     from sb3_coma import pretrained, reproduce
 
-    monkeypatch.setattr(pretrained, "model_info", lambda env: {"seed": 1, "train_timesteps": 18000}
-                        if env == "envL" else {"seed": 2})
+    monkeypatch.setattr(
+        pretrained, "model_info", lambda env: {"seed": 1, "train_timesteps": 18000} if env == "envL" else {"seed": 2}
+    )
     assert reproduce.shipped_timesteps("envL") == 18000 and reproduce.shipped_seed("envL") == 1
     assert reproduce.shipped_timesteps("envS") is None  # the config's n_timesteps

@@ -1,4 +1,5 @@
 """SenDFuse network, fusion strategy, loss and weight files (fast, seeded, CPU only)."""
+
 from __future__ import annotations
 
 import math
@@ -308,7 +309,9 @@ def test_loss_is_zero_for_identical_inputs_and_positive_otherwise() -> None:
     diff = loss(pred, target)
     assert diff.mse > 0 and diff.mae > 0 and diff.ssim > 0
     w_mse, w_mae, w_ssim = DEFAULT_WEIGHTS
-    assert float(diff.total) == pytest.approx(w_mse * float(diff.mse) + w_mae * float(diff.mae) + w_ssim * float(diff.ssim))
+    assert float(diff.total) == pytest.approx(
+        w_mse * float(diff.mse) + w_mae * float(diff.mae) + w_ssim * float(diff.ssim)
+    )
     # (B, H, W) inputs and maps smaller than the SSIM window work too.
     small = torch.rand(2, 6, 6)
     assert torch.isfinite(loss(small, small.flip(-1)).total)
@@ -472,10 +475,14 @@ def test_mismatched_tensors_and_configs_raise(tmp_path: Path) -> None:
 
     # The record says other widths than the tensors have.
     with pytest.raises(SenDFuseWeightsError, match="shape"):
-        load_weights(_write_raw(tmp_path / "record.safetensors", state, resealed(state, **{"sendfuse.channels": "8,16,48"})))
+        load_weights(
+            _write_raw(tmp_path / "record.safetensors", state, resealed(state, **{"sendfuse.channels": "8,16,48"}))
+        )
 
     with pytest.raises(SenDFuseWeightsError, match="format version 2"):
-        load_weights(_write_raw(tmp_path / "v2.safetensors", state, resealed(state, **{"sendfuse.format_version": "2"})))
+        load_weights(
+            _write_raw(tmp_path / "v2.safetensors", state, resealed(state, **{"sendfuse.format_version": "2"}))
+        )
 
     nan_state = {**state, "head.bias": torch.full_like(state["head.bias"], math.nan)}
     with pytest.raises(SenDFuseWeightsError, match="NaN"):

@@ -2,6 +2,7 @@
 
 Everything here is small enough to run in well under a minute on two CPU cores.
 """
+
 from __future__ import annotations
 
 import copy
@@ -116,8 +117,22 @@ def test_tiny_pretraining_lowers_the_loss() -> None:
 
 
 def test_pretrain_command_is_deterministic(tmp_path, capsys) -> None:
-    argv = ["pretrain-sendfuse", "--samples", "48", "--epochs", "1", "--batch", "16", "--threads", "1",
-            "--seed", "7", "--calibration-fusions", "4", "--quiet"]
+    argv = [
+        "pretrain-sendfuse",
+        "--samples",
+        "48",
+        "--epochs",
+        "1",
+        "--batch",
+        "16",
+        "--threads",
+        "1",
+        "--seed",
+        "7",
+        "--calibration-fusions",
+        "4",
+        "--quiet",
+    ]
     first, second = tmp_path / "a.safetensors", tmp_path / "b.safetensors"
     assert main([*argv, "--out", str(first)]) == 0
     assert main([*argv, "--out", str(second)]) == 0

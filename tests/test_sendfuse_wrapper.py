@@ -1,4 +1,5 @@
 """``fusion="sendfuse"``: the env wrapper around the shipped SenDFuse weights."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -53,7 +54,7 @@ def test_fused_channel_is_finite_and_in_unit_range() -> None:
             if done:
                 terminal = info["terminal_observation"][layout.KEY_LOCAL]
                 assert terminal.shape == (layout.LOCAL_CHANNELS, 11, 11)
-                assert 0.0 <= terminal[layout.FUSED].min() and terminal[layout.FUSED].max() <= 1.0
+                assert terminal[layout.FUSED].min() >= 0.0 and terminal[layout.FUSED].max() <= 1.0
 
 
 def test_without_noise_and_in_range_it_is_close_to_the_mean() -> None:
@@ -93,8 +94,9 @@ def test_corrupt_weights_give_a_clear_error(tmp_path) -> None:
 def test_one_batched_network_call_per_step() -> None:
     net = CountingNet()
     n_envs, budget = 3, 4
-    venv = envs.make_vec_env("env3", n_envs=n_envs, fusion="sendfuse", seed=0, budget=budget,
-                             fusion_kwargs={"network": net})
+    venv = envs.make_vec_env(
+        "env3", n_envs=n_envs, fusion="sendfuse", seed=0, budget=budget, fusion_kwargs={"network": net}
+    )
     rng = np.random.default_rng(0)
     obs = venv.reset()
     assert net.calls == [n_envs * 4]  # every agent of every copy in one call

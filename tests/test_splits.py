@@ -1,5 +1,6 @@
 """Mission splits of the ground-truth maps: disjoint train / test scenes and stars, their 8 transforms,
 determinism, caching, and the unchanged "paper" split."""
+
 from __future__ import annotations
 
 import hashlib
@@ -12,8 +13,19 @@ import numpy as np
 import pytest
 
 from envs.maps import (
-    ENV1_SEED_RANGES, SCENES, SPLITS, TRANSFORMS, MapError, block_fraction, block_index, build_shipped_maps, dihedral,
-    load_ground_truth, scene_count, shipped, split_scenes,
+    ENV1_SEED_RANGES,
+    SCENES,
+    SPLITS,
+    TRANSFORMS,
+    MapError,
+    block_fraction,
+    block_index,
+    build_shipped_maps,
+    dihedral,
+    load_ground_truth,
+    scene_count,
+    shipped,
+    split_scenes,
 )
 from envs.maps.scenes import SOURCE_SHAPES, SPLIT_GAP, pick
 
@@ -25,8 +37,11 @@ SPLIT_PAIRS = [(f, s) for f in FAMILIES for s in ("train", "test")]
 def _missions(name: str, split: str, **kwargs):
     """Every mission of a split, seed = scene index + n * transform: {(scene, transform): truth}."""
     n = scene_count(name, split)
-    return {(i, t): load_ground_truth(name, seed=i + n * t, split=split, **kwargs)
-            for i in range(n) for t in range(len(TRANSFORMS))}
+    return {
+        (i, t): load_ground_truth(name, seed=i + n * t, split=split, **kwargs)
+        for i in range(n)
+        for t in range(len(TRANSFORMS))
+    }
 
 
 # ------------------------------------------------------------------ the catalogue
@@ -73,11 +88,11 @@ def test_crops_are_square_inside_the_source_and_never_overlap(family):
     for s in scenes:
         assert s.split in ("train", "test")
         assert 0 <= s.rows[0] < s.rows[1] <= rows and 0 <= s.cols[0] < s.cols[1] <= cols, s
-        assert s.rows[1] - s.rows[0] == s.cols[1] - s.cols[0], s      # the field is square
+        assert s.rows[1] - s.rows[0] == s.cols[1] - s.cols[0], s  # the field is square
         if family == "env3":
-            assert s.rows[1] - s.rows[0] == shipped.SHIPPED_SIZE      # native 10 m, no resampling
+            assert s.rows[1] - s.rows[0] == shipped.SHIPPED_SIZE  # native 10 m, no resampling
     for a, b in itertools.combinations(scenes, 2):
-        assert _gap(a, b) >= 0, (a.key, b.key)                       # no two crops share a pixel
+        assert _gap(a, b) >= 0, (a.key, b.key)  # no two crops share a pixel
     for a in split_scenes(family, "train"):
         for b in split_scenes(family, "test"):
             assert _gap(a, b) >= SPLIT_GAP[family], (a.key, b.key)
@@ -90,17 +105,21 @@ def test_shipped_scene_files_exist_and_stay_small():
     assert all(size > 0 for size in sizes)
     assert sum(sizes) < 400_000
     assert {p.name for p in shipped.DATA_DIR.glob("*.png")} == set(files) | {
-        shipped.ENV2_FILE, shipped.ENV3_RGB_FILE, shipped.ENV3_NIR_FILE, shipped.ENV3_BUILTUP_FILE}
+        shipped.ENV2_FILE,
+        shipped.ENV3_RGB_FILE,
+        shipped.ENV3_NIR_FILE,
+        shipped.ENV3_BUILTUP_FILE,
+    }
 
 
 def test_env1_seed_ranges_are_disjoint():
     ranges = sorted(ENV1_SEED_RANGES.values())
     assert ranges[0] == (0, 1_000_000)
     assert all(a[1] <= b[0] for a, b in itertools.pairwise(ranges))
-    assert ranges[-1][1] <= 2 ** 32
+    assert ranges[-1][1] <= 2**32
     for split in ("train", "test"):
         start, stop = ENV1_SEED_RANGES[split]
-        for seed in (0, 7, stop - start + 7, 2 ** 40 + 3):
+        for seed in (0, 7, stop - start + 7, 2**40 + 3):
             star_seed = int(load_ground_truth("env1", seed=seed, split=split).name.rsplit("star", 1)[1])
             assert start <= star_seed < stop and star_seed == start + seed % (stop - start)
 
@@ -114,7 +133,7 @@ def test_dihedral_is_the_square_group():
     sq = np.random.default_rng(0).random((5, 5))
     images = [dihedral(sq, t) for t in range(8)]
     assert len({im.tobytes() for im in images}) == 8
-    for t, u in itertools.product(range(8), repeat=2):                # closed under composition
+    for t, u in itertools.product(range(8), repeat=2):  # closed under composition
         assert any(np.array_equal(dihedral(dihedral(sq, t), u), im) for im in images)
     with pytest.raises(MapError, match="8"):
         dihedral(sq, 8)
@@ -162,7 +181,7 @@ def test_no_test_mask_equals_any_train_mask_under_any_transform(family):
             for t in range(8):
                 image = dihedral(b, t)
                 assert not np.array_equal(a, image)
-                assert (a != image).mean() > 0.1                       # not even nearly equal
+                assert (a != image).mean() > 0.1  # not even nearly equal
 
 
 def test_env1_train_and_test_stars_differ_from_each_other_and_from_paper():
@@ -175,7 +194,7 @@ def test_env1_train_and_test_stars_differ_from_each_other_and_from_paper():
 # ------------------------------------------------------------------ determinism and variety
 @pytest.mark.parametrize("name,split", SPLIT_PAIRS + [("env1", "train"), ("env1", "test")])
 def test_same_seed_same_map(name, split):
-    for seed in (0, 5, 123_456_789, 2 ** 31 - 2):
+    for seed in (0, 5, 123_456_789, 2**31 - 2):
         a = load_ground_truth(name, seed=seed, split=split)
         b = load_ground_truth(name, seed=np.int64(seed), split=split.upper())
         assert a.name == b.name and a.source == b.source
@@ -190,7 +209,7 @@ def test_different_seeds_give_every_mission_once(name, split):
     assert len(missions) == 8 * scene_count(name, split)
     assert len({m.name for m in missions.values()}) == len(missions)
     digests = {hashlib.sha256(np.packbits(m.valuable).tobytes()).hexdigest() for m in missions.values()}
-    assert len(digests) == len(missions)                              # no scene is symmetric
+    assert len(digests) == len(missions)  # no scene is symmetric
     for (i, t), m in missions.items():
         scene = split_scenes(name, split)[i]
         assert m.name == f"{name}/{split}/{scene.key}/{TRANSFORMS[t]}"
@@ -213,8 +232,10 @@ def test_seed_none_draws_a_replayable_mission():
         np.testing.assert_array_equal(replay.valuable, truth.valuable)
         seen.add(truth.name)
     assert len(seen) > 1
-    assert (load_ground_truth("env1", seed=None, split="test").valuable
-            != load_ground_truth("env1", seed=None, split="test").valuable).any()
+    assert (
+        load_ground_truth("env1", seed=None, split="test").valuable
+        != load_ground_truth("env1", seed=None, split="test").valuable
+    ).any()
 
 
 # ------------------------------------------------------------------ every scene is a usable mission
@@ -226,9 +247,9 @@ def test_every_scene_has_a_reasonable_fraction_and_room_for_8_uavs(name, split):
         assert 0.10 <= m.valuable.mean() <= 0.60, m.name
         assert int((~m.no_fly).sum()) >= 8, m.name
         assert m.no_fly.mean() <= 0.2, m.name
-        assert not any(m.no_fly[y, x] for x, y in STARTS), m.name     # start="fixed" works everywhere
+        assert not any(m.no_fly[y, x] for x, y in STARTS), m.name  # start="fixed" works everywhere
         n_parts, _ = cv2.connectedComponents((~m.no_fly).astype(np.uint8), connectivity=4)
-        assert n_parts - 1 == 1, m.name                                # no UAV is ever walled in
+        assert n_parts - 1 == 1, m.name  # no UAV is ever walled in
 
 
 def test_other_grid_and_lattice():
@@ -262,15 +283,18 @@ def test_bad_split_raises_map_error_naming_it(split):
     assert repr(split) in str(info.value)
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"name": "env3", "split": "train", "valuable": "excess-green"}, "excess-green.*split='train'"),
-    ({"name": "env3", "split": "test", "valuable": "ndvi:0.3"}, "ndvi:0.3.*ndvi:0.5"),
-    ({"name": "env2", "split": "train", "valuable": "ndvi"}, "near-infrared"),
-    ({"name": "env2", "split": "train", "seed": -1}, "seed=-1"),
-    ({"name": "env3", "split": "test", "seed": "abc"}, "seed='abc'"),
-    ({"name": "env1", "split": "train", "seed": 1.5}, "seed=1.5"),
-    ({"name": "env1", "split": "test", "map_path": "/tmp/x.png"}, "split='test'.*map_path"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"name": "env3", "split": "train", "valuable": "excess-green"}, "excess-green.*split='train'"),
+        ({"name": "env3", "split": "test", "valuable": "ndvi:0.3"}, "ndvi:0.3.*ndvi:0.5"),
+        ({"name": "env2", "split": "train", "valuable": "ndvi"}, "near-infrared"),
+        ({"name": "env2", "split": "train", "seed": -1}, "seed=-1"),
+        ({"name": "env3", "split": "test", "seed": "abc"}, "seed='abc'"),
+        ({"name": "env1", "split": "train", "seed": 1.5}, "seed=1.5"),
+        ({"name": "env1", "split": "test", "map_path": "/tmp/x.png"}, "split='test'.*map_path"),
+    ],
+)
 def test_bad_split_inputs(kwargs, match):
     with pytest.raises(MapError, match=match):
         load_ground_truth(**kwargs)
@@ -279,8 +303,9 @@ def test_bad_split_inputs(kwargs, match):
 def test_env3_default_rule_spelled_out_is_accepted():
     a = load_ground_truth("env3", seed=9, split="test")
     for rule in ("ndvi", "ndvi:0.5", " NDVI:0.50 "):
-        np.testing.assert_array_equal(load_ground_truth("env3", seed=9, split="test", valuable=rule).valuable,
-                                      a.valuable)
+        np.testing.assert_array_equal(
+            load_ground_truth("env3", seed=9, split="test", valuable=rule).valuable, a.valuable
+        )
 
 
 # ------------------------------------------------------------------ the paper split is today's loader
@@ -302,8 +327,11 @@ PAPER_FINGERPRINTS = [
 
 
 def _fingerprint(g) -> str:
-    payload = (np.packbits(g.valuable).tobytes() + np.packbits(g.no_fly).tobytes()
-               + repr((g.valuable.shape, g.no_fly.shape, g.name, g.source)).encode())
+    payload = (
+        np.packbits(g.valuable).tobytes()
+        + np.packbits(g.no_fly).tobytes()
+        + repr((g.valuable.shape, g.no_fly.shape, g.name, g.source)).encode()
+    )
     return hashlib.sha256(payload).hexdigest()[:16]
 
 
@@ -319,9 +347,9 @@ def test_env_call_signature_works_and_is_cached():
     call = {"map_path": None, "valuable": None, "grid": 493, "lattice": 11}
     for name, split in SPLIT_PAIRS:
         first = load_ground_truth(name, seed=17, split=split, **call)
-        assert load_ground_truth(name, seed=17, split=split, **call) is first   # one shared, read-only truth
-    _missions("env3", "train")                                                  # warm every mission
+        assert load_ground_truth(name, seed=17, split=split, **call) is first  # one shared, read-only truth
+    _missions("env3", "train")  # warm every mission
     t0 = time.perf_counter()
     for seed in range(4000):
         load_ground_truth("env3", seed=seed, split="train", **call)
-    assert (time.perf_counter() - t0) / 4000 < 1e-4                             # well under 0.1 ms a reset
+    assert (time.perf_counter() - t0) / 4000 < 1e-4  # well under 0.1 ms a reset

@@ -1,4 +1,5 @@
 """Training API and ``sb3-coma train``: run folders, resume, bad input (tiny, fast settings)."""
+
 from __future__ import annotations
 
 import csv
@@ -47,9 +48,9 @@ TINY = {
 }
 
 
-
 # Runs write run folders and logs into the working directory: keep them in tmp_path.
 pytestmark = pytest.mark.usefixtures("tmp_cwd")
+
 
 def write_config(folder: Path, data: dict | None = None, text: str | None = None) -> Path:
     path = folder / "tiny.yml"
@@ -102,8 +103,15 @@ def test_default_config_has_the_settings_that_learn_and_the_paper_variant():
         e = cfg.entry
         assert e["n_timesteps"] == 24000 and e["policy"] == "CBAMPolicy" and e["n_envs"] == 8
         assert "learning_rate" not in e and "batch_size" not in e  # COMA's defaults: the measured settings
-        assert e["env_kwargs"] == {"fusion": "sendfuse", "n_uavs": 4, "budget": 15, "noise": "moderate",
-                                   "split": "train", "reward": "metrics", "action_gain": False}
+        assert e["env_kwargs"] == {
+            "fusion": "sendfuse",
+            "n_uavs": 4,
+            "budget": 15,
+            "noise": "moderate",
+            "split": "train",
+            "reward": "metrics",
+            "action_gain": False,
+        }
         assert data[env_id] == e
     paper = load_config("env3", path, "paper").entry
     assert paper["n_timesteps"] == 18000 and paper["learning_rate"] == 1e-5 and paper["critic_learning_rate"] == 1e-4
@@ -123,7 +131,9 @@ def test_default_config_main_keys_load_in_rl_zoo(tmp_path):
     from rl_zoo3.exp_manager import ExperimentManager
 
     for env_id in ("UavIpp-Env1-v0", "UavIpp-Env3-v0"):
-        manager = ExperimentManager(argparse.Namespace(), "coma", env_id, str(tmp_path), config=str(default_config_path()))
+        manager = ExperimentManager(
+            argparse.Namespace(), "coma", env_id, str(tmp_path), config=str(default_config_path())
+        )
         hyperparams, saved = manager.read_hyperparameters()
         assert hyperparams["n_envs"] == 8 and saved["env_kwargs"]["fusion"] == "sendfuse"
 
@@ -140,7 +150,10 @@ def test_overrides_and_variant(tmp_path):
     [
         (dict(env="env9"), r"unknown env 'env9'"),
         (dict(env="env1", variant="nope"), r"unknown variant 'nope'.*variants: cbam, loud"),
-        (dict(env="env1", overrides={"batch_sise": 8}), r"COMA does not take 'batch_sise' \(did you mean 'batch_size'\?\)"),
+        (
+            dict(env="env1", overrides={"batch_sise": 8}),
+            r"COMA does not take 'batch_sise' \(did you mean 'batch_size'\?\)",
+        ),
         (dict(env="env1", overrides={"normalize": True}), r"'normalize' is not supported"),
         (dict(env="env1", overrides={"seed": 3}), r"'seed' cannot be set in a config"),
         (dict(env="env1", overrides={"env_kwargs.n_uav": 3}), r"env_kwargs: unknown environment option"),
@@ -266,8 +279,9 @@ def test_interrupt_saves_checkpoint_and_resume_reaches_same_count(tmp_path):
 
 def test_truncated_checkpoint_is_refused_and_skipped(tmp_path):
     config = write_config(tmp_path)
-    _, run = train(env="env1", config=config, seed=0, run_dir=tmp_path / "run", total_timesteps=24,
-                   save_freq=8, **quiet())
+    _, run = train(
+        env="env1", config=config, seed=0, run_dir=tmp_path / "run", total_timesteps=24, save_freq=8, **quiet()
+    )
     assert [s for s, _ in find_checkpoints(run / "checkpoints")] == [8, 16, 24]
     ckpt = run / "checkpoints" / "rl_model_24_steps.zip"
     ckpt.write_bytes(ckpt.read_bytes()[: ckpt.stat().st_size // 2])
@@ -313,8 +327,26 @@ def test_cli_train_tiny_and_list_variants(tmp_path, capsys):
     config = str(write_config(tmp_path))
     assert cli.main(["train", "--config", config, "--list-variants"]) == 0
     assert "cbam:" in capsys.readouterr().out
-    rc = cli.main(["train", "--env", "env1", "--config", config, "--variant", "cbam", "--timesteps", "8",
-                   "--seed", "3", "--run-dir", str(tmp_path / "cli"), "--no-progress", "--set", "env_kwargs.budget=2"])
+    rc = cli.main(
+        [
+            "train",
+            "--env",
+            "env1",
+            "--config",
+            config,
+            "--variant",
+            "cbam",
+            "--timesteps",
+            "8",
+            "--seed",
+            "3",
+            "--run-dir",
+            str(tmp_path / "cli"),
+            "--no-progress",
+            "--set",
+            "env_kwargs.budget=2",
+        ]
+    )
     assert rc == 0
     out = capsys.readouterr().out
     assert "Run folder:" in out and "model.zip" in out
@@ -328,8 +360,9 @@ def test_cli_interrupt_exit_status(monkeypatch, tmp_path, capsys):
     import sb3_coma.training
 
     def interrupted(**kwargs):
-        raise TrainingInterrupted(tmp_path / "run", tmp_path / "run" / "checkpoints" / "rl_model_8_steps.zip", 8,
-                                  signal.SIGTERM)
+        raise TrainingInterrupted(
+            tmp_path / "run", tmp_path / "run" / "checkpoints" / "rl_model_8_steps.zip", 8, signal.SIGTERM
+        )
 
     monkeypatch.setattr(sb3_coma.training, "train", interrupted)
     assert cli.main(["train", "--env", "env1", "-v", "0"]) == 128 + signal.SIGTERM
@@ -342,8 +375,9 @@ def test_validation_picks_best_model_on_seeded_missions(tmp_path):
     from sb3_coma.training import VALIDATION_SEED
 
     config = write_config(tmp_path)
-    _, run = train(env="env1", config=config, seed=0, run_dir=tmp_path / "run", eval_freq=16, eval_missions=2,
-                   **quiet())
+    _, run = train(
+        env="env1", config=config, seed=0, run_dir=tmp_path / "run", eval_freq=16, eval_missions=2, **quiet()
+    )
     data = np.load(run / "eval" / "evaluations.npz")
     assert list(data["timesteps"]) == [16, 32]
     assert data["results"].shape == (2, 2 * 2)  # 2 missions x 2 UAV rows per evaluation

@@ -1,4 +1,5 @@
 """The SB3 vec-env pipeline: SuperSuit + fusion + adapter + VecMonitor, and gymnasium ids."""
+
 from __future__ import annotations
 
 import gymnasium
@@ -41,7 +42,7 @@ def test_spaces_and_shapes(venv):
 def test_step_terminal_observation_and_infos(venv):
     rng = np.random.default_rng(0)
     obs = venv.reset()
-    for t in range(4):
+    for _t in range(4):
         obs, rewards, dones, infos = venv.step(valid_random_actions(obs, rng))
         assert rewards.shape == (8,) and dones.shape == (8,)
         assert all("f1" in info and "entropy" in info for info in infos)
@@ -120,13 +121,16 @@ def test_gymnasium_ids_registered():
         gymnasium.make("UavIpp-Env1-v0")
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"n_envs": 0}, "n_envs"),
-    ({"n_envs": 1.5}, "n_envs"),
-    ({"fusion": "median"}, "fusion"),
-    ({"seed": "abc"}, "seed"),
-    ({"budget": -2}, "budget"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"n_envs": 0}, "n_envs"),
+        ({"n_envs": 1.5}, "n_envs"),
+        ({"fusion": "median"}, "fusion"),
+        ({"seed": "abc"}, "seed"),
+        ({"budget": -2}, "budget"),
+    ],
+)
 def test_bad_vec_env_arguments(kwargs, match):
     with pytest.raises((ConfigError, ValueError), match=match):
         envs.make_vec_env("env1", **kwargs)

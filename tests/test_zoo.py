@@ -1,4 +1,5 @@
 """rl-zoo3 route: ``python -m sb3_coma.zoo train|enjoy`` with COMA, tiny settings."""
+
 from __future__ import annotations
 
 import subprocess
@@ -31,9 +32,9 @@ TINY = {
 }
 
 
-
 # Runs write run folders and logs into the working directory: keep them in tmp_path.
 pytestmark = pytest.mark.usefixtures("tmp_cwd")
+
 
 @pytest.fixture
 def conf(tmp_path: Path) -> str:
@@ -48,9 +49,35 @@ def test_zoo_train_enjoy_round_trip(tmp_path, conf, capsys):
     from rl_zoo3.exp_manager import ExperimentManager
 
     logs = tmp_path / "logs"
-    rc = zoo.main(["train", "--algo", "coma", "--env", ENV, "-conf", conf, "--variant", "cbam", "-n", "16",
-                   "--seed", "1", "-f", str(logs), "--eval-freq", "8", "--eval-episodes", "2", "--save-freq", "8",
-                   "-tb", str(tmp_path / "tb"), "--verbose", "0"])
+    rc = zoo.main(
+        [
+            "train",
+            "--algo",
+            "coma",
+            "--env",
+            ENV,
+            "-conf",
+            conf,
+            "--variant",
+            "cbam",
+            "-n",
+            "16",
+            "--seed",
+            "1",
+            "-f",
+            str(logs),
+            "--eval-freq",
+            "8",
+            "--eval-episodes",
+            "2",
+            "--save-freq",
+            "8",
+            "-tb",
+            str(tmp_path / "tb"),
+            "--verbose",
+            "0",
+        ]
+    )
     assert rc == 0
     assert rl_zoo3.train.ExperimentManager is ExperimentManager  # un-patched afterwards
     run = logs / "coma" / f"{ENV}_1"
@@ -121,18 +148,54 @@ def test_zoo_optimize_with_shared_storage(tmp_path, conf, monkeypatch):
 
     monkeypatch.setattr(zoo_sampler, "sample_coma_params", small)
     storage = tmp_path / "study.log"
-    rc = zoo.main(["train", "--env", ENV, "-conf", conf, "-optimize", "--n-trials", "1", "-n", "8",
-                   "--n-evaluations", "1", "--eval-episodes", "1", "--no-optim-plots", "--sampler", "random",
-                   "--pruner", "none", "--storage", str(storage), "--study-name", "tiny", "-f", str(tmp_path / "logs"),
-                   "--seed", "0", "--verbose", "0"])
+    rc = zoo.main(
+        [
+            "train",
+            "--env",
+            ENV,
+            "-conf",
+            conf,
+            "-optimize",
+            "--n-trials",
+            "1",
+            "-n",
+            "8",
+            "--n-evaluations",
+            "1",
+            "--eval-episodes",
+            "1",
+            "--no-optim-plots",
+            "--sampler",
+            "random",
+            "--pruner",
+            "none",
+            "--storage",
+            str(storage),
+            "--study-name",
+            "tiny",
+            "-f",
+            str(tmp_path / "logs"),
+            "--seed",
+            "0",
+            "--verbose",
+            "0",
+        ]
+    )
     assert rc == 0
-    study = optuna.load_study(study_name="tiny", storage=optuna.storages.JournalStorage(
-        optuna.storages.journal.JournalFileBackend(str(storage))))
+    study = optuna.load_study(
+        study_name="tiny",
+        storage=optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(str(storage))),
+    )
     assert len(study.trials) == 1 and study.trials[0].state == optuna.trial.TrialState.COMPLETE
     assert "learning_rate" in study.trials[0].params
 
 
 def test_python_dash_m_entry_point(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "sb3_coma.zoo", "--help"], capture_output=True, text=True,
-                            cwd=Path(__file__).resolve().parent.parent, timeout=60)
+    result = subprocess.run(
+        [sys.executable, "-m", "sb3_coma.zoo", "--help"],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parent.parent,
+        timeout=60,
+    )
     assert result.returncode == 0 and "python -m sb3_coma.zoo" in result.stdout

@@ -5,6 +5,7 @@ study through its storage (here rl-zoo3's journal file, ``--storage PATH.log``; 
 machines a PostgreSQL / MySQL URL), each runs its own trials, and the study ends up with every
 trial of both, finished, numbered without gaps or duplicates.
 """
+
 from __future__ import annotations
 
 import os
@@ -37,13 +38,50 @@ REPO = Path(__file__).resolve().parent.parent
 
 def _worker(k: int, conf: Path, storage: Path, folder: Path) -> subprocess.Popen:
     """Worker ``k``: its own seed and log folder, the shared storage and study name."""
-    argv = [sys.executable, "-m", "sb3_coma.zoo", "train", "--algo", "coma", "--env", ENV, "-conf", str(conf),
-            "-optimize", "--n-trials", str(TRIALS_PER_WORKER), "--n-jobs", "1", "-n", "200",
-            "--n-evaluations", "1", "--eval-episodes", "1", "--sampler", "random", "--pruner", "none",
-            "--no-optim-plots", "--storage", str(storage), "--study-name", STUDY,
-            "-f", str(folder / f"logs_{k}"), "--seed", str(k), "--verbose", "0"]
-    env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1",
-               PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
+    argv = [
+        sys.executable,
+        "-m",
+        "sb3_coma.zoo",
+        "train",
+        "--algo",
+        "coma",
+        "--env",
+        ENV,
+        "-conf",
+        str(conf),
+        "-optimize",
+        "--n-trials",
+        str(TRIALS_PER_WORKER),
+        "--n-jobs",
+        "1",
+        "-n",
+        "200",
+        "--n-evaluations",
+        "1",
+        "--eval-episodes",
+        "1",
+        "--sampler",
+        "random",
+        "--pruner",
+        "none",
+        "--no-optim-plots",
+        "--storage",
+        str(storage),
+        "--study-name",
+        STUDY,
+        "-f",
+        str(folder / f"logs_{k}"),
+        "--seed",
+        str(k),
+        "--verbose",
+        "0",
+    ]
+    env = dict(
+        os.environ,
+        OMP_NUM_THREADS="1",
+        MKL_NUM_THREADS="1",
+        PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
+    )
     return subprocess.Popen(argv, cwd=folder, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -60,11 +98,13 @@ def test_two_workers_fill_one_study(tmp_path):
             if w.poll() is None:
                 w.kill()
                 w.wait()
-    for w, (out, err) in zip(workers, outputs):
+    for w, (_out, err) in zip(workers, outputs):
         assert w.returncode == 0, err[-3000:]
 
-    study = optuna.load_study(study_name=STUDY, storage=optuna.storages.JournalStorage(
-        optuna.storages.journal.JournalFileBackend(str(storage))))
+    study = optuna.load_study(
+        study_name=STUDY,
+        storage=optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(str(storage))),
+    )
     trials = study.get_trials(deepcopy=False)
     finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
     assert len(trials) == 2 * TRIALS_PER_WORKER, [t.state for t in trials]

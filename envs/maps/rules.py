@@ -14,6 +14,7 @@ A rule is a short string so that it fits on a command line and in an rl-zoo YAML
 Images are resized to the belief grid *before* the rule is applied, so quantile rules hit their
 fraction on the grid the environment actually scores, and the mask is binary at that resolution.
 """
+
 from __future__ import annotations
 
 import math
@@ -27,7 +28,13 @@ import numpy as np
 from .errors import MapError
 
 __all__ = [
-    "RULE_NAMES", "MapImage", "Rule", "apply_rule", "otsu_threshold", "parse_rule", "read_image",
+    "RULE_NAMES",
+    "MapImage",
+    "Rule",
+    "apply_rule",
+    "otsu_threshold",
+    "parse_rule",
+    "read_image",
     "resize_to_grid",
 ]
 
@@ -37,12 +44,13 @@ _ALIASES = {"excess_green": "excess-green", "exg": "excess-green", "otsu": "thre
 #: Rules whose parameter is a pixel fraction and therefore mandatory (no sensible default).
 _FRACTION_RULES = ("hottest", "coldest")
 #: Allowed closed ranges of a rule's threshold; ExG = 3g - 1 lies in [-1, 2], NDVI in [-1, 1].
-_THRESHOLD_RANGE = {"threshold": (0.0, 1.0), "dark": (0.0, 1.0), "excess-green": (-1.0, 2.0),
-                    "ndvi": (-1.0, 1.0)}
+_THRESHOLD_RANGE = {"threshold": (0.0, 1.0), "dark": (0.0, 1.0), "excess-green": (-1.0, 2.0), "ndvi": (-1.0, 1.0)}
 #: The NDVI threshold used when ``ndvi`` comes without one: a common "dense green vegetation" cut.
 DEFAULT_NDVI_THRESHOLD = 0.5
-_RULE_HELP = ("allowed rules: 'threshold[:T]', 'dark[:T]', 'hottest:F', 'coldest:F', "
-              "'excess-green[:T]', 'ndvi[:T]' (T a number, F a fraction in (0, 1))")
+_RULE_HELP = (
+    "allowed rules: 'threshold[:T]', 'dark[:T]', 'hottest:F', 'coldest:F', "
+    "'excess-green[:T]', 'ndvi[:T]' (T a number, F a fraction in (0, 1))"
+)
 
 
 @dataclass(frozen=True)
@@ -99,8 +107,7 @@ def parse_rule(rule: object) -> Rule:
     else:
         lo, hi = _THRESHOLD_RANGE[name]
         if not lo <= value <= hi:
-            raise MapError(f"valuable rule {rule!r}: the threshold {value:g} must lie in [{lo:g}, {hi:g}] "
-                           f"for '{name}'")
+            raise MapError(f"valuable rule {rule!r}: the threshold {value:g} must lie in [{lo:g}, {hi:g}] for '{name}'")
     return Rule(name, value)
 
 
@@ -119,8 +126,8 @@ def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
     hist, edges = np.histogram(v, bins=bins, range=(lo, hi))
     p = hist / hist.sum()
     centres = 0.5 * (edges[:-1] + edges[1:])
-    w0 = np.cumsum(p)                      # weight of the lower class for a cut after bin i
-    m0 = np.cumsum(p * centres)            # its un-normalised mean
+    w0 = np.cumsum(p)  # weight of the lower class for a cut after bin i
+    m0 = np.cumsum(p * centres)  # its un-normalised mean
     mt = m0[-1]
     w1 = 1.0 - w0
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -151,29 +158,37 @@ def apply_rule(rule: Rule, image: MapImage, label: str) -> np.ndarray:
     elif kind == "dark":
         mask = ~(gray > otsu_threshold(gray)) if value is None else gray < value
     elif kind == "hottest":
+        assert value is not None  # parse_rule requires a fraction for "hottest"
         mask = gray > np.quantile(gray, 1.0 - value)
     elif kind == "coldest":
+        assert value is not None  # ... and for "coldest"
         mask = gray < np.quantile(gray, value)
     elif kind == "excess-green":
         if image.rgb is None:
-            raise MapError(f"valuable rule '{rule}' needs a colour image, but map {label!r} is grayscale; "
-                           "use 'threshold', 'dark', 'hottest' or 'coldest'")
+            raise MapError(
+                f"valuable rule '{rule}' needs a colour image, but map {label!r} is grayscale; "
+                "use 'threshold', 'dark', 'hottest' or 'coldest'"
+            )
         exg = _chromatic_exg(image.rgb)
         mask = exg > (otsu_threshold(exg) if value is None else value)
     elif kind == "ndvi":
         if image.ndvi is None:
-            raise MapError(f"valuable rule '{rule}' needs a near-infrared band, which only env3 ships; "
-                           f"map {label!r} has none (try 'excess-green')")
+            raise MapError(
+                f"valuable rule '{rule}' needs a near-infrared band, which only env3 ships; "
+                f"map {label!r} has none (try 'excess-green')"
+            )
         mask = image.ndvi > (DEFAULT_NDVI_THRESHOLD if value is None else value)
     else:  # parse_rule only produces RULE_NAMES; this guards future edits
         raise MapError(f"unknown valuable rule {kind!r}; {_RULE_HELP}")
     n = int(mask.sum())
     if n == 0:
-        raise MapError(f"valuable rule '{rule}' marks no pixel of map {label!r} valuable; "
-                       "choose another rule or threshold")
+        raise MapError(
+            f"valuable rule '{rule}' marks no pixel of map {label!r} valuable; choose another rule or threshold"
+        )
     if n == mask.size:
-        raise MapError(f"valuable rule '{rule}' marks every pixel of map {label!r} valuable; "
-                       "choose another rule or threshold")
+        raise MapError(
+            f"valuable rule '{rule}' marks every pixel of map {label!r} valuable; choose another rule or threshold"
+        )
     return mask
 
 
@@ -230,8 +245,10 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     except cv2.error:
         img = None
     if img is None:
-        raise MapError(f"map_path {shown!r} is not an image cv2 can decode "
-                       "(use PNG, JPEG, TIFF, BMP or another format OpenCV reads)")
+        raise MapError(
+            f"map_path {shown!r} is not an image cv2 can decode "
+            "(use PNG, JPEG, TIFF, BMP or another format OpenCV reads)"
+        )
     if img.size == 0 or img.ndim < 2 or img.shape[0] == 0 or img.shape[1] == 0:
         raise MapError(f"map_path {shown!r} is an empty image (0 pixels)")
     if img.ndim == 3 and img.shape[2] == 1:

@@ -15,6 +15,7 @@ This module is the catalogue only (pure data and the dihedral transforms): the l
 (:mod:`.ground_truth`) and the maintainer tool that cuts the crops (:mod:`.build_shipped_maps`) both
 read the crop rectangles from here, so the shipped files and their description cannot drift apart.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -24,8 +25,18 @@ import numpy as np
 from .errors import MapError
 
 __all__ = [
-    "ENV1_SEED_RANGES", "SCENES", "SOURCE_SHAPES", "SPLITS", "SPLIT_GAP", "TRANSFORMS", "Scene", "check_split",
-    "dihedral", "pick", "scene_count", "split_scenes",
+    "ENV1_SEED_RANGES",
+    "SCENES",
+    "SOURCE_SHAPES",
+    "SPLITS",
+    "SPLIT_GAP",
+    "TRANSFORMS",
+    "Scene",
+    "check_split",
+    "dihedral",
+    "pick",
+    "scene_count",
+    "split_scenes",
 ]
 
 #: Every allowed ``split``; "paper" is the paper's fixed mission (today's maps).
@@ -45,8 +56,16 @@ ENV1_SEED_RANGES: dict[str, tuple[int, int]] = {
 #: (row = y, column = x); ``rotK`` is ``np.rot90(a, K // 90)`` (counter-clockwise as displayed with
 #: row 0 on top), ``transpose`` swaps x and y, ``flip-y`` reverses the rows, ``flip-x`` the columns,
 #: ``anti-transpose`` mirrors about the other diagonal.
-TRANSFORMS: tuple[str, ...] = ("identity", "rot90", "rot180", "rot270", "transpose", "flip-y", "anti-transpose",
-                               "flip-x")
+TRANSFORMS: tuple[str, ...] = (
+    "identity",
+    "rot90",
+    "rot180",
+    "rot270",
+    "transpose",
+    "flip-y",
+    "anti-transpose",
+    "flip-x",
+)
 
 #: (rows, columns) of each family's source image, in which the crops below are given:
 #: env2: Landsat-8 ``l8_B10.tif`` (30 m grid); env3: the Sentinel-2 10 m bands ``s2_B0*.jp2``.

@@ -5,6 +5,7 @@ the constants below, so the two directions cannot drift apart. Only the PNG file
 read here; the public-domain sources they were made from are needed only to rebuild them
 (see ``data/PROVENANCE.md``).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -16,9 +17,22 @@ from .errors import MapError
 from .rules import MapImage, resize_to_grid, rgb_to_gray
 
 __all__ = [
-    "DATA_DIR", "ENV2_DEFAULT_RULE", "ENV2_FILE", "ENV3_BANDS", "ENV3_BUILTUP_FILE", "ENV3_DEFAULT_RULE",
-    "ENV3_NIR_FILE", "ENV3_NO_FLY_FRACTION", "ENV3_RGB_FILE", "SHIPPED_SIZE", "env2_image", "env2_scene_image",
-    "env3_builtup", "env3_image", "env3_image_from_codes", "env3_scene_masks",
+    "DATA_DIR",
+    "ENV2_DEFAULT_RULE",
+    "ENV2_FILE",
+    "ENV3_BANDS",
+    "ENV3_BUILTUP_FILE",
+    "ENV3_DEFAULT_RULE",
+    "ENV3_NIR_FILE",
+    "ENV3_NO_FLY_FRACTION",
+    "ENV3_RGB_FILE",
+    "SHIPPED_SIZE",
+    "env2_image",
+    "env2_scene_image",
+    "env3_builtup",
+    "env3_image",
+    "env3_image_from_codes",
+    "env3_scene_masks",
 ]
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
@@ -36,10 +50,10 @@ ENV2_DEFAULT_RULE = "hottest:0.3"
 #: loader adds them back so that NDVI is the usual top-of-atmosphere NDVI of the L1C product.
 #: band name -> (offset in DN, gain in DN per 8-bit level); DN = 10000 x TOA reflectance.
 ENV3_BANDS: dict[str, tuple[float, float]] = {
-    "red": (330.0, 8.0),    # B04
+    "red": (330.0, 8.0),  # B04
     "green": (550.0, 8.0),  # B03
-    "blue": (850.0, 8.0),   # B02
-    "nir": (100.0, 24.0),   # B08
+    "blue": (850.0, 8.0),  # B02
+    "nir": (100.0, 24.0),  # B08
 }
 ENV3_RGB_FILE = "env3_rgb.png"
 ENV3_NIR_FILE = "env3_nir.png"
@@ -58,8 +72,10 @@ def _read_shipped(file: str, flags: int) -> np.ndarray:
     path = DATA_DIR / file
     img = cv2.imread(str(path), flags) if path.is_file() else None
     if img is None or img.size == 0:
-        raise MapError(f"shipped map file {str(path)!r} is missing or unreadable; reinstall sb3-coma "
-                       "or rebuild it with `python -m envs.maps.build_shipped_maps`")
+        raise MapError(
+            f"shipped map file {str(path)!r} is missing or unreadable; reinstall sb3-coma "
+            "or rebuild it with `python -m envs.maps.build_shipped_maps`"
+        )
     return img
 
 
@@ -90,7 +106,7 @@ def env3_image_from_codes(rgb_codes: np.ndarray, nir_codes: np.ndarray, grid: in
     extra env3 scenes through this same function, so their shipped masks are what the paper
     loader would compute from their bands.
     """
-    rgb8 = resize_to_grid(rgb_codes, grid)                  # 0..255 floats, RGB order
+    rgb8 = resize_to_grid(rgb_codes, grid)  # 0..255 floats, RGB order
     red = _decode(rgb8[:, :, 0], "red")
     nir = _decode(resize_to_grid(nir_codes, grid), "nir")
     total = nir + red

@@ -14,6 +14,7 @@ repeatable):
 Everything is one ``cv2.fillPoly`` plus a handful of ``cv2.ellipse`` calls on a uint8 canvas:
 about 0.2 ms at 493 x 493, so the environment can draw a fresh star at every reset.
 """
+
 from __future__ import annotations
 
 import math
@@ -39,10 +40,10 @@ def _outline(rng: np.random.Generator, grid: int) -> tuple[np.ndarray, np.ndarra
     step = 2.0 * math.pi / n_arms
     start = rng.uniform(0.0, 2.0 * math.pi)
     tips = start + step * np.arange(n_arms) + rng.uniform(-0.22, 0.22, n_arms) * step
-    lengths = rng.uniform(0.55, 1.0, n_arms)            # irregular arm lengths (relative)
-    half_tip = rng.uniform(0.03, 0.16, n_arms) * step    # irregular arm widths at the tip
-    valleys = rng.uniform(0.18, 0.38, n_arms)            # depth between arms (relative radius)
-    corners: list[tuple[float, float]] = []              # (angle, radius) around the centre
+    lengths = rng.uniform(0.55, 1.0, n_arms)  # irregular arm lengths (relative)
+    half_tip = rng.uniform(0.03, 0.16, n_arms) * step  # irregular arm widths at the tip
+    valleys = rng.uniform(0.18, 0.38, n_arms)  # depth between arms (relative radius)
+    corners: list[tuple[float, float]] = []  # (angle, radius) around the centre
     for i in range(n_arms):
         nxt = tips[(i + 1) % n_arms] + (2.0 * math.pi if i == n_arms - 1 else 0.0)
         corners.append((tips[i] - half_tip[i], lengths[i] * rng.uniform(0.88, 1.0)))
@@ -75,11 +76,11 @@ def _draw_once(rng: np.random.Generator, grid: int) -> np.ndarray:
     target = rng.uniform(0.24, 0.36) * grid * grid
     outline = outline * math.sqrt(target / max(_polygon_area(outline), 1e-12)) + centre
     cv2.fillPoly(canvas, [np.round(outline * _ONE).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=_SHIFT)
-    for _ in range(int(rng.integers(1, 4))):             # satellite blobs, anywhere
+    for _ in range(int(rng.integers(1, 4))):  # satellite blobs, anywhere
         c = rng.uniform(0.08, 0.92, size=2) * grid
         axes = rng.uniform(0.025, 0.07, size=2) * grid
         _ellipse(canvas, c, axes, rng.uniform(0, 180), 1)
-    for _ in range(int(rng.integers(1, 4))):             # holes, on the way out along an arm
+    for _ in range(int(rng.integers(1, 4))):  # holes, on the way out along an arm
         k = int(rng.integers(len(outline)))
         c = centre + rng.uniform(0.25, 0.7) * (outline[k] - centre)
         axes = rng.uniform(0.015, 0.045, size=2) * grid
@@ -88,9 +89,18 @@ def _draw_once(rng: np.random.Generator, grid: int) -> np.ndarray:
 
 
 def _ellipse(canvas: np.ndarray, centre: np.ndarray, axes: np.ndarray, angle: float, value: int) -> None:
-    cv2.ellipse(canvas, (int(round(centre[0] * _ONE)), int(round(centre[1] * _ONE))),
-                (max(int(round(axes[0] * _ONE)), 1), max(int(round(axes[1] * _ONE)), 1)),
-                float(angle), 0.0, 360.0, value, -1, cv2.LINE_8, _SHIFT)
+    cv2.ellipse(
+        canvas,
+        (int(round(centre[0] * _ONE)), int(round(centre[1] * _ONE))),
+        (max(int(round(axes[0] * _ONE)), 1), max(int(round(axes[1] * _ONE)), 1)),
+        float(angle),
+        0.0,
+        360.0,
+        value,
+        -1,
+        cv2.LINE_8,
+        _SHIFT,
+    )
 
 
 def draw_star(rng: np.random.Generator, grid: int = 493) -> np.ndarray:

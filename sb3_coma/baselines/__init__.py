@@ -7,6 +7,7 @@
 * ``ag``: adaptive gain, greedy (or ``lookahead=k`` steps) expected information gain from each
   UAV's own belief, with a discount on cells that other UAVs are about to cover.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -47,5 +48,14 @@ def make_planner(name: str, venv: VecEnv, seed: int | None = None, **kwargs: Any
         raise
 
 
-__all__ = ["ALIASES", "AdaptiveGainPlanner", "LawnmowerPlanner", "PLANNERS", "Planner", "RandomPlanner",
-           "make_planner", "plan_team", "planner_class"]
+__all__ = [
+    "ALIASES",
+    "AdaptiveGainPlanner",
+    "LawnmowerPlanner",
+    "PLANNERS",
+    "Planner",
+    "RandomPlanner",
+    "make_planner",
+    "plan_team",
+    "planner_class",
+]

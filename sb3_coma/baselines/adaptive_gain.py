@@ -14,6 +14,7 @@ into a hover). With ``lookahead=k`` each UAV searches every sequence of k valid 
 The search discounts a strip cell by ``discount`` each time a footprint of the plan covers it,
 a first-order stand-in for the posterior after those readings, so planning cost grows as 6^k.
 """
+
 from __future__ import annotations
 
 import numba
@@ -55,7 +56,7 @@ def default_weighting(map_name: str | None) -> str:
         return FALLBACK_WEIGHTING
     key = str(map_name).strip().lower()
     if key.startswith("uavipp-") and key.endswith("-v0"):
-        key = key[len("uavipp-"):-len("-v0")]
+        key = key[len("uavipp-") : -len("-v0")]
     return WEIGHTING_BY_MAP.get(key, FALLBACK_WEIGHTING)
 
 
@@ -86,7 +87,7 @@ def _continuation(sums, start_keep, keep, moves, x0, y0, z0, no_fly, n_levels, d
     n_act = deltas.shape[0]
     best = 0.0
     found = False
-    for code in range(n_act ** moves):
+    for code in range(n_act**moves):
         keep[:, :] = start_keep
         x, y, z = x0, y0, z0
         value = 0.0
@@ -136,8 +137,9 @@ def plan_team(sums, positions, allowed, no_fly, deltas, strips, discount, horizo
             if horizon > 1:
                 keep[:, :] = team_keep
                 _claim(keep, strips, nx, ny, nz, discount)
-                value += _continuation(sums[u], keep, scratch, horizon - 1, nx, ny, nz, no_fly, n_levels, deltas,
-                                       strips, discount)
+                value += _continuation(
+                    sums[u], keep, scratch, horizon - 1, nx, ny, nz, no_fly, n_levels, deltas, strips, discount
+                )
             scores[u, a] = value + jitter[u, a]
             if best_a < 0 or scores[u, a] > scores[u, best_a]:
                 best_a = a
@@ -148,8 +150,11 @@ def plan_team(sums, positions, allowed, no_fly, deltas, strips, discount, horizo
                     break
             best_a = max(best_a, 0)
         actions[u] = best_a
-        tx, ty, tz = (positions[u, 0] + deltas[best_a, 0], positions[u, 1] + deltas[best_a, 1],
-                      positions[u, 2] + deltas[best_a, 2])
+        tx, ty, tz = (
+            positions[u, 0] + deltas[best_a, 0],
+            positions[u, 1] + deltas[best_a, 1],
+            positions[u, 2] + deltas[best_a, 2],
+        )
         if not (0 <= tx < lat and 0 <= ty < lat and 0 <= tz < n_levels):
             tx, ty, tz = positions[u, 0], positions[u, 1], positions[u, 2]  # a hover
         _claim(team_keep, strips, tx, ty, tz, discount)
@@ -168,14 +173,19 @@ class AdaptiveGainPlanner(Planner):
     name = "ag"
     uses_env_state = True
 
-    def __init__(self, venv: VecEnv, seed: int | None = None, discount: float = 0.5,
-                 weighting: str = "class", lookahead: int = 1) -> None:
+    def __init__(
+        self, venv: VecEnv, seed: int | None = None, discount: float = 0.5, weighting: str = "class", lookahead: int = 1
+    ) -> None:
         super().__init__(venv, seed)
         if isinstance(discount, bool) or not isinstance(discount, (int, float)) or not 0.0 <= float(discount) <= 1.0:
             raise ValueError(f"ag discount={discount!r}: must be a number in [0, 1]")
         if weighting not in WEIGHTINGS:
             raise ValueError(f"ag weighting={weighting!r}: choose one of {WEIGHTINGS}")
-        if isinstance(lookahead, bool) or not isinstance(lookahead, (int, np.integer)) or not 1 <= lookahead <= MAX_LOOKAHEAD:
+        if (
+            isinstance(lookahead, bool)
+            or not isinstance(lookahead, (int, np.integer))
+            or not 1 <= lookahead <= MAX_LOOKAHEAD
+        ):
             raise ValueError(f"ag lookahead={lookahead!r}: an integer from 1 (greedy AG) to {MAX_LOOKAHEAD}")
         self.discount = float(discount)
         self.weighting = check_weighting(weighting)
@@ -194,8 +204,18 @@ class AdaptiveGainPlanner(Planner):
         scores = np.zeros((copies, self.n_agents, len(ACTION_DELTAS)))
         for c in range(copies):
             jitter = _JITTER * self.rng.random((self.n_agents, len(ACTION_DELTAS)))
-            plan_team(np.ascontiguousarray(sums[c][:, self._weighting_index]), positions[c], mask[c], no_fly[c],
-                      ACTION_DELTAS, self.geometry.footprint_strips, self.discount, self.lookahead, jitter,
-                      scores[c], actions[c])
+            plan_team(
+                np.ascontiguousarray(sums[c][:, self._weighting_index]),
+                positions[c],
+                mask[c],
+                no_fly[c],
+                ACTION_DELTAS,
+                self.geometry.footprint_strips,
+                self.discount,
+                self.lookahead,
+                jitter,
+                scores[c],
+                actions[c],
+            )
         self.last_scores = scores
         return actions

@@ -7,6 +7,7 @@ planners that need more than the observation (AG reads each UAV's own local beli
 lawnmower reads positions and the map's no-fly columns) query the vec env they were built with
 through SB3's public ``env_method``/``get_attr``.
 """
+
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
@@ -35,8 +36,10 @@ class Planner(ABC):
     def __init__(self, venv: VecEnv, seed: int | None = None) -> None:
         n_agents = getattr(venv, "n_agents", None)
         if not isinstance(n_agents, (int, np.integer)) or n_agents < 1:
-            raise TypeError(f"{type(self).__name__} needs an IPP vec env with an n_agents attribute "
-                            f"(envs.make_vec_env), got {type(venv).__name__}")
+            raise TypeError(
+                f"{type(self).__name__} needs an IPP vec env with an n_agents attribute "
+                f"(envs.make_vec_env), got {type(venv).__name__}"
+            )
         self.venv = venv
         self.n_agents = int(n_agents)
         self.seed = seed
@@ -48,9 +51,13 @@ class Planner(ABC):
             self.seed = seed
             self.rng = np.random.default_rng(seed)
 
-    def predict(self, observation: dict[str, np.ndarray], state: Any = None,
-                episode_start: np.ndarray | None = None,
-                deterministic: bool = True) -> tuple[np.ndarray, None]:
+    def predict(
+        self,
+        observation: dict[str, np.ndarray],
+        state: Any = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
         """One action per vec-env row, honouring ``action_mask``; SB3's ``predict`` signature.
 
         ``state`` is ignored (planners keep their own per-episode memory) and ``deterministic``
@@ -58,14 +65,18 @@ class Planner(ABC):
         its seeded random stream.
         """
         if not isinstance(observation, dict) or layout.KEY_MASK not in observation:
-            raise TypeError(f"{type(self).__name__}.predict needs the vec env's observation dict with "
-                            f"'{layout.KEY_MASK}', got {type(observation).__name__}")
+            raise TypeError(
+                f"{type(self).__name__}.predict needs the vec env's observation dict with "
+                f"'{layout.KEY_MASK}', got {type(observation).__name__}"
+            )
         mask = np.asarray(observation[layout.KEY_MASK]).astype(bool)
         if mask.ndim != 2 or mask.shape[1] != layout.N_ACTIONS or mask.shape[0] % self.n_agents:
             raise ValueError(f"action_mask must be (copies * {self.n_agents}, {layout.N_ACTIONS}), got {mask.shape}")
         if self.uses_env_state and mask.shape[0] != self.venv.num_envs:
-            raise ValueError(f"{type(self).__name__} reads the env's state: pass the observation of its whole "
-                             f"vec env ({self.venv.num_envs} rows), got {mask.shape[0]} rows")
+            raise ValueError(
+                f"{type(self).__name__} reads the env's state: pass the observation of its whole "
+                f"vec env ({self.venv.num_envs} rows), got {mask.shape[0]} rows"
+            )
         copies = mask.shape[0] // self.n_agents
         mask = mask.reshape(copies, self.n_agents, layout.N_ACTIONS)
         # A row with nothing valid cannot happen with the env's masks; guard so argmax stays defined.
@@ -74,8 +85,9 @@ class Planner(ABC):
         actions = self._plan(observation, mask, starts)
         return np.asarray(actions, dtype=np.int64).reshape(-1), None
 
-    def _episode_starts(self, observation: dict[str, np.ndarray], episode_start: np.ndarray | None,
-                        copies: int) -> np.ndarray:
+    def _episode_starts(
+        self, observation: dict[str, np.ndarray], episode_start: np.ndarray | None, copies: int
+    ) -> np.ndarray:
         """(copies,) bool: which copies are at their first decision.
 
         The remaining-budget channel is 1 only at the first decision, so this works whether or not

@@ -7,6 +7,7 @@ altitude, then sweeps its lanes along y, turning at the ends; when the route is 
 back (ping-pong) until the budget ends. Nothing it measures changes the route: that is the point
 of the baseline. Masks are honoured by taking the valid move that gets closest to the plan.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -28,8 +29,10 @@ _EXACT_ASSIGNMENT_MAX = 7
 def axis_ranges(geometry: FieldGeometry, level: int) -> np.ndarray:
     """(L, 2) half-open belief-cell range a footprint at altitude ``level`` covers along one axis,
     for every lattice index (the field is square, so x and y share it)."""
-    return np.array([[geometry.footprint(k, 0, level).c0, geometry.footprint(k, 0, level).c1]
-                     for k in range(geometry.lattice)], dtype=np.int64)
+    return np.array(
+        [[geometry.footprint(k, 0, level).c0, geometry.footprint(k, 0, level).c1] for k in range(geometry.lattice)],
+        dtype=np.int64,
+    )
 
 
 def union_length(ranges: np.ndarray, picks: np.ndarray | list[int]) -> int:
@@ -92,11 +95,13 @@ def sweep_ends(ranges: np.ndarray, grid: int) -> tuple[int, int]:
     return (lo, hi) if lo <= hi else (hi, lo)
 
 
-def strip_routes(lanes: tuple[int, ...], n_uavs: int, y_ends: tuple[int, int], level: int) -> list[list[list[Waypoint]]]:
+def strip_routes(
+    lanes: tuple[int, ...], n_uavs: int, y_ends: tuple[int, int], level: int
+) -> list[list[list[Waypoint]]]:
     """For each strip (contiguous lanes of one UAV), its four candidate routes, one per entry
     corner: (from the left or right lane) x (from the low or high y end)."""
     per = len(lanes) // n_uavs
-    strips = [lanes[k * per:(k + 1) * per] if k < n_uavs - 1 else lanes[k * per:] for k in range(n_uavs)]
+    strips = [lanes[k * per : (k + 1) * per] if k < n_uavs - 1 else lanes[k * per :] for k in range(n_uavs)]
     out = []
     for strip in strips:
         routes = []
@@ -162,8 +167,9 @@ class LawnmowerPlanner(Planner):
     name = "lawnmower"
     uses_env_state = True
 
-    def __init__(self, venv: VecEnv, seed: int | None = None, altitude: float | None = None,
-                 lanes_per_uav: int | None = None) -> None:
+    def __init__(
+        self, venv: VecEnv, seed: int | None = None, altitude: float | None = None, lanes_per_uav: int | None = None
+    ) -> None:
         super().__init__(venv, seed)
         self.geometry: FieldGeometry = venv.get_attr("geometry", indices=[0])[0]
         config = self.geometry.config
@@ -171,7 +177,9 @@ class LawnmowerPlanner(Planner):
             self.level = default_level(self.geometry, self.n_agents)
         else:
             if float(altitude) not in config.altitudes:
-                raise ValueError(f"lawnmower altitude={altitude!r}: must be one of the env's altitudes {list(config.altitudes)}")
+                raise ValueError(
+                    f"lawnmower altitude={altitude!r}: must be one of the env's altitudes {list(config.altitudes)}"
+                )
             self.level = list(config.altitudes).index(float(altitude))
         self.altitude = float(config.altitudes[self.level])
         side = 2.0 * float(self.geometry.half_side[self.level])

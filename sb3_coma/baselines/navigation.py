@@ -5,6 +5,7 @@ no-fly columns (env3's buildings) and UAVs that block a column. A breadth-first 
 per waypoint answers "which valid move gets closest to the plan" for any position in one lookup,
 and is cached because routes revisit the same waypoints every episode.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -64,8 +65,14 @@ def move_costs(position: np.ndarray, field: np.ndarray) -> np.ndarray:
     for moves that leave the lattice or enter a blocked column."""
     n_levels, lat, _ = field.shape
     new = np.asarray(position, dtype=np.int64)[None, :] + ACTION_DELTAS
-    inside = ((new[:, 0] >= 0) & (new[:, 0] < lat) & (new[:, 1] >= 0) & (new[:, 1] < lat)
-              & (new[:, 2] >= 0) & (new[:, 2] < n_levels))
+    inside = (
+        (new[:, 0] >= 0)
+        & (new[:, 0] < lat)
+        & (new[:, 1] >= 0)
+        & (new[:, 1] < lat)
+        & (new[:, 2] >= 0)
+        & (new[:, 2] < n_levels)
+    )
     costs = np.full(len(ACTION_DELTAS), np.inf)
     ok = new[inside]
     costs[inside] = field[ok[:, 2], ok[:, 1], ok[:, 0]]
@@ -81,8 +88,13 @@ def preference(position: np.ndarray, target: tuple[int, int, int]) -> tuple[int,
     return ALTITUDE_MOVES + horizontal
 
 
-def best_move(position: np.ndarray, field: np.ndarray, mask: np.ndarray, target: tuple[int, int, int] | None = None,
-              rng: np.random.Generator | None = None) -> int:
+def best_move(
+    position: np.ndarray,
+    field: np.ndarray,
+    mask: np.ndarray,
+    target: tuple[int, int, int] | None = None,
+    rng: np.random.Generator | None = None,
+) -> int:
     """The planned move if it is valid, else the valid move that gets closest to the plan.
 
     The planned move is the shortest-path move (ties by :func:`preference`). When it is masked,

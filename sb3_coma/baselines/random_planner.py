@@ -1,4 +1,5 @@
 """``random``: every UAV picks uniformly among its valid actions (the paper's lower bound)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -181,8 +181,9 @@ class COMA(OnPolicyAlgorithm):
         check_positive_int("batch_size", batch_size)
         check_positive_int("n_critic_epochs", n_critic_epochs)
         check_positive_int("n_epochs", n_epochs)
-        if clip_range is not None and (isinstance(clip_range, bool) or not isinstance(clip_range, (int, float))
-                                       or not 0.0 < clip_range < math.inf):
+        if clip_range is not None and (
+            isinstance(clip_range, bool) or not isinstance(clip_range, (int, float)) or not 0.0 < clip_range < math.inf
+        ):
             raise ValueError(f"clip_range must be None or a positive number, got {clip_range!r}")
         if advantage not in ADVANTAGES:
             raise ValueError(f"advantage must be one of {ADVANTAGES}, got {advantage!r}")
@@ -497,8 +498,9 @@ class COMA(OnPolicyAlgorithm):
             self._n_target_updates += 1
 
     @th.no_grad()
-    def _advantages(self, data: dict[str, th.Tensor], q_all: th.Tensor,
-                    targets: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    def _advantages(
+        self, data: dict[str, th.Tensor], q_all: th.Tensor, targets: th.Tensor
+    ) -> tuple[th.Tensor, th.Tensor]:
         """COMA's advantage ``(T * E, N)`` per agent and the log-probability of the taken action
         under the policy that collected the rollout.
 
@@ -513,13 +515,15 @@ class COMA(OnPolicyAlgorithm):
         advantage = targets - baseline if self.advantage == "return" else q_advantage
         return advantage, log_probs.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
 
-    def _actor_loss(self, data: dict[str, th.Tensor], idx: th.Tensor, advantage: th.Tensor,
-                    old_log_prob: th.Tensor) -> tuple[th.Tensor, float, float]:
+    def _actor_loss(
+        self, data: dict[str, th.Tensor], idx: th.Tensor, advantage: th.Tensor, old_log_prob: th.Tensor
+    ) -> tuple[th.Tensor, float, float]:
         """Clipped surrogate (or plain policy gradient) minus the entropy bonus on one minibatch
         of joint steps; returns (loss, mean entropy, fraction of clipped ratios)."""
         b_actions = data["actions"][idx].flatten()
-        logits = self.policy.masked_logits(data["local"][idx].flatten(0, 1), data["mask"][idx].flatten(0, 1),
-                                           data["prior"][idx].flatten(0, 1))
+        logits = self.policy.masked_logits(
+            data["local"][idx].flatten(0, 1), data["mask"][idx].flatten(0, 1), data["prior"][idx].flatten(0, 1)
+        )
         log_probs = th.log_softmax(logits, dim=-1)
         advantage = advantage.flatten()
         if self.normalize_advantage and advantage.numel() > 1:
@@ -549,7 +553,7 @@ class COMA(OnPolicyAlgorithm):
 
         targets = self._td_targets()
         data = self.rollout_buffer.joint_steps()
-        local, state, mask, actions = data["local"], data["state"], data["mask"], data["actions"]
+        local, state, _mask, actions = data["local"], data["state"], data["mask"], data["actions"]
         n_joint = actions.shape[0]
         q_all = th.zeros(*actions.shape, self.policy.n_actions, device=self.device)
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from functools import partial
 from typing import Any, cast
 
@@ -30,6 +30,9 @@ from sb3_coma.coma.masking import behaviour_probs, mask_logits, sample_actions
 from sb3_coma.extractors import CBAMExtractor, CnnExtractor
 
 __all__ = ["other_actions_map", "critic_input", "COMAPolicy", "CBAMPolicy", "CnnPolicy"]
+
+_CRITIC_PREFIX = "critic."
+_TARGET_PREFIX = "critic_target."
 
 #: FOOTPRINT marks the current cell with 1.0 and earlier visits with 0.5; anything above this
 #: threshold is "here" (equivalent to ``== 1`` for those values, but immune to float round-off).
@@ -370,6 +373,16 @@ class COMAPolicy(BasePolicy):
     def sync_target(self) -> None:
         """Copy the critic into the target critic."""
         self.critic_target.load_state_dict(self.critic.state_dict())
+
+    def load_state_dict(self, state_dict: Mapping[str, Any], strict: bool = True, assign: bool = False) -> Any:
+        """Also accept the compact shipped form (``sb3_coma.pretrained.save_for_shipping``): weights
+        in half precision (cast back to the parameters' float32) and no target critic, which is then
+        the critic itself, as right after a synchronisation."""
+        state = dict(state_dict)
+        if not any(key.startswith(_TARGET_PREFIX) for key in state):
+            state.update({_TARGET_PREFIX + key[len(_CRITIC_PREFIX) :]: value
+                          for key, value in state_dict.items() if key.startswith(_CRITIC_PREFIX)})
+        return super().load_state_dict(state, strict=strict, assign=assign)
 
 
 class CBAMPolicy(COMAPolicy):

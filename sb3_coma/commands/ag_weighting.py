@@ -9,6 +9,7 @@ missions (env seeds 2000.., never the test split nor the paper's mission), print
 means and the paired differences, and the weighting the rule picks (``sb3_coma.ag_weighting``).
 The shipped default (``sb3_coma.baselines.adaptive_gain.WEIGHTING_BY_MAP``) records this output.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,10 +24,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from sb3_coma.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED
 
     parser.add_argument("--env", default="env1,env2,env3", help="comma-separated map families (default env1,env2,env3)")
-    parser.add_argument("--missions", type=int, default=VALIDATION_MISSIONS,
-                        help=f"validation missions per weighting (default {VALIDATION_MISSIONS})")
-    parser.add_argument("--seed", type=int, default=VALIDATION_SEED,
-                        help=f"first validation env seed (default {VALIDATION_SEED}; smaller seeds are refused)")
+    parser.add_argument(
+        "--missions",
+        type=int,
+        default=VALIDATION_MISSIONS,
+        help=f"validation missions per weighting (default {VALIDATION_MISSIONS})",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=VALIDATION_SEED,
+        help=f"first validation env seed (default {VALIDATION_SEED}; smaller seeds are refused)",
+    )
     parser.add_argument("--noise", default="moderate", help="channel noise (default moderate)")
     parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
@@ -45,16 +54,25 @@ def run(args: argparse.Namespace) -> int:
     choices = []
     for name in names:
         try:
-            choice = pick_ag_weighting(name, n_missions=args.missions, seed=args.seed, noise=args.noise,
-                                       log=lambda m: print(m, flush=True), **options)
+            choice = pick_ag_weighting(
+                name,
+                n_missions=args.missions,
+                seed=args.seed,
+                noise=args.noise,
+                log=lambda m: print(m, flush=True),
+                **options,
+            )
         except ValueError as exc:
             raise UserError(str(exc)) from None
         choices.append(choice)
     print()
     for c in choices:
         shipped = WEIGHTING_BY_MAP.get(c.env)
-        note = "" if shipped is None else (" (= the shipped default)" if shipped == c.choice
-                                           else f" (the shipped default is {shipped!r})")
+        note = (
+            ""
+            if shipped is None
+            else (" (= the shipped default)" if shipped == c.choice else f" (the shipped default is {shipped!r})")
+        )
         print(f"#: {c.comment()}{note}")
     if args.json:
         Path(args.json).write_text(json.dumps([c.as_dict() for c in choices], indent=2) + "\n")

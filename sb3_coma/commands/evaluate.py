@@ -10,6 +10,7 @@ mean +- std over trials, best in bold), ``per_step.csv``, ``planning_time.md`` /
 ms per UAV decision), ``curves_<env>.png`` (Figures 4/5), ``mission_<env>_<method>.png`` and
 ``.gif``, and ``training_reward.png`` (Figure 3) when ``--training-log`` is given.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -26,26 +27,53 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--threads", type=int, default=1,
-                        help="torch CPU threads (default 1, as sb3-coma reproduce: float reductions differ with the "
-                             "thread count, and a rare flipped argmax changes a whole mission)")
-    parser.add_argument("--env", default=None,
-                        help="map name(s), comma separated: env1, env2, env3 or gymnasium ids (default env3; "
-                             "with --map-path the image's name)")
-    parser.add_argument("--methods", default="ag,lawnmower,random",
-                        help="comma-separated baselines (ag, lawnmower, random) and/or model paths "
-                             "(default: ag,lawnmower,random; '' for models only)")
-    parser.add_argument("--model", action="append", default=[], metavar="[LABEL=]PATH_OR_NAME",
-                        help="a trained COMA model: .zip path or shipped name (env1/env2/env3); repeatable; "
-                             "evaluated before the baselines, labelled LABEL (default 'coma')")
-    parser.add_argument("--fusion", default=None, choices=("mean", "sendfuse"),
-                        help="fusion of received maps for models (default sendfuse; baselines always use mean)")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1, as sb3-coma reproduce: float reductions differ with the "
+        "thread count, and a rare flipped argmax changes a whole mission)",
+    )
+    parser.add_argument(
+        "--env",
+        default=None,
+        help="map name(s), comma separated: env1, env2, env3 or gymnasium ids (default env3; "
+        "with --map-path the image's name)",
+    )
+    parser.add_argument(
+        "--methods",
+        default="ag,lawnmower,random",
+        help="comma-separated baselines (ag, lawnmower, random) and/or model paths "
+        "(default: ag,lawnmower,random; '' for models only)",
+    )
+    parser.add_argument(
+        "--model",
+        action="append",
+        default=[],
+        metavar="[LABEL=]PATH_OR_NAME",
+        help="a trained COMA model: .zip path or shipped name (env1/env2/env3); repeatable; "
+        "evaluated before the baselines, labelled LABEL (default 'coma')",
+    )
+    parser.add_argument(
+        "--fusion",
+        default=None,
+        choices=("mean", "sendfuse"),
+        help="fusion of received maps for models (default sendfuse; baselines always use mean)",
+    )
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud (default moderate)")
-    parser.add_argument("--trials", type=int, default=None,
-                        help="missions per method (default 10; with --protocol the protocol's: paper 10, unseen 50)")
-    parser.add_argument("--protocol", default=None, choices=("paper", "unseen"),
-                        help="the missions: 'paper' (split paper, Table I) or 'unseen' (split test, random starts); "
-                             "default: the env options as given (split paper)")
+    parser.add_argument(
+        "--trials",
+        type=int,
+        default=None,
+        help="missions per method (default 10; with --protocol the protocol's: paper 10, unseen 50)",
+    )
+    parser.add_argument(
+        "--protocol",
+        default=None,
+        choices=("paper", "unseen"),
+        help="the missions: 'paper' (split paper, Table I) or 'unseen' (split test, random starts); "
+        "default: the env options as given (split paper)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="base seed: trial k uses SEED+k (default 0)")
     parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
@@ -53,11 +81,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--valuable", default=None, help="rule that marks valuable pixels of --map-path")
     parser.add_argument("--n-envs", type=int, default=None, help="missions flown at once (default: all trials)")
     parser.add_argument("--out", default="results", help="output folder (default results/)")
-    parser.add_argument("--training-log", action="append", default=[], metavar="[LABEL=]PATH",
-                        help="training log for the reward-vs-episode plot (metrics.csv, monitor CSV or "
-                             "TensorBoard dir); repeatable")
-    parser.add_argument("--agents-per-episode", type=int, default=1,
-                        help="rows per mission in a VecMonitor CSV training log (n UAVs), averaged")
+    parser.add_argument(
+        "--training-log",
+        action="append",
+        default=[],
+        metavar="[LABEL=]PATH",
+        help="training log for the reward-vs-episode plot (metrics.csv, monitor CSV or TensorBoard dir); repeatable",
+    )
+    parser.add_argument(
+        "--agents-per-episode",
+        type=int,
+        default=1,
+        help="rows per mission in a VecMonitor CSV training log (n UAVs), averaged",
+    )
     parser.add_argument("--no-plots", action="store_true", help="skip all figures")
     parser.add_argument("--no-gif", action="store_true", help="skip the mission GIFs")
 
@@ -118,8 +154,11 @@ def _env_names(args: argparse.Namespace) -> list[str]:
 def _check_args(args: argparse.Namespace) -> None:
     from sb3_coma.cli import UserError
 
-    for flag, value, low in (("--trials", args.trials, 1), ("--seed", args.seed, 0),
-                             ("--agents-per-episode", args.agents_per_episode, 1)):
+    for flag, value, low in (
+        ("--trials", args.trials, 1),
+        ("--seed", args.seed, 0),
+        ("--agents-per-episode", args.agents_per_episode, 1),
+    ):
         if value < low:
             raise UserError(f"{flag} must be >= {low}, got {value}")
     if args.n_envs is not None and args.n_envs < 1:
@@ -150,23 +189,40 @@ def run(args: argparse.Namespace) -> int:
     results: list[ev.EvaluationResult] = []
     for env_name in env_names:
         for label, method in methods:
-            print(f"evaluating {label or method} on {env_name} ({args.trials} trials, noise {args.noise}) ...", flush=True)
+            print(
+                f"evaluating {label or method} on {env_name} ({args.trials} trials, noise {args.noise}) ...", flush=True
+            )
             fusion = args.fusion if ev.is_model(method) else None
             try:
-                results.append(ev.evaluate(method, env=env_name, n_trials=args.trials, seed=args.seed, fusion=fusion,
-                                           n_envs=args.n_envs, label=label, protocol=args.protocol, **options))
+                results.append(
+                    ev.evaluate(
+                        method,
+                        env=env_name,
+                        n_trials=args.trials,
+                        seed=args.seed,
+                        fusion=fusion,
+                        n_envs=args.n_envs,
+                        label=label,
+                        protocol=args.protocol,
+                        **options,
+                    )
+                )
             except (ValueError, TypeError) as exc:
                 raise UserError(f"{label or method} on {env_name}: {exc}") from None
     rows = ev.rows_for(results)
-    written = [ev.write_table_csv(rows, out / "table.csv"), ev.write_per_step_csv(rows, out / "per_step.csv"),
-               ev.write_planning_time_csv(rows, out / "planning_time.csv")]
+    written = [
+        ev.write_table_csv(rows, out / "table.csv"),
+        ev.write_per_step_csv(rows, out / "per_step.csv"),
+        ev.write_planning_time_csv(rows, out / "planning_time.csv"),
+    ]
     markdown = ev.table_markdown(rows)
     timing = ev.planning_time_markdown(rows)
     (out / "table.md").write_text(
         f"F1-score and entropy at 33/67/100 % of the budget, mean ± std over {args.trials} trials "
         f"(seeds {args.seed}..{args.seed + args.trials - 1}), noise {args.noise}"
         f"{f', protocol {args.protocol}' if args.protocol else ''}; best in bold.\n\n{markdown}\n"
-        f"Team metrics (each UAV's own map):\n\n{ev.table_markdown(rows, metrics='team')}")
+        f"Team metrics (each UAV's own map):\n\n{ev.table_markdown(rows, metrics='team')}"
+    )
     (out / "planning_time.md").write_text(timing)
     written += [out / "table.md", out / "planning_time.md"]
     if not args.no_plots:
@@ -179,8 +235,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _plots(results: list[Any], env_names: list[str], logs: list[tuple[str, str]], args: argparse.Namespace,
-           out: Path) -> list[Path]:
+def _plots(
+    results: list[Any], env_names: list[str], logs: list[tuple[str, str]], args: argparse.Namespace, out: Path
+) -> list[Path]:
     from sb3_coma import plots
     from sb3_coma.cli import UserError
 
@@ -195,8 +252,11 @@ def _plots(results: list[Any], env_names: list[str], logs: list[tuple[str, str]]
                 written.append(plots.animate_mission(r, out / f"{stem}.gif"))
     if logs:
         try:
-            written.append(plots.plot_training_reward(dict(logs), out / "training_reward.png",
-                                                      agents_per_episode=args.agents_per_episode))
+            written.append(
+                plots.plot_training_reward(
+                    dict(logs), out / "training_reward.png", agents_per_episode=args.agents_per_episode
+                )
+            )
         except ValueError as exc:
             raise UserError(str(exc)) from None
     return written

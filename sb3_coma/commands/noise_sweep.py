@@ -13,6 +13,7 @@ default). Writes ``noise_sweep.md`` / ``.csv`` (global and team F1 / entropy at 
 standard error, and each arm minus AG on both entropies, paired) and ``noise_sweep.png``
 (entropy vs each axis per arm).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,13 +26,20 @@ HELP = "AG and the trained ablation arms over sigma, a_low, drop probability and
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     parser.add_argument("--env", default="env3", help="map (default env3, the ablation's)")
-    parser.add_argument("--arms", default=None,
-                        help="comma-separated arms: 'ag' and/or shipped model names (default: ag and every shipped "
-                             "model of the map that is an ablation arm or the map's own model)")
+    parser.add_argument(
+        "--arms",
+        default=None,
+        help="comma-separated arms: 'ag' and/or shipped model names (default: ag and every shipped "
+        "model of the map that is an ablation arm or the map's own model)",
+    )
     parser.add_argument("--missions", type=int, default=None, help="missions per setting (default 20; --quick: 2)")
     parser.add_argument("--seed", type=int, default=0, help="base env seed: mission k uses SEED+k (default 0)")
-    parser.add_argument("--split", default="test", choices=("paper", "train", "test"),
-                        help="where the missions come from (default test, with random starts)")
+    parser.add_argument(
+        "--split",
+        default="test",
+        choices=("paper", "train", "test"),
+        help="where the missions come from (default test, with random starts)",
+    )
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
     parser.add_argument("--grid", action="store_true", help="the full grid (96 settings) instead of one axis at a time")
     parser.add_argument("--quick", action="store_true", help="smoke run: a few settings, 2 missions")
@@ -47,8 +55,13 @@ def default_arms(env: str) -> list[str]:
         models = read_manifest()["models"]
     except (ImportError, ValueError):
         return ["ag"]
-    return ["ag"] + [name for name, info in models.items() if info.get("env") == env
-                     and str(info.get("algo", "coma")) == "coma" and ("ablation_arm" in info or name == env)]
+    return ["ag"] + [
+        name
+        for name, info in models.items()
+        if info.get("env") == env
+        and str(info.get("algo", "coma")) == "coma"
+        and ("ablation_arm" in info or name == env)
+    ]
 
 
 def _arm(name: str, env: str):
@@ -82,8 +95,17 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from None
     options = {} if args.budget is None else {"budget": args.budget}
     try:
-        result = run_noise_sweep(arms, env=args.env, n_missions=missions, seed=args.seed, quick=args.quick,
-                                 grid=args.grid, split=args.split, log=lambda m: print(m, flush=True), **options)
+        result = run_noise_sweep(
+            arms,
+            env=args.env,
+            n_missions=missions,
+            seed=args.seed,
+            quick=args.quick,
+            grid=args.grid,
+            split=args.split,
+            log=lambda m: print(m, flush=True),
+            **options,
+        )
     except ValueError as exc:
         raise UserError(str(exc)) from None
     out = Path(args.out)

@@ -7,14 +7,17 @@ Examples::
     sb3-coma reproduce --train               # retrain each env through zoo_configs/coma.yml first
     sb3-coma reproduce --quick --out /tmp/r  # smoke run: 2 missions everywhere (and a tiny training with --train)
 """
+
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
 NAME = "reproduce"
-HELP = ("reproduce the paper protocol (Table I), the unseen protocol, the env3 ablation, the noise sweep and the "
-        "deployment cost table (shipped models or --train) into results/ and docs/RESULTS.md")
+HELP = (
+    "reproduce the paper protocol (Table I), the unseen protocol, the env3 ablation, the noise sweep and the "
+    "deployment cost table (shipped models or --train) into results/ and docs/RESULTS.md"
+)
 DESCRIPTION = (
     "Evaluate the shipped COMA models (or retrain them with --train through zoo_configs/coma.yml) and every other "
     "shipped model against AG (the map's validated weighting), AG with look-ahead 2 and 3, lawnmower and random on "
@@ -33,48 +36,99 @@ def _repo_docs() -> Path | None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--threads", type=int, default=1,
-                        help="torch CPU threads (default 1: as fast as 2 for these small networks, and training "
-                             "gives the same model on any machine; float reductions differ with the thread count)")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1: as fast as 2 for these small networks, and training "
+        "gives the same model on any machine; float reductions differ with the thread count)",
+    )
     parser.add_argument("--out", default="results", help="output folder (default results/)")
     parser.add_argument("--env", default="env1,env2,env3", help="comma-separated maps (default env1,env2,env3)")
-    parser.add_argument("--trials", type=int, default=10,
-                        help="missions per method of the paper protocol and the ablation (default 10; --quick: 2)")
-    parser.add_argument("--unseen-missions", type=int, default=None, metavar="N",
-                        help="missions per method of the unseen protocol (default 50; 0 skips it; --quick: 2)")
-    parser.add_argument("--sweep-missions", type=int, default=None, metavar="N",
-                        help="missions per setting of the noise sweep (default 50, the unseen protocol's missions; 0 skips "
-                             "it; --quick: 2)")
+    parser.add_argument(
+        "--trials",
+        type=int,
+        default=10,
+        help="missions per method of the paper protocol and the ablation (default 10; --quick: 2)",
+    )
+    parser.add_argument(
+        "--unseen-missions",
+        type=int,
+        default=None,
+        metavar="N",
+        help="missions per method of the unseen protocol (default 50; 0 skips it; --quick: 2)",
+    )
+    parser.add_argument(
+        "--sweep-missions",
+        type=int,
+        default=None,
+        metavar="N",
+        help="missions per setting of the noise sweep (default 50, the unseen protocol's missions; 0 skips "
+        "it; --quick: 2)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="base evaluation seed: trial k uses SEED+k (default 0)")
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud (default moderate)")
     parser.add_argument("--train", action="store_true", help="retrain each env's model through the zoo config first")
     parser.add_argument("--timesteps", type=int, default=None, help="with --train: joint steps (default: the config's)")
-    parser.add_argument("--fusion", default=None, choices=("mean", "sendfuse"),
-                        help="with --train: fusion (default: the shipped model's; sendfuse needs its weights)")
-    parser.add_argument("--quick", action="store_true",
-                        help="smoke run (< 60 s): 2 trials, tiny training with --train; docs are not rewritten")
-    parser.add_argument("--ship", action="store_true",
-                        help="with --train: replace the shipped zips and models.json with the retrained models")
-    parser.add_argument("--record", action="store_true",
-                        help="store the measured metrics of the shipped models in sb3_coma/pretrained/models.json")
-    parser.add_argument("--sampled", dest="deterministic", action="store_const", const=False, default=None,
-                        help="evaluate COMA with seeded draws from its policy (default: as recorded per model)")
-    parser.add_argument("--argmax", dest="deterministic", action="store_const", const=True,
-                        help="evaluate COMA with argmax actions")
-    parser.add_argument("--docs", default=None, metavar="PATH",
-                        help="where to write RESULTS.md (default docs/RESULTS.md of a source checkout; not with --quick)")
+    parser.add_argument(
+        "--fusion",
+        default=None,
+        choices=("mean", "sendfuse"),
+        help="with --train: fusion (default: the shipped model's; sendfuse needs its weights)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="smoke run (< 60 s): 2 trials, tiny training with --train; docs are not rewritten",
+    )
+    parser.add_argument(
+        "--ship",
+        action="store_true",
+        help="with --train: replace the shipped zips and models.json with the retrained models",
+    )
+    parser.add_argument(
+        "--record",
+        action="store_true",
+        help="store the measured metrics of the shipped models in sb3_coma/pretrained/models.json",
+    )
+    parser.add_argument(
+        "--sampled",
+        dest="deterministic",
+        action="store_const",
+        const=False,
+        default=None,
+        help="evaluate COMA with seeded draws from its policy (default: as recorded per model)",
+    )
+    parser.add_argument(
+        "--argmax", dest="deterministic", action="store_const", const=True, help="evaluate COMA with argmax actions"
+    )
+    parser.add_argument(
+        "--docs",
+        default=None,
+        metavar="PATH",
+        help="where to write RESULTS.md (default docs/RESULTS.md of a source checkout; not with --quick)",
+    )
     parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/RESULTS.md")
     parser.add_argument("--no-plots", action="store_true", help="skip the figures")
     parser.add_argument("--no-generalisation", action="store_true", help="skip the generalisation section")
-    parser.add_argument("--no-ablation", action="store_true",
-                        help="skip the env3 ablation (SenDFuse x CBAM arms at three noise levels)")
+    parser.add_argument(
+        "--no-ablation", action="store_true", help="skip the env3 ablation (SenDFuse x CBAM arms at three noise levels)"
+    )
     parser.add_argument("--no-costs", action="store_true", help="skip the deployment cost table")
-    parser.add_argument("--baselines-only", action="store_true",
-                        help="fly no learned model: every step with the baselines alone (maps without a shipped "
-                             "model get baseline rows anyway)")
-    parser.add_argument("--wide-trials", type=int, default=None, metavar="N",
-                        help="missions of the paired check of the verdicts: COMA vs AG per env and the full "
-                             "model vs each ablation arm, same missions (default 50; 0 skips it)")
+    parser.add_argument(
+        "--baselines-only",
+        action="store_true",
+        help="fly no learned model: every step with the baselines alone (maps without a shipped "
+        "model get baseline rows anyway)",
+    )
+    parser.add_argument(
+        "--wide-trials",
+        type=int,
+        default=None,
+        metavar="N",
+        help="missions of the paired check of the verdicts: COMA vs AG per env and the full "
+        "model vs each ablation arm, same missions (default 50; 0 skips it)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -107,15 +161,37 @@ def run(args: argparse.Namespace) -> int:
             docs = Path(args.docs)
         elif not args.quick:
             docs = _repo_docs()
-    counts = {name: value for name, value in (("wide_trials", args.wide_trials), ("unseen_missions", args.unseen_missions),
-                                              ("sweep_missions", args.sweep_missions)) if value is not None}
+    counts = {
+        name: value
+        for name, value in (
+            ("wide_trials", args.wide_trials),
+            ("unseen_missions", args.unseen_missions),
+            ("sweep_missions", args.sweep_missions),
+        )
+        if value is not None
+    }
     try:
-        reproduce(out=args.out, env_names=envs, trials=args.trials, seed=args.seed, noise=args.noise, train=args.train,
-                  quick=args.quick, timesteps=args.timesteps, fusion=args.fusion, docs=docs,
-                  plots=not args.no_plots, ship=args.ship, generalisation=not args.no_generalisation,
-                  deterministic=args.deterministic, record=args.record and not args.quick,
-                  ablation=not args.no_ablation, costs=not args.no_costs, baselines_only=args.baselines_only,
-                  **counts)
+        reproduce(
+            out=args.out,
+            env_names=envs,
+            trials=args.trials,
+            seed=args.seed,
+            noise=args.noise,
+            train=args.train,
+            quick=args.quick,
+            timesteps=args.timesteps,
+            fusion=args.fusion,
+            docs=docs,
+            plots=not args.no_plots,
+            ship=args.ship,
+            generalisation=not args.no_generalisation,
+            deterministic=args.deterministic,
+            record=args.record and not args.quick,
+            ablation=not args.no_ablation,
+            costs=not args.no_costs,
+            baselines_only=args.baselines_only,
+            **counts,
+        )
     except ValueError as exc:  # unknown/missing/corrupt shipped model, bad env options
         raise UserError(str(exc)) from None
     return 0

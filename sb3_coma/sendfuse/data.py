@@ -30,11 +30,12 @@ copies' footprint kernels on the 493 x 493 grid dominate, the pairs of a step ar
 one fancy-indexing copy. Keeping every candidate instead of sub-sampling would triple the rate,
 but mostly with near-duplicates of the previous step's maps.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, Mapping, Sequence
 
 import cv2
 import numpy as np
@@ -76,8 +77,16 @@ def _blobs(rng: np.random.Generator, grid: int) -> np.ndarray:
         for _ in range(int(count)):
             centre = rng.uniform(0.0, 1.0, 2) * grid
             axes = np.maximum(rng.uniform(*size, 2) * grid, 1.0)
-            cv2.ellipse(canvas, (int(centre[0]), int(centre[1])), (int(axes[0]), int(axes[1])),
-                        float(rng.uniform(0, 180)), 0.0, 360.0, int(value), -1)
+            cv2.ellipse(
+                canvas,
+                (int(centre[0]), int(centre[1])),
+                (int(axes[0]), int(axes[1])),
+                float(rng.uniform(0, 180)),
+                0.0,
+                360.0,
+                int(value),
+                -1,
+            )
     return canvas.astype(bool)
 
 
@@ -107,8 +116,9 @@ def _field(rng: np.random.Generator, grid: int) -> np.ndarray:
     noise = rng.standard_normal((coarse, coarse)).astype(np.float32)
     smooth = cv2.resize(noise, (grid, grid), interpolation=cv2.INTER_CUBIC)
     fine = min(coarse * 4, grid)
-    detail = cv2.resize(rng.standard_normal((fine, fine)).astype(np.float32), (grid, grid),
-                        interpolation=cv2.INTER_CUBIC)
+    detail = cv2.resize(
+        rng.standard_normal((fine, fine)).astype(np.float32), (grid, grid), interpolation=cv2.INTER_CUBIC
+    )
     value = smooth + rng.uniform(0.0, 0.5) * detail
     return value > np.quantile(value, 1.0 - rng.uniform(*_FRACTION_RANGE))
 
@@ -125,7 +135,10 @@ def random_truth(kind: str, rng: np.random.Generator, grid: int = 493, lattice: 
         mask, source = star_map(seed, grid), f"env1 star, seed {seed}"
     else:
         draw: Callable[[np.random.Generator, int], np.ndarray] = {
-            "blobs": _blobs, "stripes": _stripes, "field": _field}.get(kind)  # type: ignore[assignment]
+            "blobs": _blobs,
+            "stripes": _stripes,
+            "field": _field,
+        }.get(kind)  # type: ignore[assignment]
         if draw is None:
             raise ValueError(f"unknown map kind {kind!r}; choose from {MAP_KINDS}")
         for _ in range(50):
@@ -148,9 +161,9 @@ class LockstepStep:
     """
 
     step: int
-    noisy: np.ndarray   # (N, N, R, R) float32
-    clean: np.ndarray   # (N, N, R, R) float32
-    valid: np.ndarray   # (N, N) bool
+    noisy: np.ndarray  # (N, N, R, R) float32
+    clean: np.ndarray  # (N, N, R, R) float32
+    valid: np.ndarray  # (N, N) bool
 
 
 class LockstepPair:
@@ -191,8 +204,10 @@ class LockstepPair:
             valid = np.stack([obs_n[a][layout.KEY_RECEIVED_VALID] for a in agents]) > 0.5
             valid_q = np.stack([obs_q[a][layout.KEY_RECEIVED_VALID] for a in agents]) > 0.5
             if not np.array_equal(valid, valid_q) or not np.array_equal(noisy[:, 0], clean[:, 0]):
-                raise RuntimeError("the noisy and the quiet run diverged: channel noise changed the mission "
-                                   "(the environment must draw channel noise from its own random stream)")
+                raise RuntimeError(
+                    "the noisy and the quiet run diverged: channel noise changed the mission "
+                    "(the environment must draw channel noise from its own random stream)"
+                )
             yield LockstepStep(step, noisy, clean, valid)
             if not self.noisy.agents:
                 return
@@ -228,7 +243,8 @@ class PairConfig:
 
     noise_mix: Mapping[str, float] = field(default_factory=lambda: {"none": 0.3, "moderate": 0.35, "loud": 0.35})
     map_mix: Mapping[str, float] = field(
-        default_factory=lambda: {"star": 0.2, "blobs": 0.2, "stripes": 0.15, "field": 0.45})
+        default_factory=lambda: {"star": 0.2, "blobs": 0.2, "stripes": 0.15, "field": 0.45}
+    )
     uavs: tuple[int, int] = (2, 6)
     budget: int = 15
     comm_ranges: tuple[float, ...] = (20.0, 25.0, 30.0)
@@ -258,10 +274,10 @@ class PairConfig:
 class PairDataset:
     """Aligned (noisy input, clean target) comm-grid maps for the denoising pre-training."""
 
-    noisy: np.ndarray    # (S, R, R) float32, as received (may leave [0, 1] slightly)
-    clean: np.ndarray    # (S, R, R) float32, the same map without channel noise
-    preset: np.ndarray   # (S,) int8 index into NOISE_PRESETS of the mission it came from
-    own: np.ndarray      # (S,) bool: the receiver's own slot (clean in both)
+    noisy: np.ndarray  # (S, R, R) float32, as received (may leave [0, 1] slightly)
+    clean: np.ndarray  # (S, R, R) float32, the same map without channel noise
+    preset: np.ndarray  # (S,) int8 index into NOISE_PRESETS of the mission it came from
+    own: np.ndarray  # (S,) bool: the receiver's own slot (clean in both)
     missions: int = 0
 
     def __len__(self) -> int:
@@ -271,12 +287,15 @@ class PairDataset:
         """One line for logs and the provenance file."""
         counts = ", ".join(f"{name} {int((self.preset == i).sum())}" for i, name in enumerate(NOISE_PRESETS))
         noise = float(np.mean((self.noisy - self.clean) ** 2)) if len(self) else float("nan")
-        return (f"{len(self)} pairs from {self.missions} missions ({counts}; own slots {int(self.own.sum())}); "
-                f"input MSE vs target {noise:.3g}")
+        return (
+            f"{len(self)} pairs from {self.missions} missions ({counts}; own slots {int(self.own.sum())}); "
+            f"input MSE vs target {noise:.3g}"
+        )
 
 
-def generate_pairs(n_samples: int, seed: int = 0, config: PairConfig | None = None,
-                   progress: Callable[[int], None] | None = None) -> PairDataset:
+def generate_pairs(
+    n_samples: int, seed: int = 0, config: PairConfig | None = None, progress: Callable[[int], None] | None = None
+) -> PairDataset:
     """Fly random lockstep missions until ``n_samples`` pairs are collected.
 
     Deterministic in ``seed`` (and ``config``). ``progress(k)`` is called with the number of new
@@ -305,8 +324,16 @@ def generate_pairs(n_samples: int, seed: int = 0, config: PairConfig | None = No
         key = (n, preset, comm_range, start)
         if key not in pairs:
             # map_seed above the offset: the default env1 map is never even loaded
-            pairs[key] = LockstepPair("env1", preset, n_uavs=n, budget=config.budget, comm_range=comm_range,
-                                      start=start, comm_grid=r, map_seed=STAR_SEED_OFFSET)
+            pairs[key] = LockstepPair(
+                "env1",
+                preset,
+                n_uavs=n,
+                budget=config.budget,
+                comm_range=comm_range,
+                start=start,
+                comm_grid=r,
+                map_seed=STAR_SEED_OFFSET,
+            )
         pair = pairs[key]
         pair.set_truth(random_truth(kinds[int(rng.choice(len(kinds), p=kind_p))], rng))
         before = filled
@@ -320,10 +347,10 @@ def generate_pairs(n_samples: int, seed: int = 0, config: PairConfig | None = No
             if count == 0:
                 continue
             receiver, slot = receiver[:count], slot[:count]
-            noisy_out[filled:filled + count] = step.noisy[receiver, slot]
-            clean_out[filled:filled + count] = step.clean[receiver, slot]
-            preset_out[filled:filled + count] = NOISE_PRESETS.index(preset)
-            own_out[filled:filled + count] = slot == 0
+            noisy_out[filled : filled + count] = step.noisy[receiver, slot]
+            clean_out[filled : filled + count] = step.clean[receiver, slot]
+            preset_out[filled : filled + count] = NOISE_PRESETS.index(preset)
+            own_out[filled : filled + count] = slot == 0
             filled += count
             if filled >= n_samples:
                 break
@@ -337,17 +364,18 @@ def generate_pairs(n_samples: int, seed: int = 0, config: PairConfig | None = No
 class FusionSet:
     """Multi-source fusions from lockstep missions: what one UAV holds at one step."""
 
-    noisy: np.ndarray    # (F, N, R, R) float32
-    clean: np.ndarray    # (F, N, R, R) float32
-    valid: np.ndarray    # (F, N) bool, at least two valid sources per row
-    preset: np.ndarray   # (F,) int8 index into NOISE_PRESETS
+    noisy: np.ndarray  # (F, N, R, R) float32
+    clean: np.ndarray  # (F, N, R, R) float32
+    valid: np.ndarray  # (F, N) bool, at least two valid sources per row
+    preset: np.ndarray  # (F,) int8 index into NOISE_PRESETS
 
     def __len__(self) -> int:
         return int(self.noisy.shape[0])
 
 
-def collect_fusions(n_fusions: int, seed: int = 0, config: PairConfig | None = None, n_uavs: int = 4,
-                    take: float = 0.25) -> FusionSet:
+def collect_fusions(
+    n_fusions: int, seed: int = 0, config: PairConfig | None = None, n_uavs: int = 4, take: float = 0.25
+) -> FusionSet:
     """Fusions (>= 2 valid sources) on *pre-training-style* random maps, ``n_uavs`` UAVs.
 
     Used to calibrate the fusion after pre-training without touching the evaluation maps.
@@ -368,18 +396,19 @@ def collect_fusions(n_fusions: int, seed: int = 0, config: PairConfig | None = N
     filled = 0
     share = [n_fusions * (k + 1) // len(presets) for k in range(len(presets))]
     for k, preset in enumerate(presets):
-        pair = LockstepPair("env1", preset, n_uavs=n_uavs, budget=config.budget, comm_grid=r,
-                            start="random", map_seed=STAR_SEED_OFFSET)
+        pair = LockstepPair(
+            "env1", preset, n_uavs=n_uavs, budget=config.budget, comm_grid=r, start="random", map_seed=STAR_SEED_OFFSET
+        )
         while filled < share[k]:
             pair.set_truth(random_truth(kinds[int(rng.choice(len(kinds), p=kind_p))], rng))
             for step in pair.run(int(rng.integers(0, 2**31 - 1)), rng):
                 rows = np.flatnonzero((step.valid.sum(axis=1) >= 2) & (rng.random(n_uavs) < take))
                 rows = rows[: share[k] - filled]
                 count = len(rows)
-                noisy[filled:filled + count] = step.noisy[rows]
-                clean[filled:filled + count] = step.clean[rows]
-                valid[filled:filled + count] = step.valid[rows]
-                preset_out[filled:filled + count] = NOISE_PRESETS.index(preset)
+                noisy[filled : filled + count] = step.noisy[rows]
+                clean[filled : filled + count] = step.clean[rows]
+                valid[filled : filled + count] = step.valid[rows]
+                preset_out[filled : filled + count] = NOISE_PRESETS.index(preset)
                 filled += count
                 if filled >= share[k]:
                     break

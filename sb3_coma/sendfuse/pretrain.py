@@ -24,14 +24,14 @@ After training we pick ``c`` from a small grid by the fused-map error on *pre-tr
 (never the evaluation maps) and fold it into the weights; :func:`rescale_encoder` does the
 exact rewrite.
 """
+
 from __future__ import annotations
 
 import math
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
@@ -41,7 +41,11 @@ from .loss import SenDFuseLoss
 from .network import SenDFuseNet
 
 __all__ = [
-    "EpochLog", "PretrainConfig", "PretrainResult", "dihedral", "pretrain",
+    "EpochLog",
+    "PretrainConfig",
+    "PretrainResult",
+    "dihedral",
+    "pretrain",
     "rescale_encoder",
 ]
 
@@ -78,8 +82,11 @@ class PretrainConfig:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction!r}")
         if not 0.0 < self.final_lr_fraction <= 1.0:
             raise ValueError(f"final_lr_fraction must be in (0, 1], got {self.final_lr_fraction!r}")
-        if isinstance(self.calibration_fusions, bool) or not isinstance(self.calibration_fusions, int) \
-                or self.calibration_fusions < 1:
+        if (
+            isinstance(self.calibration_fusions, bool)
+            or not isinstance(self.calibration_fusions, int)
+            or self.calibration_fusions < 1
+        ):
             raise ValueError(f"calibration_fusions must be a positive integer, got {self.calibration_fusions!r}")
         if not self.calibration_scales or any(not (math.isfinite(c) and c > 0) for c in self.calibration_scales):
             raise ValueError(f"calibration_scales must be positive numbers, got {self.calibration_scales!r}")
@@ -100,9 +107,11 @@ class EpochLog:
     seconds: float
 
     def line(self) -> str:
-        return (f"epoch {self.epoch}: loss {self.total:.4f} (mse {self.mse:.3g}, mae {self.mae:.3g}, "
-                f"1-ssim {self.ssim:.3g}) | val loss {self.val_total:.4f}, val mse {self.val_mse:.3g} "
-                f"| {self.seconds:.0f}s")
+        return (
+            f"epoch {self.epoch}: loss {self.total:.4f} (mse {self.mse:.3g}, mae {self.mae:.3g}, "
+            f"1-ssim {self.ssim:.3g}) | val loss {self.val_total:.4f}, val mse {self.val_mse:.3g} "
+            f"| {self.seconds:.0f}s"
+        )
 
 
 @dataclass
@@ -112,10 +121,10 @@ class PretrainResult:
     model: SenDFuseNet
     history: list[EpochLog]
     data_summary: str
-    identity_val_mse: float           # MSE(noisy, clean) on the validation pairs: the bar to beat
+    identity_val_mse: float  # MSE(noisy, clean) on the validation pairs: the bar to beat
     val_mse_by_preset: dict[str, float]
-    scale: float                      # fusion calibration factor folded into the weights (1 = none)
-    calibration: dict[float, float]   # scale -> fused-map MSE on pre-training maps
+    scale: float  # fusion calibration factor folded into the weights (1 = none)
+    calibration: dict[float, float]  # scale -> fused-map MSE on pre-training maps
     seconds: float
 
 
@@ -147,34 +156,37 @@ def rescale_encoder(model: SenDFuseNet, scale: float) -> SenDFuseNet:
     c1 = model.channels[0]
     with torch.no_grad():
         convs(model.enc1)[0].weight.mul_(scale)
-        convs(model.dec1_1)[0].weight.div_(scale)          # input: E1 ++ up(E2), all encoder features
-        convs(model.dec2_1)[0].weight.div_(scale)          # input: E2 ++ up(E3)
+        convs(model.dec1_1)[0].weight.div_(scale)  # input: E1 ++ up(E2), all encoder features
+        convs(model.dec2_1)[0].weight.div_(scale)  # input: E2 ++ up(E3)
         convs(model.dec1_2)[0].weight[:, :c1].div_(scale)  # input: E1 ++ D1_1 ++ up(D2_1): only E1
     return model
 
 
 def _batches(n: int, batch: int, rng: np.random.Generator) -> list[np.ndarray]:
     order = rng.permutation(n)
-    return [order[i:i + batch] for i in range(0, n, batch)]
+    return [order[i : i + batch] for i in range(0, n, batch)]
 
 
-def _evaluate(model: SenDFuseNet, loss_fn: SenDFuseLoss, x: torch.Tensor, y: torch.Tensor,
-              batch: int = 256) -> tuple[float, float, np.ndarray]:
+def _evaluate(
+    model: SenDFuseNet, loss_fn: SenDFuseLoss, x: torch.Tensor, y: torch.Tensor, batch: int = 256
+) -> tuple[float, float, np.ndarray]:
     """(mean total loss, mean MSE, per-sample MSE) without gradients."""
     totals, mses, per = [], [], []
     with torch.no_grad():
         for i in range(0, len(x), batch):
-            out = model(x[i:i + batch])
-            terms = loss_fn(out, y[i:i + batch])
+            out = model(x[i : i + batch])
+            terms = loss_fn(out, y[i : i + batch])
             n = len(out)
             totals.append(float(terms.total) * n)
             mses.append(float(terms.mse) * n)
-            per.append(((out - y[i:i + batch]) ** 2).mean(dim=(1, 2, 3)).numpy())
+            per.append(((out - y[i : i + batch]) ** 2).mean(dim=(1, 2, 3)).numpy())
     n = max(len(x), 1)
     return sum(totals) / n, sum(mses) / n, np.concatenate(per) if per else np.zeros(0)
 
 
-def _calibrate(model: SenDFuseNet, config: PretrainConfig, log: Callable[[str], None]) -> tuple[float, dict[float, float]]:
+def _calibrate(
+    model: SenDFuseNet, config: PretrainConfig, log: Callable[[str], None]
+) -> tuple[float, dict[float, float]]:
     """Choose the encoder scale whose fusion best matches the clean mean on pre-training-style maps.
 
     The fusions come from fresh random maps (seeded from ``seed``, disjoint from the training
@@ -191,16 +203,22 @@ def _calibrate(model: SenDFuseNet, config: PretrainConfig, log: Callable[[str], 
         rescale_encoder(model, scale)
         errors = fusion_set_errors(model, fusions)
         results[scale] = float(sum(sendfuse for _, sendfuse in errors.values()))
-        log(f"calibration: encoder scale {scale:g}: fused-map MSE "
-            + ", ".join(f"{k} {v[1]:.3g} (mean {v[0]:.3g})" for k, v in errors.items()))
+        log(
+            f"calibration: encoder scale {scale:g}: fused-map MSE "
+            + ", ".join(f"{k} {v[1]:.3g} (mean {v[0]:.3g})" for k, v in errors.items())
+        )
     best = min(results, key=lambda s: (results[s], -s))
     model.load_state_dict(base)
     rescale_encoder(model, best)
     return best, results
 
 
-def pretrain(config: PretrainConfig | None = None, log: Callable[[str], None] = print,
-             progress: bool = True, data: PairDataset | None = None) -> PretrainResult:
+def pretrain(
+    config: PretrainConfig | None = None,
+    log: Callable[[str], None] = print,
+    progress: bool = True,
+    data: PairDataset | None = None,
+) -> PretrainResult:
     """Generate pairs (unless ``data`` is given), train, calibrate; return the model and its record."""
     config = config or PretrainConfig()
     config.validate()
@@ -265,7 +283,9 @@ def pretrain(config: PretrainConfig | None = None, log: Callable[[str], None] = 
         if n_val:
             val_total, val_mse, per = _evaluate(model, loss_fn, x_val, y_val)
         mean = sums / max(seen, 1)
-        history.append(EpochLog(epoch, *(float(v) for v in mean), val_total, val_mse, time.perf_counter() - epoch_start))
+        history.append(
+            EpochLog(epoch, *(float(v) for v in mean), val_total, val_mse, time.perf_counter() - epoch_start)
+        )
         report(history[-1].line())
     bar.close()
 
@@ -275,14 +295,17 @@ def pretrain(config: PretrainConfig | None = None, log: Callable[[str], None] = 
         for i, name in enumerate(NOISE_PRESETS):
             if (presets == i).any():
                 by_preset[name] = float(per[presets == i].mean())
-        log(f"validation MSE: identity (noisy input) {identity_val:.4g}, SenDFuse {float(per.mean()):.4g}; "
-            + ", ".join(f"{k} {v:.3g}" for k, v in by_preset.items()))
+        log(
+            f"validation MSE: identity (noisy input) {identity_val:.4g}, SenDFuse {float(per.mean()):.4g}; "
+            + ", ".join(f"{k} {v:.3g}" for k, v in by_preset.items())
+        )
     scale, calibration = 1.0, {}
     if config.calibrate:
         scale, calibration = _calibrate(model, config, log)
     model.eval()
-    return PretrainResult(model, history, data.summary(), identity_val, by_preset, scale, calibration,
-                          time.perf_counter() - start)
+    return PretrainResult(
+        model, history, data.summary(), identity_val, by_preset, scale, calibration, time.perf_counter() - start
+    )
 
 
 def bar_write(line: str) -> None:
@@ -310,5 +333,11 @@ def _progress_bar(total: int, desc: str, enabled: bool):
         return _NullBar()
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=desc, unit="pair" if "pair" in desc else "step", file=sys.stderr,
-                dynamic_ncols=True, leave=False)
+    return tqdm(
+        total=total,
+        desc=desc,
+        unit="pair" if "pair" in desc else "step",
+        file=sys.stderr,
+        dynamic_ncols=True,
+        leave=False,
+    )

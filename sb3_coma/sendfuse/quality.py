@@ -17,10 +17,11 @@ own map, exact by construction); the error of SenDFuse's fusion of the own map a
 separately (0 since the own map bypasses the network).
 Evaluation maps default to env3 and env2, which the pre-training never sees.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Iterable, Sequence
 
 import numpy as np
 import torch
@@ -39,13 +40,13 @@ class QualityRow:
     """Mean squared errors against the clean fused map for one noise preset (lower is better)."""
 
     noise: str
-    fusions: int                 # scored (receiver, step) fusions with >= 2 valid sources
-    mean_mse: float              # naive mean of the noisy maps, comm grid
-    sendfuse_mse: float          # SenDFuse fusion, comm grid
-    mean_mse_lattice: float      # the same two after downsampling to the 11 x 11 lattice
+    fusions: int  # scored (receiver, step) fusions with >= 2 valid sources
+    mean_mse: float  # naive mean of the noisy maps, comm grid
+    sendfuse_mse: float  # SenDFuse fusion, comm grid
+    mean_mse_lattice: float  # the same two after downsampling to the 11 x 11 lattice
     sendfuse_mse_lattice: float
-    own_only_mse: float          # SenDFuse fusion vs the own map when nothing else arrived
-    own_only: int                # how many such cases
+    own_only_mse: float  # SenDFuse fusion vs the own map when nothing else arrived
+    own_only: int  # how many such cases
 
     @property
     def ratio(self) -> float:
@@ -167,13 +168,15 @@ def fusion_set_errors(network: SenDFuseNet, fusions: FusionSet, batch: int = 64)
             continue
         sums = np.zeros(2)
         for start in range(0, len(rows), batch):
-            sel = rows[start:start + batch]
+            sel = rows[start : start + batch]
             noisy, clean, valid = fusions.noisy[sel], fusions.clean[sel], fusions.valid[sel]
             target = mean_fusion(clean, valid)
             with torch.inference_mode():
                 fused = network.fuse(torch.from_numpy(noisy), torch.from_numpy(valid)).numpy()
-            sums += [float(((mean_fusion(noisy, valid) - target) ** 2).mean(axis=(1, 2)).sum()),
-                     float(((fused - target) ** 2).mean(axis=(1, 2)).sum())]
+            sums += [
+                float(((mean_fusion(noisy, valid) - target) ** 2).mean(axis=(1, 2)).sum()),
+                float(((fused - target) ** 2).mean(axis=(1, 2)).sum()),
+            ]
         out[preset] = (sums[0] / len(rows), sums[1] / len(rows))
     return out
 
@@ -184,11 +187,31 @@ def _fmt(value: float) -> str:
 
 def format_table(rows: Iterable[QualityRow], markdown: bool = False) -> str:
     """The quality table as aligned text or as Markdown (for SENDFUSE.md and reports)."""
-    header = ["noise", "fusions", "mean MSE", "SenDFuse MSE", "ratio", "mean MSE 11x11",
-              "SenDFuse MSE 11x11", "ratio 11x11", "own-only MSE"]
-    body = [[r.noise, str(r.fusions), f"{r.mean_mse:.3g}", f"{r.sendfuse_mse:.3g}", _fmt(r.ratio),
-             f"{r.mean_mse_lattice:.3g}", f"{r.sendfuse_mse_lattice:.3g}", _fmt(r.ratio_lattice),
-             f"{r.own_only_mse:.3g} (n={r.own_only})"] for r in rows]
+    header = [
+        "noise",
+        "fusions",
+        "mean MSE",
+        "SenDFuse MSE",
+        "ratio",
+        "mean MSE 11x11",
+        "SenDFuse MSE 11x11",
+        "ratio 11x11",
+        "own-only MSE",
+    ]
+    body = [
+        [
+            r.noise,
+            str(r.fusions),
+            f"{r.mean_mse:.3g}",
+            f"{r.sendfuse_mse:.3g}",
+            _fmt(r.ratio),
+            f"{r.mean_mse_lattice:.3g}",
+            f"{r.sendfuse_mse_lattice:.3g}",
+            _fmt(r.ratio_lattice),
+            f"{r.own_only_mse:.3g} (n={r.own_only})",
+        ]
+        for r in rows
+    ]
     if markdown:
         lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         lines += ["| " + " | ".join(row) + " |" for row in body]
