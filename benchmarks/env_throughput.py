@@ -1,8 +1,10 @@
 """Environment throughput: joint steps/s and missions/s on one thread, with peak memory.
 
-Setting of issue #2: 4 UAVs, budget 15, 493 x 493 belief grid, observations built, uniformly
-random *valid* actions. Measures the raw PettingZoo env and the SB3 vec env with the ``mean``
-fusion wrapper (SuperSuit + adapter + VecMonitor), after a warm-up that compiles the kernels.
+Setting of issues #2 / #14: env3, 4 UAVs, budget 15, 493 x 493 belief grid, moderate noise,
+per-cell local beliefs fed by cell-level messages, action gains and observations built,
+uniformly random *valid* actions, one thread. Measures the raw PettingZoo env and the SB3 vec env
+with the ``mean`` and ``sendfuse`` fusion wrappers (SuperSuit + adapter + VecMonitor), after a
+warm-up that compiles the kernels, and the memory one env copy holds.
 
     python benchmarks/env_throughput.py [--map env3] [--missions 200]
 """
@@ -62,6 +64,15 @@ def bench_vec(name: str, missions: int, seed: int, fusion: str) -> tuple[float, 
     return steps / elapsed, steps / 15 / elapsed
 
 
+def env_state_mib(name: str) -> float:
+    """MiB of numpy arrays one env copy holds after a reset (beliefs, tables, sums, scratch)."""
+    env = envs.make_env(name, n_uavs=4, budget=15)
+    env.reset(seed=0)
+    arrays = [v for v in vars(env).values() if isinstance(v, np.ndarray)]
+    arrays += [v for v in vars(env.geometry).values() if isinstance(v, np.ndarray)]
+    return sum(a.nbytes for a in arrays) / 2**20
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--map", default="env3")
@@ -75,6 +86,10 @@ def main() -> None:
     print(f"raw ParallelEnv         : {sps:8.0f} joint steps/s  {mps:7.1f} missions/s")
     sps, mps = bench_vec(args.map, args.missions, args.seed, "mean")
     print(f"vec env + mean fusion   : {sps:8.0f} joint steps/s  {mps:7.1f} missions/s")
+    bench_vec(args.map, 1, args.seed, "sendfuse")  # warm-up: weights, oneDNN kernels
+    sps, mps = bench_vec(args.map, max(args.missions // 4, 1), args.seed, "sendfuse")
+    print(f"vec env + SenDFuse      : {sps:8.0f} joint steps/s  {mps:7.1f} missions/s (one copy, 4 UAVs per pass)")
+    print(f"state of one env copy   : {env_state_mib(args.map):8.1f} MiB (every numpy array the env holds)")
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"peak resident memory    : {peak_mib:8.0f} MiB (whole process, torch/SB3 imports included)")
 
