@@ -126,7 +126,8 @@ def main(argv: list[str] | None = None) -> dict:
         factory = {"ippo": make_ippo, "mappo": make_mappo}[args.algo]
         model = factory(venv, seed=args.seed, policy_kwargs=dict(features_extractor_kwargs=dict(trunk=args.trunk)))
         timesteps = timesteps_for_missions(args.missions, venv)
-    curve = Curve(args.uavs * args.budget, out / "curve.csv")
+    per_mission = args.budget if args.algo == "coma" else args.uavs * args.budget  # COMA: joint steps
+    curve = Curve(per_mission, out / "curve.csv")
     print(
         f"{args.algo}: {args.missions} missions = {timesteps} agent-steps on {args.env} split=train, "
         f"{args.n_envs} copies x {args.uavs} UAVs, budget {args.budget}, noise {args.noise}, fusion {args.fusion}, "

@@ -380,8 +380,13 @@ class COMAPolicy(BasePolicy):
         the critic itself, as right after a synchronisation."""
         state = dict(state_dict)
         if not any(key.startswith(_TARGET_PREFIX) for key in state):
-            state.update({_TARGET_PREFIX + key[len(_CRITIC_PREFIX) :]: value
-                          for key, value in state_dict.items() if key.startswith(_CRITIC_PREFIX)})
+            state.update(
+                {
+                    _TARGET_PREFIX + key[len(_CRITIC_PREFIX) :]: value
+                    for key, value in state_dict.items()
+                    if key.startswith(_CRITIC_PREFIX)
+                }
+            )
         return super().load_state_dict(state, strict=strict, assign=assign)
 
 
