@@ -443,9 +443,20 @@ def parse_schedule(value: Any) -> Any:
     return value
 
 
+#: A number as people write it: PyYAML (YAML 1.1) reads ``1e-4`` (no dot) as a string.
+_NUMBER_RE = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
+
+
+def _number_or_value(value: Any) -> Any:
+    """``"1e-4"`` -> ``0.0001``; anything that is not a written number stays as it is."""
+    if isinstance(value, str) and _NUMBER_RE.fullmatch(value.strip()):
+        return float(value)
+    return value
+
+
 def coma_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
     """COMA constructor arguments from a config entry (zoo keys removed, strings resolved)."""
-    kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS}
+    kwargs = {k: _number_or_value(v) for k, v in entry.items() if k not in ZOO_KEYS}
     for key in _SCHEDULE_KEYS:
         if key in kwargs:
             kwargs[key] = parse_schedule(kwargs[key])

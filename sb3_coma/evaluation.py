@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import csv
 import functools
-import inspect
 import os
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -45,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_coma import pretrained
 from sb3_coma.checkpoints import training_options
 from sb3_coma.pretrained import shipped_env_options
 
@@ -234,26 +234,15 @@ def _load_model_file(path: Path, venv: Any) -> Any:
         ) from exc
 
 
+def _is_shipped_name(policy_or_name: Any) -> bool:
+    """A shipped model's name (``"env1"``, ``"UavIpp-Env3-v0"``, ``"env3-mean-cnn"``): it always
+    means the verified package file, never a file of that name in the current folder (an SB3 zip
+    can run code when loaded, so a local file must be passed as an explicit path)."""
+    return isinstance(policy_or_name, str) and pretrained.is_shipped(policy_or_name)
+
+
 def _load_pretrained(name: str, venv: Any) -> Any:
-    try:
-        from sb3_coma.pretrained import load_pretrained
-    except ModuleNotFoundError as exc:
-        if exc.name not in ("sb3_coma.pretrained",):
-            raise
-        raise ValueError(
-            f"{name!r} is neither a baseline ({', '.join(baseline_names())}) nor an existing model "
-            f"file, and shipped models are not available in this install (sb3_coma.pretrained "
-            f"is missing): pass the path of a saved COMA .zip"
-        ) from None
-    try:
-        if "env" in inspect.signature(load_pretrained).parameters:
-            return load_pretrained(name, env=venv)
-        return load_pretrained(name)
-    except (KeyError, ValueError) as exc:
-        raise ValueError(
-            f"unknown method {name!r}: not a baseline ({', '.join(baseline_names())}), not a model "
-            f"file, and not a shipped model ({exc})"
-        ) from exc
+    return pretrained.load_pretrained(name, env=venv)
 
 
 def is_model(policy_or_name: Any) -> bool:
@@ -267,36 +256,21 @@ def is_model(policy_or_name: Any) -> bool:
 
 def check_policy(policy_or_name: Any) -> None:
     """Fail early, before any env is built, on names and paths that cannot resolve."""
-    if isinstance(policy_or_name, os.PathLike) or (
-        isinstance(policy_or_name, str) and not _is_baseline(policy_or_name)
-    ):
+    if _is_shipped_name(policy_or_name) or (isinstance(policy_or_name, str) and _is_baseline(policy_or_name)):
+        return
+    if isinstance(policy_or_name, (str, os.PathLike)):
         text = os.fspath(policy_or_name)
-        path = Path(text)
-        if path.is_file() or Path(text + ".zip").is_file():
+        if not text.strip():
+            raise ValueError("empty method name")
+        if Path(text).is_file() or Path(text + ".zip").is_file():
             return
         if isinstance(policy_or_name, os.PathLike) or _looks_like_path(text):
             raise FileNotFoundError(f"model file not found: {text!r}")
-        if not text.strip():
-            raise ValueError("empty method name")
-        try:
-            import sb3_coma.pretrained as pretrained
-        except ModuleNotFoundError as exc:
-            if exc.name != "sb3_coma.pretrained":
-                raise
-            raise ValueError(
-                f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a model "
-                f"file, and shipped models are unavailable (sb3_coma.pretrained is missing)"
-            ) from None
-        model_info = getattr(pretrained, "model_info", None)
-        if model_info is not None:  # an unknown name fails here, not after building the env
-            try:
-                model_info(text)
-            except ValueError as exc:
-                raise ValueError(
-                    f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a "
-                    f"model file, and not a shipped model ({exc})"
-                ) from None
-    elif not isinstance(policy_or_name, str) and not callable(getattr(policy_or_name, "predict", None)):
+        raise ValueError(
+            f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a model file, and not "
+            f"a shipped model (available: {', '.join(pretrained.available()) or 'none'})"
+        )
+    if not callable(getattr(policy_or_name, "predict", None)):
         raise TypeError(
             f"cannot evaluate {type(policy_or_name).__name__}: pass a baseline name, a model path "
             f"or an object with SB3's predict(observation, deterministic=...)"
@@ -313,12 +287,12 @@ def resolve_policy(
     if isinstance(policy_or_name, str) and _is_baseline(policy_or_name):
         cls = planner_class(policy_or_name)
         return make_planner(cls.name, venv, seed=seed, **dict(planner_kwargs or {})), cls.name
+    if _is_shipped_name(policy_or_name):
+        return _load_pretrained(policy_or_name, venv), policy_or_name
     if isinstance(policy_or_name, (str, os.PathLike)):
         text = os.fspath(policy_or_name)
         path = Path(text) if Path(text).is_file() else Path(text + ".zip")
-        if path.is_file():
-            return _load_model_file(path, venv), path.stem
-        return _load_pretrained(text, venv), text
+        return _load_model_file(path, venv), path.stem
     if isinstance(policy_or_name, Planner):
         if policy_or_name.uses_env_state and policy_or_name.venv is not venv:
             raise ValueError(

@@ -31,6 +31,7 @@ from sb3_coma.coma import COMA
 from sb3_coma.config import TrainingError, env_options_of, load_config
 
 __all__ = [
+    "is_shipped",
     "shipped_env_options",
     "PretrainedError",
     "load_pretrained",
@@ -132,6 +133,15 @@ def _compact_policy(path: Path) -> None:
 def available(directory: str | os.PathLike[str] | None = None) -> list[str]:
     """Names of the shipped models, e.g. ``["env1", "env2", "env3"]``."""
     return sorted(read_manifest(directory)["models"])
+
+
+def is_shipped(name: str, directory: str | os.PathLike[str] | None = None) -> bool:
+    """Whether ``name`` is a shipped model's name (or gymnasium id) in the manifest."""
+    try:
+        models = read_manifest(directory)["models"]
+    except PretrainedError:
+        return False
+    return _canonical(name) in models
 
 
 def _canonical(name: str) -> str:

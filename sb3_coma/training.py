@@ -556,6 +556,11 @@ def train(
     """
     say = log or (print if verbose >= 1 else (lambda _msg: None))
     model_verbose = max(int(verbose) - 1, 0)
+    for name, value in (("eval_freq", eval_freq), ("save_freq", save_freq)):
+        if value is not None and (not is_int(value) or value < 0):
+            raise TrainingError(f"{name} must be an integer >= 0 (0: none) in joint steps, got {value!r}")
+    if eval_seed is not None and is_int(eval_seed) and eval_seed < 0:
+        raise TrainingError(f"eval_seed must be an integer >= 0, got {eval_seed!r}")
     plan = plan_run(env, config, variant, overrides, resume, total_timesteps, n_envs, seed, eval_seed, device)
     venv = make_training_env(plan.cfg, seed=plan.seed)
     try:  # nothing is written before the env and the model exist

@@ -276,9 +276,9 @@ class TestErrors:
         ("kwargs", "error", "match"),
         [
             (dict(batch_size=64, n_steps=8), ValueError, r"batch_size=64 .*\(n_steps=8 x 2 env copies = 16"),
-            (dict(learning_rate=0.0), ValueError, "learning_rate must be positive, got 0.0"),
-            (dict(critic_learning_rate=-1e-4), ValueError, "critic_learning_rate must be positive"),
-            (dict(learning_rate=lambda _: 0.0), ValueError, "learning_rate must be positive"),
+            (dict(learning_rate=0.0), ValueError, "learning_rate must be a finite positive number, got 0.0"),
+            (dict(critic_learning_rate=-1e-4), ValueError, "critic_learning_rate must be a finite positive number"),
+            (dict(learning_rate=lambda _: 0.0), ValueError, "learning_rate must be a finite positive number"),
             (dict(gamma=1.5), ValueError, r"gamma must lie in \[0, 1\], got 1.5"),
             (dict(td_lambda=-0.1), ValueError, r"td_lambda must lie in \[0, 1\], got -0.1"),
             (dict(batch_size=0), ValueError, "batch_size must be >= 1, got 0"),
@@ -390,3 +390,18 @@ def test_clipped_and_plain_actor_updates_train() -> None:
 def test_bad_actor_update_options(kwargs, match) -> None:
     with pytest.raises(ValueError, match=match):
         make(**kwargs)
+
+
+def test_predict_checks_the_observation_at_the_api_boundary() -> None:
+    model = make()
+    obs = model.env.reset()
+    model.predict(obs, deterministic=True)
+    bad = dict(obs)
+    bad["local"] = obs["local"].copy()
+    bad["local"][0, 0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="'local' holds NaN or inf"):
+        model.predict(bad)
+    with pytest.raises(ValueError, match="lacks 'action_mask'"):
+        model.predict({k: v for k, v in obs.items() if k != "action_mask"})
+    with pytest.raises(TypeError, match="observation dict"):
+        model.predict(obs["local"])

@@ -233,3 +233,16 @@ def test_evaluate_uses_the_models_observation_options():
     result = evaluate(model, env="env1", n_trials=2, n_uavs=2, budget=3)
     assert result.fusion == "mean" and result.env_options["action_gain"] is False
     assert result.f1.shape == (2, 4)
+
+
+def test_a_local_file_never_shadows_a_shipped_model_name(tmp_path, monkeypatch):
+    """`evaluate("env1")` means the verified shipped model even when ./env1.zip exists (an SB3 zip
+    can run code when loaded); the local file is used only when passed as a path."""
+    from sb3_coma import evaluate
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "env1.zip").write_bytes(b"not a model")
+    result = evaluate("env1", env="env1", n_trials=1, budget=2)
+    assert result.method == "env1" and result.f1.shape == (1, 3)
+    with pytest.raises(Exception, match="env1.zip"):
+        evaluate("./env1.zip", env="env1", n_trials=1, budget=2)

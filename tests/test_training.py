@@ -386,3 +386,39 @@ def test_validation_picks_best_model_on_seeded_missions(tmp_path):
     assert VALIDATION_SEED == 1000
     with pytest.raises(TrainingError, match="eval_missions must be a positive integer, got 0"):
         train(env="env1", config=config, seed=0, run_dir=tmp_path / "run2", eval_freq=16, eval_missions=0, **quiet())
+
+
+def test_numbers_written_without_a_dot_are_numbers_and_inf_is_refused_up_front(tmp_path):
+    """PyYAML reads `1e-4` as a string: the config format accepts it as the number people mean;
+    an infinite learning rate is refused before anything is built, naming the value."""
+    from sb3_coma.config import coma_kwargs
+
+    kwargs = coma_kwargs({"learning_rate": "1e-4", "critic_learning_rate": "3E-3", "policy": "CnnPolicy"})
+    assert kwargs["learning_rate"] == 1e-4 and kwargs["critic_learning_rate"] == 3e-3
+    assert coma_kwargs({"policy": "CnnPolicy", "advantage": "q"})["advantage"] == "q"  # words stay words
+    with pytest.raises((ValueError, TrainingError), match="learning_rate must be a finite positive number, got inf"):
+        train(
+            env="env1",
+            config=write_config(tmp_path),
+            overrides={"learning_rate": float("inf")},
+            run_dir=tmp_path / "run",
+            progress_bar=False,
+            verbose=0,
+        )
+    assert not (tmp_path / "run").exists()  # refused before the run folder was made
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"eval_freq": -5}, "eval_freq must be an integer >= 0"),
+        ({"save_freq": -1}, "save_freq must be an integer >= 0"),
+        ({"eval_seed": -3}, "eval_seed must be an integer >= 0"),
+    ],
+)
+def test_negative_frequencies_and_seeds_are_refused_before_anything_is_made(tmp_path, kwargs, match):
+    with pytest.raises(TrainingError, match=match):
+        train(
+            env="env1", config=write_config(tmp_path), run_dir=tmp_path / "run", progress_bar=False, verbose=0, **kwargs
+        )
+    assert not (tmp_path / "run").exists()

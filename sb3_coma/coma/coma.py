@@ -56,6 +56,7 @@ from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
     check_batch_fits_rollout,
     check_non_negative,
+    check_observation,
     check_positive_int,
     check_positive_rate,
     check_spaces,
@@ -622,6 +623,18 @@ class COMA(OnPolicyAlgorithm):
             callback = CallbackList([callback, JointStepProgressBar()])
             callback.init_callback(self)
         return callback
+
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """SB3's ``predict`` (one action per vec-env row, masked), after checking the observation:
+        a missing ``action_mask`` or a NaN in the maps is an error naming the key."""
+        check_observation(observation)
+        return super().predict(observation, state, episode_start, deterministic)
 
     def learn(
         self: SelfCOMA,

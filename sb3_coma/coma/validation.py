@@ -6,9 +6,11 @@ with a message saying what was expected, instead of a shape error deep inside a 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -99,8 +101,8 @@ def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) ->
 def check_positive_rate(name: str, value: float | Callable[[float], float]) -> None:
     """A learning rate: a positive number, or a schedule whose starting value is positive."""
     start = value(1.0) if callable(value) else value
-    if isinstance(start, bool) or not isinstance(start, (int, float)) or not start > 0:
-        raise ValueError(f"{name} must be positive, got {value!r}")
+    if isinstance(start, bool) or not isinstance(start, (int, float)) or not (start > 0 and math.isfinite(start)):
+        raise ValueError(f"{name} must be a finite positive number, got {value!r}")
 
 
 def check_unit_interval(name: str, value: float, low_open: bool = False) -> None:
@@ -133,3 +135,17 @@ def check_batch_fits_rollout(batch_size: int, n_steps: int, n_copies: int) -> No
             f"batch_size={batch_size} joint steps is larger than one rollout (n_steps={n_steps} x "
             f"{n_copies} env copies = {n_steps * n_copies} joint steps); raise n_steps or lower batch_size"
         )
+
+
+def check_observation(observation: Any) -> None:
+    """What ``COMA.predict`` is given: the vec env's observation dict, with the action mask and
+    finite maps. A NaN would silently become some action; say so at the API boundary instead."""
+    if not isinstance(observation, dict):
+        raise TypeError(f"COMA.predict needs the vec env's observation dict, got {type(observation).__name__}")
+    for key in (layout.KEY_LOCAL, layout.KEY_MASK):
+        if key not in observation:
+            raise ValueError(f"observation lacks {key!r} (keys: {sorted(observation)}); pass what the vec env returns")
+    for key, value in observation.items():
+        array = np.asarray(value)
+        if array.dtype.kind == "f" and not np.isfinite(array).all():
+            raise ValueError(f"observation {key!r} holds NaN or inf ({int((~np.isfinite(array)).sum())} values)")
