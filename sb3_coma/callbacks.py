@@ -78,7 +78,8 @@ def finished_missions(
 
 
 def truncate_metrics_csv(path: str | os.PathLike[str], max_timesteps: int) -> int:
-    """Drop rows recorded after ``max_timesteps`` (a resumed run redoes them); return rows kept.
+    """Drop rows recorded after ``max_timesteps`` (a resumed run redoes them) and rows a crash
+    left half-written (missing columns); return rows kept.
 
     The file is rewritten atomically; a missing file keeps 0 rows.
     """
@@ -87,7 +88,7 @@ def truncate_metrics_csv(path: str | os.PathLike[str], max_timesteps: int) -> in
         return 0
     with p.open(newline="", encoding="utf-8") as handle:
         rows = list(csv.DictReader(handle))
-    kept = [r for r in rows if _as_int(r.get("timesteps")) <= max_timesteps]
+    kept = [r for r in rows if _complete(r) and _as_int(r.get("timesteps")) <= max_timesteps]
     if len(kept) != len(rows):
         buffer = io.StringIO()
         writer = csv.DictWriter(buffer, fieldnames=list(METRIC_COLUMNS), extrasaction="ignore")
@@ -95,6 +96,11 @@ def truncate_metrics_csv(path: str | os.PathLike[str], max_timesteps: int) -> in
         writer.writerows(kept)
         atomic_write_text(p, buffer.getvalue())
     return len(kept)
+
+
+def _complete(row: dict[str, Any]) -> bool:
+    """Every column of the row is there: a partial last line (a crash mid-write) is not."""
+    return all(row.get(column) not in (None, "") for column in METRIC_COLUMNS)
 
 
 def _as_int(value: Any) -> int:

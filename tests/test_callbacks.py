@@ -273,3 +273,14 @@ def test_resumed_evaluation_keeps_the_earlier_record_and_best(tmp_path):
     assert len(resumed.evaluations_results) == 4  # two earlier + two new, one file
     assert len(np.load(tmp_path / "evaluations.npz")["timesteps"]) == 4
     assert (tmp_path / "best_model.zip").read_bytes() == best  # not replaced by a worse model
+
+
+def test_a_half_written_metrics_row_is_dropped_on_resume(tmp_path):
+    from sb3_coma.callbacks import METRIC_COLUMNS, truncate_metrics_csv
+
+    path = tmp_path / "metrics.csv"
+    full = ",".join(str(i + 1) for i in range(len(METRIC_COLUMNS)))
+    path.write_text(",".join(METRIC_COLUMNS) + "\n" + full + "\n" + full + "\n" + "3,45,2")  # crash mid-row
+    assert truncate_metrics_csv(path, max_timesteps=10**9) == 2
+    lines = path.read_text().splitlines()
+    assert len(lines) == 3 and all(line.count(",") == len(METRIC_COLUMNS) - 1 for line in lines)
