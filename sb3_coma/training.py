@@ -245,8 +245,12 @@ def _resumed_config(
     if env is not None and resolve_env_id(env) != cfg.env_id:
         raise TrainingError(f"--resume {resume}: that run trains {cfg.env_id}, not {resolve_env_id(env)}")
     if overrides:
-        cfg.entry = config_entry(
-            cfg.source or resume_run / CONFIG_FILE, cfg.env_id, overrides=overrides, data={cfg.env_id: cfg.entry}
+        # A resumed run continues its checkpoint (whose settings are saved in it) on its own env: a
+        # --set would either be ignored (COMA's arguments) or change the world mid-run (env_kwargs,
+        # e.g. the fusion), and config.yml would then misstate the run. Refuse instead.
+        raise TrainingError(
+            f"--resume {resume}: --set {', '.join(sorted(overrides))} cannot apply to a resumed run (the "
+            f"checkpoint keeps its settings and its env); start a new run to change them"
         )
     return cfg
 

@@ -301,6 +301,11 @@ def test_resume_conflicts(tmp_path):
         train(resume=run, variant="cbam", **quiet())
     with pytest.raises(TrainingError, match="that run trains UavIpp-Env1-v0, not UavIpp-Env3-v0"):
         train(resume=run, env="env3", **quiet())
+    before = (run / "config.yml").read_text()
+    for change in ({"policy": "CBAMPolicy"}, {"env_kwargs.fusion": "sendfuse"}, {"learning_rate": 1e-3}):
+        with pytest.raises(TrainingError, match="cannot apply to a resumed run"):
+            train(resume=run, overrides=change, **quiet())
+    assert (run / "config.yml").read_text() == before  # the run's record is not rewritten
     standalone = tmp_path / "standalone.zip"
     standalone.write_bytes((run / "model.zip").read_bytes())
     with pytest.raises(TrainingError, match="trained with 2 UAVs but the config has 3"):
