@@ -317,7 +317,7 @@ def _models_section(run: Any) -> list[str]:
     missing = [k.upper() for k in ("ippo", "mappo") if k not in learned]
     lines += [
         "",
-        "Hyperparameters: `zoo_configs/coma.yml`; how they were chosen: `sb3_coma/pretrained/MODELS.md`."
+        "Hyperparameters: `zoo_configs/coma.yml`; how they were chosen: `docs/training.md` (history: `docs/tuning_log.md`)."
         + (
             f" No {' / '.join(missing)} models are shipped yet, so they have no rows (they get rows as soon as "
             'models.json lists them with `"algo": "ippo"` / `"mappo"`).'

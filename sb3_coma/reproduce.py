@@ -341,7 +341,7 @@ def _curve_from_metrics(path: Path) -> list[float]:
 
 def shipped_seed(env: str) -> int:
     """The training seed of the shipped model of ``env`` (the seed whose run won on the validation
-    missions, MODELS.md), so ``--train`` retrains that very model; ``TRAIN_SEED`` without one."""
+    missions, models.json), so ``--train`` retrains that very model; ``TRAIN_SEED`` without one."""
     return int(manifest_value(env, "seed", TRAIN_SEED))
 
 
