@@ -958,29 +958,16 @@ def figures_step(run: Run) -> None:
 
     fig_dir = run.out / "figures"
     o = run.opts
-    paper = {
-        env: [run.paper.result(env, m.label) for m in ms if (env, m.label) in run.paper.results]
-        for env, ms in run.methods.items()
-    }
-    run.figures.append(
-        pl.plot_metric_grid(
-            paper,
-            fig_dir / "table1_curves.png",
-            title=f"paper protocol: F1 and entropy vs step, noise {o.noise}, {o.trials} trials",
-        )
-    )
+    grids = [("paper", run.paper, "table1_curves.png", f"{o.trials} trials")]
     if run.unseen is not None:
-        unseen = {
-            env: [run.unseen.result(env, m.label) for m in ms if (env, m.label) in run.unseen.results]
+        grids.append(("unseen", run.unseen, "unseen_curves.png", f"{run.unseen.n_trials} missions"))
+    for name, protocol, file, count in grids:
+        results = {
+            env: [protocol.result(env, m.label) for m in ms if (env, m.label) in protocol.results]
             for env, ms in run.methods.items()
         }
-        run.figures.append(
-            pl.plot_metric_grid(
-                unseen,
-                fig_dir / "unseen_curves.png",
-                title=f"unseen protocol: F1 and entropy vs step, noise {o.noise}, {run.unseen.n_trials} missions",
-            )
-        )
+        title = f"{name} protocol: F1 and entropy vs step, noise {o.noise}, {count}"
+        run.figures.append(pl.plot_metric_grid(results, fig_dir / file, title=title))
     curves = {
         env: pl.TrainingCurve(np.arange(1, len(s.training_curve) + 1), np.asarray(s.training_curve), s.source)
         for env, s in run.sources.items()
