@@ -239,17 +239,20 @@ def test_eval_seed_must_be_an_integer():
 def test_resumed_evaluation_keeps_the_earlier_record_and_best(tmp_path):
     """A resumed run continues evaluations.npz and its best score: the first evaluation after a
     resume must not replace a better best_model.zip (SB3's callback would start from -inf)."""
-    env = make_env()
-    model = make_model(env)
-    first = MissionEvalCallback(
-        make_env(n_envs=1, seed=5),
-        eval_freq=6,
-        n_eval_missions=2,
-        verbose=0,
-        eval_seed=7,
-        log_path=tmp_path,
-        best_model_save_path=tmp_path,
-    )
+    model = make_model(make_env())
+
+    def callback() -> MissionEvalCallback:  # the same validation set-up before and after the resume
+        return MissionEvalCallback(
+            make_env(n_envs=1, seed=5),
+            eval_freq=6,
+            n_eval_missions=2,
+            verbose=0,
+            eval_seed=7,
+            log_path=tmp_path,
+            best_model_save_path=tmp_path,
+        )
+
+    first = callback()
     model.learn(12, callback=first)
     earlier = [float(np.mean(r)) for r in first.evaluations_results]
     assert len(earlier) == 2
@@ -259,15 +262,7 @@ def test_resumed_evaluation_keeps_the_earlier_record_and_best(tmp_path):
     data["results"][0] = 1e6
     np.savez(tmp_path / "evaluations.npz", **data)
     best = (tmp_path / "best_model.zip").read_bytes()
-    resumed = MissionEvalCallback(
-        make_env(n_envs=1, seed=5),
-        eval_freq=6,
-        n_eval_missions=2,
-        verbose=0,
-        eval_seed=7,
-        log_path=tmp_path,
-        best_model_save_path=tmp_path,
-    )
+    resumed = callback()
     model.learn(12, callback=resumed, reset_num_timesteps=False)
     assert resumed.best_mean_reward == 1e6
     assert len(resumed.evaluations_results) == 4  # two earlier + two new, one file
