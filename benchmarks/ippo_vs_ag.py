@@ -91,6 +91,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--fusion", default="mean", choices=["mean", "sendfuse"])
     p.add_argument("--reward", default="metrics", help="env reward option (COMA's shipped models use 'metrics')")
     p.add_argument("--trunk", default="cnn", choices=["cnn", "cbam"])
+    p.add_argument(
+        "--gain-inputs",
+        action="store_true",
+        help="the actor also reads the on-board action_gain as inputs (COMA, IPPO and MAPPO alike)",
+    )
     p.add_argument("--seed", type=int, default=0, help="training seed (PPO and the training env)")
     p.add_argument("--eval-missions", type=int, default=20)
     p.add_argument("--eval-seed", type=int, default=0, help="trial k of every method flies env seed eval_seed + k")
@@ -114,17 +119,19 @@ def main(argv: list[str] | None = None) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     options = dict(n_uavs=args.uavs, budget=args.budget, noise=args.noise)
-    if args.algo == "coma":
-        options["action_gain"] = False  # the paper's actor reads the 8 local channels only
+    # The paper's actor reads the 8 local channels only; --gain-inputs adds the on-board gains.
+    options["action_gain"] = bool(args.gain_inputs)
     venv = envs.make_vec_env(
         args.env, n_envs=args.n_envs, fusion=args.fusion, seed=args.seed, split="train", reward=args.reward, **options
     )
     if args.algo == "coma":
-        model = COMA("CBAMPolicy" if args.trunk == "cbam" else "CnnPolicy", venv, seed=args.seed)
+        policy = "CBAMPolicy" if args.trunk == "cbam" else "CnnPolicy"
+        model = COMA(policy, venv, seed=args.seed, policy_kwargs=dict(gain_inputs=bool(args.gain_inputs)))
         timesteps = args.missions * args.budget  # COMA counts joint steps
     else:
         factory = {"ippo": make_ippo, "mappo": make_mappo}[args.algo]
-        model = factory(venv, seed=args.seed, policy_kwargs=dict(features_extractor_kwargs=dict(trunk=args.trunk)))
+        extractor = dict(trunk=args.trunk, gain_inputs=bool(args.gain_inputs))
+        model = factory(venv, seed=args.seed, policy_kwargs=dict(features_extractor_kwargs=extractor))
         timesteps = timesteps_for_missions(args.missions, venv)
     per_mission = args.budget if args.algo == "coma" else args.uavs * args.budget  # COMA: joint steps
     curve = Curve(per_mission, out / "curve.csv")

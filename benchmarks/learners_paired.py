@@ -47,7 +47,7 @@ def main() -> None:
     for spec in args.models:
         label, path = spec.split("=", 1)
         model = load(path)
-        gain = isinstance(model, PPO) or model.observation_space.spaces.get("action_gain") is not None
+        gain = model.observation_space.spaces.get("action_gain") is not None  # flown as it was trained
         results[label] = evaluate(model, label=label, deterministic=True, action_gain=gain, **options)
     results["ag"] = evaluate("ag", **options)
     print(f"{args.env}, {args.missions} shared split=test missions, moderate noise, 100 % budget")

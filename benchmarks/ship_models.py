@@ -24,7 +24,7 @@ import numpy as np
 import yaml
 
 from envs import WORLD_VERSION
-from sb3_coma import COMA
+from sb3_coma import COMA, training_options
 from sb3_coma import pretrained as pt
 from sb3_coma.reproduce import _curve_from_metrics
 
@@ -64,15 +64,16 @@ def ship(name: str, runs: list[Path]) -> dict:
     chosen = max(runs, key=lambda r: scored[r][0])
     command, info = run_command(chosen)
     model = COMA.load(chosen / "best_model.zip", device="cpu")
-    variant = info["variant"] or ""
-    fusion = "mean" if "mean" in variant else "sendfuse"
-    extractor = "cnn" if "cnn" in variant else "cbam"
+    env_options = training_options(model)
+    fusion = env_options["fusion"]
+    extractor = "cnn" if model.policy.features_extractor_class.__name__.startswith("Cnn") else "cbam"
     wall = (chosen / "model.zip").stat().st_mtime - (chosen / "config.yml").stat().st_mtime
     entry = {
         **pt.save_for_shipping(model, f"coma_{name.replace('-', '_')}.zip"),
         "env": info["env"].split("-")[1].lower(),
         "fusion": fusion,
         "extractor": extractor,
+        "actor_inputs": "8 local channels + on-board gains" if model.policy.gain_inputs else "8 local channels",
         "variant": info["variant"],
         "world": WORLD_VERSION,
         "seed": int(info["seed"]),
@@ -94,6 +95,7 @@ def ship(name: str, runs: list[Path]) -> dict:
         "shared with another training, 1 torch thread each",
         "shipped_form": "compact: no Adam moments, no target critic, half-precision weights (pretrained.save_for_shipping)",
         "training_curve": _curve_from_metrics(chosen / "metrics.csv"),
+        "env_options": env_options,
     }
     if "-" in name:
         entry["ablation_arm"] = [fusion, extractor]

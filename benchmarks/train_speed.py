@@ -1,12 +1,16 @@
-"""How fast does COMA train on the paper's setting? Missions per second of ``learn()``.
+"""How fast does COMA train? Missions per second of ``learn()`` with a breakdown.
 
-    python benchmarks/train_speed.py                      # env3, 4 UAVs, budget 15, CBAM, batch 512
-    python benchmarks/train_speed.py --fusion sendfuse    # with the SenDFuse wrapper
-    python benchmarks/train_speed.py --policy CnnPolicy --n-envs 4 --threads 1
+    python benchmarks/train_speed.py                          # the main config: env3 entry of coma.yml (SenDFuse)
+    python benchmarks/train_speed.py --variant mean-cbam      # the same with mean fusion
+    python benchmarks/train_speed.py --env env1 --threads 2
 
-Prints joint steps/s, missions/s, the split between collecting rollouts (env + actor) and
-training (critic + actor updates), and the projected wall-clock of the paper's 1200 missions.
-The first rollout is a warm-up (imports, allocator, oneDNN kernel selection) and is not timed.
+The model and env are built exactly as ``sb3-coma train`` builds them from ``zoo_configs/coma.yml``
+(8 env copies, 4 UAVs, budget 15, CBAM actor and critic, gain inputs, the library defaults), without
+the validation missions. Prints joint steps/s and missions/s of ``learn()`` and where the time
+goes: env stepping (world, sensor, channel), fusion (SenDFuse or mean), the actor's forward passes
+while collecting, the critic's update (targets, forward, backward) and the actor's update
+(the rest of ``train``). The first rollout is a warm-up (imports, allocator, oneDNN kernel
+selection) and is not timed.
 """
 
 from __future__ import annotations
@@ -14,6 +18,9 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from collections import defaultdict
+from collections.abc import Callable
+from typing import Any
 
 # Idle OpenMP threads sleep instead of spinning: on a shared 2-core machine, spinning threads
 # steal the core the env (or another process) needs, and small batches run several times slower.
@@ -43,17 +50,26 @@ class PhaseTimer(BaseCallback):
         return True
 
 
+def timed(obj: Any, name: str, seconds: dict[str, float], bucket: str) -> None:
+    """Replace ``obj.name`` by a wrapper that adds its wall time to ``seconds[bucket]``."""
+    inner: Callable[..., Any] = getattr(obj, name)
+
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        tic = time.perf_counter()
+        try:
+            return inner(*args, **kwargs)
+        finally:
+            seconds[bucket] += time.perf_counter() - tic
+
+    setattr(obj, name, wrapper)
+
+
 def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="env3")
-    parser.add_argument("--fusion", default="mean", choices=["mean", "sendfuse"])
-    parser.add_argument("--uavs", type=int, default=4)
-    parser.add_argument("--budget", type=int, default=15)
-    parser.add_argument("--policy", default="CBAMPolicy", choices=["CBAMPolicy", "CnnPolicy"])
-    parser.add_argument("--batch-size", type=int, default=512, help="joint steps per minibatch (paper: 512)")
-    parser.add_argument("--n-envs", type=int, default=8, help="env copies stepped together")
-    parser.add_argument("--rollouts", type=int, default=3, help="timed rollouts after the warm-up one")
-    parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads (2 cores: 2)")
+    parser.add_argument("--variant", default=None, help="a variant of zoo_configs/coma.yml, e.g. mean-cbam")
+    parser.add_argument("--rollouts", type=int, default=6, help="timed rollouts after the warm-up one")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     parser.add_argument("--seed", type=int, default=0)
     return parser.parse_args()
 
@@ -61,16 +77,26 @@ def parse_args() -> argparse.Namespace:
 def main() -> None:
     args = parse_args()
     th.set_num_threads(args.threads)
-    import envs
-    from sb3_coma.coma import COMA
+    from sb3_coma.export import _fusion_wrapper
+    from sb3_coma.training import build_model, make_training_env, plan_run
 
-    venv = envs.make_vec_env(
-        args.env, n_envs=args.n_envs, fusion=args.fusion, seed=args.seed, n_uavs=args.uavs, budget=args.budget
-    )
-    model = COMA(args.policy, venv, batch_size=args.batch_size, seed=args.seed)
+    plan = plan_run(env=args.env, variant=args.variant, seed=args.seed, device="cpu")
+    venv = make_training_env(plan.cfg, seed=plan.seed)
+    model = build_model(plan, venv, device="cpu")
+    budget = int(plan.cfg.env_kwargs.get("budget", 15))
     per_rollout = model.n_steps * model.n_copies  # joint steps
     model.learn(per_rollout)  # warm-up rollout + update, not timed
 
+    seconds: dict[str, float] = defaultdict(float)
+    timed(model.env, "step_wait", seconds, "env + fusion")
+    fusion = _fusion_wrapper(model.env)
+    if fusion is not None:
+        timed(fusion, "fuse", seconds, "fusion")
+    timed(model.policy, "act", seconds, "actor (collect)")
+    for name in ("_td_targets", "_critic_step"):
+        timed(model, name, seconds, "critic update")
+    timed(model.policy, "q_values", seconds, "critic forward")
+    timed(model, "train", seconds, "train")
     timer = PhaseTimer()
     joint_steps = args.rollouts * per_rollout
     start = time.perf_counter()
@@ -78,26 +104,27 @@ def main() -> None:
     wall = time.perf_counter() - start
 
     steps_per_s = joint_steps / wall
-    missions_per_s = steps_per_s / args.budget
-    paper_s = PAPER_MISSIONS / missions_per_s
+    critic = seconds["critic update"] + seconds["critic forward"]
+    parts = {
+        "env (world, sensor, channel)": seconds["env + fusion"] - seconds["fusion"],
+        f"fusion ({fusion.name if fusion is not None else 'none'})": seconds["fusion"],
+        "actor forward (collect)": seconds["actor (collect)"],
+        "critic update": critic,
+        "actor update": seconds["train"] - critic,
+    }
+    parts["other (buffer, callbacks, logging)"] = wall - sum(parts.values())
     print(
-        f"setting    : {args.env}, {args.uavs} UAVs, budget {args.budget}, fusion {args.fusion}, "
-        f"{args.policy}, batch {args.batch_size} joint steps, {args.n_envs} env copies x n_steps {model.n_steps}, "
-        f"{args.threads} torch threads"
+        f"setting    : {plan.cfg.env_id} (variant {args.variant or 'none'}), {model.n_copies} env copies x "
+        f"n_steps {model.n_steps}, {model.n_agents} UAVs, budget {budget}, {type(model.policy).__name__}, "
+        f"batch {model.batch_size}, {args.threads} torch thread(s)"
     )
     print(f"timed      : {joint_steps} joint steps ({args.rollouts} rollouts + updates) in {wall:.1f} s")
     print(
-        f"split      : rollouts {timer.rollout_s:.1f} s ({100 * timer.rollout_s / wall:.0f} %), "
-        f"training {wall - timer.rollout_s:.1f} s ({100 * (1 - timer.rollout_s / wall):.0f} %)"
+        f"throughput : {steps_per_s:.0f} joint steps/s = {steps_per_s / budget:.2f} missions/s "
+        f"(target 20 with SenDFuse)"
     )
-    print(
-        f"throughput : {steps_per_s:.0f} joint steps/s = {missions_per_s:.2f} missions/s "
-        f"({steps_per_s * args.uavs:.0f} agent transitions/s)"
-    )
-    print(
-        f"projection : {PAPER_MISSIONS} missions = {PAPER_MISSIONS * args.budget} joint steps in "
-        f"{paper_s:.0f} s ({paper_s / 60:.1f} min; target <= 5 min)"
-    )
+    for name, value in parts.items():
+        print(f"  {name:36s} {value:6.2f} s  {100 * value / wall:5.1f} %")
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ Checkpoint names follow rl-zoo3 (``rl_model_<joint steps>_steps.zip``), so rl-zo
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import pickle
@@ -33,10 +34,12 @@ __all__ = [
     "CheckpointError",
     "CheckpointInfo",
     "CHECKPOINT_PREFIX",
+    "DiskFullError",
     "atomic_save",
     "atomic_write_text",
     "checkpoint_name",
     "find_checkpoints",
+    "folder_write_problem",
     "last_checkpoint",
     "load_checkpoint",
     "training_options",
@@ -54,6 +57,23 @@ _COMA_ATTRIBUTES = ("n_agents", "td_lambda", "critic_learning_rate")
 
 class CheckpointError(ValueError):
     """A checkpoint or model file that cannot be used; the message names the file and the reason."""
+
+
+class DiskFullError(OSError):
+    """The disk filled up while a file was saved atomically; the message names the file and says
+    that its previous version (or the earlier checkpoints) is intact. Not a bad input, so the CLI
+    prints it as one line with exit status 1 (not 2), never as a traceback."""
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+
+def _disk_full(exc: BaseException, final: Path, existed: bool) -> DiskFullError | None:
+    """The :class:`DiskFullError` for an ``ENOSPC`` raised while writing ``final``, else ``None``."""
+    if not isinstance(exc, OSError) or exc.errno != errno.ENOSPC:
+        return None
+    kept = "its previous version is intact" if existed else "no partial file was left and other files are untouched"
+    return DiskFullError(errno.ENOSPC, f"no space left on device to save {final}; {kept}", str(final))
 
 
 @dataclass(frozen=True)
@@ -93,7 +113,8 @@ def atomic_save(model: Any, path: str | os.PathLike[str], validate: bool = True)
     The model is written to a hidden temporary file next to ``path`` (same file system, so the
     final :func:`os.replace` is atomic), flushed and fsynced, optionally re-opened as a zip to
     check it, then moved into place. On any error the temporary file is removed and ``path``
-    keeps its previous content.
+    keeps its previous content; a full disk (``ENOSPC``) is raised as :class:`DiskFullError`
+    naming ``path``.
 
     :param model: anything with SB3's ``save(file_object)``
     :param path: destination; ``.zip`` is appended when it has no suffix (as SB3 does)
@@ -103,6 +124,7 @@ def atomic_save(model: Any, path: str | os.PathLike[str], validate: bool = True)
     if final.suffix == "":
         final = final.with_suffix(".zip")
     final.parent.mkdir(parents=True, exist_ok=True)
+    existed = final.exists()
     fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
     tmp = Path(tmp_name)
     try:
@@ -113,8 +135,11 @@ def atomic_save(model: Any, path: str | os.PathLike[str], validate: bool = True)
         if validate:
             _check_zip(tmp, display=final)
         os.replace(tmp, final)
-    except BaseException:
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)
+        full = _disk_full(exc, final, existed)
+        if full is not None:
+            raise full from exc
         raise
     _fsync_dir(final.parent)
     return final
@@ -124,6 +149,7 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
     """Write a text file atomically (temporary file + :func:`os.replace`)."""
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
+    existed = final.exists()
     fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
@@ -131,10 +157,30 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp_name, final)
-    except BaseException:
+    except BaseException as exc:
         Path(tmp_name).unlink(missing_ok=True)
+        full = _disk_full(exc, final, existed)
+        if full is not None:
+            raise full from exc
         raise
     return final
+
+
+def folder_write_problem(path: str | os.PathLike[str]) -> str | None:
+    """Why files cannot be written into the folder ``path`` (made when missing), or ``None``.
+
+    Output folders are checked with this before minutes of work (building envs and models,
+    flying missions), so that a path whose own name or a parent is a file, or that lies on a
+    read-only or forbidden location, is refused in one line instead of failing in ``mkdir`` at
+    the end. The nearest existing ancestor decides: it must be a folder this process may write.
+    """
+    target = Path(path)
+    existing = next((p for p in (target, *target.parents) if p.exists()), Path("."))
+    if not existing.is_dir():
+        return f"{existing} is a file, not a folder" if existing == target else f"its parent {existing} is a file"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        return f"{existing} is not writable"
+    return None
 
 
 # --------------------------------------------------------------------------- validation
@@ -213,10 +259,18 @@ def validate_checkpoint(path: str | os.PathLike[str]) -> CheckpointInfo:
                 version = archive.read("_stable_baselines3_version").decode().strip()
     except (zipfile.BadZipFile, OSError):  # already checked above; keep validation total
         version = None
+    steps = data.get("num_timesteps") or 0
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        # resume and newest_model() count joint steps from it: a hand-edited or foreign value
+        # would otherwise fail as a bare int() error or pick the wrong checkpoint.
+        raise CheckpointError(
+            f"checkpoint {p} is corrupt: field 'num_timesteps' of its 'data' member is {steps!r}, "
+            "not a whole number of joint steps >= 0"
+        )
     n_agents = data.get("n_agents")
     return CheckpointInfo(
         path=p,
-        num_timesteps=int(data.get("num_timesteps", 0) or 0),
+        num_timesteps=steps,
         n_agents=int(n_agents) if isinstance(n_agents, int) else None,
         policy=policy,
         sb3_version=version,

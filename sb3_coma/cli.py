@@ -3,7 +3,8 @@
 Each sub-command lives in its own module under :mod:`sb3_coma.commands` and exposes
 ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``; modules are discovered
 at start-up, so adding a command never touches this file. Errors that users can fix (bad options,
-missing files) are printed as one line and exit with status 2, never as a traceback.
+missing files) are printed as one line and exit with status 2, never as a traceback; a full disk
+while saving is one line with status 1.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import torch
 
 from envs import ConfigError, MapError
 from sb3_coma import commands
-from sb3_coma.checkpoints import CheckpointError
+from sb3_coma.checkpoints import CheckpointError, DiskFullError
 from sb3_coma.config import TrainingError
 from sb3_coma.sendfuse import SenDFuseWeightsError
 
@@ -80,6 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     except USER_ERRORS as exc:
         print(f"sb3-coma {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except DiskFullError as exc:  # the machine, not the input: one line, exit 1
+        print(f"sb3-coma {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"sb3-coma {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -37,6 +37,7 @@ import csv
 import functools
 import os
 import time
+import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +47,7 @@ import numpy as np
 
 from sb3_coma import pretrained
 from sb3_coma.checkpoints import training_options
+from sb3_coma.memory import release_freed_memory
 from sb3_coma.pretrained import shipped_env_options
 
 #: Budget fractions of the paper's Table I and their column labels.
@@ -416,6 +418,11 @@ def _check_int(name: str, value: Any, minimum: int) -> int:
     return int(value)
 
 
+#: Missions flown at once by default: enough to batch the networks' calls, few enough that 50
+#: missions with SenDFuse stay within a few hundred MB (each env copy holds ~12 MB of maps).
+EVAL_BATCH = 10
+
+
 #: Env options that shape a model's observation: ``evaluate`` takes them from the model's training
 #: options unless the caller sets them. The mission (map, split, start, noise, team size) stays the
 #: caller's choice.
@@ -430,6 +437,39 @@ def _trained_options(policy_or_name: Any, shipped: dict[str, Any]) -> dict[str, 
     if isinstance(policy_or_name, str) and not policy_or_name.endswith(".zip") and shipped:
         return shipped_env_options(policy_or_name) or {}
     return training_options(policy_or_name) or {}
+
+
+def _warn_if_flown_differently(
+    policy_or_name: Any, trained: dict[str, Any], shipped: dict[str, Any], fusion: str | None, n_uavs: int
+) -> None:
+    """Warn (not refuse) when a model flies with another team size or fusion than it trained with.
+
+    Both are legal (the actor is per agent and the fusions take any number of maps, see
+    docs/deployment.md), but the results then describe another method than the model's own,
+    which is easy to do by accident with ``--uavs`` or ``--fusion``. ``fusion`` is the caller's
+    (``None``: the model's own is used, nothing to warn about).
+    """
+    if not is_model(policy_or_name):
+        return
+    what = f"model {os.fspath(policy_or_name)!r}" if isinstance(policy_or_name, (str, os.PathLike)) else "the model"
+    own_n = trained.get("n_uavs")
+    if own_n is None and not isinstance(policy_or_name, (str, os.PathLike)):
+        own_n = getattr(policy_or_name, "n_agents", None)  # a COMA object that records no options
+    if isinstance(own_n, (int, np.integer)) and not isinstance(own_n, bool) and int(own_n) != n_uavs:
+        warnings.warn(
+            f"{what} was trained with {int(own_n)} UAVs but flies with {n_uavs} (n_uavs={n_uavs}): allowed, its "
+            f"actor is per agent, but the results are not those of its own team size",
+            UserWarning,
+            stacklevel=3,
+        )
+    own_fusion = trained.get("fusion") or shipped.get("fusion")
+    if fusion is not None and own_fusion and fusion != own_fusion:
+        warnings.warn(
+            f"{what} was trained with fusion {own_fusion!r} but flies with fusion {fusion!r}: its actor reads "
+            f"fused maps of another kind; pass fusion={own_fusion!r} (or leave it unset) to fly it as trained",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def _shipped_info(policy_or_name: Any) -> dict[str, Any]:
@@ -510,7 +550,7 @@ def evaluate(
         method), ``"mean"`` for baselines (they do not read the fused channel)
     :param deterministic: passed to the model's ``predict``; ``None``: what a shipped model's
         manifest records (its results were measured that way), else ``True``
-    :param n_envs: env copies flown at once (default: all trials in one batch); results are
+    :param n_envs: env copies flown at once (default :data:`EVAL_BATCH`); results are
         reproducible for the same ``seed`` and ``n_envs``
     :param record: how many trials keep their final global belief (trial 0 also keeps a belief
         per step for the GIF when ``record >= 1``)
@@ -528,13 +568,14 @@ def evaluate(
     n_trials = _check_int("n_trials", n_trials, 1)
     seed = _check_int("seed", seed, 0)
     record = _check_int("record", record, 0)
-    n_envs = n_trials if n_envs is None else min(_check_int("n_envs", n_envs, 1), n_trials)
+    n_envs = min(n_trials, EVAL_BATCH if n_envs is None else _check_int("n_envs", n_envs, 1))
     check_policy(policy_or_name)
     shipped = _shipped_info(policy_or_name)
     trained = _trained_options(policy_or_name, shipped)
     for key in OBSERVATION_OPTIONS:  # what the network's inputs are made of follows the model
         if key in trained and key not in env_options:
             env_options[key] = trained[key]
+    asked_fusion = fusion
     if fusion is None:
         fusion = trained.get("fusion") or shipped.get("fusion") or ("sendfuse" if is_model(policy_or_name) else "mean")
     if deterministic is None:
@@ -557,6 +598,7 @@ def evaluate(
         if config is None:
             config = venv.get_attr("config", indices=[0])[0]
             flown_kwargs = planner_options(policy_or_name, config, planner_kwargs)
+            _warn_if_flown_differently(policy_or_name, trained, shipped, asked_fusion, int(config.n_uavs))
         if predictor is None or getattr(predictor, "uses_env_state", False):
             predictor, default_label = resolve_policy(policy_or_name, venv, seed + start, flown_kwargs)
             name = name or default_label
@@ -567,6 +609,7 @@ def evaluate(
         if first_truth is None:
             first_truth = parts[0]["truth"]
         venv.close()
+    release_freed_memory()
     finals = [b for p in parts for b in p["final_beliefs"]][:record]
     return EvaluationResult(
         method=str(name),

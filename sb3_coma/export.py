@@ -122,7 +122,8 @@ class ActorGraph(nn.Module):
     def __init__(self, actor: nn.Module) -> None:
         super().__init__()
         self.actor = actor
-        self.with_prior = getattr(actor, "prior_theta", None) is not None
+        #: The actor reads ``action_gain`` (a gain prior or ``gain_inputs``).
+        self.with_prior = bool(getattr(actor, "reads_gain", False))
 
     def forward(
         self, local: th.Tensor, action_mask: th.Tensor, action_gain: th.Tensor | None = None
@@ -657,6 +658,7 @@ def _policy_info(model: Any, actor: ActorGraph) -> dict[str, Any]:
         "features_extractor_kwargs": dict(policy.features_extractor_kwargs),
         "gain_prior_weights": None if prior is None else [float(w) for w in prior.detach()],
         "correction_bound": policy.correction_bound,
+        "gain_inputs": bool(getattr(policy, "gain_inputs", False)),
         "num_timesteps": int(getattr(model, "num_timesteps", 0)),
         "parameters": sum(p.numel() for p in actor.actor.parameters()),
     }

@@ -4,7 +4,9 @@ Both fly the same vec env as COMA (``envs.make_vec_env``: agent ``a`` of env cop
 ``e * n_agents + a``), so every UAV is one slot of PPO's rollout and one set of weights acts for
 all of them (parameter sharing). The actor reads the UAV's decentralised observation only: the 8
 ``local`` channels (the fused map included) and ``action_mask``; it never reads ``state`` (the
-global map, critic only) nor ``action_gain`` (the per-move gain that COMA's optional prior uses).
+global map, critic only). With ``features_extractor_kwargs=dict(gain_inputs=True)`` it also reads
+``action_gain`` (each move's on-board gain) through the same kind of learned encoder as COMA's
+``gain_inputs`` actor, so the two learners can be compared on the same inputs.
 
 * **IPPO** (:func:`make_ippo`, :class:`IPPOPolicy`): actor and value function share one small CNN
   trunk over ``local``; ``V(o_i)`` is decentralised too.
@@ -43,6 +45,7 @@ from torch import nn
 
 from envs import layout
 from sb3_coma.coma.masking import mask_logits
+from sb3_coma.coma.policies import GAIN_ENCODER_DIM
 from sb3_coma.extractors import CBAMExtractor, CnnExtractor
 
 __all__ = [
@@ -80,6 +83,9 @@ class MapsExtractor(BaseFeaturesExtractor):
     :param features_dim: width of the trunk's last layer
     :param trunk: ``"cnn"`` (:class:`~sb3_coma.extractors.CnnExtractor`, default) or ``"cbam"``
         (:class:`~sb3_coma.extractors.CBAMExtractor`, the paper's attention trunk)
+    :param gain_inputs: also read ``action_gain`` through a learned encoder (``GAIN_ENCODER_DIM``
+        features, as COMA's ``gain_inputs`` actor) joined to the trunk's features; ``features_dim``
+        is then the trunk's width plus the encoder's
     :param trunk_kwargs: further arguments of the trunk (``channels``, and for CBAM ``residual`` ...)
     """
 
@@ -89,6 +95,7 @@ class MapsExtractor(BaseFeaturesExtractor):
         keys: Sequence[str] = ACTOR_KEYS,
         features_dim: int = 256,
         trunk: str = "cnn",
+        gain_inputs: bool = False,
         **trunk_kwargs: Any,
     ) -> None:
         if not isinstance(observation_space, spaces.Dict):
@@ -106,15 +113,27 @@ class MapsExtractor(BaseFeaturesExtractor):
             raise ValueError(f"MapsExtractor: maps of different sizes {[b.shape for b in boxes]}")
         if trunk not in TRUNKS:
             raise ValueError(f"MapsExtractor: trunk={trunk!r}; choose one of {sorted(TRUNKS)}")
-        super().__init__(observation_space, features_dim)
+        gain_space = observation_space.spaces.get(layout.KEY_GAIN)
+        if gain_inputs and gain_space is None:
+            raise ValueError(
+                f"MapsExtractor: gain_inputs=True needs observation[{layout.KEY_GAIN!r}]: make the env with action_gain=True"
+            )
+        super().__init__(observation_space, features_dim + (GAIN_ENCODER_DIM if gain_inputs else 0))
         self.keys = keys
         channels = sum(b.shape[0] for b in boxes)
         stacked = spaces.Box(0.0, 1.0, (channels, *boxes[0].shape[1:]), dtype=np.float32)
         self.trunk = TRUNKS[trunk](stacked, features_dim=features_dim, **trunk_kwargs)
+        self.gain_encoder: nn.Sequential | None = None
+        if gain_inputs:
+            assert gain_space is not None and gain_space.shape is not None
+            self.gain_encoder = nn.Sequential(nn.Linear(int(np.prod(gain_space.shape)), GAIN_ENCODER_DIM), nn.ReLU())
 
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         x = observations[self.keys[0]] if len(self.keys) == 1 else th.cat([observations[k] for k in self.keys], dim=1)
-        return self.trunk(x)
+        features = self.trunk(x)
+        if self.gain_encoder is None:
+            return features
+        return th.cat([features, self.gain_encoder(observations[layout.KEY_GAIN].flatten(1))], dim=1)
 
 
 class MaskedActorCriticPolicy(ActorCriticPolicy):

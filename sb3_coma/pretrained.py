@@ -222,8 +222,12 @@ def shipped_env_options(name: str, directory: str | os.PathLike[str] | None = No
 
 
 def _manifest_env_options(info: dict[str, Any]) -> dict[str, Any] | None:
-    """The env options of a shipped model saved before models recorded them: its manifest's env
-    and fusion with the options of the config variant it names; ``None`` without that config."""
+    """The env options a shipped model was trained with: the manifest's ``env_options`` (the
+    model's own record, copied there when it was shipped, so a later change of the config cannot
+    change how it is flown); for an entry without them, its env and fusion with the options of
+    the config variant it names; ``None`` without that config."""
+    if isinstance(info.get("env_options"), dict):
+        return dict(info["env_options"])
     try:
         cfg = load_config(env=str(info["env"]), variant=info.get("variant"))
     except (KeyError, TrainingError):

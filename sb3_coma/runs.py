@@ -22,7 +22,13 @@ from pathlib import Path
 
 import yaml
 
-from sb3_coma.checkpoints import CheckpointError, atomic_write_text, find_checkpoints, validate_checkpoint
+from sb3_coma.checkpoints import (
+    CheckpointError,
+    atomic_write_text,
+    find_checkpoints,
+    folder_write_problem,
+    validate_checkpoint,
+)
 from sb3_coma.config import RUN_KEY, TrainConfig, TrainingError, config_entry, plain, read_config_file, resolve_env_id
 
 __all__ = [
@@ -31,6 +37,7 @@ __all__ = [
     "METRICS_FILE",
     "MODEL_FILE",
     "TENSORBOARD_DIR",
+    "check_run_dir",
     "new_run_dir",
     "newest_model",
     "read_run_config",
@@ -48,6 +55,17 @@ TENSORBOARD_DIR = "tb"
 
 def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "-", text).strip("-") or "run"
+
+
+def check_run_dir(run_dir: str | os.PathLike[str] | None) -> None:
+    """Refuse an explicit run folder that cannot be made (it or a parent is a file, or its
+    location is not writable) before the env and the model are built, rather than in ``mkdir``
+    after them."""
+    if run_dir is None:
+        return
+    problem = folder_write_problem(run_dir)
+    if problem is not None:
+        raise TrainingError(f"run folder {run_dir} cannot be made: {problem}")
 
 
 def new_run_dir(
@@ -70,8 +88,7 @@ def new_run_dir(
         base = Path(run_dir)
         if base.is_dir() and not any(base.iterdir()):
             return base
-        if base.exists() and not base.is_dir():
-            raise TrainingError(f"run folder {base} exists and is a file")
+        check_run_dir(base)
         candidates = (base if n == 1 else Path(f"{base}_{n}") for n in range(1, 1_000_000))
     for candidate in candidates:
         candidate.parent.mkdir(parents=True, exist_ok=True)

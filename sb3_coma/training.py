@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch as th
 from stable_baselines3.common import callbacks as sb3_callbacks
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
@@ -43,6 +42,7 @@ from sb3_coma.callbacks import (
 )
 from sb3_coma.checkpoints import atomic_save, load_checkpoint, validate_checkpoint
 from sb3_coma.coma import COMA
+from sb3_coma.coma.validation import check_device as validation_check_device
 from sb3_coma.config import (
     RESERVED_KEYS,
     RUN_KEY,
@@ -68,12 +68,14 @@ from sb3_coma.config import (
     resolve_policy_kwargs,
     validate_entry,
 )
+from sb3_coma.memory import release_freed_memory
 from sb3_coma.runs import (
     CHECKPOINT_DIR,
     CONFIG_FILE,
     METRICS_FILE,
     MODEL_FILE,
     TENSORBOARD_DIR,
+    check_run_dir,
     new_run_dir,
     read_run_config,
     resolve_resume,
@@ -89,6 +91,7 @@ __all__ = [
     "TrainingInterrupted",
     "attach_callbacks",
     "build_model",
+    "check_device",
     "learn",
     "mission_callbacks",
     "plan_run",
@@ -218,14 +221,13 @@ class RunPlan:
         return self.run_path is not None
 
 
-def _check_device(device: Any) -> None:
-    """Refuse a device string torch cannot parse before anything is built."""
-    if device == "auto":
-        return
+def check_device(device: Any) -> None:
+    """:func:`sb3_coma.coma.validation.check_device` as a :class:`TrainingError`, checked before
+    the run folder is made."""
     try:
-        th.device(device)
-    except (RuntimeError, TypeError, ValueError) as exc:
-        raise TrainingError(f"device {device!r} is not a torch device: use auto, cpu, cuda or cuda:<index>") from exc
+        validation_check_device(device)
+    except ValueError as exc:
+        raise TrainingError(str(exc)) from None
 
 
 def _resumed_config(
@@ -276,7 +278,7 @@ def plan_run(
         raise TrainingError(f"seed must be an integer, got {seed!r}")
     if eval_seed is not None and not is_int(eval_seed):
         raise TrainingError(f"eval_seed must be an integer, got {eval_seed!r}")
-    _check_device(device)
+    check_device(device)
     resume_run, resume_model = resolve_resume(resume) if resume is not None else (None, None)
     if resume_run is not None:
         cfg = _resumed_config(resume_run, resume, env, config, variant, overrides)
@@ -461,6 +463,7 @@ def learn(
             standard.evaluation.eval_env.close()
         if model.env is not None:
             model.env.close()
+        release_freed_memory()  # the training envs' maps, before whatever the process does next
 
 
 def _summary(history: list[dict[str, Any]], last: int = 20) -> str:
@@ -554,7 +557,8 @@ def train(
     :param handle_signals: on SIGINT/SIGTERM save a checkpoint and raise :class:`TrainingInterrupted`
     :param runs_root: parent of default run folders
     :param log: where information lines go (default ``print`` when ``verbose >= 1``)
-    :raises TrainingError: bad env id, variant, config file or key, resume path
+    :raises TrainingError: bad env id, variant, config file or key, resume path, device (or no
+        such device here), a ``run_dir`` that cannot be made
     :raises CheckpointError: a resume zip that is truncated or not a COMA model
     :raises TrainingInterrupted: stopped by a signal (after saving a checkpoint)
     """
@@ -565,6 +569,7 @@ def train(
             raise TrainingError(f"{name} must be an integer >= 0 (0: none) in joint steps, got {value!r}")
     if eval_seed is not None and is_int(eval_seed) and eval_seed < 0:
         raise TrainingError(f"eval_seed must be an integer >= 0, got {eval_seed!r}")
+    check_run_dir(run_dir)
     plan = plan_run(env, config, variant, overrides, resume, total_timesteps, n_envs, seed, eval_seed, device)
     venv = make_training_env(plan.cfg, seed=plan.seed)
     try:  # nothing is written before the env and the model exist

@@ -49,7 +49,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from envs import ENV_IDS, ConfigError, IppConfig
 from sb3_coma.callbacks import finished_missions
-from sb3_coma.checkpoints import CheckpointError, atomic_save, load_checkpoint, validate_checkpoint
+from sb3_coma.checkpoints import CheckpointError, DiskFullError, atomic_save, load_checkpoint, validate_checkpoint
 from sb3_coma.coma import COMA
 from sb3_coma.coma.progress import JointStepProgressBar
 from sb3_coma.config import (
@@ -64,7 +64,7 @@ from sb3_coma.config import (
     split_env_kwargs,
     validate_entry,
 )
-from sb3_coma.training import mission_callbacks, record_env_options
+from sb3_coma.training import check_device, mission_callbacks, record_env_options
 from sb3_coma.zoo_sampler import register as register_sampler
 
 __all__ = ["ComaExperimentManager", "enjoy_parser", "main", "register", "train_parser"]
@@ -93,6 +93,14 @@ class ComaExperimentManager(ExperimentManager):
         self.map_name = ENV_IDS[env_id]
 
     # ------------------------------------------------------------------ hyperparameters
+    def setup_experiment(self) -> Any:
+        try:
+            return super().setup_experiment()
+        except (TrainingError, ConfigError, CheckpointError):
+            raise
+        except (TypeError, ValueError) as exc:  # COMA's argument checks, e.g. -params batch_size:"'abc'"
+            raise TrainingError(f"{self.config} [{self.env_name.gym_id}] with command-line overrides: {exc}") from exc
+
     def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
         if not self.config.endswith((".yml", ".yaml")):
             raise TrainingError(f"-conf {self.config}: COMA configs are YAML files (zoo_configs/coma.yml)")
@@ -198,6 +206,25 @@ class ComaExperimentManager(ExperimentManager):
 
 
 # =========================================================================== argument parsers
+class _StoreDict(StoreDict):
+    """rl-zoo3's ``StoreDict`` (``key:value``, the value evaluated as Python, as rl-zoo3 does), but
+    a value that does not evaluate is a one-line :class:`TrainingError` naming the key and the
+    value instead of a ``NameError`` traceback from inside ``eval``."""
+
+    def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
+        parsed = {}
+        for argument in values:
+            key, _, text = argument.partition(":")
+            try:
+                parsed[key] = eval(text)  # noqa: S307 - rl-zoo3's format: values are Python expressions
+            except Exception as exc:  # noqa: BLE001 - NameError, SyntaxError, ...: whatever eval raises
+                raise TrainingError(
+                    f"{option_string} {argument}: the value {text!r} of {key!r} cannot be read as Python "
+                    f"({exc}); as in rl-zoo3, write numbers as they are and quote text ({key}:\"'text'\")"
+                ) from None
+        setattr(namespace, self.dest, parsed)
+
+
 def _common_arguments(parser: argparse.ArgumentParser, seed: int) -> None:
     parser.add_argument("--algo", default=ALGO, choices=[ALGO], help="RL algorithm (coma)")
     parser.add_argument("--env", default=DEFAULT_ENV_ID, help=f"environment id (default {DEFAULT_ENV_ID})")
@@ -206,7 +233,7 @@ def _common_arguments(parser: argparse.ArgumentParser, seed: int) -> None:
     parser.add_argument("--num-threads", type=int, default=-1, help="torch threads (-1: torch's default)")
     parser.add_argument("--verbose", type=int, default=1, help="0: no output, 1: info")
     parser.add_argument("--gym-packages", nargs="+", default=[], help="extra modules to import (env registration)")
-    parser.add_argument("--env-kwargs", nargs="+", action=StoreDict, help="env options, e.g. noise:'loud'")
+    parser.add_argument("--env-kwargs", nargs="+", action=_StoreDict, help="env options, e.g. noise:'loud'")
     parser.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
 
 
@@ -220,8 +247,8 @@ def train_parser() -> argparse.ArgumentParser:
     add = parser.add_argument
     add("--variant", default=None, help="a key of the config's 'variants' mapping (e.g. mean-cnn)")
     add("-conf", "--conf-file", default=None, help="YAML hyperparameters (default zoo_configs/coma.yml)")
-    add("-params", "--hyperparams", nargs="+", action=StoreDict, help="override hyperparameters (batch_size:64)")
-    add("--eval-env-kwargs", nargs="+", action=StoreDict, help="env options of the evaluation env")
+    add("-params", "--hyperparams", nargs="+", action=_StoreDict, help="override hyperparameters (batch_size:64)")
+    add("--eval-env-kwargs", nargs="+", action=_StoreDict, help="env options of the evaluation env")
     add("-tb", "--tensorboard-log", default="", help="TensorBoard log folder")
     add("-i", "--trained-agent", default="", help="a model .zip to continue training")
     add("--truncate-last-trajectory", type=bool, default=True, help="(off-policy algorithms only)")
@@ -285,10 +312,12 @@ def _check_env(env_id: str) -> None:
 
 
 def _start(args: argparse.Namespace) -> None:
-    """What rl-zoo3's entry points do first: extra env packages, the seed, torch threads."""
+    """What rl-zoo3's entry points do first: extra env packages, the seed, torch threads (and,
+    unlike rl-zoo3, refuse a --device this machine lacks rather than run on the CPU)."""
     for module in args.gym_packages:
         importlib.import_module(module)
     _check_env(args.env)
+    check_device(args.device)
     if args.seed < 0:
         args.seed = int(np.random.randint(2**32 - 1, dtype="int64"))
     set_random_seed(args.seed)
@@ -502,6 +531,9 @@ def main(argv: list[str] | None = None) -> int:
     except (TrainingError, CheckpointError, ConfigError) as exc:
         print(f"sb3_coma.zoo {command}: error: {exc}", file=sys.stderr)
         return 2
+    except DiskFullError as exc:  # the machine, not the input: one line, exit 1 (as sb3-coma)
+        print(f"sb3_coma.zoo {command}: error: {exc}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -19,16 +19,20 @@ the real messages (temporary paths shown as ``<tmp>``).
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import io
+import json
 import shutil
 import sys
 import tempfile
+import warnings
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -117,6 +121,40 @@ class Files:
             policy_kwargs={"features_extractor_kwargs": {"features_dim": 16}},
         )
         return atomic_save(model, self.path("models/coma_2uavs.zip"))
+
+    @functools.cached_property
+    def trained_zip(self) -> Path:
+        """A COMA zip that records its training env as ``sb3-coma train`` does (2 UAVs, mean fusion)."""
+        from sb3_coma import COMA
+        from sb3_coma.checkpoints import atomic_save
+        from sb3_coma.training import record_env_options
+
+        model = COMA(
+            "CnnPolicy",
+            self.venv,
+            batch_size=8,
+            seed=0,
+            policy_kwargs={"features_extractor_kwargs": {"features_dim": 16}},
+        )
+        record_env_options(model, "env1", {"fusion": "mean", "n_uavs": 2, "budget": 4})
+        return atomic_save(model, self.path("models/coma_mean_2uavs.zip"))
+
+    @functools.cached_property
+    def bad_steps_zip(self) -> Path:
+        """A COMA zip whose ``data`` says ``"num_timesteps": "abc"`` (hand-edited or foreign)."""
+        p = self.path("models/badsteps.zip")
+        with zipfile.ZipFile(self.coma_zip) as src, zipfile.ZipFile(p, "w") as out:
+            for name in src.namelist():
+                data = src.read(name)
+                if name == "data":
+                    data = json.dumps({**json.loads(data), "num_timesteps": "abc"}).encode()
+                out.writestr(name, data)
+        return p
+
+    @functools.cached_property
+    def a_file(self) -> Path:
+        """A regular file where a folder is expected."""
+        return self.text("a_file", "not a folder")
 
     @functools.cached_property
     def truncated_zip(self) -> Path:
@@ -247,7 +285,9 @@ class Case:
 
 @dataclass(frozen=True)
 class CliCase:
-    """``sb3-coma ARGV`` exits with 2 and one stderr line naming the bad value."""
+    """``sb3-coma ARGV`` exits with ``rc`` (2: a bad input; 1: the machine, e.g. a full disk) and
+    one stderr line naming the bad value; ``within`` is the context it runs in (a machine without
+    CUDA, a disk that fills up)."""
 
     id: str
     bad_input: str
@@ -255,6 +295,8 @@ class CliCase:
     names: tuple[str, ...]
     allowed: str | None = None
     surface: str = field(default="CLI")
+    rc: int = 2
+    within: Callable[[], contextlib.AbstractContextManager[Any]] = contextlib.nullcontext
 
 
 def _coma(files: Files, **kwargs):
@@ -317,15 +359,77 @@ def _load_checkpoint(path: Path, files: Files):
     return load_checkpoint(path, env=files.venv, device="cpu")
 
 
+def _no_gpu() -> contextlib.AbstractContextManager[Any]:
+    """A machine without CUDA or MPS, whatever this one has (the cases must not depend on it)."""
+    import torch
+
+    stack = contextlib.ExitStack()
+    stack.enter_context(mock.patch.object(torch.cuda, "is_available", return_value=False))
+    stack.enter_context(mock.patch.object(torch.backends.mps, "is_available", return_value=False))
+    return stack
+
+
+def _disk_full_after(saves: int) -> contextlib.AbstractContextManager[Any]:
+    """A disk that fills up after ``saves`` model saves: the next ``COMA.save`` writes a few bytes
+    into the (temporary) file and fails with ``ENOSPC``, as ``write`` does on a full disk."""
+    from sb3_coma import COMA
+
+    original = COMA.save
+    done = [0]
+
+    def save(self, path, *args, **kwargs):
+        done[0] += 1
+        if done[0] > saves:
+            path.write(b"PK\x03\x04 cut")
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return original(self, path, *args, **kwargs)
+
+    return mock.patch.object(COMA, "save", save)
+
+
+def _as_error(run: Callable[[], Any]) -> Any:
+    """Run with ``UserWarning`` raised as an exception: a warning case of the catalogue."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        return run()
+
+
+def _train_without_gpu(files: Files, device: str):
+    with _no_gpu():
+        return _train(files, env="env1", config=files.config(), device=device)
+
+
+def _coma_without_gpu(files: Files, device: str):
+    with _no_gpu():
+        return _coma(files, device=device)
+
+
+def _save_on_full_disk(files: Files):
+    """``atomic_save`` over an existing model while the disk is full."""
+    from sb3_coma.checkpoints import atomic_save
+
+    model = _coma(files, policy_kwargs={"features_extractor_kwargs": {"features_dim": 16}})
+    previous = files.path("models/previous.zip")
+    shutil.copyfile(files.coma_zip, previous)
+    with _disk_full_after(0):
+        return atomic_save(model, previous)
+
+
+def _zoo_args(argv: list[str]):
+    from sb3_coma import zoo
+
+    return zoo.train_parser().parse_args(argv)
+
+
 def _errors():
-    from sb3_coma.checkpoints import CheckpointError
+    from sb3_coma.checkpoints import CheckpointError, DiskFullError
     from sb3_coma.sendfuse import SenDFuseWeightsError
     from sb3_coma.training import TrainingError
 
-    return CheckpointError, SenDFuseWeightsError, TrainingError
+    return CheckpointError, DiskFullError, SenDFuseWeightsError, TrainingError
 
 
-CheckpointError, SenDFuseWeightsError, TrainingError = _errors()
+CheckpointError, DiskFullError, SenDFuseWeightsError, TrainingError = _errors()
 E = "env option"
 M = "map"
 F = "fusion"
@@ -335,6 +439,10 @@ Y = "YAML config and train()"
 MF = "model file"
 W = "SenDFuse weights"
 EV = "evaluate()"
+Z = "rl-zoo3 entry (python -m sb3_coma.zoo)"
+
+#: A quick evaluation (2 UAVs, 2 decisions, one mission): a case fails fast even if unchecked.
+_QUICK_EVALUATE = ["evaluate", "--methods", "random", "--trials", "1", "--uavs", "2", "--budget", "2", "--no-plots"]
 
 CASES: list[Case | CliCase] = [
     # ------------------------------------------------------------------ env options
@@ -769,6 +877,15 @@ CASES: list[Case | CliCase] = [
         "['CBAMPolicy', 'COMAPolicy', 'CnnPolicy']",
     ),
     Case(
+        "coma-device-no-cuda",
+        C,
+        'COMA("CnnPolicy", venv, device="cuda")  # no GPU here',
+        lambda f: _coma_without_gpu(f, "cuda"),
+        ValueError,
+        ("'cuda'",),
+        "no CUDA device is available",
+    ),
+    Case(
         "coma-env-not-vec",
         C,
         'COMA("CnnPolicy", gymnasium.make("CartPole-v1"))',
@@ -1098,6 +1215,43 @@ CASES: list[Case | CliCase] = [
         ("'tpu'",),
         "use auto, cpu, cuda",
     ),
+    Case(
+        "train-device-no-cuda",
+        Y,
+        'train(env="env1", config="tiny.yml", device="cuda")  # no GPU here',
+        lambda f: _train_without_gpu(f, "cuda"),
+        TrainingError,
+        ("'cuda'",),
+        "no CUDA device is available",
+    ),
+    Case(
+        "train-device-no-mps",
+        Y,
+        'train(env="env1", config="tiny.yml", device="mps")  # not a Mac with an Apple GPU',
+        lambda f: _train_without_gpu(f, "mps"),
+        TrainingError,
+        ("'mps'",),
+        "no MPS (Apple GPU) device is available",
+    ),
+    Case(
+        "train-run_dir-below-a-file",
+        Y,
+        'train(env="env1", config="tiny.yml", run_dir="<tmp>/a_file/sub")  # a_file is a file',
+        lambda f: _train(f, env="env1", config=f.config(), run_dir=f.a_file / "sub"),
+        TrainingError,
+        ("a_file/sub", "a_file is a file"),
+        "cannot be made",
+    ),
+    # ------------------------------------------------------------------ rl-zoo3 entry
+    Case(
+        "zoo-params-not-python",
+        Z,
+        "python -m sb3_coma.zoo train -params batch_size:abc",
+        lambda f: _zoo_args(["-params", "batch_size:abc"]),
+        TrainingError,
+        ("batch_size", "'abc'"),
+        "quote text",
+    ),
     # ------------------------------------------------------------------ model files
     Case(
         "model-missing",
@@ -1170,6 +1324,24 @@ CASES: list[Case | CliCase] = [
         TrainingError,
         ("maps",),
         "not a run folder",
+    ),
+    Case(
+        "model-num_timesteps-not-a-number",
+        MF,
+        'validate_checkpoint(<COMA zip whose data has "num_timesteps": "abc">)',
+        lambda f: _validate(f.bad_steps_zip),
+        CheckpointError,
+        ("badsteps.zip", "'num_timesteps'", "'abc'"),
+        "a whole number of joint steps",
+    ),
+    Case(
+        "checkpoint-disk-full",
+        MF,
+        'atomic_save(model, "<tmp>/models/previous.zip")  # the disk fills up (ENOSPC)',
+        _save_on_full_disk,
+        DiskFullError,
+        ("previous.zip", "no space left"),
+        "its previous version is intact",
     ),
     # ------------------------------------------------------------------ SenDFuse weight files
     Case(
@@ -1255,6 +1427,15 @@ CASES: list[Case | CliCase] = [
         "truncated",
     ),
     Case(
+        "evaluate-ag-lookahead-too-deep",
+        EV,
+        'evaluate("ag", planner_kwargs={"lookahead": 9})',
+        lambda f: _evaluate("ag", n_trials=1, n_uavs=2, budget=2, planner_kwargs={"lookahead": 9}),
+        ValueError,
+        ("lookahead=9",),
+        "an integer from 1 (greedy AG) to",
+    ),
+    Case(
         "evaluate-planner-option",
         EV,
         'evaluate("lawnmower", planner_kwargs={"altitude": 7.0})',
@@ -1262,6 +1443,24 @@ CASES: list[Case | CliCase] = [
         ValueError,
         ("altitude=7.0",),
         "[5.0, 10.0, 15.0]",
+    ),
+    Case(
+        "evaluate-team-size-differs",
+        EV,
+        "evaluate(<zip trained with 2 UAVs>, n_uavs=4)  # a warning: legal, per-agent actor",
+        lambda f: _as_error(lambda: _evaluate(str(f.trained_zip), n_uavs=4, budget=2)),
+        UserWarning,
+        ("2 UAVs", "flies with 4"),
+        "allowed",
+    ),
+    Case(
+        "evaluate-fusion-differs",
+        EV,
+        'evaluate(<zip trained with fusion "mean">, fusion="sendfuse")  # a warning',
+        lambda f: _as_error(lambda: _evaluate(str(f.trained_zip), n_uavs=2, budget=2, fusion="sendfuse")),
+        UserWarning,
+        ("'mean'", "'sendfuse'"),
+        "pass fusion='mean'",
     ),
     # ------------------------------------------------------------------ CLI
     CliCase(
@@ -1326,6 +1525,47 @@ CASES: list[Case | CliCase] = [
         lambda f: ["train", "--env", "env1", "--config", str(f.config()), "--device", "tpu"],
         ("'tpu'",),
         "use auto, cpu, cuda",
+    ),
+    CliCase(
+        "cli-train-device-no-cuda",
+        "sb3-coma train --device cuda  # no GPU here",
+        lambda f: ["train", "--env", "env1", "--config", str(f.config()), "--device", "cuda"],
+        ("'cuda'",),
+        "no CUDA device is available",
+        within=_no_gpu,
+    ),
+    CliCase(
+        "cli-train-run-dir-below-a-file",
+        "sb3-coma train --run-dir <tmp>/a_file/sub  # a_file is a file",
+        lambda f: ["train", "--env", "env1", "--config", str(f.config()), "--run-dir", str(f.a_file / "sub")],
+        ("a_file/sub", "a_file is a file"),
+        "cannot be made",
+    ),
+    CliCase(
+        "cli-train-disk-full",
+        "sb3-coma train ...  # the disk fills up at the second checkpoint",
+        lambda f: [
+            "train",
+            "--env",
+            "env1",
+            "--config",
+            str(f.config()),
+            "--timesteps",
+            "16",
+            "--save-freq",
+            "8",
+            "--set",
+            "n_steps=8",
+            "--run-dir",
+            str(f.path("runs/disk_full")),
+            "--no-progress",
+            "-v",
+            "0",
+        ],
+        ("rl_model_16_steps.zip", "no space left"),
+        "no partial file was left",
+        rc=1,
+        within=lambda: _disk_full_after(1),
     ),
     CliCase(
         "cli-train-fusion-kwargs",
@@ -1430,6 +1670,41 @@ CASES: list[Case | CliCase] = [
         "['loud', 'moderate', 'none']",
     ),
     CliCase(
+        "cli-export-out-is-a-file",
+        "sb3-coma export --model env1 --out <tmp>/a_file  # a file, not a folder",
+        lambda f: ["export", "--model", "env1", "--out", str(f.a_file)],
+        ("a_file",),
+        "is an existing file",
+    ),
+    CliCase(
+        "cli-export-model-is-a-baseline",
+        "sb3-coma export --model ag --out <tmp>/onnx",
+        lambda f: ["export", "--model", "ag", "--out", str(f.path("onnx"))],
+        ("'ag'",),
+        "is a baseline planner",
+    ),
+    CliCase(
+        "cli-evaluate-out-is-a-file",
+        "sb3-coma evaluate --out <tmp>/a_file  # a file, not a folder",
+        lambda f: [*_QUICK_EVALUATE, "--out", str(f.a_file)],
+        ("a_file",),
+        "is a file, not a folder",
+    ),
+    CliCase(
+        "cli-evaluate-out-below-a-file",
+        "sb3-coma evaluate --out <tmp>/a_file/sub.csv",
+        lambda f: [*_QUICK_EVALUATE, "--out", str(f.a_file / "sub.csv")],
+        ("a_file/sub.csv", "a_file"),
+        "its parent",
+    ),
+    CliCase(
+        "cli-evaluate-out-table-is-a-folder",
+        "sb3-coma evaluate --out <tmp>/out  # out/table.csv is a folder",
+        lambda f: [*_QUICK_EVALUATE, "--out", str(f.folder("out/table.csv").parent)],
+        ("table.csv",),
+        "is a folder",
+    ),
+    CliCase(
         "cli-demo-uavs-zero",
         "sb3-coma demo --env env1 --uavs 0",
         lambda f: ["demo", "--env", "env1", "--uavs", "0"],
@@ -1440,11 +1715,11 @@ CASES: list[Case | CliCase] = [
 
 
 # =============================================================================== running a case
-def run_cli(argv: list[str]) -> tuple[int, str]:
+def run_cli(argv: list[str], within: Callable[[], contextlib.AbstractContextManager[Any]] = contextlib.nullcontext):
     from sb3_coma import cli
 
     err = io.StringIO()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+    with within(), contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
         rc = cli.main(argv)
     return rc, err.getvalue()
 
@@ -1452,7 +1727,7 @@ def run_cli(argv: list[str]) -> tuple[int, str]:
 def observe(case: Case | CliCase, files: Files) -> tuple[str, str]:
     """``(what the user sees as the error, the message)`` for the docs."""
     if isinstance(case, CliCase):
-        rc, err = run_cli(case.argv(files))
+        rc, err = run_cli(case.argv(files), case.within)
         return f"exit {rc}, stderr", err.strip()
     try:
         case.run(files)
@@ -1506,9 +1781,10 @@ def test_cli_bad_input_is_one_line_exit_2(case: CliCase, files, in_tmp, capsys):
 
     argv = case.argv(files)
     capsys.readouterr()
-    rc = cli.main(argv)
+    with case.within():
+        rc = cli.main(argv)
     err = capsys.readouterr().err
-    assert rc == 2, f"{case.id}: exit status {rc}, stderr: {err}"
+    assert rc == case.rc, f"{case.id}: exit status {rc}, stderr: {err}"
     lines = err.strip().splitlines()
     assert len(lines) == 1, f"{case.id}: expected one stderr line, got: {err}"
     assert lines[0].startswith(f"sb3-coma {argv[0]}: error: ")
@@ -1523,6 +1799,48 @@ def test_docs_list_every_case():
     text = DOC.read_text(encoding="utf-8")
     missing = [c.id for c in CASES if f"`{c.id}`" not in text]
     assert not missing, f"docs/errors.md lacks {missing}; regenerate with python tests/test_errors_catalogue.py"
+
+
+# =============================================================================== when, and what is left
+def test_a_missing_gpu_is_refused_before_the_run_folder_is_made(files, in_tmp):
+    with _no_gpu(), pytest.raises(TrainingError, match="no CUDA device"):
+        _train(files, env="env1", config=files.config(), device="cuda:1", run_dir=files.path("runs/gpu"))
+    assert not files.path("runs/gpu").exists()
+
+
+def test_a_full_disk_keeps_the_previous_checkpoint(files, in_tmp, capsys):
+    from sb3_coma import cli
+    from sb3_coma.checkpoints import validate_checkpoint
+
+    run = files.path("runs/full_disk")
+    argv = ["train", "--env", "env1", "--config", str(files.config()), "--timesteps", "16", "--save-freq", "8"]
+    with _disk_full_after(1):
+        rc = cli.main([*argv, "--set", "n_steps=8", "--run-dir", str(run), "--no-progress", "-v", "0"])
+    assert rc == 1, capsys.readouterr().err
+    assert validate_checkpoint(run / "checkpoints" / "rl_model_8_steps.zip").num_timesteps == 8
+    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["rl_model_8_steps.zip"]  # no .tmp left
+    with pytest.raises(DiskFullError):
+        _save_on_full_disk(files)
+    assert files.path("models/previous.zip").read_bytes() == files.coma_zip.read_bytes()
+
+
+@pytest.mark.parametrize("value", ["batch_size:abc", "batch_size:'abc'"])
+def test_zoo_bad_params_are_one_line_exit_2(value, files, in_tmp, capsys):
+    from sb3_coma import zoo
+
+    log = str(files.path("zoo_logs"))
+    rc = zoo.main(["train", "--env", ENV_ID, "-n", "8", "--eval-freq", "-1", "-f", log, "-params", value])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert err[0].startswith("sb3_coma.zoo train: error: ") and "batch_size" in err[0] and "'abc'" in err[0]
+
+
+def test_a_model_flown_as_trained_gives_no_mismatch_warning(files, in_tmp):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _evaluate(str(files.trained_zip), n_uavs=2, budget=2)
+        _evaluate(str(files.trained_zip), n_uavs=2, budget=2, fusion="mean")
+    assert not [w for w in caught if "was trained with" in str(w.message)]
 
 
 # =============================================================================== known gaps

@@ -51,17 +51,24 @@ def raw_observations() -> dict[str, np.ndarray]:
     return {key: np.concatenate([r[key] for r in rows]) for key in rows[0]}
 
 
-@pytest.fixture(scope="module", params=["mean", "sendfuse"])
+#: The exported actors: the paper's (8 local channels), one that reads the gains as inputs (the
+#: shipped models), and one with a gain prior and bounded correction.
+ACTORS = {
+    "mean": ("mean", {}),
+    "sendfuse-gain-inputs": ("sendfuse", {"gain_inputs": True}),
+    "mean-gain-prior": ("mean", {"gain_prior": 10.0, "correction_bound": 5.0}),
+}
+
+
+@pytest.fixture(scope="module", params=list(ACTORS))
 def exported(request, raw_observations, tmp_path_factory):
     """(model, written paths, fused observations, raw observations, the env's fusion wrapper).
 
-    The SenDFuse model also has the shipped models' gain prior and bounded correction, so both
-    actor graphs (with and without the ``action_gain`` input) are covered."""
-    fusion = request.param
+    Both actor graphs (with and without the ``action_gain`` input) are covered."""
+    fusion, policy_kwargs = ACTORS[request.param]
     venv = envs.make_vec_env("env1", n_envs=1, fusion=fusion, seed=0)
-    kwargs = {"policy_kwargs": {"gain_prior": 10.0, "correction_bound": 5.0}} if fusion == "sendfuse" else {}
-    model = COMA("CBAMPolicy", venv, seed=0, device="cpu", **kwargs)
-    paths = export_onnx(model, tmp_path_factory.mktemp(f"onnx_{fusion}"))
+    model = COMA("CBAMPolicy", venv, seed=0, device="cpu", policy_kwargs=policy_kwargs)
+    paths = export_onnx(model, tmp_path_factory.mktemp(f"onnx_{request.param}"))
     wrapper = _fusion_wrapper(venv)
     assert wrapper is not None and wrapper.name == fusion
     fused = wrapper.observations(dict(raw_observations))
@@ -147,8 +154,7 @@ def test_metadata_describes_the_graphs(exported):
     env = meta["env"]
     assert env["name"] == "env1" and env["fusion"] == wrapper.name and env["config"]["n_uavs"] == 4
     assert env["config"]["comm_grid"] == 44 and env["config"]["noise"] == "moderate"
-    has_prior = model.policy.actor.prior_theta is not None
-    assert ("action_gain" in [i["name"] for i in meta["actor"]["inputs"]]) == has_prior
+    assert ("action_gain" in [i["name"] for i in meta["actor"]["inputs"]]) == model.policy.actor.reads_gain
     assert meta["actor"]["actions"] == list(layout.ACTION_NAMES)
     space = model.policy.observation_space
     assert [i["dtype"] for i in meta["actor"]["inputs"][:2]] == [str(space[k].dtype) for k in ("local", "action_mask")]
@@ -248,5 +254,7 @@ def test_cli_exports_a_shipped_model(tmp_path, capsys):
     meta = json.loads((tmp_path / "env1" / METADATA_FILE).read_text())
     assert meta["env"]["name"] == "env1" and meta["env"]["fusion"] == "sendfuse"
     assert "coma_env1.zip" in meta["env"]["from"] and meta["source"]["shipped"]  # the zip records its options
-    assert [i["name"] for i in meta["actor"]["inputs"]] == ["local", "action_mask"]  # the paper's actor
+    # the shipped actor reads the on-board gains as inputs (gain_inputs); the paper's actor does not
+    assert [i["name"] for i in meta["actor"]["inputs"]] == ["local", "action_mask", "action_gain"]
+    assert meta["actor"]["policy"]["gain_inputs"] is True and meta["actor"]["policy"]["gain_prior_weights"] is None
     assert meta["check"]["actor_max_abs_diff"] < 1e-4 and meta["check"]["fusion_max_abs_diff"] < 1e-5

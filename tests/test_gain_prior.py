@@ -225,3 +225,55 @@ def test_correction_bound_caps_the_network_term_and_round_trips(tmp_path: Path):
 def test_correction_bound_rejects_bad_values(bad):
     with pytest.raises(ValueError, match=r"correction_bound=.*must be null \(unbounded\) or a finite number > 0"):
         _small_model(correction_bound=bad)
+
+
+# --------------------------------------------------------------------------- gain inputs
+def test_gain_inputs_are_read_by_the_network_not_added_to_the_logits():
+    """``gain_inputs``: the gains feed a learned encoder; the first policy is near-uniform (no
+    hand-set weight makes it greedy) and changing only the gains changes the logits."""
+    model, venv = _small_model(gain_inputs=True)
+    actor = model.policy.actor
+    assert actor.prior_weights is None and actor.gain_encoder is not None and actor.reads_gain
+    obs = venv.reset()
+    local, mask = th.as_tensor(obs[layout.KEY_LOCAL]), th.as_tensor(obs[layout.KEY_MASK]).float()
+    gains = th.as_tensor(obs[layout.KEY_GAIN])
+    with th.no_grad():
+        probs = model.policy.action_probs(local, mask, prior=gains)
+        logits = model.policy.masked_logits(local, mask, gains)
+        flipped = model.policy.masked_logits(local, mask, -gains)
+    valid = mask.bool()
+    uniform = mask / mask.sum(-1, keepdim=True)
+    assert th.allclose(probs[valid], uniform[valid], atol=0.02)  # output gain 0.01: near-uniform start
+    assert not th.allclose(logits[valid], flipped[valid])  # the gains are an input of the network
+    with pytest.raises(ValueError, match=r"needs observation\['action_gain'\] \(reads it \(gain_inputs\)\)"):
+        model.policy.masked_logits(local, mask, None)
+    venv.close()
+
+
+def test_gain_inputs_learn_save_and_load(tmp_path: Path):
+    model, venv = _small_model(gain_inputs=True)
+    before = [p.detach().clone() for p in model.policy.actor.gain_encoder.parameters()]
+    model.learn(32)
+    after = list(model.policy.actor.gain_encoder.parameters())
+    assert any(not th.equal(b, a) for b, a in zip(before, after))  # the encoder is trained
+    model.save(tmp_path / "m.zip")
+    loaded = COMA.load(tmp_path / "m.zip", env=venv)
+    assert loaded.policy.gain_inputs is True and loaded.policy.gain_input_size == 12
+    obs = venv.reset()
+    with th.no_grad():
+        args = [th.as_tensor(obs[k]).float() for k in (layout.KEY_LOCAL, layout.KEY_MASK, layout.KEY_GAIN)]
+        th.testing.assert_close(model.policy.masked_logits(*args), loaded.policy.masked_logits(*args))
+    venv.close()
+
+
+@pytest.mark.parametrize("bad", ["yes", 1, None])
+def test_gain_inputs_must_be_a_bool(bad):
+    with pytest.raises(ValueError, match=rf"gain_inputs={bad!r}: must be true or false"):
+        _small_model(gain_inputs=bad)
+
+
+def test_gain_inputs_need_the_gain_observation():
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", action_gain=False, **SMALL)
+    with pytest.raises(ValueError, match=r"gain_inputs=True needs observation\['action_gain'\]"):
+        COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs={"gain_inputs": True})
+    venv.close()

@@ -147,6 +147,27 @@ def test_actor_never_reads_state_or_gain(kind):
     venv.close()
 
 
+@pytest.mark.parametrize("kind", ["ippo", "mappo"])
+def test_gain_inputs_make_the_actor_read_the_gains(kind):
+    """``gain_inputs=True``: the same on-board gains COMA's ``gain_inputs`` actor reads."""
+    from sb3_coma.coma.policies import GAIN_ENCODER_DIM
+
+    venv = tiny_venv()
+    model = tiny_model(kind, venv, policy_kwargs=dict(features_extractor_kwargs=dict(gain_inputs=True)))
+    extractor = model.policy.pi_features_extractor
+    assert extractor.gain_encoder is not None and extractor.features_dim == 256 + GAIN_ENCODER_DIM
+    model.learn(total_timesteps=256)
+    obs = collect_observations(venv, 4, seed=2)
+    probs, _ = _probs_and_values(model, obs)
+    p2, _ = _probs_and_values(model, _perturbed(obs, layout.KEY_GAIN))
+    assert np.abs(p2 - probs).max() > 1e-6
+    venv.close()
+    gainless = tiny_venv(action_gain=False)
+    with pytest.raises(ValueError, match=r"gain_inputs=True needs observation\['action_gain'\]"):
+        tiny_model(kind, gainless, policy_kwargs=dict(features_extractor_kwargs=dict(gain_inputs=True)))
+    gainless.close()
+
+
 def test_policy_structure():
     venv = tiny_venv()
     ippo, mappo = make_ippo(venv), make_mappo(venv)

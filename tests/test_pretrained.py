@@ -25,14 +25,23 @@ def test_manifest_records_checksums_commands_metrics():
         path = pt.pretrained_dir() / entry["file"]
         assert path.is_file() and path.stat().st_size == entry["size_bytes"]
         assert pt.sha256_file(path) == entry["sha256"]
-        variant = f" --variant {entry['variant']}" if entry["variant"] else ""
-        assert entry["command"].startswith(f"sb3-coma train --env {entry['env']}{variant} --seed {entry['seed']}")
+        command = entry["command"].split()
+        assert command[:4] == ["sb3-coma", "train", "--env", entry["env"]]
+        assert command[command.index("--seed") + 1] == str(entry["seed"])
+        assert (command[command.index("--variant") + 1] if "--variant" in command else None) == entry["variant"]
         assert entry["train_wall_s"] > 0 and entry["timesteps"] > 0
         if "ablation_arm" in entry:  # flown by `sb3-coma reproduce` in the ablation table
             assert name == f"{entry['env']}-{entry['ablation_arm'][0]}-{entry['ablation_arm'][1]}"
-        else:
-            assert name == entry["env"]
+        else:  # a map's model, or another actor of that map named after its variant
+            assert name == entry["env"] + (f"-{entry['variant']}" if entry["variant"] else "")
             assert {"f1_100_mean", "entropy_100_mean"} <= set(entry["metrics"])
+
+
+def test_manifest_env_options_are_the_models_own_record():
+    """evaluate flies a shipped model with the manifest's options: they must be the zip's own
+    record, not the current config's (which may have changed since the model was trained)."""
+    for name, entry in pt.read_manifest()["models"].items():
+        assert pt.shipped_env_options(name) == entry["env_options"] == training_options(load_pretrained(name))
 
 
 def test_ablation_arms_are_shipped_with_their_fusion_and_extractor():
@@ -73,7 +82,8 @@ def test_load_pretrained_predict_honours_masks():
 
 def test_unknown_name_is_a_clear_error():
     with pytest.raises(
-        PretrainedError, match=r"unknown shipped model 'env9'; available: env1, env2, env3, env3-mean-cbam"
+        PretrainedError,
+        match=r"unknown shipped model 'env9'; available: env1, env1-paper-actor, env2, env2-paper-actor, env3, env3-mean-cbam",
     ):
         load_pretrained("env9")
     assert issubclass(PretrainedError, ValueError)

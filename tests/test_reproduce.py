@@ -33,6 +33,7 @@ def test_reproduce_quick_end_to_end(tmp_path, capsys):
     assert summary["trials"] == 2 and summary["models"]["env1"]["source"] == "shipped"
     assert set(summary["table"]) == {
         "env1/coma",
+        "env1/coma[paper-actor]",  # every model shipped for the map gets its row
         "env1/ag",
         "env1/ag-k2",
         "env1/ag-k3",

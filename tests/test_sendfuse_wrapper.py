@@ -109,6 +109,27 @@ def test_one_batched_network_call_per_step() -> None:
             assert dones.all() and net.calls == [2 * n_envs * 4]
 
 
+def test_large_batches_are_fused_in_chunks_with_the_same_result() -> None:
+    """More agents than ``FUSE_CHUNK`` are fused in several calls (bounded memory), each row as
+    if fused alone."""
+    from sb3_coma.export import _fusion_wrapper
+    from sb3_coma.sendfuse.wrapper import FUSE_CHUNK
+
+    net = CountingNet()
+    venv = envs.make_vec_env("env3", n_envs=1, fusion="sendfuse", seed=0, fusion_kwargs={"network": net})
+    wrapper = _fusion_wrapper(venv)
+    rng = np.random.default_rng(1)
+    rows = 2 * FUSE_CHUNK + 5
+    received = rng.random((rows, 4, 44, 44), dtype=np.float32)
+    valid = (rng.random((rows, 4)) > 0.3).astype(np.float32)
+    net.calls.clear()
+    fused = wrapper.fuse(received, valid)
+    assert net.calls == [FUSE_CHUNK, FUSE_CHUNK, 5]
+    alone = np.concatenate([wrapper.fuse(received[i : i + 1], valid[i : i + 1]) for i in (0, FUSE_CHUNK, rows - 1)])
+    np.testing.assert_allclose(fused[[0, FUSE_CHUNK, rows - 1]], alone, rtol=0, atol=1e-5)
+    venv.close()
+
+
 def test_wrapper_uses_the_given_network_and_checks_its_grid() -> None:
     torch.manual_seed(0)
     with pytest.raises(ValueError, match="comm_grid"):

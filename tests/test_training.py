@@ -101,7 +101,8 @@ def test_default_config_has_the_settings_that_learn_and_the_paper_variant():
     for env_id in ("UavIpp-Env1-v0", "UavIpp-Env2-v0", "UavIpp-Env3-v0"):
         cfg = load_config(env_id, path)
         e = cfg.entry
-        assert e["n_timesteps"] == 24000 and e["policy"] == "CBAMPolicy" and e["n_envs"] == 8
+        assert e["n_timesteps"] == (24000 if env_id == "UavIpp-Env1-v0" else 36000)
+        assert e["policy"] == "CBAMPolicy" and e["n_envs"] == 8
         assert "learning_rate" not in e and "batch_size" not in e  # COMA's defaults: the measured settings
         assert e["env_kwargs"] == {
             "fusion": "sendfuse",
@@ -110,15 +111,19 @@ def test_default_config_has_the_settings_that_learn_and_the_paper_variant():
             "noise": "moderate",
             "split": "train",
             "reward": "metrics",
-            "action_gain": False,
+            "action_gain": True,
         }
+        assert e["policy_kwargs"] == {"gain_inputs": True}  # the network reads the on-board gains
         assert data[env_id] == e
     paper = load_config("env3", path, "paper").entry
     assert paper["n_timesteps"] == 18000 and paper["learning_rate"] == 1e-5 and paper["critic_learning_rate"] == 1e-4
     assert paper["batch_size"] == 512 and paper["advantage"] == "q" and paper["clip_range"] is None
     assert paper["n_epochs"] == 1 and paper["env_kwargs"]["split"] == "paper"
+    for name in ("paper", "paper-actor"):  # the paper's actor: 8 local channels, no gain inputs
+        entry = load_config("env3", path, name).entry
+        assert entry["policy_kwargs"] == {"gain_inputs": False} and entry["env_kwargs"]["action_gain"] is False
     variants = list_variants(path)
-    assert {"paper", "sendfuse-cbam", "sendfuse-cnn", "mean-cbam", "mean-cnn"} <= set(variants)
+    assert {"paper", "paper-actor", "sendfuse-cbam", "sendfuse-cnn", "mean-cbam", "mean-cnn"} <= set(variants)
     base = load_config("env3", path, "mean-cnn").entry
     assert base["policy"] == "CnnPolicy" and base["env_kwargs"]["fusion"] == "mean"
     assert base["env_kwargs"]["noise"] == "moderate"  # merged key by key

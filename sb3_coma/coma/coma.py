@@ -55,6 +55,7 @@ from sb3_coma.coma.progress import JointStepProgressBar
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
     check_batch_fits_rollout,
+    check_device,
     check_non_negative,
     check_observation,
     check_positive_int,
@@ -170,6 +171,7 @@ class COMA(OnPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
+        check_device(device)
         policy_class = self._resolve_policy(policy)
         n_agents: int | None = None
         if env is not None:

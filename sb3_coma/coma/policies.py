@@ -31,6 +31,10 @@ from sb3_coma.extractors import CBAMExtractor, CnnExtractor
 
 __all__ = ["other_actions_map", "critic_input", "COMAPolicy", "CBAMPolicy", "CnnPolicy"]
 
+#: Width of the actor's gain encoder (``gain_inputs=True``): the per-action gains are mapped to
+#: this many features before they join the trunk's features in the head.
+GAIN_ENCODER_DIM = 64
+
 _CRITIC_PREFIX = "critic."
 _TARGET_PREFIX = "critic_target."
 
@@ -106,9 +110,20 @@ class _Actor(_Head):
         prior_init: Sequence[float] = (),
         prior_speed: float = 1.0,
         correction_bound: float | None = None,
+        gain_inputs: int = 0,
     ) -> None:
         super().__init__(features_extractor, n_actions, gain, ortho_init)
         self.correction_bound = correction_bound
+        #: With ``gain_inputs`` (the number of ``action_gain`` values), the network reads the gains
+        #: as inputs: a learned encoder whose features join the trunk's in the head.
+        self.gain_encoder: nn.Sequential | None = None
+        if gain_inputs > 0:
+            self.gain_encoder = nn.Sequential(nn.Linear(gain_inputs, GAIN_ENCODER_DIM), nn.ReLU())
+            self.head = nn.Linear(features_extractor.features_dim + GAIN_ENCODER_DIM, n_actions)
+            if ortho_init:
+                self.gain_encoder.apply(partial(BasePolicy.init_weights, gain=math.sqrt(2)))
+            nn.init.orthogonal_(self.head.weight, gain=gain)
+            nn.init.zeros_(self.head.bias)
         self.prior_speed = float(prior_speed)
         self.prior_theta: nn.Parameter | None = None
         if any(w > 0 for w in prior_init):
@@ -123,23 +138,37 @@ class _Actor(_Head):
         """The prior's own term ``sum_k beta_k * gain_k``, ``(B, A)`` from ``prior`` ``(B, K, A)``."""
         return th.einsum("k,bka->ba", self.prior_weights, prior)
 
-    def network_logits(self, x: th.Tensor) -> th.Tensor:
+    @property
+    def reads_gain(self) -> bool:
+        """Whether the actor needs ``observation["action_gain"]`` (as a prior or as inputs)."""
+        return self.prior_theta is not None or self.gain_encoder is not None
+
+    def network_logits(self, x: th.Tensor, gains: th.Tensor | None = None) -> th.Tensor:
         """The network's own term ``(B, A)``: ``c * tanh(net / c)`` with a ``correction_bound`` c,
         so it can reorder moves whose prior logits lie within about 2c of each other but never
-        swamp the prior (unbounded, it grew to +-50 in collapsed runs, docs/training.md)."""
-        net = super().forward(x)
+        swamp the prior (unbounded, it grew to +-50 in collapsed runs, docs/training.md).
+        ``gains`` ``(B, K, A)``: the encoder's input when the actor has one."""
+        features = self.features_extractor(x)
+        if self.gain_encoder is not None:
+            assert gains is not None
+            features = th.cat([features, self.gain_encoder(gains.flatten(1))], dim=1)
+        net = self.head(features)
         if self.correction_bound is None:
             return net
         return self.correction_bound * th.tanh(net / self.correction_bound)
 
     def forward(self, x: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:  # type: ignore[override]
-        logits = self.network_logits(x)
+        if self.reads_gain and prior is None:
+            role = (
+                "adds it to its logits (gain_prior > 0)" if self.prior_theta is not None else "reads it (gain_inputs)"
+            )
+            raise ValueError(
+                f"this actor needs observation[{layout.KEY_GAIN!r}] ({role}), "
+                "but the observation has no such key: make the env with action_gain=True"
+            )
+        logits = self.network_logits(x, prior)
         if self.prior_theta is not None:
-            if prior is None:
-                raise ValueError(
-                    f"this actor adds observation[{layout.KEY_GAIN!r}] to its logits (gain_prior > 0), "
-                    "but the observation has no such key: make the env with action_gain=True"
-                )
+            assert prior is not None
             logits = logits + self.prior_logits(prior)
         return logits
 
@@ -151,6 +180,19 @@ def _correction_bound(value: Any) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (value > 0 and math.isfinite(value)):
         raise ValueError(f"correction_bound={value!r}: must be null (unbounded) or a finite number > 0")
     return float(value)
+
+
+def _gain_input_size(value: Any, observation_space: spaces.Dict) -> int:
+    """How many ``action_gain`` values the actor's network reads (0: none), with errors that name
+    the bad value."""
+    if not isinstance(value, bool):
+        raise ValueError(f"gain_inputs={value!r}: must be true or false")
+    if not value:
+        return 0
+    space = observation_space.spaces.get(layout.KEY_GAIN)
+    if space is None:
+        raise ValueError(f"gain_inputs=True needs observation[{layout.KEY_GAIN!r}]: make the env with action_gain=True")
+    return int(math.prod(space.shape or (0,)))
 
 
 def _prior_init(gain_prior: Any, speed: Any, observation_space: spaces.Dict) -> tuple[float, ...]:
@@ -215,6 +257,11 @@ class COMAPolicy(BasePolicy):
     :param correction_bound: bound ``c`` on the network's term of the actor's logits, which
         becomes ``c * tanh(net / c)`` (``None``: unbounded, the paper's actor). With a gain prior
         it keeps the learned correction from swamping the prior (see ``_Actor.network_logits``)
+    :param gain_inputs: the actor's network also reads ``observation["action_gain"]`` (every
+        move's one-step gain, computed on board from the UAV's own belief) as input features,
+        through a learned encoder joined to the trunk's features before the head. Nothing is
+        added to the logits by hand: the weights start random and the network learns what the
+        gains are worth. Needs the ``action_gain`` key
     """
 
     def __init__(
@@ -234,8 +281,12 @@ class COMAPolicy(BasePolicy):
         gain_prior: float | Sequence[float] = 0.0,
         gain_prior_speed: float = 100.0,
         correction_bound: float | None = None,
+        gain_inputs: bool = False,
     ) -> None:
         self.correction_bound = _correction_bound(correction_bound)
+        #: How many ``action_gain`` values the actor's network reads (0: it reads none).
+        self.gain_input_size = _gain_input_size(gain_inputs, observation_space)
+        self.gain_inputs = self.gain_input_size > 0
         #: The starting weight of each gain row (empty without a prior).
         self.gain_prior_init = _prior_init(gain_prior, gain_prior_speed, observation_space)
         self.gain_prior = gain_prior if isinstance(gain_prior, (int, float)) else [float(w) for w in gain_prior]
@@ -277,6 +328,7 @@ class COMAPolicy(BasePolicy):
             prior_init=self.gain_prior_init,
             prior_speed=self.gain_prior_speed,
             correction_bound=self.correction_bound,
+            gain_inputs=self.gain_input_size,
         )
         self.critic = _Head(
             self.critic_features_extractor_class(critic_space, **self.critic_features_extractor_kwargs),
@@ -311,6 +363,7 @@ class COMAPolicy(BasePolicy):
             gain_prior=self.gain_prior,
             gain_prior_speed=self.gain_prior_speed,
             correction_bound=self.correction_bound,
+            gain_inputs=self.gain_inputs,
         )
         return data
 

@@ -11,6 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -23,6 +24,7 @@ __all__ = [
     "check_unit_interval",
     "check_positive_int",
     "check_batch_fits_rollout",
+    "check_device",
 ]
 
 
@@ -149,3 +151,30 @@ def check_observation(observation: Any) -> None:
         array = np.asarray(value)
         if array.dtype.kind == "f" and not np.isfinite(array).all():
             raise ValueError(f"observation {key!r} holds NaN or inf ({int((~np.isfinite(array)).sum())} values)")
+
+
+def check_device(device: Any) -> None:
+    """Refuse a device torch cannot parse or this machine does not have, before anything is built.
+
+    SB3 quietly trains on the CPU when ``cuda`` is asked for and no GPU is visible (and torch fails
+    only at the first tensor for a missing ``cuda:<index>`` or ``mps``): a run meant for a GPU would
+    then take hours with no word. ``auto`` keeps SB3's choice (the GPU when there is one).
+
+    :raises ValueError: naming the device and what this machine has
+    """
+    if isinstance(device, str) and device == "auto":
+        return
+    try:
+        parsed = th.device(device)
+    except (RuntimeError, TypeError, ValueError) as exc:
+        raise ValueError(f"device {device!r} is not a torch device: use auto, cpu, cuda or cuda:<index>") from exc
+    if parsed.type == "cuda":
+        count = th.cuda.device_count() if th.cuda.is_available() else 0
+        if count == 0:
+            raise ValueError(f"device {device!r}: no CUDA device is available on this machine; use auto or cpu")
+        if parsed.index is not None and parsed.index >= count:
+            raise ValueError(
+                f"device {device!r}: no such CUDA device (this machine has {count}: cuda:0..cuda:{count - 1})"
+            )
+    if parsed.type == "mps" and not th.backends.mps.is_available():
+        raise ValueError(f"device {device!r}: no MPS (Apple GPU) device is available on this machine; use auto or cpu")

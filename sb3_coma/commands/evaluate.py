@@ -79,7 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
     parser.add_argument("--map-path", default=None, help="your own map image (with --valuable)")
     parser.add_argument("--valuable", default=None, help="rule that marks valuable pixels of --map-path")
-    parser.add_argument("--n-envs", type=int, default=None, help="missions flown at once (default: all trials)")
+    parser.add_argument("--n-envs", type=int, default=None, help="missions flown at once (default 10)")
     parser.add_argument("--out", default="results", help="output folder (default results/)")
     parser.add_argument(
         "--training-log",
@@ -165,6 +165,24 @@ def _check_args(args: argparse.Namespace) -> None:
         raise UserError(f"--n-envs must be >= 1, got {args.n_envs}")
 
 
+#: The files every evaluation writes into --out (the figures depend on the maps and methods).
+OUTPUT_FILES = ("table.csv", "per_step.csv", "planning_time.csv", "table.md", "planning_time.md")
+
+
+def _check_out(out: Path) -> None:
+    """Refuse an --out the tables cannot be written into before any mission is flown, not after:
+    a file (or a path below one), a read-only location, or a folder where a table file goes.
+    Files already in --out are replaced, as every evaluation does."""
+    from sb3_coma.checkpoints import folder_write_problem
+    from sb3_coma.cli import UserError
+
+    problem = folder_write_problem(out)
+    if problem is None:
+        problem = next((f"{out / name} is a folder" for name in OUTPUT_FILES if (out / name).is_dir()), None)
+    if problem is not None:
+        raise UserError(f"--out {out} cannot take the results: {problem}")
+
+
 def run(args: argparse.Namespace) -> int:
     from sb3_coma import evaluation as ev
     from sb3_coma.cli import UserError, set_threads
@@ -186,6 +204,7 @@ def run(args: argparse.Namespace) -> int:
         if not Path(path).exists():
             raise FileNotFoundError(f"training log not found: {path!r}")
     out = Path(args.out)
+    _check_out(out)
     results: list[ev.EvaluationResult] = []
     for env_name in env_names:
         for label, method in methods:

@@ -19,7 +19,11 @@ from envs.fusion import FusionWrapper
 from sb3_coma.sendfuse.network import SenDFuseNet
 from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 
-__all__ = ["SenDFuseFusionWrapper"]
+__all__ = ["SenDFuseFusionWrapper", "FUSE_CHUNK"]
+
+#: Agents fused per forward pass. Training batches (8 copies x 4 UAVs) fit in one; an evaluation
+#: flying 50 missions at once would otherwise hold ~230 MB of activations for its 200 agents.
+FUSE_CHUNK = 64
 
 
 class SenDFuseFusionWrapper(FusionWrapper):
@@ -64,5 +68,8 @@ class SenDFuseFusionWrapper(FusionWrapper):
         with torch.inference_mode():
             maps = torch.from_numpy(np.ascontiguousarray(received, dtype=np.float32))
             mask = torch.from_numpy(np.asarray(valid) > 0.5)
-            fused = self.network.fuse(maps, mask, alpha=self.alpha)
-        return fused.numpy()
+            parts = [
+                self.network.fuse(maps[i : i + FUSE_CHUNK], mask[i : i + FUSE_CHUNK], alpha=self.alpha)
+                for i in range(0, len(maps), FUSE_CHUNK)
+            ]
+        return (parts[0] if len(parts) == 1 else torch.cat(parts)).numpy()

@@ -1,0 +1,141 @@
+"""``benchmarks/learning_curves.py``: curves and table from two tiny run folders, AG's and random's
+levels on exactly the validation missions, and clear errors naming a bad run folder."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import re
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from sb3_coma import COMA, evaluate
+from sb3_coma.checkpoints import validate_checkpoint
+from sb3_coma.training import train
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "learning_curves.py"
+ENV = "UavIpp-Env1-v0"
+ENV_KWARGS = {"fusion": "mean", "n_uavs": 2, "budget": 4, "noise": "moderate"}
+# tests/test_training.py's tiny runs: 2 UAVs, 4-step missions, 8 joint steps per rollout.
+TINY = {
+    ENV: {
+        "n_timesteps": 40,
+        "n_envs": 1,
+        "policy": "CnnPolicy",
+        "policy_kwargs": {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}},
+        "learning_rate": 1.0e-4,
+        "critic_learning_rate": 1.0e-3,
+        "batch_size": 8,
+        "n_steps": 8,
+        "n_epochs": 1,
+        "n_critic_epochs": 1,
+        "env_kwargs": ENV_KWARGS,
+    }
+}
+#: 6 validation missions: 3 eval env copies x 2 missions each, so the second mission of each copy
+#: comes from auto-reset, not from a seed of its own (what evaluate's per-trial seeds would fly).
+MISSIONS = 6
+
+
+def _load_script():
+    spec = importlib.util.spec_from_file_location("learning_curves", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while the class is made
+    spec.loader.exec_module(module)
+    return module
+
+
+lc = _load_script()
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> list[Path]:
+    root = tmp_path_factory.mktemp("curves")
+    config = root / "tiny.yml"
+    config.write_text(yaml.safe_dump(TINY))
+    out = []
+    for seed in (0, 1):
+        _, run = train(
+            env="env1",
+            config=config,
+            seed=seed,
+            run_dir=root / f"run_s{seed}",
+            eval_freq=16,
+            eval_missions=MISSIONS,
+            progress_bar=False,
+            verbose=0,
+        )
+        out.append(run)
+    return out
+
+
+def test_main_draws_the_curves_and_writes_the_table(runs, tmp_path, capsys):
+    figure, table = tmp_path / "fig" / "curves.png", tmp_path / "curves.md"
+    spec = "tiny=" + ",".join(str(r) for r in runs)
+    groups = lc.main(["--out", str(figure), "--table", str(table), spec])
+    assert figure.is_file() and figure.stat().st_size > 10_000
+    text = table.read_text()
+    assert text == capsys.readouterr().out.split("figure:")[0]  # printed and written alike
+    assert "| tiny | 2 (0, 1) | 8 |" in text  # evaluations at 16 and 32 joint steps = 4 and 8 missions
+    (group,) = groups
+    assert group.f1.shape == group.entropy.shape == (2, 2)
+    assert list(group.missions) == [4.0, 8.0]
+    assert group.validation.missions == MISSIONS and group.validation.seed == 1000
+    for name in ("ag", "random"):
+        f1, entropy = group.levels[name]
+        assert math.isfinite(f1) and 0.0 <= f1 <= 1.0
+        assert math.isfinite(entropy) and 0.0 <= entropy <= 1.0
+        assert f"{f1:.3f} / {entropy:.3f}" in text
+    assert group.levels["ag"][0] > group.levels["random"][0]
+
+
+def test_levels_are_flown_on_the_validation_missions(runs):
+    """The mechanism the levels use reproduces the callback's own evaluation: the best model flown
+    through it gives the very returns and F1 the run recorded at its best step. evaluate()'s
+    per-trial seeds share only each copy's first mission with it."""
+    run = lc.read_run(runs[0])
+    data = np.load(runs[0] / "eval" / "evaluations.npz")
+    k = list(data["timesteps"]).index(validate_checkpoint(runs[0] / "best_model.zip").num_timesteps)
+    model = COMA.load(runs[0] / "best_model.zip", device="cpu")
+    flown = lc.fly_validation(run.validation, lambda venv: model)
+    np.testing.assert_allclose(flown.returns, data["results"][k], rtol=1e-5)
+    assert flown.f1.mean() == pytest.approx(run.f1[k], abs=1e-6)  # TensorBoard keeps float32
+    assert flown.entropy.mean() == pytest.approx(run.entropy[k], abs=1e-6)
+
+    # AG decides from the env state alone: on a shared mission it flies the same route either way.
+    ag = lc.baseline_scores(run.validation, "ag")
+    options = {key: value for key, value in ENV_KWARGS.items() if key != "fusion"}
+    trials = evaluate("ag", env=ENV, n_trials=MISSIONS, seed=run.validation.seed, record=0, **options).f1[:, -1]
+    copies = run.validation.copies
+    assert copies == 3 and len(ag.f1) == MISSIONS
+    # missions are read as they end, copy by copy: the first mission of copies 0..2, then their second
+    np.testing.assert_allclose(ag.f1[:copies], trials[:copies])  # env seeds 1000..1002 in both
+    assert not np.allclose(ag.f1[copies:], trials[copies:])  # auto-reset missions vs seeds 1003..1005
+    assert lc.baseline_level(run.validation, "ag")[0] == pytest.approx(ag.f1.mean())
+
+
+def test_a_bad_run_folder_is_named(runs, tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(lc.RunDirError, match=re.escape(f"run folder {empty}: no config.yml")):
+        lc.main(["--out", str(tmp_path / "x.png"), f"g={runs[0]},{empty}"])
+
+    no_eval = tmp_path / "no_eval"
+    shutil.copytree(runs[0], no_eval, ignore=shutil.ignore_patterns("*.zip"))
+    (no_eval / "eval" / "evaluations.npz").unlink()
+    with pytest.raises(lc.RunDirError, match=re.escape(f"run folder {no_eval}: no eval/evaluations.npz")):
+        lc.read_run(no_eval)
+
+    no_tb = tmp_path / "no_tb"
+    shutil.copytree(runs[0], no_tb, ignore=shutil.ignore_patterns("*.zip", "tb"))
+    with pytest.raises(lc.RunDirError, match=re.escape(f"run folder {no_tb}: no TensorBoard event file")):
+        lc.read_run(no_tb)
+
+    with pytest.raises(lc.RunDirError, match="expected GROUP=RUN_DIR"):
+        lc.main(["--out", str(tmp_path / "x.png"), str(runs[0])])
+    assert not (tmp_path / "x.png").exists()
