@@ -13,30 +13,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from tiny_runs import ENV, ENV_KWARGS, tiny_entry
 
 from sb3_coma import COMA, evaluate
 from sb3_coma.checkpoints import validate_checkpoint
 from sb3_coma.training import train
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "learning_curves.py"
-ENV = "UavIpp-Env1-v0"
-ENV_KWARGS = {"fusion": "mean", "n_uavs": 2, "budget": 4, "noise": "moderate"}
 # tests/test_training.py's tiny runs: 2 UAVs, 4-step missions, 8 joint steps per rollout.
-TINY = {
-    ENV: {
-        "n_timesteps": 40,
-        "n_envs": 1,
-        "policy": "CnnPolicy",
-        "policy_kwargs": {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}},
-        "learning_rate": 1.0e-4,
-        "critic_learning_rate": 1.0e-3,
-        "batch_size": 8,
-        "n_steps": 8,
-        "n_epochs": 1,
-        "n_critic_epochs": 1,
-        "env_kwargs": ENV_KWARGS,
-    }
-}
+TINY = {ENV: tiny_entry()}
 #: 6 validation missions: 3 eval env copies x 2 missions each, so the second mission of each copy
 #: comes from auto-reset, not from a seed of its own (what evaluate's per-trial seeds would fly).
 MISSIONS = 6

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback
+from tiny_runs import ENV, tiny_entry
 
 import envs  # noqa: F401  (registers the gymnasium ids)
 from sb3_coma import cli, training_options
@@ -26,24 +27,9 @@ from sb3_coma.training import (
     train,
 )
 
-ENV = "UavIpp-Env1-v0"
 # 2 UAVs, 4-step missions, 8 joint steps per rollout (= 2 missions): every run is a few rollouts.
 TINY = {
-    ENV: {
-        "n_timesteps": 40,
-        "n_envs": 1,
-        "policy": "CnnPolicy",
-        "policy_kwargs": {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}},
-        "learning_rate": 1.0e-4,
-        "critic_learning_rate": 1.0e-3,
-        "batch_size": 8,
-        "n_steps": 8,
-        "n_epochs": 1,
-        "n_critic_epochs": 1,
-        "gamma": 0.99,
-        "td_lambda": 0.8,
-        "env_kwargs": {"fusion": "mean", "n_uavs": 2, "budget": 4, "noise": "moderate"},
-    },
+    ENV: tiny_entry(),
     "variants": {"cbam": {"policy": "CBAMPolicy"}, "loud": {"env_kwargs": {"noise": "loud"}}},
 }
 
