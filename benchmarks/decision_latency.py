@@ -48,7 +48,7 @@ def _model(name: str) -> tuple[Any, str]:
     from sb3_coma import COMA
 
     try:
-        from sb3_coma.pretrained import load_pretrained
+        from sb3_coma.app.pretrained import load_pretrained
 
         return load_pretrained(name), f"shipped model {name!r}"
     except Exception as exc:  # noqa: BLE001 - any failure: the cost does not depend on the weights
@@ -66,7 +66,7 @@ def _one_decision(env: str, seed: int = 0) -> tuple[dict[str, np.ndarray], dict[
     raw_env.close()
     raw = {k: np.ascontiguousarray(v[:1]) for k, v in obs.items()}
     fused_env = envs.make_vec_env(env, n_envs=1, fusion="sendfuse", seed=seed, comm_range=float("inf"))
-    from sb3_coma.export import _fusion_wrapper
+    from sb3_coma.app.export import _fusion_wrapper
 
     wrapper = _fusion_wrapper(fused_env)
     return raw, wrapper.observations(dict(raw)), wrapper
@@ -190,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run(args: argparse.Namespace, out: Path) -> int:
     """Export the model into ``out``, time every row, print the table (and the profiles)."""
-    from sb3_coma.export import ActorGraph, export_onnx, onnx_feeds, onnx_session
+    from sb3_coma.app.export import ActorGraph, export_onnx, onnx_feeds, onnx_session
 
     if args.tune_malloc:
         from sb3_coma.sendfuse.network import tune_cpu_allocator

@@ -12,7 +12,7 @@ the trained model (argmax actions), AG and random on the same ``--eval-missions`
 ``split="test"`` (trial k = env seed ``eval_seed + k`` for every method, ``sb3_coma.evaluate``)
 and prints final F1 / entropy (global map) and team F1 / entropy (the UAVs' own beliefs) as mean
 +- std over the missions, and the paired differences model - AG and model - random +- standard
-error (``sb3_coma.paired``). Missions are counted honestly: SB3 counts agent-steps, so
+error (``sb3_coma.common.paired``). Missions are counted honestly: SB3 counts agent-steps, so
 ``total_timesteps = missions * n_uavs * budget``. The model zip, a metrics JSON and the learning
 curve CSV go to ``--out`` (keep them out of the repository).
 """
@@ -113,8 +113,8 @@ def main(argv: list[str] | None = None) -> dict:
     th.set_num_threads(args.threads)
     import envs
     from sb3_coma import COMA, evaluate
-    from sb3_coma.marl_baselines import make_ippo, make_mappo, missions_of, timesteps_for_missions
-    from sb3_coma.paired import paired_difference
+    from sb3_coma.common.marl_baselines import make_ippo, make_mappo, missions_of, timesteps_for_missions
+    from sb3_coma.common.paired import paired_difference
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -7,7 +7,7 @@ Each ``label=path`` is a COMA zip or an SB3 PPO zip from ``benchmarks/ippo_vs_ag
 MAPPO); the first one is compared with every other and with AG. Every method flies the same
 ``split="test"`` missions (trial k = env seed k); a model's observation options (``action_gain``)
 follow what it was trained with. Prints final F1 / entropy and team F1 / entropy, mean over the
-missions, and the paired difference first - other +- standard error (``sb3_coma.paired``; within 2
+missions, and the paired difference first - other +- standard error (``sb3_coma.common.paired``; within 2
 standard errors it is a tie).
 """
 
@@ -19,9 +19,9 @@ import numpy as np
 import torch as th
 from stable_baselines3 import PPO
 
-import sb3_coma.marl_baselines  # noqa: F401  (the IPPO / MAPPO policy classes PPO.load needs)
+import sb3_coma.common.marl_baselines  # noqa: F401  (the IPPO / MAPPO policy classes PPO.load needs)
 from sb3_coma import COMA, evaluate
-from sb3_coma.paired import paired_difference
+from sb3_coma.common.paired import paired_difference
 
 METRICS = ("f1", "entropy", "team_f1", "team_entropy")
 

@@ -46,10 +46,10 @@ so every method meets the same maps, starts and noise. As ``evaluate`` flies bas
 baselines' env fuses with ``mean`` (they never read the fused channel, and the global map and the
 env's streams do not depend on the fusion) and the config's ``vec_env_wrapper`` is left out (it
 changes what a learner sees, not the missions); AG takes its map family's weighting
-(``sb3_coma.evaluation.planner_options``) and both planners are seeded with the eval seed.
+(``sb3_coma.common.evaluation.planner_options``) and both planners are seeded with the eval seed.
 
 The eval seed is the one the run's command recorded (``--eval-seed``), else
-``sb3_coma.training.VALIDATION_SEED`` (1000); ``--eval-seed`` here overrides it for runs made
+``sb3_coma.app.training.VALIDATION_SEED`` (1000); ``--eval-seed`` here overrides it for runs made
 from Python with another seed.
 """
 
@@ -72,11 +72,11 @@ import numpy as np
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_coma.app.config import TrainConfig, TrainingError, env_options_of, make_vec_env_from_kwargs, plain
+from sb3_coma.app.evaluation import planner_options
+from sb3_coma.app.runs import CONFIG_FILE, TENSORBOARD_DIR, read_run_config
+from sb3_coma.app.training import VALIDATION_SEED, _eval_copies
 from sb3_coma.baselines import make_planner
-from sb3_coma.config import TrainConfig, TrainingError, env_options_of, make_vec_env_from_kwargs, plain
-from sb3_coma.evaluation import planner_options
-from sb3_coma.runs import CONFIG_FILE, TENSORBOARD_DIR, read_run_config
-from sb3_coma.training import VALIDATION_SEED, _eval_copies
 
 #: The TensorBoard scalars ``MissionEvalCallback`` logs at each evaluation.
 TAGS: dict[str, str] = {"f1": "eval/mean_f1", "entropy": "eval/mean_entropy"}
@@ -177,7 +177,7 @@ def _evaluations(run: Path, n_agents: int) -> tuple[np.ndarray, int]:
 
 def _tensorboard_scalars(run: Path, tags: Sequence[str]) -> dict[str, dict[int, float]]:
     """``{tag: {step: value}}`` over every event file under ``run/tb`` (a resumed run appends files;
-    the last value written at a step wins). ``sb3_coma.plots._read_tensorboard`` numbers the points
+    the last value written at a step wins). ``sb3_coma.experiments.plots._read_tensorboard`` numbers the points
     1..n instead of keeping their steps, which these curves need, so this reads the same
     ``EventAccumulator`` keeping them."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator

@@ -1,6 +1,6 @@
 """SenDFuse deployment speed: the fused map per UAV-step, and the env step rate it leaves.
 
-Two figures (DESIGN section 4; target <= 2 ms per UAV-step on one core):
+Two figures (docs/design.md §4; target <= 2 ms per UAV-step on one core):
 
 1. ``SenDFuseNet.fuse`` for 4 UAVs x 4 received maps (R = 44) on one thread, with the shipped
    weights (a fresh network if the file is missing: the cost does not depend on the values);

@@ -25,8 +25,8 @@ import yaml
 
 from envs import WORLD_VERSION
 from sb3_coma import COMA, training_options
-from sb3_coma import pretrained as pt
-from sb3_coma.reproduce import _curve_from_metrics
+from sb3_coma.app import pretrained as pt
+from sb3_coma.experiments.reproduce import _curve_from_metrics
 
 
 def validation_best(run: Path) -> tuple[float, int]:

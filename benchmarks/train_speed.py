@@ -77,8 +77,8 @@ def parse_args() -> argparse.Namespace:
 def main() -> None:
     args = parse_args()
     th.set_num_threads(args.threads)
-    from sb3_coma.export import _fusion_wrapper
-    from sb3_coma.training import build_model, make_training_env, plan_run
+    from sb3_coma.app.export import _fusion_wrapper
+    from sb3_coma.app.training import build_model, make_training_env, plan_run
 
     plan = plan_run(env=args.env, variant=args.variant, seed=args.seed, device="cpu")
     venv = make_training_env(plan.cfg, seed=plan.seed)

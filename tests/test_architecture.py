@@ -1,18 +1,20 @@
-"""The import arrows of DESIGN section 2, checked on the source (AST), not at run time.
+"""The import arrows of docs/design.md, checked on the source (AST), not at run time.
 
-Layers, each importing only from the layers below it:
+Layers, by folder; each imports only from its own layer and the layers below it:
 
-1. ``envs`` (the world): imports nothing from ``sb3_coma``. Fusion wrappers that live on the
+0. ``envs`` (the world): imports nothing from ``sb3_coma``. Fusion wrappers that live on the
    algorithm side (SenDFuse) reach ``envs.make_vec_env`` through the ``uav_ipp.fusion`` entry
    point, looked up when an env is wrapped.
-2. the library of ``sb3_coma``: every module that is not in :data:`APPLICATION` - the algorithm
-   (``coma/``: COMA, policies, buffer, targets), ``extractors``, ``sendfuse/``, ``baselines/``
-   and the learned baselines (``marl_baselines``), ``evaluation``, ``protocols``, ``paired``,
-   ``costs``, ``ag_weighting``, ``callbacks``, ``checkpoints``, ``pretrained``, ``export``, the
-   config format (``config``) and run folders (``runs``), and the package's ``__init__``. A new
-   module is library unless it is added to :data:`APPLICATION`.
-3. the application: training runs, the CLI, the rl-zoo entry, reproduce and its reports, plots,
-   and the experiments built on top of the library (:data:`APPLICATION`).
+1. the library: ``sb3_coma/coma/`` (the algorithm), ``sb3_coma/sendfuse/``, ``sb3_coma/baselines/``,
+   ``sb3_coma/common/`` (evaluation of objects, tables, extractors, callbacks, checkpoints, paired
+   statistics, IPPO/MAPPO) and the package's ``__init__`` (whose two front doors load the
+   application lazily, by a name held in data, never by an import statement).
+2. the application: ``sb3_coma/app/`` (training runs, config, zoo, pretrained, export, the
+   evaluation front door) and the top-level shims that keep public names (``sb3_coma/training.py``,
+   ``sb3_coma/zoo.py``).
+3. the experiments: ``sb3_coma/experiments/`` (reproduce, report, plots, ablation, noise sweep,
+   AG weighting, protocols, costs).
+4. the command line: ``sb3_coma/cli/`` and ``sb3_coma/__main__.py``, which names every command.
 
 Every ``import`` / ``from ... import`` counts, wherever it sits (module level, inside functions,
 under ``if TYPE_CHECKING``), and so does ``importlib.import_module("...")`` with a literal name.
@@ -21,6 +23,8 @@ under ``if TYPE_CHECKING``), and so does ``importlib.import_module("...")`` with
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,20 +32,33 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 
-#: Application modules of ``sb3_coma`` (dotted names; a name ending in ``.`` is a whole package).
-APPLICATION = (
-    "sb3_coma.__main__",
-    "sb3_coma.ablation",
-    "sb3_coma.cli",
-    "sb3_coma.commands.",
-    "sb3_coma.noise_sweep",
-    "sb3_coma.plots",
-    "sb3_coma.report",
-    "sb3_coma.reproduce",
-    "sb3_coma.training",
-    "sb3_coma.zoo",
-    "sb3_coma.zoo_sampler",
-)
+#: Layer of each folder (or top-level module) of ``sb3_coma``; a module outside these fails the test.
+LAYERS: dict[str, int] = {
+    "sb3_coma": 1,  # the package __init__
+    "sb3_coma.coma": 1,
+    "sb3_coma.sendfuse": 1,
+    "sb3_coma.baselines": 1,
+    "sb3_coma.common": 1,
+    "sb3_coma.app": 2,
+    "sb3_coma.training": 2,
+    "sb3_coma.zoo": 2,
+    "sb3_coma.experiments": 3,
+    "sb3_coma.cli": 4,
+    "sb3_coma.__main__": 4,
+}
+LAYER_NAMES = {0: "envs", 1: "library", 2: "application", 3: "experiments", 4: "cli"}
+
+
+def layer_of(module: str) -> int | None:
+    """The layer of a module of this repository (``None``: not ours, e.g. numpy)."""
+    if module == "envs" or module.startswith("envs."):
+        return 0
+    if module == "sb3_coma":
+        return LAYERS["sb3_coma"]
+    parts = module.split(".")
+    if parts[0] != "sb3_coma":
+        return None
+    return LAYERS.get(".".join(parts[:2]))
 
 
 @dataclass(frozen=True)
@@ -113,80 +130,114 @@ def _sources(package: str) -> list[Path]:
     return sorted((ROOT / package).rglob("*.py"))
 
 
-def _is_application(module: str) -> bool:
-    return any(
-        module.startswith(a) if a.endswith(".") else module == a or module.startswith(a + ".") for a in APPLICATION
-    )
-
-
 def _all_imports(package: str) -> list[Import]:
     return [imp for path in _sources(package) for imp in imports_of(path)]
 
 
 def test_the_walker_sees_imports_everywhere(tmp_path: Path) -> None:
     """Imports inside functions, under TYPE_CHECKING and through importlib all count."""
-    sample = ROOT / "sb3_coma" / "commands" / "train.py"
+    sample = ROOT / "sb3_coma" / "cli" / "commands" / "train.py"
     targets = {imp.target for imp in imports_of(sample)}
-    assert {"sb3_coma.training", "sb3_coma.cli", "yaml"} <= targets
-    cli = {imp.target for imp in imports_of(ROOT / "sb3_coma" / "cli.py")}
-    assert "sb3_coma.commands" in cli  # ``from sb3_coma import commands`` is the subpackage
+    assert {"sb3_coma.app.training", "yaml"} <= targets
+    cli = {imp.target for imp in imports_of(ROOT / "sb3_coma" / "cli" / "__init__.py")}
+    assert "sb3_coma.cli.commands" in cli  # ``from sb3_coma.cli import commands`` is the subpackage
     probe = tmp_path / "probe.py"
     probe.write_text(
-        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import sb3_coma.training\n"
-        "def f():\n    from .. import zoo\n    import importlib\n    importlib.import_module('sb3_coma.cli')\n"
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import sb3_coma.app.training\n"
+        "def f():\n    from ..app import zoo\n    import importlib\n    importlib.import_module('sb3_coma.cli')\n"
     )
     got = {imp.target for imp in imports_of(probe, module="sb3_coma.baselines.probe")}
-    assert {"sb3_coma.training", "sb3_coma.zoo", "sb3_coma.cli"} <= got
+    assert {"sb3_coma.app.training", "sb3_coma.app.zoo", "sb3_coma.cli"} <= got
 
 
 def test_envs_imports_nothing_from_sb3_coma() -> None:
     bad = [imp for imp in _all_imports("envs") if imp.target == "sb3_coma" or imp.target.startswith("sb3_coma.")]
-    assert not bad, "envs must not import sb3_coma (DESIGN section 2):\n" + "\n".join(map(str, bad))
+    assert not bad, "envs must not import sb3_coma (docs/design.md):\n" + "\n".join(map(str, bad))
 
 
-def test_library_imports_nothing_from_the_application() -> None:
+def test_every_module_sits_in_a_layer_folder() -> None:
+    """A new module must go into a layer's folder (or be added to LAYERS on purpose)."""
+    modules = {_module_name(path) for path in _sources("sb3_coma")}
+    homeless = sorted(m for m in modules if layer_of(m) is None)
+    assert not homeless, f"modules outside the layer folders: {homeless}"
+
+
+def test_imports_point_only_down_the_layers() -> None:
     imports = _all_imports("sb3_coma")
-    library = [imp for imp in imports if not _is_application(imp.module)]
-    assert library, "no library modules found"
-    bad = [imp for imp in library if _is_application(imp.target)]
-    assert not bad, (
-        "library modules of sb3_coma import application modules (DESIGN section 2; move the "
-        "shared code into the library, or list the importer in APPLICATION if it is an application "
-        "module):\n" + "\n".join(map(str, bad))
-    )
+    assert {layer_of(imp.module) for imp in imports} >= {1, 2, 3, 4}, "a layer has no modules"
+    bad = []
+    for imp in imports:
+        own, target = layer_of(imp.module), layer_of(imp.target)
+        if own is not None and target is not None and target > own:
+            bad.append(f"{imp} ({LAYER_NAMES[own]} -> {LAYER_NAMES[target]})")
+    assert not bad, "imports that point up the layers (docs/design.md):\n" + "\n".join(bad)
 
 
 @pytest.mark.parametrize(
-    "module",
+    ("module", "layer"),
     [
-        "sb3_coma.training",
-        "sb3_coma.zoo",
-        "sb3_coma.cli",
-        "sb3_coma.commands.train",
-        "sb3_coma.reproduce",
-        "sb3_coma.plots",
-        "sb3_coma.ablation",
+        ("sb3_coma.coma.coma", 1),
+        ("sb3_coma.common.evaluation", 1),
+        ("sb3_coma.common.paired", 1),
+        ("sb3_coma.app.training", 2),
+        ("sb3_coma.app.evaluation", 2),
+        ("sb3_coma.experiments.reproduce", 3),
+        ("sb3_coma.cli.commands.train", 4),
     ],
 )
-def test_application_list_names_real_modules(module: str) -> None:
-    assert _is_application(module) and _is_module(module), module
+def test_layer_table_names_real_modules(module: str, layer: int) -> None:
+    assert _is_module(module) and layer_of(module) == layer, module
 
 
-def test_library_list_in_the_docstring_names_real_modules() -> None:
-    for name in (
-        "coma",
-        "coma.policies",
-        "extractors",
-        "sendfuse",
-        "baselines",
-        "evaluation",
-        "paired",
-        "callbacks",
-        "checkpoints",
-        "pretrained",
-        "export",
-        "config",
-        "runs",
-    ):
-        module = f"sb3_coma.{name}"
-        assert _is_module(module) and not _is_application(module), module
+def _module_level_graph() -> dict[str, set[str]]:
+    """module -> sb3_coma modules it imports at module level (what runs at import time)."""
+    graph: dict[str, set[str]] = {}
+    for path in _sources("sb3_coma"):
+        module = _module_name(path)
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        found: set[str] = set()
+        for node in tree.body:
+            if isinstance(node, ast.ImportFrom):
+                base = _resolve(module, path.name == "__init__.py", node)
+                found |= {f"{base}.{a.name}" if _is_module(f"{base}.{a.name}") else base for a in node.names}
+            elif isinstance(node, ast.Import):
+                found |= {a.name for a in node.names}
+        graph[module] = {m for m in found if m.startswith("sb3_coma") and m != module}
+    return graph
+
+
+def test_no_import_cycles_between_modules() -> None:
+    graph = _module_level_graph()
+    # a package's __init__ importing its own submodules is how packages export names, not a cycle
+    edges = {m: {t for t in ts if not t.startswith(m + ".")} for m, ts in graph.items()}
+    state: dict[str, int] = {}
+    cycles: list[str] = []
+
+    def visit(node: str, stack: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(edges.get(node, ())):
+            if state.get(nxt) == 1:
+                cycles.append(" -> ".join([*stack[stack.index(nxt) :], nxt]) if nxt in stack else f"{node} -> {nxt}")
+            elif nxt in edges and not state.get(nxt):
+                visit(nxt, [*stack, nxt])
+        state[node] = 2
+
+    for module in sorted(edges):
+        if not state.get(module):
+            visit(module, [module])
+    assert not cycles, "import cycles:\n" + "\n".join(cycles)
+
+
+def test_import_sb3_coma_loads_neither_rl_zoo3_nor_the_application() -> None:
+    code = (
+        "import sys, sb3_coma\n"
+        "bad = [m for m in sys.modules if m == 'rl_zoo3' or m.startswith(('rl_zoo3.', 'sb3_coma.app', "
+        "'sb3_coma.experiments', 'sb3_coma.cli'))]\n"
+        "print(bad)\n"
+        "from sb3_coma import evaluate, load_pretrained\n"
+        "print(evaluate.__module__, load_pretrained.__module__)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
+    lines = out.stdout.strip().splitlines()
+    assert lines[0] == "[]", lines[0]
+    assert lines[1] == "sb3_coma.app.evaluation sb3_coma.app.pretrained"

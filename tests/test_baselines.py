@@ -165,7 +165,7 @@ def test_navigation_avoids_no_fly_and_masks():
 
 def test_lawnmower_respects_masks_and_keeps_moving_on_env3():
     """env3 has no-fly columns: UAVs detour around them and around each other, never deadlock."""
-    from sb3_coma.evaluation import evaluate
+    from sb3_coma.app.evaluation import evaluate
 
     _, pairs, _ = _fly("lawnmower", "env3", budget=8)
     assert _all_valid(pairs)

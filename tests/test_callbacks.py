@@ -10,15 +10,15 @@ from stable_baselines3.common.logger import KVWriter, Logger, make_output_format
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 import envs
-from sb3_coma.callbacks import (
+from sb3_coma.coma import COMA
+from sb3_coma.common.callbacks import (
     EpisodeMetricsCallback,
     JointCheckpointCallback,
     MissionEvalCallback,
     StopOnTargetCallback,
     truncate_metrics_csv,
 )
-from sb3_coma.checkpoints import CheckpointError, atomic_save, find_checkpoints, validate_checkpoint
-from sb3_coma.coma import COMA
+from sb3_coma.common.checkpoints import CheckpointError, atomic_save, find_checkpoints, validate_checkpoint
 
 N_AGENTS, BUDGET = 2, 3
 
@@ -271,7 +271,7 @@ def test_resumed_evaluation_keeps_the_earlier_record_and_best(tmp_path):
 
 
 def test_a_half_written_metrics_row_is_dropped_on_resume(tmp_path):
-    from sb3_coma.callbacks import METRIC_COLUMNS, truncate_metrics_csv
+    from sb3_coma.common.callbacks import METRIC_COLUMNS, truncate_metrics_csv
 
     path = tmp_path / "metrics.csv"
     full = ",".join(str(i + 1) for i in range(len(METRIC_COLUMNS)))

@@ -111,7 +111,7 @@ class Files:
     def coma_zip(self) -> Path:
         """A valid COMA checkpoint trained for 2 UAVs (no training: just the saved networks)."""
         from sb3_coma import COMA
-        from sb3_coma.checkpoints import atomic_save
+        from sb3_coma.common.checkpoints import atomic_save
 
         model = COMA(
             "CnnPolicy",
@@ -126,8 +126,8 @@ class Files:
     def trained_zip(self) -> Path:
         """A COMA zip that records its training env as ``sb3-coma train`` does (2 UAVs, mean fusion)."""
         from sb3_coma import COMA
-        from sb3_coma.checkpoints import atomic_save
-        from sb3_coma.training import record_env_options
+        from sb3_coma.app.training import record_env_options
+        from sb3_coma.common.checkpoints import atomic_save
 
         model = COMA(
             "CnnPolicy",
@@ -322,13 +322,13 @@ def _step_after_end(files: Files):
 def _load_config(
     files: Files, overrides: dict | None = None, variant: str | None = None, env: str = "env1", path: Path | None = None
 ):
-    from sb3_coma.training import load_config
+    from sb3_coma.app.training import load_config
 
     return load_config(env, path or files.config(), variant, overrides)
 
 
 def _train(files: Files, **kwargs):
-    from sb3_coma.training import train
+    from sb3_coma.app.training import train
 
     return train(progress_bar=False, verbose=0, handle_signals=False, runs_root=files.path("runs"), **kwargs)
 
@@ -348,13 +348,13 @@ def _load_weights(path: Path, **kwargs):
 
 
 def _validate(path: Path):
-    from sb3_coma.checkpoints import validate_checkpoint
+    from sb3_coma.common.checkpoints import validate_checkpoint
 
     return validate_checkpoint(path)
 
 
 def _load_checkpoint(path: Path, files: Files):
-    from sb3_coma.checkpoints import load_checkpoint
+    from sb3_coma.common.checkpoints import load_checkpoint
 
     return load_checkpoint(path, env=files.venv, device="cpu")
 
@@ -406,7 +406,7 @@ def _coma_without_gpu(files: Files, device: str):
 
 def _save_on_full_disk(files: Files):
     """``atomic_save`` over an existing model while the disk is full."""
-    from sb3_coma.checkpoints import atomic_save
+    from sb3_coma.common.checkpoints import atomic_save
 
     model = _coma(files, policy_kwargs={"features_extractor_kwargs": {"features_dim": 16}})
     previous = files.path("models/previous.zip")
@@ -416,15 +416,15 @@ def _save_on_full_disk(files: Files):
 
 
 def _zoo_args(argv: list[str]):
-    from sb3_coma import zoo
+    from sb3_coma.app import zoo
 
     return zoo.train_parser().parse_args(argv)
 
 
 def _errors():
-    from sb3_coma.checkpoints import CheckpointError, DiskFullError
+    from sb3_coma.app.training import TrainingError
+    from sb3_coma.common.checkpoints import CheckpointError, DiskFullError
     from sb3_coma.sendfuse import SenDFuseWeightsError
-    from sb3_coma.training import TrainingError
 
     return CheckpointError, DiskFullError, SenDFuseWeightsError, TrainingError
 
@@ -439,7 +439,7 @@ Y = "YAML config and train()"
 MF = "model file"
 W = "SenDFuse weights"
 EV = "evaluate()"
-Z = "rl-zoo3 entry (python -m sb3_coma.zoo)"
+Z = "rl-zoo3 entry (python -m sb3_coma.app.zoo)"
 
 #: A quick evaluation (2 UAVs, 2 decisions, one mission): a case fails fast even if unchecked.
 _QUICK_EVALUATE = ["evaluate", "--methods", "random", "--trials", "1", "--uavs", "2", "--budget", "2", "--no-plots"]
@@ -1160,7 +1160,7 @@ CASES: list[Case | CliCase] = [
         "yaml-policy-not-importable",
         Y,
         "policy: mypkg.MyPolicy",
-        lambda f: __import__("sb3_coma.training", fromlist=["coma_kwargs"]).coma_kwargs(
+        lambda f: __import__("sb3_coma.app.training", fromlist=["coma_kwargs"]).coma_kwargs(
             _load_config(f, {"policy": "mypkg.MyPolicy"}).entry
         ),
         TrainingError,
@@ -1171,7 +1171,7 @@ CASES: list[Case | CliCase] = [
         "yaml-policy_kwargs-syntax",
         Y,
         'policy_kwargs: "dict(net_arch=)"',
-        lambda f: __import__("sb3_coma.training", fromlist=["resolve_policy_kwargs"]).resolve_policy_kwargs(
+        lambda f: __import__("sb3_coma.app.training", fromlist=["resolve_policy_kwargs"]).resolve_policy_kwargs(
             "dict(net_arch=)"
         ),
         TrainingError,
@@ -1181,12 +1181,12 @@ CASES: list[Case | CliCase] = [
     Case(
         "yaml-callback-bad-arguments",
         Y,
-        "callback: [{sb3_coma.callbacks.StopOnTargetCallback: {metric: speed}}]",
+        "callback: [{sb3_coma.common.callbacks.StopOnTargetCallback: {metric: speed}}]",
         lambda f: _train(
             f,
             env="env1",
             config=f.config(),
-            overrides={"callback": [{"sb3_coma.callbacks.StopOnTargetCallback": {"metric": "speed"}}]},
+            overrides={"callback": [{"sb3_coma.common.callbacks.StopOnTargetCallback": {"metric": "speed"}}]},
         ),
         TrainingError,
         ("'speed'", "StopOnTargetCallback"),
@@ -1246,7 +1246,7 @@ CASES: list[Case | CliCase] = [
     Case(
         "zoo-params-not-python",
         Z,
-        "python -m sb3_coma.zoo train -params batch_size:abc",
+        "python -m sb3_coma.app.zoo train -params batch_size:abc",
         lambda f: _zoo_args(["-params", "batch_size:abc"]),
         TrainingError,
         ("batch_size", "'abc'"),
@@ -1810,7 +1810,7 @@ def test_a_missing_gpu_is_refused_before_the_run_folder_is_made(files, in_tmp):
 
 def test_a_full_disk_keeps_the_previous_checkpoint(files, in_tmp, capsys):
     from sb3_coma import cli
-    from sb3_coma.checkpoints import validate_checkpoint
+    from sb3_coma.common.checkpoints import validate_checkpoint
 
     run = files.path("runs/full_disk")
     argv = ["train", "--env", "env1", "--config", str(files.config()), "--timesteps", "16", "--save-freq", "8"]
@@ -1826,13 +1826,13 @@ def test_a_full_disk_keeps_the_previous_checkpoint(files, in_tmp, capsys):
 
 @pytest.mark.parametrize("value", ["batch_size:abc", "batch_size:'abc'"])
 def test_zoo_bad_params_are_one_line_exit_2(value, files, in_tmp, capsys):
-    from sb3_coma import zoo
+    from sb3_coma.app import zoo
 
     log = str(files.path("zoo_logs"))
     rc = zoo.main(["train", "--env", ENV_ID, "-n", "8", "--eval-freq", "-1", "-f", log, "-params", value])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1, err
-    assert err[0].startswith("sb3_coma.zoo train: error: ") and "batch_size" in err[0] and "'abc'" in err[0]
+    assert err[0].startswith("sb3_coma.app.zoo train: error: ") and "batch_size" in err[0] and "'abc'" in err[0]
 
 
 def test_a_model_flown_as_trained_gives_no_mismatch_warning(files, in_tmp):

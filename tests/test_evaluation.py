@@ -12,10 +12,12 @@ import pytest
 
 import envs
 from envs.config import ConfigError
-from sb3_coma import ablation
 from sb3_coma import evaluate as evaluate_export
+from sb3_coma.app.evaluation import evaluate
 from sb3_coma.cli import main
-from sb3_coma.evaluation import FRACTIONS, evaluate, rows_for, table_markdown, write_table_csv
+from sb3_coma.common.evaluation import FRACTIONS
+from sb3_coma.common.tables import rows_for, table_markdown, write_table_csv
+from sb3_coma.experiments import ablation
 
 SMALL = dict(env="env1", budget=3, noise="moderate")
 
@@ -124,10 +126,10 @@ def test_cli_errors(capsys):
     assert main(["evaluate", "--trials", "0"]) == 2
 
 
-@pytest.mark.skipif(importlib.util.find_spec("sb3_coma.pretrained") is not None, reason="shipped models exist")
+@pytest.mark.skipif(importlib.util.find_spec("sb3_coma.app.pretrained") is not None, reason="shipped models exist")
 def test_pretrained_name_without_pretrained_module(capsys):
     assert main(["evaluate", "--env", "env1", "--methods", "", "--model", "env3"]) == 2
-    assert "sb3_coma.pretrained" in capsys.readouterr().err
+    assert "sb3_coma.app.pretrained" in capsys.readouterr().err
 
 
 def test_cli_writes_table_and_plots(tmp_path, capsys):

@@ -1,4 +1,4 @@
-"""ONNX export (``sb3_coma.export``, ``sb3-coma export``): the exported graphs act like the model.
+"""ONNX export (``sb3_coma.app.export``, ``sb3-coma export``): the exported graphs act like the model.
 
 Observations are recorded once by flying random valid actions on env1, env2 and env3 with the raw
 observation (``fusion="none"``: the 7 local channels plus the received maps), then fused by the
@@ -19,8 +19,7 @@ import yaml
 import envs
 from envs import layout
 from sb3_coma import COMA
-from sb3_coma.cli import main as cli_main
-from sb3_coma.export import (
+from sb3_coma.app.export import (
     ACTOR_FILE,
     FUSION_FILE,
     METADATA_FILE,
@@ -29,6 +28,7 @@ from sb3_coma.export import (
     export_onnx,
     onnx_session,
 )
+from sb3_coma.cli import main as cli_main
 
 MAPS = ("env1", "env2", "env3")
 #: Joint steps recorded per map: 4 UAVs x 20 steps (one mission of 15 and the start of the next).

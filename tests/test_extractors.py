@@ -7,7 +7,7 @@ import pytest
 import torch as th
 from gymnasium import spaces
 
-from sb3_coma.extractors import CBAM, CBAMExtractor, CnnExtractor
+from sb3_coma.common.extractors import CBAM, CBAMExtractor, CnnExtractor
 
 LOCAL = spaces.Box(0.0, 1.0, (8, 11, 11), dtype=np.float32)
 CRITIC = spaces.Box(0.0, 1.0, (12, 11, 11), dtype=np.float32)

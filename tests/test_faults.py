@@ -25,7 +25,13 @@ import pytest
 import yaml
 
 from sb3_coma import cli
-from sb3_coma.checkpoints import CheckpointError, atomic_save, find_checkpoints, last_checkpoint, validate_checkpoint
+from sb3_coma.common.checkpoints import (
+    CheckpointError,
+    atomic_save,
+    find_checkpoints,
+    last_checkpoint,
+    validate_checkpoint,
+)
 
 REPO = Path(__file__).resolve().parent.parent
 ENV_ID = "UavIpp-Env1-v0"
@@ -252,7 +258,7 @@ def test_crash_before_replace_keeps_the_final_model(tmp_path, tiny_model, monkey
 
 
 def test_truncated_checkpoint_is_refused_with_a_clear_error(tmp_path, tiny_model, capsys):
-    from sb3_coma.checkpoints import load_checkpoint
+    from sb3_coma.common.checkpoints import load_checkpoint
 
     path = atomic_save(tiny_model, tmp_path / "rl_model_8_steps.zip")
     data = path.read_bytes()
@@ -273,7 +279,7 @@ def test_nan_in_a_loss_stops_training_without_saving_a_model(tmp_path, single_th
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from sb3_coma.training import train
+    from sb3_coma.app.training import train
 
     class PoisonCritic(BaseCallback):
         """Set one critic weight to NaN before the first update: the critic loss becomes NaN."""

@@ -156,7 +156,7 @@ def test_bad_gain_prior_options(kwargs, match):
 
 
 def test_untrained_prior_is_the_greedy_mix_the_training_starts_from():
-    from sb3_coma.reproduce import untrained_prior
+    from sb3_coma.experiments.reproduce import untrained_prior
 
     model, venv = _small_model(gain_prior=3.0)
     model.learn(32)
@@ -186,7 +186,7 @@ def test_gain_prior_per_row_start_saves_and_loads(tmp_path: Path):
     loaded = COMA.load(tmp_path / "m.zip", env=venv)
     assert loaded.policy.gain_prior == [10.0, 0.0] and loaded.policy.gain_prior_init == (10.0, 0.0)
     assert th.allclose(loaded.policy.actor.prior_weights, model.policy.actor.prior_weights)
-    from sb3_coma.reproduce import untrained_prior
+    from sb3_coma.experiments.reproduce import untrained_prior
 
     np.testing.assert_allclose(untrained_prior(loaded).actor.prior_weights.detach().numpy(), [10.0, 0.0], rtol=1e-6)
     venv.close()

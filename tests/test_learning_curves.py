@@ -16,8 +16,8 @@ import yaml
 from tiny_runs import ENV, ENV_KWARGS, tiny_entry
 
 from sb3_coma import COMA, evaluate
-from sb3_coma.checkpoints import validate_checkpoint
-from sb3_coma.training import train
+from sb3_coma.app.training import train
+from sb3_coma.common.checkpoints import validate_checkpoint
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "learning_curves.py"
 # tests/test_training.py's tiny runs: 2 UAVs, 4-step missions, 8 joint steps per rollout.

@@ -1,4 +1,4 @@
-"""IPPO / MAPPO (sb3_coma.marl_baselines): masking, what the actor reads, save/load, a short run."""
+"""IPPO / MAPPO (sb3_coma.common.marl_baselines): masking, what the actor reads, save/load, a short run."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from stable_baselines3.common.utils import obs_as_tensor
 
 import envs
 from envs import layout
-from sb3_coma.marl_baselines import (
+from sb3_coma.common.marl_baselines import (
     DEFAULT_PPO_KWARGS,
     IPPOPolicy,
     MAPPOPolicy,

@@ -1,4 +1,4 @@
-"""``sb3_coma.memory``: freed heap goes back to the OS between mission batches."""
+"""``sb3_coma.common.memory``: freed heap goes back to the OS between mission batches."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import platform
 import numpy as np
 import pytest
 
-from sb3_coma import memory
+from sb3_coma.common import memory
 
 
 def _rss_bytes() -> int:

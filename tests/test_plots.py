@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sb3_coma import plots
-from sb3_coma.evaluation import evaluate
+from sb3_coma.app.evaluation import evaluate
+from sb3_coma.experiments import plots
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -11,9 +11,9 @@ import pytest
 import envs
 from sb3_coma import COMA
 from sb3_coma import load_pretrained as exported
-from sb3_coma import pretrained as pt
-from sb3_coma.checkpoints import training_options
-from sb3_coma.pretrained import PretrainedError, load_pretrained
+from sb3_coma.app import pretrained as pt
+from sb3_coma.app.pretrained import PretrainedError, load_pretrained
+from sb3_coma.common.checkpoints import training_options
 
 pytestmark = pytest.mark.skipif(not (pt.pretrained_dir() / pt.MANIFEST).is_file(), reason="no shipped models")
 
@@ -45,8 +45,8 @@ def test_manifest_env_options_are_the_models_own_record():
 
 
 def test_ablation_arms_are_shipped_with_their_fusion_and_extractor():
-    from sb3_coma.extractors import CBAMExtractor
-    from sb3_coma.reproduce import ABLATION_ARMS
+    from sb3_coma.common.extractors import CBAMExtractor
+    from sb3_coma.experiments.reproduce import ABLATION_ARMS
 
     for (fusion, extractor), name in ABLATION_ARMS.items():
         model = load_pretrained(name)
@@ -127,7 +127,7 @@ def test_shipped_form_is_compact_and_flies_like_the_full_model(tmp_path):
     import torch as th
 
     import envs
-    from sb3_coma.pretrained import save_for_shipping
+    from sb3_coma.app.pretrained import save_for_shipping
 
     venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, n_uavs=2, budget=4)
     model = COMA("CBAMPolicy", venv, seed=0, n_steps=8, batch_size=8, n_epochs=1, device="cpu")

@@ -12,13 +12,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from sb3_coma.ag_weighting import VALIDATION_SEED, pick_ag_weighting, validation_options
+from sb3_coma.app.evaluation import evaluate
 from sb3_coma.baselines.adaptive_gain import FALLBACK_WEIGHTING, WEIGHTING_BY_MAP, default_weighting
 from sb3_coma.cli import main
-from sb3_coma.evaluation import PROTOCOLS, evaluate
-from sb3_coma.noise_sweep import QUICK_AXES, run_noise_sweep, sweep_points
-from sb3_coma.paired import paired_difference
-from sb3_coma.protocols import BASELINE_METHODS, Method, ProtocolResult, default_pairs, run_protocol
+from sb3_coma.common.evaluation import PROTOCOLS
+from sb3_coma.common.paired import paired_difference
+from sb3_coma.experiments.ag_weighting import VALIDATION_SEED, pick_ag_weighting, validation_options
+from sb3_coma.experiments.noise_sweep import QUICK_AXES, run_noise_sweep, sweep_points
+from sb3_coma.experiments.protocols import BASELINE_METHODS, Method, ProtocolResult, default_pairs, run_protocol
 
 TINY = dict(budget=3)
 METRIC_HEADS = ("F1-Score", "Entropy", "team F1", "team entropy")
@@ -112,7 +113,7 @@ def test_verdicts_call_a_difference_within_the_standard_error_a_tie():
     assert c.diffs["entropy"].verdict == "tie" and c.diffs["team_entropy"].verdict == "tie"
     assert "(tie)" in result.verdict_table([c]) and "(a)" not in result.verdict_table([c])
     # and the acceptance table does not count a tie as a win
-    from sb3_coma.reproduce import acceptance
+    from sb3_coma.experiments.reproduce import acceptance
 
     acc = acceptance([_fake("coma", [0.40, 0.42, 0.39, 0.41]), _fake("ag", [0.41, 0.40, 0.40, 0.40])])["env1"]
     assert not acc["beats_entropy"] and acc["paired"]["ag"]["entropy"]["verdict"] == "tie"
@@ -238,7 +239,7 @@ def test_noise_sweep_quick_table_has_both_metric_families(tmp_path):
     with result.write_csv(tmp_path / "s.csv").open() as fh:
         header = next(csv.reader(fh))
     assert {"f1_mean", "entropy_mean", "team_f1_mean", "team_entropy_mean", "team_entropy_vs_ag_verdict"} <= set(header)
-    from sb3_coma import plots
+    from sb3_coma.experiments import plots
 
     assert plots.plot_noise_sweep(result, tmp_path / "s.png").stat().st_size > 0
     with pytest.raises(ValueError, match="sets \\['sigma'\\] itself"):
@@ -259,7 +260,7 @@ def test_noise_sweep_command_quick(tmp_path, capsys):
 
 # ------------------------------------------------------------------ costs, reproduce with baselines only
 def test_cost_table_times_ag_for_every_lookahead():
-    from sb3_coma.costs import costs_markdown, decision_costs
+    from sb3_coma.experiments.costs import costs_markdown, decision_costs
 
     rows = decision_costs({}, envs=["env1"], lookaheads=(1, 2, 3), repeats=8, budget=3)
     w = WEIGHTING_BY_MAP["env1"]
@@ -269,7 +270,7 @@ def test_cost_table_times_ag_for_every_lookahead():
 
 
 def test_reproduce_quick_with_baselines_only(tmp_path):
-    from sb3_coma.reproduce import reproduce
+    from sb3_coma.experiments.reproduce import reproduce
 
     out = tmp_path / "res"
     docs = tmp_path / "docs" / "RESULTS.md"

@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from sb3_coma import pretrained as pt
+from sb3_coma.app import pretrained as pt
 from sb3_coma.cli import main
-from sb3_coma.reproduce import ablation_acceptance, acceptance
+from sb3_coma.experiments.reproduce import ablation_acceptance, acceptance
 
 pytestmark = pytest.mark.skipif(not (pt.pretrained_dir() / pt.MANIFEST).is_file(), reason="no shipped models")
 
@@ -101,7 +101,7 @@ def test_reproduce_quick_train(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     model = summary["models"]["env1"]
     assert model["source"] == str(out / "runs" / "env1") and model["timesteps"] >= 32
-    from sb3_coma.reproduce import shipped_seed
+    from sb3_coma.experiments.reproduce import shipped_seed
 
     seed = shipped_seed("env1")  # --train retrains the shipped model's seed
     assert model["command"].startswith(f"sb3-coma train --env env1 --seed {seed} --timesteps 32")  # the map's entry
@@ -112,7 +112,7 @@ def test_reproduce_quick_train(tmp_path):
 
 
 def test_fusion_latency_is_measured_for_both_fusions():
-    from sb3_coma.reproduce import _time_fusion
+    from sb3_coma.experiments.reproduce import _time_fusion
 
     for fusion in ("mean", "sendfuse"):
         ms = _time_fusion(fusion, 4, reps=3)
@@ -184,7 +184,8 @@ def test_ablation_acceptance_logic():
 
 def test_retraining_uses_the_shipped_run_length(monkeypatch):
     """A shipped model trained with --timesteps records train_timesteps; --train retrains as long."""
-    from sb3_coma import pretrained, reproduce
+    from sb3_coma.app import pretrained
+    from sb3_coma.experiments import reproduce
 
     monkeypatch.setattr(
         pretrained, "model_info", lambda env: {"seed": 1, "train_timesteps": 18000} if env == "envL" else {"seed": 2}

@@ -500,7 +500,7 @@ def test_mismatched_tensors_and_configs_raise(tmp_path: Path) -> None:
 # --------------------------------------------------------------------------- import hygiene
 def test_envs_imports_nothing_of_sb3_coma() -> None:
     """``envs`` finds the SenDFuse wrapper through an entry point when a vec env is built, so
-    importing the environment package leaves the algorithm side alone (DESIGN section 2)."""
+    importing the environment package leaves the algorithm side alone (docs/design.md §2)."""
     import subprocess
     import sys
 

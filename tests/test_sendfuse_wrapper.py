@@ -112,7 +112,7 @@ def test_one_batched_network_call_per_step() -> None:
 def test_large_batches_are_fused_in_chunks_with_the_same_result() -> None:
     """More agents than ``FUSE_CHUNK`` are fused in several calls (bounded memory), each row as
     if fused alone."""
-    from sb3_coma.export import _fusion_wrapper
+    from sb3_coma.app.export import _fusion_wrapper
     from sb3_coma.sendfuse.wrapper import FUSE_CHUNK
 
     net = CountingNet()

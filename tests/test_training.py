@@ -17,8 +17,7 @@ from tiny_runs import ENV, tiny_entry
 
 import envs  # noqa: F401  (registers the gymnasium ids)
 from sb3_coma import cli, training_options
-from sb3_coma.checkpoints import CheckpointError, find_checkpoints, validate_checkpoint
-from sb3_coma.training import (
+from sb3_coma.app.training import (
     TrainingError,
     TrainingInterrupted,
     default_config_path,
@@ -26,6 +25,7 @@ from sb3_coma.training import (
     load_config,
     train,
 )
+from sb3_coma.common.checkpoints import CheckpointError, find_checkpoints, validate_checkpoint
 
 # 2 UAVs, 4-step missions, 8 joint steps per rollout (= 2 missions): every run is a few rollouts.
 TINY = {
@@ -353,14 +353,14 @@ def test_cli_train_tiny_and_list_variants(tmp_path, capsys):
 
 
 def test_cli_interrupt_exit_status(monkeypatch, tmp_path, capsys):
-    import sb3_coma.training
+    import sb3_coma.app.training
 
     def interrupted(**kwargs):
         raise TrainingInterrupted(
             tmp_path / "run", tmp_path / "run" / "checkpoints" / "rl_model_8_steps.zip", 8, signal.SIGTERM
         )
 
-    monkeypatch.setattr(sb3_coma.training, "train", interrupted)
+    monkeypatch.setattr(sb3_coma.app.training, "train", interrupted)
     assert cli.main(["train", "--env", "env1", "-v", "0"]) == 128 + signal.SIGTERM
     assert "sb3-coma train --resume" in capsys.readouterr().err
 
@@ -368,7 +368,7 @@ def test_cli_interrupt_exit_status(monkeypatch, tmp_path, capsys):
 def test_validation_picks_best_model_on_seeded_missions(tmp_path):
     """``eval_freq`` keeps ``best_model.zip``: the checkpoint with the best mean return on the
     same validation missions (env seed ``VALIDATION_SEED`` by default) at every evaluation."""
-    from sb3_coma.training import VALIDATION_SEED
+    from sb3_coma.app.training import VALIDATION_SEED
 
     config = write_config(tmp_path)
     _, run = train(
@@ -387,7 +387,7 @@ def test_validation_picks_best_model_on_seeded_missions(tmp_path):
 def test_numbers_written_without_a_dot_are_numbers_and_inf_is_refused_up_front(tmp_path):
     """PyYAML reads `1e-4` as a string: the config format accepts it as the number people mean;
     an infinite learning rate is refused before anything is built, naming the value."""
-    from sb3_coma.config import coma_kwargs
+    from sb3_coma.app.config import coma_kwargs
 
     kwargs = coma_kwargs({"learning_rate": "1e-4", "critic_learning_rate": "3E-3", "policy": "CnnPolicy"})
     assert kwargs["learning_rate"] == 1e-4 and kwargs["critic_learning_rate"] == 3e-3

@@ -1,4 +1,4 @@
-"""rl-zoo3 route: ``python -m sb3_coma.zoo train|enjoy`` with COMA, tiny settings."""
+"""rl-zoo3 route: ``python -m sb3_coma.app.zoo train|enjoy`` with COMA, tiny settings."""
 
 from __future__ import annotations
 
@@ -12,9 +12,10 @@ import pytest
 import yaml
 
 import envs  # noqa: F401  (registers the gymnasium ids)
-from sb3_coma import training_options, zoo, zoo_sampler
-from sb3_coma.checkpoints import validate_checkpoint
-from sb3_coma.training import coma_parameter_names
+from sb3_coma import training_options
+from sb3_coma.app import zoo, zoo_sampler
+from sb3_coma.app.training import coma_parameter_names
+from sb3_coma.common.checkpoints import validate_checkpoint
 
 ENV = "UavIpp-Env1-v0"
 TINY = {
@@ -192,10 +193,10 @@ def test_zoo_optimize_with_shared_storage(tmp_path, conf, monkeypatch):
 
 def test_python_dash_m_entry_point(tmp_path):
     result = subprocess.run(
-        [sys.executable, "-m", "sb3_coma.zoo", "--help"],
+        [sys.executable, "-m", "sb3_coma.app.zoo", "--help"],
         capture_output=True,
         text=True,
         cwd=Path(__file__).resolve().parent.parent,
         timeout=60,
     )
-    assert result.returncode == 0 and "python -m sb3_coma.zoo" in result.stdout
+    assert result.returncode == 0 and "python -m sb3_coma.app.zoo" in result.stdout

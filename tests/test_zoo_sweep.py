@@ -1,4 +1,4 @@
-"""A distributed Optuna sweep: two ``python -m sb3_coma.zoo train -optimize`` workers, one study.
+"""A distributed Optuna sweep: two ``python -m sb3_coma.app.zoo train -optimize`` workers, one study.
 
 What docs/deployment.md promises for several machines, on one machine: the workers share a
 study through its storage (here rl-zoo3's journal file, ``--storage PATH.log``; on several
@@ -41,7 +41,7 @@ def _worker(k: int, conf: Path, storage: Path, folder: Path) -> subprocess.Popen
     argv = [
         sys.executable,
         "-m",
-        "sb3_coma.zoo",
+        "sb3_coma.app.zoo",
         "train",
         "--algo",
         "coma",

@@ -33,7 +33,7 @@ _JITTER = 1e-9
 MAX_LOOKAHEAD = 4
 
 #: AG's entropy weighting per map family, chosen on validation missions (never on test missions)
-#: by ``sb3_coma.ag_weighting.pick_ag_weighting`` (rule: lower global entropy at 100 % by a paired
+#: by ``sb3_coma.experiments.ag_weighting.pick_ag_weighting`` (rule: lower global entropy at 100 % by a paired
 #: test, else higher F1, else "class"). Used whenever "ag" is evaluated on that map and the caller
 #: names no weighting. Measured by ``sb3-coma ag-weighting --env env1,env2,env3 --missions 60``
 #: (15 s; split "train", env seeds 2000..2059, random starts, moderate noise, 4 UAVs, budget 15;

@@ -27,7 +27,7 @@ from torch import nn
 
 from envs import layout
 from sb3_coma.coma.masking import behaviour_probs, mask_logits, sample_actions
-from sb3_coma.extractors import CBAMExtractor, CnnExtractor
+from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 
 __all__ = ["other_actions_map", "critic_input", "COMAPolicy", "CBAMPolicy", "CnnPolicy"]
 
@@ -428,7 +428,7 @@ class COMAPolicy(BasePolicy):
         self.critic_target.load_state_dict(self.critic.state_dict())
 
     def load_state_dict(self, state_dict: Mapping[str, Any], strict: bool = True, assign: bool = False) -> Any:
-        """Also accept the compact shipped form (``sb3_coma.pretrained.save_for_shipping``): weights
+        """Also accept the compact shipped form (``sb3_coma.app.pretrained.save_for_shipping``): weights
         in half precision (cast back to the parameters' float32) and no target critic, which is then
         the critic itself, as right after a synchronisation."""
         state = dict(state_dict)

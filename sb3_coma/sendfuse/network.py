@@ -1,4 +1,4 @@
-"""SenDFuse: the sensor denoising and fusion network (paper section III-B, DESIGN section 4).
+"""SenDFuse: the sensor denoising and fusion network (paper section III-B, docs/design.md §4).
 
 A NestFuse-style autoencoder sized for the communication grid (R x R, R = 44 by default):
 
@@ -68,7 +68,7 @@ __all__ = [
 
 #: Name of the layer layout below; stored in weight files so a future layout change is detected.
 ARCHITECTURE = "nestfuse3-residual-v2"
-#: Side of the communication grid the shipped weights are trained for (DESIGN section 3).
+#: Side of the communication grid the shipped weights are trained for (docs/design.md §3).
 DEFAULT_GRID_SIZE = 44
 #: Channel widths of the three encoder scales (full, half, quarter resolution); see SenDFuseNet.
 DEFAULT_CHANNELS: tuple[int, int, int] = (8, 16, 32)

@@ -11,7 +11,7 @@ global map, critic only). With ``features_extractor_kwargs=dict(gain_inputs=True
 * **IPPO** (:func:`make_ippo`, :class:`IPPOPolicy`): actor and value function share one small CNN
   trunk over ``local``; ``V(o_i)`` is decentralised too.
 * **MAPPO** (:func:`make_mappo`, :class:`MAPPOPolicy`): the same actor; the value function has its
-  own trunk over ``local`` + ``state`` (11 channels, DESIGN section 3; the 12th channel of COMA's
+  own trunk over ``local`` + ``state`` (11 channels, docs/design.md §3; the 12th channel of COMA's
   critic, the other UAVs' actions, is a Q-function input that a state-value function has no use
   for), i.e. SB3's ``share_features_extractor=False`` with a critic extractor that reads
   ``state`` and an actor extractor that does not.
@@ -24,7 +24,7 @@ in PPO's ratio and entropy terms and in ``predict`` (argmax or sampled).
 Counting: SB3 counts agent-steps, one per vec-env row per step, so ``total_timesteps`` of
 ``learn`` is ``missions * n_agents * budget`` (:func:`timesteps_for_missions`, :func:`missions_of`).
 Models save and load with ``PPO.save`` / ``PPO.load``; every class here is importable by its dotted
-path (``sb3_coma.marl_baselines.IPPOPolicy`` ...), which is what the saved zip names.
+path (``sb3_coma.common.marl_baselines.IPPOPolicy`` ...), which is what the saved zip names.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ from torch import nn
 from envs import layout
 from sb3_coma.coma.masking import mask_logits
 from sb3_coma.coma.policies import GAIN_ENCODER_DIM
-from sb3_coma.extractors import CBAMExtractor, CnnExtractor
+from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 
 __all__ = [
     "ACTOR_KEYS",
@@ -66,7 +66,7 @@ __all__ = [
 ACTOR_KEYS: tuple[str, ...] = (layout.KEY_LOCAL,)
 #: What MAPPO's centralised value function reads: ``local`` (8) + ``state`` (3).
 CRITIC_KEYS: tuple[str, ...] = (layout.KEY_LOCAL, layout.KEY_STATE)
-#: The trunks a :class:`MapsExtractor` can use (``sb3_coma.extractors``).
+#: The trunks a :class:`MapsExtractor` can use (``sb3_coma.common.extractors``).
 TRUNKS: dict[str, type[BaseFeaturesExtractor]] = {"cnn": CnnExtractor, "cbam": CBAMExtractor}
 #: PPO settings that differ from SB3's defaults (issue #18's measurement): rollouts of 64 steps per
 #: vec-env row (64 * n_agents * n_envs agent-steps), minibatches of 256 agent-steps, a small
@@ -81,8 +81,8 @@ class MapsExtractor(BaseFeaturesExtractor):
     :param keys: which entries to read, in channel order (default: ``local`` only, the actor's view);
         every other entry (``state``, ``action_gain``, ``action_mask``) is ignored
     :param features_dim: width of the trunk's last layer
-    :param trunk: ``"cnn"`` (:class:`~sb3_coma.extractors.CnnExtractor`, default) or ``"cbam"``
-        (:class:`~sb3_coma.extractors.CBAMExtractor`, the paper's attention trunk)
+    :param trunk: ``"cnn"`` (:class:`~sb3_coma.common.extractors.CnnExtractor`, default) or ``"cbam"``
+        (:class:`~sb3_coma.common.extractors.CBAMExtractor`, the paper's attention trunk)
     :param gain_inputs: also read ``action_gain`` through a learned encoder (``GAIN_ENCODER_DIM``
         features, as COMA's ``gain_inputs`` actor) joined to the trunk's features; ``features_dim``
         is then the trunk's width plus the encoder's

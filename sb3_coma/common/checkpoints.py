@@ -321,7 +321,7 @@ def training_options(model_or_path: Any) -> dict[str, Any] | None:
     """The env options a COMA model was trained with, or ``None`` when it does not record them.
 
     ``model_or_path``: a COMA model (its ``env_options`` attribute, set by ``sb3-coma train``,
-    ``python -m sb3_coma.zoo train`` and ``sb3_coma.training.train``; for a shipped model
+    ``python -m sb3_coma.app.zoo train`` and ``sb3_coma.app.training.train``; for a shipped model
     ``load_pretrained`` fills it from ``models.json`` and the config variant it names) or a model
     zip (read from its ``data`` member; the networks are not loaded). The dict is
     ``{"map": "env3", "fusion": "sendfuse", "fusion_kwargs": {...}, <every envs.IppConfig option>}``,

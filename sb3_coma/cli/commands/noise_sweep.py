@@ -19,6 +19,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from sb3_coma.app.pretrained import load_pretrained, read_manifest
+from sb3_coma.cli import UserError, set_threads
+from sb3_coma.experiments import ablation as ab
+from sb3_coma.experiments import plots
+from sb3_coma.experiments.noise_sweep import run_noise_sweep
+from sb3_coma.experiments.protocols import Method
+from sb3_coma.experiments.report import sweep_sentence
+
 NAME = "noise-sweep"
 HELP = "AG and the trained ablation arms over sigma, a_low, drop probability and both decoders (shared missions)"
 
@@ -50,8 +58,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def default_arms(env: str) -> list[str]:
     """AG plus the shipped models of ``env`` that are ablation arms or the map's own model."""
     try:
-        from sb3_coma.pretrained import read_manifest
-
         models = read_manifest()["models"]
     except (ImportError, ValueError):
         return ["ag"]
@@ -65,9 +71,6 @@ def default_arms(env: str) -> list[str]:
 
 
 def _arm(name: str, env: str):
-    from sb3_coma import ablation as ab
-    from sb3_coma.pretrained import load_pretrained
-    from sb3_coma.protocols import Method
 
     if name.strip().lower() in ("ag", "adaptive_gain", "adaptive-gain"):
         return Method("ag", "ag")
@@ -79,8 +82,6 @@ def _arm(name: str, env: str):
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma.cli import UserError, set_threads
-    from sb3_coma.noise_sweep import run_noise_sweep
 
     set_threads(args.threads)
     missions = args.missions if args.missions is not None else (2 if args.quick else 20)
@@ -110,14 +111,11 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from sb3_coma.report import sweep_sentence
 
     table = result.markdown()
     (out / "noise_sweep.md").write_text(f"{sweep_sentence(result)}\n\n{table}")
     written = [out / "noise_sweep.md", result.write_csv(out / "noise_sweep.csv")]
     if not args.no_plots and result.results:
-        from sb3_coma import plots
-
         written.append(plots.plot_noise_sweep(result, out / "noise_sweep.png"))
     print()
     print(table)

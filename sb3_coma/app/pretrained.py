@@ -27,8 +27,8 @@ from typing import Any
 import torch as th
 
 from envs import WORLD_VERSION
+from sb3_coma.app.config import TrainingError, env_options_of, load_config
 from sb3_coma.coma import COMA
-from sb3_coma.config import TrainingError, env_options_of, load_config
 
 __all__ = [
     "is_shipped",
@@ -55,7 +55,7 @@ class PretrainedError(ValueError):
 
 def pretrained_dir() -> Path:
     """The folder that holds the shipped models (``sb3_coma/pretrained``)."""
-    return Path(__file__).resolve().parent / "pretrained"
+    return Path(__file__).resolve().parents[1] / "pretrained"
 
 
 def sha256_file(path: str | os.PathLike[str]) -> str:

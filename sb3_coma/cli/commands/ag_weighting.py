@@ -6,7 +6,7 @@ Example::
 
 Flies AG with the class-weighted and the plain entropy on the same ``split="train"`` validation
 missions (env seeds 2000.., never the test split nor the paper's mission), prints both weightings'
-means and the paired differences, and the weighting the rule picks (``sb3_coma.ag_weighting``).
+means and the paired differences, and the weighting the rule picks (``sb3_coma.experiments.ag_weighting``).
 The shipped default (``sb3_coma.baselines.adaptive_gain.WEIGHTING_BY_MAP``) records this output.
 """
 
@@ -16,12 +16,15 @@ import argparse
 import json
 from pathlib import Path
 
+from sb3_coma.baselines.adaptive_gain import WEIGHTING_BY_MAP
+from sb3_coma.cli import UserError
+from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, pick_ag_weighting
+
 NAME = "ag-weighting"
 HELP = "choose AG's entropy weighting (class / plain) per map on validation missions (never test missions)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from sb3_coma.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED
 
     parser.add_argument("--env", default="env1,env2,env3", help="comma-separated map families (default env1,env2,env3)")
     parser.add_argument(
@@ -43,9 +46,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma.ag_weighting import pick_ag_weighting
-    from sb3_coma.baselines.adaptive_gain import WEIGHTING_BY_MAP
-    from sb3_coma.cli import UserError
 
     names = [e.strip() for e in args.env.split(",") if e.strip()]
     if not names:

@@ -40,9 +40,12 @@ import numpy as np  # noqa: E402
 from matplotlib import cm, colors  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+from sb3_coma.experiments.noise_sweep import AXIS_TITLES
 
 if TYPE_CHECKING:  # pragma: no cover
-    from sb3_coma.evaluation import EvaluationResult
+    from sb3_coma.common.evaluation import EvaluationResult
 
 PathLike = str | os.PathLike
 #: Preferred TensorBoard reward tags, in order.
@@ -328,7 +331,6 @@ def plot_mission(result: EvaluationResult, path: PathLike, trial: int = 0) -> Pa
         linewidth=0,
     )
     cmap = plt.get_cmap(ALTITUDE_CMAP)
-    from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
     for u in range(traj.shape[1]):
         pts = traj[:, u]
@@ -462,9 +464,8 @@ def plot_noise_sweep(result: object, path: PathLike, title: str | None = None) -
     threshold), error bars = standard error over the shared missions; top row the global map's
     entropy (the paper's), bottom row the team entropy on the UAVs' own maps.
 
-    ``result`` is a ``sb3_coma.noise_sweep.NoiseSweepResult``.
+    ``result`` is a ``sb3_coma.experiments.noise_sweep.NoiseSweepResult``.
     """
-    from sb3_coma.noise_sweep import AXIS_TITLES
 
     axes_swept = [a for a in AXIS_TITLES if any(p.axis == a or p.axis == "grid" for p in result.points)] or ["sigma"]
     decoders = list(dict.fromkeys(p.decoder for p in result.points))

@@ -59,13 +59,13 @@ from envs import IppConfig, layout
 from envs.fusion import FusionWrapper, mean_fusion
 from envs.geometry import overlap_matrix
 from sb3_coma import __version__
+from sb3_coma.app.config import TrainingError, load_config, split_env_kwargs
+from sb3_coma.app.evaluation import _looks_like_path
+from sb3_coma.app.pretrained import PretrainedError, model_info, pretrained_dir, sha256_file
+from sb3_coma.app.runs import read_run_config, run_folder_of
 from sb3_coma.baselines import planner_class
-from sb3_coma.checkpoints import training_options
 from sb3_coma.coma.masking import MASKED_LOGIT, mask_logits
-from sb3_coma.config import TrainingError, load_config, split_env_kwargs
-from sb3_coma.evaluation import _looks_like_path
-from sb3_coma.pretrained import PretrainedError, model_info, pretrained_dir, sha256_file
-from sb3_coma.runs import read_run_config, run_folder_of
+from sb3_coma.common.checkpoints import training_options
 from sb3_coma.sendfuse.network import UNKNOWN
 from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 

@@ -5,7 +5,7 @@ What a UAV computes on board at each step, timed as medians over ``repeats`` cal
 * a trained model: the **fusion** of the maps it received (own map + N - 1 received on the
   44 x 44 comm grid, all valid: the worst case) into its 8th local channel, then the **actor**
   (masked argmax). PyTorch: ``SenDFuseNet.fuse`` (or the naive mean) + the lattice projection, and
-  ``model.predict`` on one observation; ONNX Runtime (when ``sb3_coma.export`` and onnxruntime
+  ``model.predict`` on one observation; ONNX Runtime (when ``sb3_coma.app.export`` and onnxruntime
   import): the two graphs ``sb3-coma export`` writes, fusion then actor;
 * AG with look-ahead k = 1, 2, 3: ``planner.predict`` on a one-mission vec env divided by the
   number of UAVs (AG plans a team in one call), after a few random moves.
@@ -27,6 +27,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
+import torch as th
+
+import envs
+from envs import layout
+from envs.geometry import overlap_matrix
+from sb3_coma.app.export import export_onnx, onnx_feeds, onnx_session
+from sb3_coma.baselines import make_planner
+from sb3_coma.baselines.adaptive_gain import default_weighting
+from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 
 __all__ = ["CostRow", "ag_cost", "costs_markdown", "decision_costs", "model_costs", "time_call"]
 
@@ -61,7 +71,6 @@ def time_call(fn: Callable[[], Any], repeats: int, warmup: int = 5) -> tuple[flo
 
 @contextmanager
 def one_thread() -> Iterator[None]:
-    import torch
 
     before = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -73,8 +82,6 @@ def one_thread() -> Iterator[None]:
 
 def _observation(env: str, fusion: str, seed: int = 0, moves: int = 3, **env_options: Any) -> tuple[Any, dict]:
     """A vec env of one mission after a few random moves (every link up), and UAV 0's observation."""
-    import envs
-    from envs import layout
 
     venv = envs.make_vec_env(env, n_envs=1, fusion=fusion, seed=seed, comm_range=float("inf"), **env_options)
     obs = venv.reset()
@@ -87,9 +94,6 @@ def _observation(env: str, fusion: str, seed: int = 0, moves: int = 3, **env_opt
 
 def _torch_fusion(fusion: str, n_agents: int, comm: int, lattice: int) -> Callable[[], Any] | None:
     """One UAV's fusion of ``n_agents`` maps (all valid) + the projection to the lattice, in PyTorch."""
-    import torch as th
-
-    from envs.geometry import overlap_matrix
 
     rng = np.random.default_rng(0)
     received = th.as_tensor(rng.random((1, n_agents, comm, comm), dtype=np.float32))
@@ -100,8 +104,6 @@ def _torch_fusion(fusion: str, n_agents: int, comm: int, lattice: int) -> Callab
         def fuse() -> Any:
             return received.mean(dim=1)
     else:
-        from sb3_coma.sendfuse.weights import default_weights_path, load_weights
-
         net = load_weights(default_weights_path(comm), expected_config={"grid_size": comm})
 
         def fuse() -> Any:
@@ -118,7 +120,6 @@ def model_costs(
     label: str, model: Any, env: str, fusion: str, repeats: int = 200, onnx: bool = True, **env_options: Any
 ) -> list[CostRow]:
     """PyTorch (and ONNX Runtime) rows of one trained model (module docstring)."""
-    from envs import layout
 
     venv, obs = _observation(env, fusion, **env_options)
     config = venv.get_attr("config", indices=[0])[0]
@@ -144,14 +145,6 @@ def model_costs(
     ]
     if not onnx:
         return rows
-    try:
-        from sb3_coma.export import export_onnx, onnx_feeds, onnx_session
-    except ImportError as exc:
-        return rows + [
-            CostRow(
-                f"{label}: fusion + actor", env, "ONNX Runtime", None, None, f"sb3_coma.export not importable ({exc})"
-            )
-        ]
     try:
         with tempfile.TemporaryDirectory(prefix="sb3_coma_cost_") as folder:
             paths = export_onnx(model, Path(folder), fusion=fusion, verify=False)
@@ -198,8 +191,6 @@ def ag_cost(
     env: str, lookahead: int = 1, weighting: str | None = None, repeats: int = 50, **env_options: Any
 ) -> CostRow:
     """AG's ms per UAV decision with ``lookahead`` (default weighting: the map family's)."""
-    from sb3_coma.baselines import make_planner
-    from sb3_coma.baselines.adaptive_gain import default_weighting
 
     venv, obs = _observation(env, "mean", **env_options)
     weighting = weighting or default_weighting(venv.get_attr("config", indices=[0])[0].map_name)

@@ -7,10 +7,10 @@ family, the way a user tuning AG would: on *validation* missions. :func:`pick_ag
 both weightings on the same ``split="train"`` missions with env seeds from
 :data:`VALIDATION_SEED` (disjoint from the seeds 0..49 that the paper and unseen protocols report
 and from the training runs' checkpoint-validation seeds 1000..1019), never on ``split="test"`` nor
-on the paper's fixed mission, and picks by a paired test (``sb3_coma.paired``):
+on the paper's fixed mission, and picks by a paired test (``sb3_coma.common.paired``):
 
 1. the weighting with the lower valuable-cell entropy of the global map at 100 % of the budget,
-   when the paired difference exceeds :data:`sb3_coma.paired.TIE_SE` standard errors;
+   when the paired difference exceeds :data:`sb3_coma.common.paired.TIE_SE` standard errors;
 2. else the one with the higher F1, by the same rule;
 3. else (a tie on both) ``"class"``, ipp-marl's choice.
 
@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from envs.gain import WEIGHTINGS
+from sb3_coma.app.evaluation import evaluate as evaluate_method
+from sb3_coma.common.paired import paired_difference
 
 __all__ = ["VALIDATION_SEED", "VALIDATION_MISSIONS", "WeightingChoice", "pick_ag_weighting", "validation_options"]
 
@@ -64,7 +66,7 @@ class WeightingChoice:
     env_options: dict[str, Any]
     #: weighting -> {"f1": mean, "entropy": mean, "team_f1": mean, "team_entropy": mean} at 100 %
     means: dict[str, dict[str, float]] = field(default_factory=dict)
-    #: metric -> paired difference "plain" - "class" (``sb3_coma.paired.PairedDifference.as_dict()``)
+    #: metric -> paired difference "plain" - "class" (``sb3_coma.common.paired.PairedDifference.as_dict()``)
     paired: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def comment(self) -> str:
@@ -120,14 +122,13 @@ def pick_ag_weighting(
     :param n_missions: validation missions per weighting (>= 2 for a paired test)
     :param seed: first env seed; must be >= :data:`VALIDATION_SEED` so the missions stay disjoint
         from the seeds the protocols report
-    :param evaluate: the evaluation function (default ``sb3_coma.evaluation.evaluate``; tests pass
+    :param evaluate: the evaluation function (default ``sb3_coma.common.evaluation.evaluate``; tests pass
         a recorder)
     :param env_options: other env options (``budget``, ``n_uavs`` ...); ``split`` is refused
     """
-    from sb3_coma.paired import paired_difference
 
     if evaluate is None:
-        from sb3_coma.evaluation import evaluate
+        evaluate = evaluate_method
     if isinstance(n_missions, bool) or not isinstance(n_missions, int) or n_missions < 2:
         raise ValueError(f"n_missions={n_missions!r}: a paired test needs an integer >= 2")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < VALIDATION_SEED:

@@ -7,10 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from sb3_coma.checkpoints import CheckpointError, load_checkpoint, validate_checkpoint
-from sb3_coma.cli import UserError
-from sb3_coma.coma import COMA
-from sb3_coma.export import (
+from sb3_coma.app.export import (
     MIN_OPSET,
     OPSET,
     ExportError,
@@ -20,7 +17,10 @@ from sb3_coma.export import (
     resolve_model_source,
     settings_of_source,
 )
-from sb3_coma.pretrained import PretrainedError, load_pretrained
+from sb3_coma.app.pretrained import PretrainedError, load_pretrained
+from sb3_coma.cli import UserError
+from sb3_coma.coma import COMA
+from sb3_coma.common.checkpoints import CheckpointError, load_checkpoint, validate_checkpoint
 
 NAME = "export"
 HELP = "export a trained model's actor and its fusion network to ONNX (+ a JSON of inputs and env options)"

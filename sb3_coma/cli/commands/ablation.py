@@ -17,9 +17,9 @@ import argparse
 from pathlib import Path
 
 from envs import DEFAULT_MAP
-from sb3_coma import ablation, plots
 from sb3_coma.cli import UserError, set_threads
-from sb3_coma.evaluation import write_per_step_csv, write_table_csv
+from sb3_coma.common.tables import write_per_step_csv, write_table_csv
+from sb3_coma.experiments import ablation, plots
 
 NAME = "ablation"
 HELP = "evaluate the SenDFuse / CBAM ablation models at three noise levels"

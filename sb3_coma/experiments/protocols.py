@@ -1,7 +1,7 @@
 """The two evaluation protocols over many methods, on shared missions, with paired verdicts.
 
 ``run_protocol("paper" | "unseen", methods)`` flies every method of every map on the protocol's
-missions (``sb3_coma.evaluation.PROTOCOLS``: the paper's Table I on ``split="paper"``, or 50
+missions (``sb3_coma.common.evaluation.PROTOCOLS``: the paper's Table I on ``split="paper"``, or 50
 unseen missions on ``split="test"`` with random starts); trial ``k`` is env seed ``seed + k`` for
 every method, so the results are shared missions. :class:`ProtocolResult` holds them and writes:
 
@@ -9,7 +9,7 @@ every method, so the results are shared missions. :class:`ProtocolResult` holds 
   global map and for the team metrics on the UAVs' own beliefs (Markdown and CSV);
 * a compact table at 100 % with the planning time per UAV decision;
 * the verdicts: paired differences ``a - b`` at 100 % (± standard error; a difference within
-  ``sb3_coma.paired.TIE_SE`` standard errors is a tie) for the comparisons of
+  ``sb3_coma.common.paired.TIE_SE`` standard errors is a tie) for the comparisons of
   :func:`default_pairs`, on all four metrics.
 
 Methods (:class:`Method`): the baselines of :data:`BASELINE_METHODS` (AG with the map's weighting,
@@ -27,18 +27,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sb3_coma.evaluation import (
-    ALL_METRICS,
-    EvaluationResult,
-    Protocol,
-    TableRow,
-    evaluate,
-    protocol_of,
-    table_markdown,
-    write_per_step_csv,
-    write_table_csv,
-)
-from sb3_coma.paired import PairedDifference, cell, paired_difference
+import torch as th
+
+from envs import WORLD_VERSION
+from sb3_coma.app.evaluation import evaluate
+from sb3_coma.app.pretrained import load_pretrained, read_manifest
+from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult, Protocol, protocol_of
+from sb3_coma.common.paired import PairedDifference, cell, paired_difference
+from sb3_coma.common.tables import TableRow, table_markdown, write_per_step_csv, write_table_csv
 
 __all__ = [
     "BASELINE_METHODS",
@@ -52,7 +48,7 @@ __all__ = [
 ]
 
 #: Kinds of learned methods besides COMA that get rows when their models exist (the hook: a
-#: manifest entry with ``"algo"`` one of these, loaded by ``sb3_coma.pretrained.load_pretrained``).
+#: manifest entry with ``"algo"`` one of these, loaded by ``sb3_coma.app.pretrained.load_pretrained``).
 LEARNED_BASELINES: tuple[str, ...] = ("ippo", "mappo")
 
 
@@ -95,10 +91,6 @@ BASELINE_METHODS: tuple[Method, ...] = (
 
 def _manifest_models() -> dict[str, dict[str, Any]]:
     try:
-        from sb3_coma.pretrained import read_manifest
-    except ImportError:
-        return {}
-    try:
         return dict(read_manifest()["models"])
     except ValueError:  # no manifest in this install
         return {}
@@ -106,10 +98,6 @@ def _manifest_models() -> dict[str, dict[str, Any]]:
 
 def outdated_note(info: Mapping[str, Any]) -> str:
     """ "outdated: ..." when a shipped model was trained on another world version than this env's."""
-    try:
-        from envs import WORLD_VERSION
-    except ImportError:
-        return ""
     world = info.get("world", 1)
     return "" if world == WORLD_VERSION else f"outdated: trained on world v{world}, this is v{WORLD_VERSION}"
 
@@ -134,7 +122,6 @@ def shipped_methods(
     this map, COMA first (the map's own model, then the others in manifest order), then IPPO /
     MAPPO. ``loaded`` maps shipped names to models already loaded (reused, not reloaded); names in
     ``skip`` are left out; a model that cannot be loaded is left out with a message."""
-    from sb3_coma.pretrained import load_pretrained
 
     models = {k: v for k, v in _manifest_models().items() if v.get("env") == env and k not in skip}
     order = sorted(models, key=lambda k: (str(models[k].get("algo", "coma")).lower() != "coma", k != env))
@@ -170,7 +157,7 @@ def shipped_methods(
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Comparison:
-    """``a - b`` on one map, on every metric (``sb3_coma.paired.PairedDifference`` each)."""
+    """``a - b`` on one map, on every metric (``sb3_coma.common.paired.PairedDifference`` each)."""
 
     env: str
     a: str
@@ -398,8 +385,6 @@ def _fly(
 ) -> EvaluationResult:
     _warm_up(method, env)
     if method.learned:
-        import torch as th
-
         th.manual_seed(seed)  # sampled actions (deterministic=False) come from torch's generator
     return evaluate(
         method.policy,

@@ -13,6 +13,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from sb3_coma.cli import UserError, set_threads
+from sb3_coma.experiments.reproduce import reproduce
+
 NAME = "reproduce"
 HELP = (
     "reproduce the paper protocol (Table I), the unseen protocol, the env3 ablation, the noise sweep and the "
@@ -30,7 +33,7 @@ DESCRIPTION = (
 
 def _repo_docs() -> Path | None:
     """docs/RESULTS.md of a source checkout, or None for an installed package."""
-    root = Path(__file__).resolve().parents[2]
+    root = Path(__file__).resolve().parents[3]
     docs = root / "docs"
     return docs / "RESULTS.md" if docs.is_dir() and (root / "zoo_configs").is_dir() else None
 
@@ -132,10 +135,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma.cli import UserError, set_threads
 
     set_threads(args.threads)
-    from sb3_coma.reproduce import reproduce
 
     envs = [e.strip() for e in args.env.split(",") if e.strip()]
     if not envs:

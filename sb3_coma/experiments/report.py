@@ -1,7 +1,7 @@
-"""RESULTS.md from a ``sb3_coma.reproduce`` run: every table, every verdict, a paste-ready paragraph.
+"""RESULTS.md from a ``sb3_coma.experiments.reproduce`` run: every table, every verdict, a paste-ready paragraph.
 
 Nothing here measures anything: it formats what the run measured. Verdicts ("A beats B", "tie")
-are read from paired differences on shared missions (``sb3_coma.paired``) and never from means.
+are read from paired differences on shared missions (``sb3_coma.common.paired``) and never from means.
 """
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_coma.paired import TIE_SE, PairedDifference
+from sb3_coma.common.paired import TIE_SE, PairedDifference, paired_markdown
+from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, VALIDATION_SPLIT
 
 #: The comparisons the README paragraph states, when both methods were flown.
 _KEY_BASELINE_PAIRS = (("ag-k2", "ag"), ("ag-k3", "ag"), ("ag", "lawnmower"), ("ag", "random"))
@@ -25,6 +26,10 @@ _NAMES = {
     "ippo": "IPPO",
     "mappo": "MAPPO",
 }
+
+
+#: Planners of the generalisation table (listed after the models).
+PLANNER_NAMES: tuple[str, ...] = ("ag", "lawnmower", "random")
 
 
 def _name(label: str) -> str:
@@ -59,16 +64,13 @@ def acceptance_markdown(accept: dict[str, dict[str, Any]]) -> str:
 
 def paired_table(rows: Sequence[tuple[str, PairedDifference]], title: str = "Env") -> str:
     """``(group, difference)`` rows: a, b, metric, missions, means, a - b ± s.e., verdict."""
-    from sb3_coma.paired import paired_markdown
 
     return paired_markdown([d for _, d in rows], [g for g, _ in rows], first_title=title)
 
 
 def generalisation_markdown(gen: list[dict[str, Any]]) -> str:
-    from sb3_coma.reproduce import BASELINES
-
     lines = ["| model (trained on) | evaluated on | F1 @100% | entropy @100% |", "| --- | --- | ---: | ---: |"]
-    for g in sorted(gen, key=lambda g: (g["model"] in BASELINES, g["model"], g["target"])):
+    for g in sorted(gen, key=lambda g: (g["model"] in PLANNER_NAMES, g["model"], g["target"])):
         own = " (own map)" if g["model"] == g["target"] else ""
         lines.append(
             f"| {g['model']}{own} | {g['target']} | {g['f1']:.4f} ± {g['f1_std']:.4f} | "
@@ -330,7 +332,6 @@ def _models_section(run: Any) -> list[str]:
 
 
 def _ag_section(run: Any) -> list[str]:
-    from sb3_coma.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, VALIDATION_SPLIT
 
     w = run.summary["ag_weighting"]
     return [
@@ -450,7 +451,7 @@ def results_markdown(run: Any, figures: Sequence[Path], base: Path) -> str:
             "",
             "Each pair of methods flies the same paper-split missions, more of them than Table I, and the "
             f"per-mission difference is averaged: ± is its standard error, and a difference within {TIE_SE:g} "
-            "standard errors is called a tie (`sb3_coma.paired`; `--wide-trials`).",
+            "standard errors is called a tie (`sb3_coma.common.paired`; `--wide-trials`).",
             "",
             run.sections["paired"],
             "",
@@ -488,7 +489,7 @@ def results_markdown(run: Any, figures: Sequence[Path], base: Path) -> str:
         lines += [
             "## Deployment latency and cost (per UAV decision, batch of one, one thread)",
             "",
-            "What one UAV computes on board per step (`sb3_coma.costs`): the fusion of the maps it received "
+            "What one UAV computes on board per step (`sb3_coma.experiments.costs`): the fusion of the maps it received "
             "(own + 3 received, all valid: the worst case) and the actor, in PyTorch and in ONNX Runtime "
             "(`sb3-coma export`'s graphs); AG with look-ahead k = 1, 2, 3 (`planner.predict` on one mission / "
             "number of UAVs). Medians of repeated calls; the machine is shared, so these are upper bounds.",

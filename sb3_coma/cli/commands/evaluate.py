@@ -17,6 +17,12 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from sb3_coma.app import evaluation as ev
+from sb3_coma.cli import UserError, set_threads
+from sb3_coma.common import tables
+from sb3_coma.common.checkpoints import folder_write_problem
+from sb3_coma.experiments import plots
+
 NAME = "evaluate"
 HELP = "evaluate trained models and baselines (AG, lawnmower, random) as in the paper's Table I"
 DESCRIPTION = (
@@ -109,7 +115,6 @@ def _labelled(spec: str, default: str) -> tuple[str, str]:
 
 def _methods(args: argparse.Namespace) -> list[tuple[str | None, str]]:
     """(label or None for the default, method) in table order: models first, then baselines."""
-    from sb3_coma.cli import UserError
 
     out: list[tuple[str | None, str]] = []
     for k, spec in enumerate(args.model):
@@ -141,7 +146,6 @@ def _env_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _env_names(args: argparse.Namespace) -> list[str]:
-    from sb3_coma.cli import UserError
 
     if args.env is None:
         return [Path(args.map_path).stem if args.map_path else "env3"]
@@ -152,7 +156,6 @@ def _env_names(args: argparse.Namespace) -> list[str]:
 
 
 def _check_args(args: argparse.Namespace) -> None:
-    from sb3_coma.cli import UserError
 
     for flag, value, low in (
         ("--trials", args.trials, 1),
@@ -173,8 +176,6 @@ def _check_out(out: Path) -> None:
     """Refuse an --out the tables cannot be written into before any mission is flown, not after:
     a file (or a path below one), a read-only location, or a folder where a table file goes.
     Files already in --out are replaced, as every evaluation does."""
-    from sb3_coma.checkpoints import folder_write_problem
-    from sb3_coma.cli import UserError
 
     problem = folder_write_problem(out)
     if problem is None:
@@ -184,8 +185,6 @@ def _check_out(out: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma import evaluation as ev
-    from sb3_coma.cli import UserError, set_threads
 
     set_threads(args.threads)
     if args.trials is None:
@@ -228,19 +227,19 @@ def run(args: argparse.Namespace) -> int:
                 )
             except (ValueError, TypeError) as exc:
                 raise UserError(f"{label or method} on {env_name}: {exc}") from None
-    rows = ev.rows_for(results)
+    rows = tables.rows_for(results)
     written = [
-        ev.write_table_csv(rows, out / "table.csv"),
-        ev.write_per_step_csv(rows, out / "per_step.csv"),
-        ev.write_planning_time_csv(rows, out / "planning_time.csv"),
+        tables.write_table_csv(rows, out / "table.csv"),
+        tables.write_per_step_csv(rows, out / "per_step.csv"),
+        tables.write_planning_time_csv(rows, out / "planning_time.csv"),
     ]
-    markdown = ev.table_markdown(rows)
-    timing = ev.planning_time_markdown(rows)
+    markdown = tables.table_markdown(rows)
+    timing = tables.planning_time_markdown(rows)
     (out / "table.md").write_text(
         f"F1-score and entropy at 33/67/100 % of the budget, mean ± std over {args.trials} trials "
         f"(seeds {args.seed}..{args.seed + args.trials - 1}), noise {args.noise}"
         f"{f', protocol {args.protocol}' if args.protocol else ''}; best in bold.\n\n{markdown}\n"
-        f"Team metrics (each UAV's own map):\n\n{ev.table_markdown(rows, metrics='team')}"
+        f"Team metrics (each UAV's own map):\n\n{tables.table_markdown(rows, metrics='team')}"
     )
     (out / "planning_time.md").write_text(timing)
     written += [out / "table.md", out / "planning_time.md"]
@@ -257,8 +256,6 @@ def run(args: argparse.Namespace) -> int:
 def _plots(
     results: list[Any], env_names: list[str], logs: list[tuple[str, str]], args: argparse.Namespace, out: Path
 ) -> list[Path]:
-    from sb3_coma import plots
-    from sb3_coma.cli import UserError
 
     written = []
     for env_name in env_names:

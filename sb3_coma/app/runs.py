@@ -22,14 +22,22 @@ from pathlib import Path
 
 import yaml
 
-from sb3_coma.checkpoints import (
+from sb3_coma.app.config import (
+    RUN_KEY,
+    TrainConfig,
+    TrainingError,
+    config_entry,
+    plain,
+    read_config_file,
+    resolve_env_id,
+)
+from sb3_coma.common.checkpoints import (
     CheckpointError,
     atomic_write_text,
     find_checkpoints,
     folder_write_problem,
     validate_checkpoint,
 )
-from sb3_coma.config import RUN_KEY, TrainConfig, TrainingError, config_entry, plain, read_config_file, resolve_env_id
 
 __all__ = [
     "CHECKPOINT_DIR",

@@ -16,17 +16,19 @@ when such models are shipped) in named steps (:data:`STEPS`), writing into ``out
   starts): tables, team tables, verdicts
 * ``generalisation.md`` -- each env's model on the other maps and a fresh env1 star seed
 * ``noise_sweep.md`` / ``.csv`` -- AG and each ablation arm over sigma, a_low, drop probability
-  and both decoders (``sb3_coma.noise_sweep``)
-* ``latency.md`` -- the deployment cost per UAV decision (``sb3_coma.costs``)
-* ``summary.json`` -- every number above; ``figures/``; ``RESULTS.md`` (``sb3_coma.report``),
+  and both decoders (``sb3_coma.experiments.noise_sweep``)
+* ``latency.md`` -- the deployment cost per UAV decision (``sb3_coma.experiments.costs``)
+* ``summary.json`` -- every number above; ``figures/``; ``RESULTS.md`` (``sb3_coma.experiments.report``),
   with ``docs=...`` also written there (figures next to it)
 
-Every "A beats B" in the report is a paired test on shared missions (``sb3_coma.paired``);
+Every "A beats B" in the report is a paired test on shared missions (``sb3_coma.common.paired``);
 everything in it is measured by the run that writes it; nothing is copied in.
 """
 
 from __future__ import annotations
 
+import copy
+import csv
 import dataclasses
 import json
 import platform
@@ -39,10 +41,37 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch as th
+
+import envs
+from envs import WORLD_VERSION
+from envs.maps.ground_truth import available_maps
+from sb3_coma import COMA
+from sb3_coma.app import evaluation as ev
+from sb3_coma.app import pretrained as pt
+from sb3_coma.app.pretrained import PretrainedError
+from sb3_coma.app.training import train
+from sb3_coma.baselines.adaptive_gain import default_weighting
+from sb3_coma.common import tables
+from sb3_coma.common.paired import paired_difference, paired_markdown
+from sb3_coma.experiments import ablation as ab
+from sb3_coma.experiments import plots as pl
+from sb3_coma.experiments import report
+from sb3_coma.experiments.ablation import LABELS
+from sb3_coma.experiments.costs import _torch_fusion, costs_markdown, decision_costs, one_thread, time_call
+from sb3_coma.experiments.noise_sweep import run_noise_sweep
+from sb3_coma.experiments.protocols import (
+    BASELINE_METHODS,
+    LEARNED_BASELINES,
+    Method,
+    outdated_note,
+    run_protocol,
+    shipped_methods,
+)
 
 DEFAULT_ENVS: tuple[str, ...] = ("env1", "env2", "env3")
-#: The baselines of Table I (the protocols also fly AG's look-ahead variants: sb3_coma.protocols).
-BASELINES: tuple[str, ...] = ("ag", "lawnmower", "random")
+#: The baselines of Table I (the protocols also fly AG's look-ahead variants: sb3_coma.experiments.protocols).
+BASELINES: tuple[str, ...] = report.PLANNER_NAMES
 #: map seed of the "fresh" env1 star layout used for generalisation (env1's default map_seed is 0)
 FRESH_ENV1_SEED = 7
 #: tiny training used by ``quick=True`` together with ``train=True`` (joint steps and overrides)
@@ -71,7 +100,7 @@ ABLATION_FULL = ("sendfuse", "cbam")
 ABLATION_CHECK_NOISE = "loud"
 #: Missions of the paired check on the paper split that backs Table I's and the ablation's verdicts.
 WIDE_TRIALS = 50
-#: Missions of the unseen protocol (sb3_coma.evaluation.PROTOCOLS["unseen"]) and of the noise sweep,
+#: Missions of the unseen protocol (sb3_coma.common.evaluation.PROTOCOLS["unseen"]) and of the noise sweep,
 #: which flies the same missions (env seeds 0..49 of split "test") at every channel setting (20
 #: missions, the command's default, left every arm tied with AG on the paired test).
 UNSEEN_MISSIONS = 50
@@ -219,9 +248,7 @@ def attempt(run: Run, what: str, fn: Callable[..., Any], *args: Any, **kwargs: A
 def manifest_value(env: str, key: str, default: Any = None) -> Any:
     """``models.json``'s ``key`` of the shipped model ``env``, ``default`` when either is missing."""
     try:
-        from sb3_coma.pretrained import model_info
-
-        return model_info(env).get(key, default)
+        return pt.model_info(env).get(key, default)
     except (ImportError, ValueError):
         return default
 
@@ -255,7 +282,6 @@ def reproduce(
 def load_models(run: Run) -> None:
     """Each env's COMA model (shipped or retrained), the ablation arms, and the methods of the
     protocols per env: that model, every other model shipped for the env, extra models, baselines."""
-    from sb3_coma.protocols import BASELINE_METHODS, Method, outdated_note, shipped_methods
 
     o = run.opts
     for env in o.env_names:
@@ -288,8 +314,6 @@ def load_models(run: Run) -> None:
 def _shipped_or_none(run: Run, env: str) -> ModelSource | None:
     """The shipped model of ``env``; ``None`` (baseline rows only, the reason under "Skipped") when
     this install has none for a built-in map; an unknown name is an error."""
-    from envs.maps.ground_truth import available_maps
-    from sb3_coma.pretrained import PretrainedError
 
     try:
         return _shipped_model(env, run.opts.deterministic)
@@ -302,14 +326,12 @@ def _shipped_or_none(run: Run, env: str) -> ModelSource | None:
 
 
 def _kind_of(label: str) -> str:
-    from sb3_coma.protocols import LEARNED_BASELINES
 
     return next((k for k in LEARNED_BASELINES if label.lower().startswith(k)), "coma")
 
 
 def sendfuse_available() -> bool:
     """Whether ``fusion="sendfuse"`` can be built (its pre-trained weights exist)."""
-    import envs
 
     try:
         envs.make_vec_env("env1", fusion="sendfuse").close()
@@ -331,7 +353,6 @@ def train_command(env: str, fusion: str, seed: int = TRAIN_SEED, validate: bool 
 
 
 def _curve_from_metrics(path: Path) -> list[float]:
-    import csv
 
     if not path.is_file():
         return []
@@ -370,8 +391,6 @@ def _train_model(
     log: Callable[[str], None],
     deterministic: bool = True,
 ) -> ModelSource:
-    from sb3_coma import COMA
-    from sb3_coma.training import train
 
     overrides: dict[str, Any] = dict(QUICK_OVERRIDES) if quick else {}
     total = QUICK_TIMESTEPS if quick else (timesteps or shipped_timesteps(env))
@@ -423,9 +442,8 @@ def _chosen_model(run_path: Path) -> Path:
 
 
 def _shipped_model(env: str, deterministic: bool | None = None) -> ModelSource:
-    from sb3_coma.pretrained import load_pretrained
 
-    model = load_pretrained(env)
+    model = pt.load_pretrained(env)
     info = model.pretrained_info
     det = bool(info.get("deterministic", True)) if deterministic is None else deterministic
     return ModelSource(
@@ -445,12 +463,11 @@ def _shipped_model(env: str, deterministic: bool | None = None) -> ModelSource:
 def ablation_models(full_model: Any, say: Callable[[str], None] = print) -> dict[tuple[str, str], Any]:
     """The four ablation arms: ``full_model`` (the env3 model in use) plus the shipped models of
     the other three arms; an arm whose shipped model cannot be loaded is left out, with a message."""
-    from sb3_coma.pretrained import PretrainedError, load_pretrained
 
     models: dict[tuple[str, str], Any] = {ABLATION_FULL: full_model}
     for arm, name in ABLATION_ARMS.items():
         try:
-            models[arm] = load_pretrained(name)
+            models[arm] = pt.load_pretrained(name)
         except PretrainedError as exc:
             say(f"ablation: leaving out {arm[0]}_{arm[1]}: {exc}")
     return models
@@ -461,18 +478,16 @@ def ablation_models(full_model: Any, say: Callable[[str], None] = print) -> dict
 # ---------------------------------------------------------------------------------------------
 def paper_protocol(run: Run) -> None:
     """Table I on split "paper": every method, global and team tables, paired verdicts, acceptance."""
-    from sb3_coma import evaluation as ev
-    from sb3_coma.protocols import run_protocol
 
     o = run.opts
     run.paper = run_protocol("paper", run.methods, n_trials=o.trials, seed=o.seed, noise=o.noise, log=run.say)
     run.paper.write(run.out, "paper")
     run.skipped.update({f"paper protocol: {k}": v for k, v in run.paper.skipped.items()})
     rows = run.paper.rows()
-    ev.write_table_csv(rows, run.out / "table.csv")
-    ev.write_table_csv(rows, run.out / "team_table.csv", metrics="team")
-    ev.write_per_step_csv(rows, run.out / "per_step.csv")
-    ev.write_planning_time_csv(rows, run.out / "planning_time.csv")
+    tables.write_table_csv(rows, run.out / "table.csv")
+    tables.write_table_csv(rows, run.out / "team_table.csv", metrics="team")
+    tables.write_per_step_csv(rows, run.out / "per_step.csv")
+    tables.write_planning_time_csv(rows, run.out / "planning_time.csv")
     run.sections["table"] = run.paper.table("global")
     (run.out / "table.md").write_text(run.sections["table"])
     (run.out / "team_table.md").write_text(run.paper.table("team"))
@@ -488,12 +503,11 @@ def acceptance(
     results: Sequence[Any], model_label: str = "coma", baselines: Sequence[str] | None = None
 ) -> dict[str, dict[str, Any]]:
     """Per env: does ``model_label`` beat every baseline on F1 and on entropy at 100 %, each by a
-    paired test on the shared missions (``sb3_coma.paired``: a tie is not a win)?
+    paired test on the shared missions (``sb3_coma.common.paired``: a tie is not a win)?
 
     :param baselines: the methods to beat (default: every other method whose label does not start
         with ``model_label``, i.e. not another COMA model)
     """
-    from sb3_coma.paired import paired_difference
 
     out: dict[str, dict[str, Any]] = {}
     for env in dict.fromkeys(r.env for r in results):
@@ -544,14 +558,11 @@ def ablation_step(run: Run) -> None:
     """The env3 ablation: the four arms at three noise levels on the Table I missions."""
     if not run.arms:
         return
-    from sb3_coma import ablation as ab
-    from sb3_coma import evaluation as ev
-    from sb3_coma.paired import paired_difference
 
     run.ablation = ab.run_ablation(
         run.arms, env=ABLATION_ENV, n_trials=run.opts.trials, seed=run.opts.seed, log=run.say
     )
-    ev.write_table_csv(run.ablation.rows(), run.out / "ablation.csv", group_title="noise")
+    tables.write_table_csv(run.ablation.rows(), run.out / "ablation.csv", group_title="noise")
     run.sections["ablation"] = run.ablation.markdown()
     (run.out / "ablation.md").write_text(run.sections["ablation"])
     full = ab.LABELS[ABLATION_FULL]
@@ -572,7 +583,6 @@ def ablation_acceptance(result: Any, noise: str = ABLATION_CHECK_NOISE) -> dict[
     """The paper's ablation criterion by the means: is the full model's entropy at 100 % of the
     budget under ``noise`` at most every other arm's? Returns the entropies by arm label and the
     verdict (``None`` when an arm is missing). The paired differences are reported next to it."""
-    from sb3_coma.ablation import LABELS
 
     full = LABELS[ABLATION_FULL]
     entropy = {label: float(r.mean_std("entropy", 1.0)[0]) for (label, n), r in result.results.items() if n == noise}
@@ -599,9 +609,6 @@ def wide_paired_check(run: Run) -> None:
 
 def _evaluate_model(src: ModelSource, env: str, trials: int, seed: int, noise: str, label: str, **extra: Any) -> Any:
     """``evaluate`` a COMA model; sampled actions come from torch's generator, seeded here with ``seed``."""
-    import torch as th
-
-    from sb3_coma import evaluation as ev
 
     th.manual_seed(seed)
     return ev.evaluate(
@@ -626,9 +633,6 @@ def _paired_check(
     noise: str,
     say: Callable[[str], None],
 ) -> tuple[dict[str, Any], str]:
-    from sb3_coma import ablation as ab
-    from sb3_coma import evaluation as ev
-    from sb3_coma.paired import paired_difference, paired_markdown
 
     table1 = []
     for env, src in sources.items():
@@ -686,7 +690,6 @@ def unseen_protocol(run: Run) -> None:
     """Every method on ``unseen_missions`` missions of split "test" with random starts."""
     if not run.opts.unseen_missions:
         return
-    from sb3_coma.protocols import run_protocol
 
     o = run.opts
     run.unseen = run_protocol(
@@ -702,7 +705,6 @@ def unseen_protocol(run: Run) -> None:
 # ---------------------------------------------------------------------------------------------
 def generalisation_step(run: Run) -> None:
     """Each env's model on the other paper maps and on a fresh env1 star (baselines there too)."""
-    from sb3_coma import evaluation as ev
 
     o = run.opts
     gen: list[dict[str, Any]] = []
@@ -739,9 +741,6 @@ def untrained_prior(model: Any) -> Any:
     prior). ``None`` for a model without a gain prior. Evaluated with argmax actions, this is the
     greedy planner on the untrained mix of the two information gains, so comparing it with the
     trained model shows what COMA's training adds."""
-    import copy
-
-    import torch as th
 
     actor = model.policy.actor
     if getattr(actor, "prior_theta", None) is None:
@@ -756,7 +755,6 @@ def untrained_prior(model: Any) -> Any:
 
 def untrained_prior_step(run: Run) -> None:
     """The untrained gain prior of each model vs the trained model on the Table I missions."""
-    from sb3_coma import evaluation as ev
 
     o = run.opts
     rows: list[dict[str, Any]] = []
@@ -794,8 +792,6 @@ def untrained_prior_step(run: Run) -> None:
 def sweep_arms(run: Run) -> tuple[str, list[Any]]:
     """(map, arms) of the noise sweep: AG and every trained ablation arm on env3 when it is
     evaluated, else AG and the first map's model."""
-    from sb3_coma import ablation as ab
-    from sb3_coma.protocols import Method
 
     env = ABLATION_ENV if ABLATION_ENV in run.sources else run.opts.env_names[0]
     arms = [Method("ag", "ag")]
@@ -808,10 +804,9 @@ def sweep_arms(run: Run) -> tuple[str, list[Any]]:
 
 
 def noise_sweep_step(run: Run) -> None:
-    """``sb3_coma.noise_sweep`` on the sweep arms, shared unseen missions; table, CSV, figure."""
+    """``sb3_coma.experiments.noise_sweep`` on the sweep arms, shared unseen missions; table, CSV, figure."""
     if not run.opts.sweep_missions:
         return
-    from sb3_coma.noise_sweep import run_noise_sweep
 
     env, arms = sweep_arms(run)
     run.sweep = run_noise_sweep(
@@ -830,7 +825,6 @@ def noise_sweep_step(run: Run) -> None:
 def cost_models(run: Run) -> dict[str, tuple[Any, str, str]]:
     """One model per architecture in use (fusion x extractor), each timed on its own map: the maps'
     models, then the ablation arms of other architectures."""
-    from sb3_coma import ablation as ab
 
     out: dict[str, tuple[Any, str, str]] = {}
     seen = set()
@@ -847,11 +841,10 @@ def cost_models(run: Run) -> dict[str, tuple[Any, str, str]]:
 
 def cost_table(run: Run) -> None:
     """Decision time per UAV (batch of one, one thread): actor + fusion in PyTorch and ONNX Runtime,
-    AG with look-ahead 1, 2, 3 (``sb3_coma.costs``)."""
+    AG with look-ahead 1, 2, 3 (``sb3_coma.experiments.costs``)."""
     if not run.opts.costs:
         run.summary["latency"] = []
         return
-    from sb3_coma.costs import costs_markdown, decision_costs
 
     o = run.opts
     models = cost_models(run)
@@ -868,7 +861,6 @@ def cost_table(run: Run) -> None:
 def _time_fusion(fusion: str, n_agents: int, reps: int = 200) -> float | None:
     """ms per UAV decision of fusing the N received maps of one UAV (batch of one, PyTorch, with
     the projection to the lattice); ``None`` when the fusion cannot be built here."""
-    from sb3_coma.costs import _torch_fusion, one_thread, time_call
 
     try:
         fn = _torch_fusion(fusion, n_agents, 44, 11)
@@ -901,7 +893,6 @@ def _metrics_entry(res: Any) -> dict[str, Any]:
 
 def record_metrics(results: Sequence[Any], say: Callable[[str], None] = print) -> None:
     """Store the measured metrics of the shipped models in ``models.json``."""
-    from sb3_coma import pretrained as pt
 
     manifest = pt.read_manifest()
     for res in results:
@@ -911,7 +902,6 @@ def record_metrics(results: Sequence[Any], say: Callable[[str], None] = print) -
 
 
 def _ship(sources: dict[str, ModelSource], results: Sequence[Any], say: Callable[[str], None]) -> None:
-    from sb3_coma import pretrained as pt
 
     directory = pt.pretrained_dir()
     directory.mkdir(parents=True, exist_ok=True)
@@ -934,18 +924,12 @@ def _ship(sources: dict[str, ModelSource], results: Sequence[Any], say: Callable
             **_metrics_entry(res),
             "training_curve": src.training_curve,
         }
-        try:
-            from envs import WORLD_VERSION
-
-            manifest["models"][env]["world"] = WORLD_VERSION
-        except ImportError:
-            pass
+        manifest["models"][env]["world"] = WORLD_VERSION
         say(f"shipped {directory / manifest['models'][env]['file']}")
     pt.write_manifest(manifest)
 
 
 def _report() -> Any:
-    from sb3_coma import report
 
     return report
 
@@ -954,7 +938,6 @@ def figures_step(run: Run) -> None:
     """Metric curves per protocol, training reward, ablation, noise sweep."""
     if not run.opts.plots:
         return
-    from sb3_coma import plots as pl
 
     fig_dir = run.out / "figures"
     o = run.opts
@@ -1059,7 +1042,6 @@ def _jsonable(value: Any) -> Any:
 
 
 def _ag_weightings(env_names: Sequence[str]) -> dict[str, str]:
-    from sb3_coma.baselines.adaptive_gain import default_weighting
 
     return {env: default_weighting(env) for env in env_names}
 

@@ -16,7 +16,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sb3_coma.evaluation import EvaluationResult, TableRow, evaluate, table_markdown, table_text
+import envs
+from sb3_coma.app.evaluation import evaluate
+from sb3_coma.common.evaluation import EvaluationResult
+from sb3_coma.common.tables import TableRow, table_markdown, table_text
 
 FUSIONS: tuple[str, ...] = ("mean", "sendfuse")
 EXTRACTORS: tuple[str, ...] = ("cnn", "cbam")
@@ -73,7 +76,6 @@ def find_models(source: Mapping[Any, Any] | str | os.PathLike) -> dict[Variant, 
 
 def fusion_unavailable(env: str, fusion: str, **env_options: Any) -> str | None:
     """``None`` when ``make_vec_env(fusion=...)`` works here, else why it does not."""
-    import envs
 
     try:
         venv = envs.make_vec_env(env, n_envs=1, fusion=fusion, **env_options)

@@ -8,11 +8,11 @@ import sys
 
 import yaml
 
-from sb3_coma import training
-from sb3_coma.checkpoints import CheckpointError
+from sb3_coma.app import training
+from sb3_coma.app.config import TrainingError, default_config_path, list_variants
+from sb3_coma.app.training import TrainingInterrupted
 from sb3_coma.cli import UserError, set_threads
-from sb3_coma.config import TrainingError, default_config_path, list_variants
-from sb3_coma.training import TrainingInterrupted
+from sb3_coma.common.checkpoints import CheckpointError
 
 NAME = "train"
 HELP = "train COMA on a map into a run folder (resume with --resume RUN_DIR)"

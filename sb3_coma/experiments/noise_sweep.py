@@ -1,6 +1,6 @@
 """Noise sweep: how the channel's noise moves each method's map, global and team.
 
-The channel (DESIGN section 3) corrupts every received cell as ``I_r = a I + n`` with
+The channel (docs/design.md §3) corrupts every received cell as ``I_r = a I + n`` with
 ``a ~ U(alpha_low, 1)`` and ``n ~ N(0, sigma^2)``, drops whole messages with
 ``drop_probability``, and the receiver folds ``I_r`` into its own map with a ``decoder``
 (``"soft"`` or ``"threshold"``). The sweep flies AG and each trained ablation arm on the same
@@ -13,7 +13,7 @@ alpha_low 0.8, no drops), each under both decoders: :data:`SIGMAS`, :data:`ALPHA
 :data:`DROP_PROBABILITIES`; ``grid=True`` flies the full product instead (96 settings).
 Every setting flies the same missions (env seeds ``seed .. seed + n - 1`` of ``split``, default
 the unseen protocol's ``"test"`` with random starts), so each arm is compared with AG mission by
-mission (``sb3_coma.paired``).
+mission (``sb3_coma.common.paired``).
 """
 
 from __future__ import annotations
@@ -27,10 +27,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch as th
 
-from sb3_coma.evaluation import ALL_METRICS, EvaluationResult, evaluate
-from sb3_coma.paired import PairedDifference, cell, paired_difference
-from sb3_coma.protocols import Method
+from sb3_coma.app.evaluation import evaluate
+from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult
+from sb3_coma.common.paired import PairedDifference, cell, paired_difference
+from sb3_coma.experiments.protocols import Method
 
 __all__ = [
     "ALPHA_LOWS",
@@ -255,7 +257,7 @@ def run_noise_sweep(
 ) -> NoiseSweepResult:
     """Fly every arm at every setting on the same missions (module docstring).
 
-    :param arms: the methods (``sb3_coma.protocols.Method``); the first baseline AG among them is
+    :param arms: the methods (``sb3_coma.experiments.protocols.Method``); the first baseline AG among them is
         the reference of the paired columns
     :param points: the settings (default :func:`sweep_points`, ``quick``: :data:`QUICK_AXES`)
     :param split: where the missions come from (default the unseen protocol's ``"test"``; random
@@ -284,8 +286,6 @@ def run_noise_sweep(
             if log and k == 0:
                 log(f"noise sweep: {arm.label} on {env}, {len(points)} settings x {n_missions} missions ...")
             if arm.learned:
-                import torch as th
-
                 th.manual_seed(seed)
             try:
                 out.results[(arm.label, point)] = evaluate(

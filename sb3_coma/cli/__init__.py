@@ -1,6 +1,6 @@
 """The ``sb3-coma`` command line.
 
-Each sub-command lives in its own module under :mod:`sb3_coma.commands` and exposes
+Each sub-command lives in its own module under :mod:`sb3_coma.cli.commands` and exposes
 ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``; modules are discovered
 at start-up, so adding a command never touches this file. Errors that users can fix (bad options,
 missing files) are printed as one line and exit with status 2, never as a traceback; a full disk
@@ -18,9 +18,9 @@ from types import ModuleType
 import torch
 
 from envs import ConfigError, MapError
-from sb3_coma import commands
-from sb3_coma.checkpoints import CheckpointError, DiskFullError
-from sb3_coma.config import TrainingError
+from sb3_coma.app.config import TrainingError
+from sb3_coma.cli import commands
+from sb3_coma.common.checkpoints import CheckpointError, DiskFullError
 from sb3_coma.sendfuse import SenDFuseWeightsError
 
 

@@ -34,7 +34,7 @@ from torch import nn
 import envs
 from envs import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
 from sb3_coma.coma import COMA
-from sb3_coma.extractors import CBAMExtractor, CnnExtractor
+from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 
 __all__ = [
     "DEFAULT_ENV_ID",
@@ -127,7 +127,7 @@ def resolve_env_id(env: str) -> str:
 def default_config_path() -> Path:
     """``zoo_configs/coma.yml`` of a source checkout, else the copy installed under ``sys.prefix``."""
     candidates = [
-        Path(__file__).resolve().parent.parent / "zoo_configs" / "coma.yml",
+        Path(__file__).resolve().parents[2] / "zoo_configs" / "coma.yml",
         Path(sys.prefix) / "zoo_configs" / "coma.yml",
     ]
     for path in candidates:

@@ -34,8 +34,14 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from stable_baselines3.common.logger import TensorBoardOutputFormat
 
-from sb3_coma.checkpoints import CHECKPOINT_PREFIX, atomic_save, atomic_write_text, checkpoint_name, find_checkpoints
 from sb3_coma.coma.validation import resolve_n_agents
+from sb3_coma.common.checkpoints import (
+    CHECKPOINT_PREFIX,
+    atomic_save,
+    atomic_write_text,
+    checkpoint_name,
+    find_checkpoints,
+)
 
 __all__ = [
     "METRIC_COLUMNS",
@@ -355,7 +361,7 @@ class StopOnTargetCallback(BaseCallback):
     In an rl-zoo3 config::
 
         callback:
-          - sb3_coma.callbacks.StopOnTargetCallback: {metric: entropy, threshold: 0.25}
+          - sb3_coma.common.callbacks.StopOnTargetCallback: {metric: entropy, threshold: 0.25}
 
     :param metric: ``"entropy"``, ``"f1"`` or ``"reward"`` (team return)
     :param threshold: the target
@@ -505,7 +511,7 @@ class MissionEvalCallback(EvalCallback):
     With ``eval_seed`` every evaluation re-seeds the eval env first, so every checkpoint flies the
     SAME missions and "best" compares policies, not luck of the draw (SB3's own callback lets the
     missions run on, so two evaluations see different noise). Use seeds the final evaluation does
-    not use (``sb3_coma.training.VALIDATION_SEED``): choosing a checkpoint on the test missions
+    not use (``sb3_coma.app.training.VALIDATION_SEED``): choosing a checkpoint on the test missions
     would report a selected, optimistic number.
     """
 

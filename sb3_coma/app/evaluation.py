@@ -1,0 +1,341 @@
+"""``sb3_coma.evaluate``: the front door that turns names into objects, then flies them.
+
+``evaluate(policy_or_name, env="env3", n_trials=10, seed=0)`` flies ``n_trials`` missions with a
+trained model (object, ``.zip`` path or shipped name) or a baseline (``"random"``,
+``"lawnmower"``, ``"ag"``). Resolving a shipped name or a path to a model, a baseline name to a
+planner, a protocol to env options, and the model's own observation options to the env it flies
+in is the application's job (like rl-zoo's ``get_model_path``); flying the missions is the
+library's :func:`sb3_coma.common.evaluation.evaluate_policy`, which takes objects.
+
+AG's entropy weighting defaults to the one chosen per map family on validation missions
+(``sb3_coma.baselines.adaptive_gain.WEIGHTING_BY_MAP``, measured by ``sb3-coma ag-weighting``)
+unless ``planner_kwargs`` names one.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import envs
+from sb3_coma.app import pretrained
+from sb3_coma.app.pretrained import shipped_env_options
+from sb3_coma.baselines import PLANNERS, Planner, make_planner, planner_class
+from sb3_coma.baselines.adaptive_gain import default_weighting
+from sb3_coma.coma import COMA
+from sb3_coma.common.checkpoints import training_options, validate_checkpoint
+from sb3_coma.common.evaluation import (
+    DEFAULT_TRIALS,
+    EVAL_BATCH,
+    MODEL_LABEL,
+    PROTOCOLS,
+    EvaluationResult,
+    _check_int,
+    evaluate_policy,
+    protocol_of,
+    relabel,
+)
+
+__all__ = ["PROTOCOLS", "check_policy", "evaluate", "is_model", "planner_options", "resolve_policy"]
+
+
+def baseline_names() -> list[str]:
+    return sorted(PLANNERS)
+
+
+def _is_baseline(name: str) -> bool:
+    try:
+        planner_class(name)
+        return True
+    except ValueError:
+        return False
+
+
+def _looks_like_path(name: str) -> bool:
+    return name.endswith(".zip") or os.sep in name or "/" in name or name.startswith(".")
+
+
+def _load_model_file(path: Path, venv: Any) -> Any:
+    validate_checkpoint(path)  # truncated / corrupt / another algorithm: CheckpointError naming the file
+    try:
+        return COMA.load(str(path), env=venv, device="cpu")
+    except pickle.UnpicklingError as exc:  # torch's "Weights only load failed ..." on a damaged member
+        raise ValueError(
+            f"cannot load model {str(path)!r}: it is corrupt (a network or optimizer member is not "
+            "a readable PyTorch file)"
+        ) from exc
+    except (ValueError, KeyError, AssertionError, RuntimeError, EOFError) as exc:
+        raise ValueError(
+            f"cannot load model {str(path)!r} for this environment: {exc} (was it trained with "
+            f"another number of UAVs or observation layout?)"
+        ) from exc
+
+
+def _is_shipped_name(policy_or_name: Any) -> bool:
+    """A shipped model's name (``"env1"``, ``"UavIpp-Env3-v0"``, ``"env3-mean-cnn"``): it always
+    means the verified package file, never a file of that name in the current folder (an SB3 zip
+    can run code when loaded, so a local file must be passed as an explicit path)."""
+    return isinstance(policy_or_name, str) and pretrained.is_shipped(policy_or_name)
+
+
+def _load_pretrained(name: str, venv: Any) -> Any:
+    return pretrained.load_pretrained(name, env=venv)
+
+
+def is_model(policy_or_name: Any) -> bool:
+    """Whether this names/is a learned model (not a baseline): decides the default fusion."""
+    if isinstance(policy_or_name, (str, os.PathLike)):
+        return not (isinstance(policy_or_name, str) and _is_baseline(policy_or_name))
+    return not isinstance(policy_or_name, Planner)
+
+
+def check_policy(policy_or_name: Any) -> None:
+    """Fail early, before any env is built, on names and paths that cannot resolve."""
+    if _is_shipped_name(policy_or_name) or (isinstance(policy_or_name, str) and _is_baseline(policy_or_name)):
+        return
+    if isinstance(policy_or_name, (str, os.PathLike)):
+        text = os.fspath(policy_or_name)
+        if not text.strip():
+            raise ValueError("empty method name")
+        if Path(text).is_file() or Path(text + ".zip").is_file():
+            return
+        if isinstance(policy_or_name, os.PathLike) or _looks_like_path(text):
+            raise FileNotFoundError(f"model file not found: {text!r}")
+        raise ValueError(
+            f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a model file, and not "
+            f"a shipped model (available: {', '.join(pretrained.available()) or 'none'})"
+        )
+    if not callable(getattr(policy_or_name, "predict", None)):
+        raise TypeError(
+            f"cannot evaluate {type(policy_or_name).__name__}: pass a baseline name, a model path "
+            f"or an object with SB3's predict(observation, deterministic=...)"
+        )
+
+
+def resolve_policy(
+    policy_or_name: Any, venv: Any, seed: int | None, planner_kwargs: Mapping[str, Any] | None = None
+) -> tuple[Any, str]:
+    """(predictor with SB3's ``predict``, label) for a baseline name, model path/name or object."""
+    check_policy(policy_or_name)
+    if isinstance(policy_or_name, str) and _is_baseline(policy_or_name):
+        cls = planner_class(policy_or_name)
+        return make_planner(cls.name, venv, seed=seed, **dict(planner_kwargs or {})), cls.name
+    if _is_shipped_name(policy_or_name):
+        return _load_pretrained(policy_or_name, venv), policy_or_name
+    if isinstance(policy_or_name, (str, os.PathLike)):
+        text = os.fspath(policy_or_name)
+        path = Path(text) if Path(text).is_file() else Path(text + ".zip")
+        return _load_model_file(path, venv), path.stem
+    if isinstance(policy_or_name, Planner):
+        if policy_or_name.uses_env_state and policy_or_name.venv is not venv:
+            raise ValueError(
+                f"a {policy_or_name.name!r} planner reads its own vec env's state: pass its name "
+                f"({policy_or_name.name!r}) so that evaluate builds it on the evaluation env"
+            )
+        return policy_or_name, policy_or_name.name
+    return policy_or_name, MODEL_LABEL
+
+
+#: Env options that shape a model's observation: ``evaluate`` takes them from the model's training
+#: options unless the caller sets them. The mission (map, split, start, noise, team size) stays the
+#: caller's choice.
+OBSERVATION_OPTIONS = ("action_gain", "comm_grid", "lattice", "grid", "altitudes", "field_size", "fov_deg")
+
+
+def _trained_options(policy_or_name: Any, shipped: dict[str, Any]) -> dict[str, Any]:
+    """The env options a model was trained with (``sb3_coma.training_options``); ``{}`` for
+    baselines and for models that do not record them."""
+    if not is_model(policy_or_name):
+        return {}
+    if isinstance(policy_or_name, str) and not policy_or_name.endswith(".zip") and shipped:
+        return shipped_env_options(policy_or_name) or {}
+    return training_options(policy_or_name) or {}
+
+
+def _warn_if_flown_differently(
+    policy_or_name: Any, trained: dict[str, Any], shipped: dict[str, Any], fusion: str | None, n_uavs: int
+) -> None:
+    """Warn (not refuse) when a model flies with another team size or fusion than it trained with.
+
+    Both are legal (the actor is per agent and the fusions take any number of maps, see
+    docs/deployment.md), but the results then describe another method than the model's own,
+    which is easy to do by accident with ``--uavs`` or ``--fusion``. ``fusion`` is the caller's
+    (``None``: the model's own is used, nothing to warn about).
+    """
+    if not is_model(policy_or_name):
+        return
+    what = f"model {os.fspath(policy_or_name)!r}" if isinstance(policy_or_name, (str, os.PathLike)) else "the model"
+    own_n = trained.get("n_uavs")
+    if own_n is None and not isinstance(policy_or_name, (str, os.PathLike)):
+        own_n = getattr(policy_or_name, "n_agents", None)  # a COMA object that records no options
+    if isinstance(own_n, (int, np.integer)) and not isinstance(own_n, bool) and int(own_n) != n_uavs:
+        warnings.warn(
+            f"{what} was trained with {int(own_n)} UAVs but flies with {n_uavs} (n_uavs={n_uavs}): allowed, its "
+            f"actor is per agent, but the results are not those of its own team size",
+            UserWarning,
+            stacklevel=3,
+        )
+    own_fusion = trained.get("fusion") or shipped.get("fusion")
+    if fusion is not None and own_fusion and fusion != own_fusion:
+        warnings.warn(
+            f"{what} was trained with fusion {own_fusion!r} but flies with fusion {fusion!r}: its actor reads "
+            f"fused maps of another kind; pass fusion={own_fusion!r} (or leave it unset) to fly it as trained",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
+def _shipped_info(policy_or_name: Any) -> dict[str, Any]:
+    """Manifest entry of a shipped model (by name or loaded object); empty for anything else."""
+    info = getattr(policy_or_name, "pretrained_info", None)
+    if isinstance(info, dict):
+        return info
+    if isinstance(policy_or_name, str) and not policy_or_name.endswith(".zip"):
+        try:
+            return pretrained.model_info(policy_or_name)
+        except (ImportError, ValueError, KeyError, OSError):
+            return {}
+    return {}
+
+
+def _is_ag(policy_or_name: Any) -> bool:
+    if not isinstance(policy_or_name, str) or not _is_baseline(policy_or_name):
+        return False
+    return planner_class(policy_or_name).name == "ag"
+
+
+def planner_options(policy_or_name: Any, config: Any, planner_kwargs: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The options a baseline is built with: ``planner_kwargs`` plus, for AG on a known map family
+    without a ``weighting`` of the caller's, the per-map weighting chosen on validation missions."""
+    options = dict(planner_kwargs or {})
+    if _is_ag(policy_or_name) and "weighting" not in options:
+        options["weighting"] = default_weighting(None if getattr(config, "map_path", None) else config.map_name)
+    return options
+
+
+def _protocol_options(
+    protocol: str | None, n_trials: int | None, env_options: dict[str, Any]
+) -> tuple[str | None, int, dict[str, Any]]:
+    """(protocol name, missions, env options) after applying a protocol's rules."""
+    if protocol is None:
+        return None, DEFAULT_TRIALS if n_trials is None else n_trials, env_options
+    proto = protocol_of(protocol)
+    fixed = proto.env_options()
+    for key, value in fixed.items():
+        if key in env_options and env_options[key] != value:
+            raise ValueError(
+                f"protocol {proto.name!r} flies {key}={value!r}; got {key}={env_options[key]!r} "
+                f"(drop protocol= to choose the missions yourself)"
+            )
+    return proto.name, proto.n_trials if n_trials is None else n_trials, {**env_options, **fixed}
+
+
+def evaluate(
+    policy_or_name: Any,
+    env: str = "env3",
+    n_trials: int | None = None,
+    seed: int = 0,
+    fusion: str | None = None,
+    deterministic: bool | None = None,
+    n_envs: int | None = None,
+    record: int = 1,
+    label: str | None = None,
+    planner_kwargs: Mapping[str, Any] | None = None,
+    protocol: str | None = None,
+    **env_options: Any,
+) -> EvaluationResult:
+    """Run a trained model or a baseline for ``n_trials`` seeded missions (see module docstring).
+
+    :param policy_or_name: ``"random"``, ``"lawnmower"``, ``"ag"`` (or ``"nl"``); a COMA model
+        object, a path to a saved ``.zip``, or a shipped model name (``"env1"`` ...,
+        via ``sb3_coma.load_pretrained``); or any object with SB3's ``predict``
+    :param env: map name or gymnasium id
+    :param n_trials: missions; trial ``k`` uses env seed ``seed + k`` (default: the protocol's
+        count, 10 without a protocol)
+    :param seed: base seed (env and the planner's own random stream)
+    :param fusion: ``"mean"`` or ``"sendfuse"``; ``None``: ``"sendfuse"`` for models (the paper's
+        method), ``"mean"`` for baselines (they do not read the fused channel)
+    :param deterministic: passed to the model's ``predict``; ``None``: what a shipped model's
+        manifest records (its results were measured that way), else ``True``
+    :param n_envs: env copies flown at once (default :data:`EVAL_BATCH`); results are
+        reproducible for the same ``seed`` and ``n_envs``
+    :param record: how many trials keep their final global belief (trial 0 also keeps a belief
+        per step for the GIF when ``record >= 1``)
+    :param label: method name in tables (default: the baseline name, model file stem or "coma")
+    :param planner_kwargs: options of the baseline (e.g. ``{"altitude": 5.0}`` for the lawnmower,
+        ``{"lookahead": 2}`` for AG; AG's ``weighting`` defaults to the map family's, see module docstring)
+    :param protocol: ``"paper"`` or ``"unseen"`` (:data:`PROTOCOLS`): sets ``split`` / ``start`` and
+        the default ``n_trials``; ``None``: the env options as given
+    :param env_options: environment options (``noise``, ``n_uavs``, ``budget``, ``map_path``,
+        ``valuable``, ...)
+    """
+    protocol, n_trials, env_options = _protocol_options(protocol, n_trials, dict(env_options))
+    n_trials = _check_int("n_trials", n_trials, 1)
+    check_policy(policy_or_name)
+    shipped = _shipped_info(policy_or_name)
+    trained = _trained_options(policy_or_name, shipped)
+    for key in OBSERVATION_OPTIONS:  # what the network's inputs are made of follows the model
+        if key in trained and key not in env_options:
+            env_options[key] = trained[key]
+    own_fusion = trained.get("fusion") or shipped.get("fusion")
+    flown_fusion = fusion or own_fusion or ("sendfuse" if is_model(policy_or_name) else "mean")
+    if deterministic is None:
+        deterministic = bool(shipped.get("deterministic", True))
+    flown_kwargs: dict[str, Any] = {}
+    first_batch = [True]
+
+    def make_env(n: int) -> Any:
+        try:
+            return envs.make_vec_env(env, n_envs=n, fusion=flown_fusion, seed=None, **env_options)
+        except ValueError as exc:
+            if flown_fusion == "sendfuse" and "sendfuse" in str(exc):
+                raise ValueError(f"{exc}; evaluate a model trained without SenDFuse with fusion='mean'") from exc
+            raise
+
+    def predictor_for(venv: Any, batch_seed: int) -> Any:
+        config = venv.get_attr("config", indices=[0])[0]
+        if first_batch.pop() if first_batch else False:
+            flown_kwargs.update(planner_options(policy_or_name, config, planner_kwargs))
+            _warn_if_flown_differently(policy_or_name, trained, shipped, fusion, int(config.n_uavs))
+        return resolve_policy(policy_or_name, venv, batch_seed, flown_kwargs)[0]
+
+    result = evaluate_policy(
+        predictor_for,
+        make_env,
+        n_trials,
+        seed,
+        deterministic=bool(deterministic),
+        n_envs=EVAL_BATCH if n_envs is None else n_envs,
+        record=record,
+        label=label or policy_label(policy_or_name),
+    )
+    is_baseline = isinstance(policy_or_name, str) and _is_baseline(policy_or_name)
+    return relabel(
+        result,
+        env=str(env),
+        fusion=flown_fusion,
+        env_options=dict(env_options),
+        protocol=protocol,
+        planner_kwargs=dict(flown_kwargs) if is_baseline else {},
+    )
+
+
+def policy_label(policy_or_name: Any) -> str:
+    """The name a method gets in tables: the baseline's name, the model file's stem, the shipped
+    model's name, a planner's name, or :data:`MODEL_LABEL`."""
+    if isinstance(policy_or_name, str) and _is_baseline(policy_or_name):
+        return planner_class(policy_or_name).name
+    if _is_shipped_name(policy_or_name):
+        return str(policy_or_name)
+    if isinstance(policy_or_name, (str, os.PathLike)):
+        text = os.fspath(policy_or_name)
+        return (Path(text) if Path(text).is_file() else Path(text + ".zip")).stem
+    if isinstance(policy_or_name, Planner):
+        return policy_or_name.name
+    return MODEL_LABEL

@@ -1,0 +1,589 @@
+"""Training as users run it: the trainer behind ``sb3-coma train`` (and ``reproduce``)::
+
+    from sb3_coma.app.training import train
+    model, run_dir = train(env="env3", variant="mean-cnn", total_timesteps=18_000, seed=0)
+
+:func:`train` is a sequence of named steps: load the config (:func:`plan_run`), build the envs
+(:func:`make_training_env`), build the model (:func:`build_model`), prepare the run folder
+(:func:`prepare_run_folder`), attach the callbacks (:func:`attach_callbacks`), learn
+(:func:`learn`) and save (:func:`save_final`). The run folder layout is in :mod:`sb3_coma.app.runs`,
+the config format in :mod:`sb3_coma.app.config` (see ``docs/modules/cli.md``).
+
+The trainer core that ``python -m sb3_coma.zoo`` shares: :func:`mission_callbacks` (metrics CSV,
+checkpoints in joint steps, seeded validation missions, clean stop on signals),
+:func:`record_env_options` (what a saved model records about its env) and
+:func:`sb3_coma.app.config.make_vec_env_from_kwargs` (the envs).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import os
+import sys
+import traceback
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common import callbacks as sb3_callbacks
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_coma import __version__
+from sb3_coma.app.config import (
+    RESERVED_KEYS,
+    RUN_KEY,
+    UNSUPPORTED_KEYS,
+    VARIANTS_KEY,
+    ZOO_KEYS,
+    TrainConfig,
+    TrainingError,
+    coma_kwargs,
+    coma_parameter_names,
+    config_entry,
+    construct,
+    default_config_path,
+    env_options_of,
+    is_int,
+    list_variants,
+    load_config,
+    make_training_env,
+    named_objects,
+    positive_int,
+    read_config_file,
+    resolve_env_id,
+    resolve_policy_kwargs,
+    validate_entry,
+)
+from sb3_coma.app.runs import (
+    CHECKPOINT_DIR,
+    CONFIG_FILE,
+    METRICS_FILE,
+    MODEL_FILE,
+    TENSORBOARD_DIR,
+    check_run_dir,
+    new_run_dir,
+    read_run_config,
+    resolve_resume,
+    write_run_config,
+)
+from sb3_coma.coma import COMA
+from sb3_coma.coma.validation import check_device as validation_check_device
+from sb3_coma.common.callbacks import (
+    EpisodeMetricsCallback,
+    JointCheckpointCallback,
+    MissionEvalCallback,
+    SignalStopCallback,
+    truncate_metrics_csv,
+)
+from sb3_coma.common.checkpoints import atomic_save, load_checkpoint, validate_checkpoint
+from sb3_coma.common.memory import release_freed_memory
+
+__all__ = [
+    # the trainer
+    "TB_LOG_NAME",
+    "VALIDATION_SEED",
+    "MissionCallbacks",
+    "RunPlan",
+    "TrainingInterrupted",
+    "attach_callbacks",
+    "build_model",
+    "check_device",
+    "learn",
+    "mission_callbacks",
+    "plan_run",
+    "prepare_run_folder",
+    "record_env_options",
+    "save_final",
+    "train",
+    # kept importable from here: the config format (sb3_coma.app.config) and run folders (sb3_coma.app.runs)
+    "CHECKPOINT_DIR",
+    "CONFIG_FILE",
+    "METRICS_FILE",
+    "MODEL_FILE",
+    "RESERVED_KEYS",
+    "RUN_KEY",
+    "UNSUPPORTED_KEYS",
+    "VARIANTS_KEY",
+    "ZOO_KEYS",
+    "TrainConfig",
+    "TrainingError",
+    "coma_kwargs",
+    "coma_parameter_names",
+    "config_entry",
+    "default_config_path",
+    "list_variants",
+    "load_config",
+    "make_training_env",
+    "new_run_dir",
+    "read_config_file",
+    "resolve_env_id",
+    "resolve_policy_kwargs",
+    "resolve_resume",
+    "validate_entry",
+]
+
+TB_LOG_NAME = "COMA"
+#: Env seed of the validation missions that ``--eval-freq`` flies (seeds 1000, 1001, ...): far
+#: from the seeds 0..n-1 that ``evaluate`` and ``reproduce`` report, so picking the best
+#: checkpoint never looks at the test missions.
+VALIDATION_SEED = 1000
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Training stopped on SIGINT/SIGTERM after saving a checkpoint; resume from :attr:`run_dir`."""
+
+    def __init__(self, run_dir: Path, checkpoint: Path, num_timesteps: int, signum: int) -> None:
+        super().__init__(f"interrupted at {num_timesteps} joint steps; checkpoint {checkpoint}")
+        self.run_dir = run_dir
+        self.checkpoint = checkpoint
+        self.num_timesteps = num_timesteps
+        self.signum = signum
+
+
+# =========================================================================== shared trainer core
+def record_env_options(model: COMA, map_name: str, env_kwargs: Mapping[str, Any]) -> None:
+    """Record on the model (and so in every zip saved from it) the env it trains on."""
+    model.env_options = env_options_of(map_name, env_kwargs)
+
+
+@dataclass
+class MissionCallbacks:
+    """The callbacks every COMA training run gets (both trainers)."""
+
+    metrics: EpisodeMetricsCallback
+    checkpoints: JointCheckpointCallback | None
+    evaluation: MissionEvalCallback | None
+    stopper: SignalStopCallback | None
+
+    def as_list(self) -> list[BaseCallback]:
+        return [cb for cb in (self.metrics, self.checkpoints, self.evaluation) if cb is not None]
+
+
+def mission_callbacks(
+    folder: Path,
+    save_freq: int,
+    checkpoint_dir: Path,
+    eval_env: VecEnv | None = None,
+    eval_freq: int = 0,
+    eval_missions: int = 5,
+    eval_seed: int | None = None,
+    eval_log_path: Path | None = None,
+    deterministic: bool = True,
+    stop_on_signal: bool = True,
+    verbose: int = 0,
+    stop_verbose: int | None = None,
+) -> MissionCallbacks:
+    """Per-mission metrics (TensorBoard + ``folder/metrics.csv``), a checkpoint every ``save_freq``
+    joint steps (none when ``save_freq <= 0``), with ``eval_env`` the validation missions every
+    ``eval_freq`` joint steps (best model -> ``folder/best_model.zip``) and the clean stop on
+    SIGINT / SIGTERM (``stop_verbose``: its verbosity, default ``verbose``)."""
+    evaluation = None
+    if eval_env is not None and eval_freq > 0:
+        evaluation = MissionEvalCallback(
+            eval_env,
+            eval_freq=eval_freq,
+            n_eval_missions=eval_missions,
+            best_model_save_path=folder,
+            log_path=eval_log_path or folder,
+            deterministic=deterministic,
+            verbose=verbose,
+            eval_seed=eval_seed,
+        )
+    return MissionCallbacks(
+        metrics=EpisodeMetricsCallback(csv_path=folder / METRICS_FILE),
+        checkpoints=JointCheckpointCallback(save_freq, checkpoint_dir, verbose=verbose) if save_freq > 0 else None,
+        evaluation=evaluation,
+        stopper=SignalStopCallback(verbose=verbose if stop_verbose is None else stop_verbose)
+        if stop_on_signal
+        else None,
+    )
+
+
+# =========================================================================== the steps of train()
+@dataclass
+class RunPlan:
+    """Step 1 of :func:`train`: what to train, from where, with which seed."""
+
+    cfg: TrainConfig
+    seed: int
+    resume_model: Path | None = None
+    #: The run folder a resume continues in place (``None``: a new folder is made).
+    run_path: Path | None = None
+    done_steps: int = 0
+    eval_seed: int = VALIDATION_SEED
+
+    @property
+    def resumed_in_place(self) -> bool:
+        return self.run_path is not None
+
+
+def check_device(device: Any) -> None:
+    """:func:`sb3_coma.coma.validation.check_device` as a :class:`TrainingError`, checked before
+    the run folder is made."""
+    try:
+        validation_check_device(device)
+    except ValueError as exc:
+        raise TrainingError(str(exc)) from None
+
+
+def _resumed_config(
+    resume_run: Path,
+    resume: Any,
+    env: str | None,
+    config: Any,
+    variant: str | None,
+    overrides: Mapping[str, Any] | None,
+) -> TrainConfig:
+    """The config of the run folder a resume continues in (its own, plus ``overrides``)."""
+    if config is not None or variant is not None:
+        raise TrainingError(
+            f"--resume {resume} continues run {resume_run} with its own config; drop --config/--variant"
+        )
+    cfg = read_run_config(resume_run)
+    if env is not None and resolve_env_id(env) != cfg.env_id:
+        raise TrainingError(f"--resume {resume}: that run trains {cfg.env_id}, not {resolve_env_id(env)}")
+    if overrides:
+        # A resumed run continues its checkpoint (whose settings are saved in it) on its own env: a
+        # --set would either be ignored (COMA's arguments) or change the world mid-run (env_kwargs,
+        # e.g. the fusion), and config.yml would then misstate the run. Refuse instead.
+        raise TrainingError(
+            f"--resume {resume}: --set {', '.join(sorted(overrides))} cannot apply to a resumed run (the "
+            f"checkpoint keeps its settings and its env); start a new run to change them"
+        )
+    return cfg
+
+
+def plan_run(
+    env: str | None = None,
+    config: str | os.PathLike[str] | None = None,
+    variant: str | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    resume: str | os.PathLike[str] | None = None,
+    total_timesteps: int | None = None,
+    n_envs: int | None = None,
+    seed: int | None = None,
+    eval_seed: int | None = None,
+    device: str = "auto",
+) -> RunPlan:
+    """Load the config (or the resumed run's), apply the command-line settings, pick the seed."""
+    if total_timesteps is not None:
+        total_timesteps = positive_int("train()", "total_timesteps", total_timesteps)
+    if n_envs is not None:
+        n_envs = positive_int("train()", "n_envs", n_envs)
+    if seed is not None and not is_int(seed):
+        raise TrainingError(f"seed must be an integer, got {seed!r}")
+    if eval_seed is not None and not is_int(eval_seed):
+        raise TrainingError(f"eval_seed must be an integer, got {eval_seed!r}")
+    check_device(device)
+    resume_run, resume_model = resolve_resume(resume) if resume is not None else (None, None)
+    if resume_run is not None:
+        cfg = _resumed_config(resume_run, resume, env, config, variant, overrides)
+    else:
+        cfg = load_config(env, config, variant, overrides)
+    if n_envs is not None:
+        cfg.entry["n_envs"] = n_envs
+    if total_timesteps is not None:
+        cfg.entry["n_timesteps"] = total_timesteps
+    info = validate_checkpoint(resume_model) if resume_model is not None else None
+    if info is not None and info.n_agents is not None and info.n_agents != cfg.n_agents:
+        raise TrainingError(
+            f"checkpoint {resume_model} was trained with {info.n_agents} UAVs but the config has {cfg.n_agents}"
+        )
+    done = info.num_timesteps if info is not None else 0
+    if seed is None:  # a resumed run continues its own seed, moved on by the steps done
+        base = cfg.run.get("seed") if resume_run is not None else None
+        seed = int(base) + done if is_int(base) else int(np.random.randint(0, 2**31 - 1))
+    return RunPlan(
+        cfg=cfg,
+        seed=seed,
+        resume_model=resume_model,
+        run_path=resume_run,
+        done_steps=done,
+        eval_seed=VALIDATION_SEED if eval_seed is None else int(eval_seed),
+    )
+
+
+def _assertion_site(exc: BaseException) -> str:
+    """``"AssertionError in <file>:<line>"`` for a bare ``assert`` without a message."""
+    text = str(exc).strip()
+    frames = traceback.extract_tb(exc.__traceback__)
+    where = f" in {Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else ""
+    return f"AssertionError{where}" + (f": {text}" if text else "")
+
+
+def build_model(plan: RunPlan, venv: VecEnv, device: str = "auto", verbose: int = 0) -> COMA:
+    """A new COMA model from the config, or the resumed checkpoint on the new env; either way it
+    records the env options it trains with (:func:`record_env_options`)."""
+    if plan.resume_model is not None:
+        model = load_checkpoint(
+            plan.resume_model, env=venv, device=device, tensorboard_log=None, verbose=verbose, seed=plan.seed
+        )
+    else:
+        try:
+            model = COMA(
+                env=venv,
+                tensorboard_log=None,
+                seed=plan.seed,
+                verbose=verbose,
+                device=device,
+                **coma_kwargs(plan.cfg.entry),
+            )
+        except TrainingError:
+            raise
+        except AssertionError as exc:  # e.g. SB3's bare `assert features_dim > 0`
+            raise TrainingError(
+                f"{plan.cfg.where}: COMA rejected a setting ({_assertion_site(exc)}); check "
+                f"policy_kwargs={plan.cfg.entry.get('policy_kwargs')!r}"
+            ) from exc
+        except (TypeError, ValueError) as exc:
+            raise TrainingError(f"{plan.cfg.where}: {exc}") from exc
+    record_env_options(model, plan.cfg.map_name, plan.cfg.env_kwargs)
+    return model
+
+
+def _run_record(plan: RunPlan) -> dict[str, Any]:
+    """The ``run`` block of ``config.yml``: where the run came from (or one more resume of it)."""
+    now = _dt.datetime.now().isoformat(timespec="seconds")
+    if plan.resumed_in_place:
+        resumes = [
+            *list(plan.cfg.run.get("resumes") or []),
+            {"from": str(plan.resume_model), "at": plan.done_steps, "seed": plan.seed, "when": now},
+        ]
+        return {**plan.cfg.run, "resumes": resumes}
+    run = {
+        "env": plan.cfg.env_id,
+        "variant": plan.cfg.variant,
+        "seed": plan.seed,
+        "config": str(Path(plan.cfg.source).resolve()) if plan.cfg.source is not None else None,
+        "created": now,
+        "sb3_coma": __version__,
+        "command": " ".join(getattr(sys, "orig_argv", sys.argv)),
+    }
+    if plan.resume_model is not None:
+        run["resumed_from"] = str(plan.resume_model)
+    return run
+
+
+def prepare_run_folder(
+    plan: RunPlan,
+    model: COMA,
+    run_dir: str | os.PathLike[str] | None = None,
+    runs_root: str | os.PathLike[str] = "runs",
+) -> Path:
+    """The run folder (new, or the resumed one) with its ``config.yml``; TensorBoard logs go there."""
+    run_path = plan.run_path or new_run_dir(run_dir, plan.cfg.env_id, plan.cfg.variant, runs_root)
+    plan.cfg.run = _run_record(plan)
+    write_run_config(run_path, plan.cfg)
+    model.tensorboard_log = str(run_path / TENSORBOARD_DIR)  # read when learn() sets up its logger
+    if plan.resumed_in_place:
+        truncate_metrics_csv(run_path / METRICS_FILE, plan.done_steps)  # those missions are flown again
+    return run_path
+
+
+def _eval_copies(missions: int) -> int:
+    """Env copies for an evaluation of ``missions`` missions: a divisor of it (every copy flies the
+    same number), at most 5, so one forward pass acts for several missions."""
+    return next(c for c in (5, 4, 3, 2, 1) if missions % c == 0)
+
+
+def attach_callbacks(
+    plan: RunPlan,
+    run_path: Path,
+    save_freq: int | None = None,
+    eval_freq: int = 0,
+    eval_missions: int = 5,
+    extra: list[BaseCallback] | None = None,
+    handle_signals: bool = True,
+    verbose: int = 1,
+) -> tuple[MissionCallbacks, list[BaseCallback]]:
+    """The run's callbacks: :func:`mission_callbacks`, the config's ``callback`` entries, ``extra``,
+    and the signal stop last. Returns the standard set and the list to pass to ``learn``."""
+    every = max(plan.cfg.n_timesteps // 10, 1) if save_freq is None else positive_int("train()", "save_freq", save_freq)
+    eval_env = None
+    if eval_freq and eval_freq > 0:
+        eval_missions = positive_int("train()", "eval_missions", eval_missions)
+        eval_env = make_training_env(plan.cfg, n_envs=_eval_copies(eval_missions), seed=plan.eval_seed)
+    standard = mission_callbacks(
+        run_path,
+        every,
+        checkpoint_dir=run_path / CHECKPOINT_DIR,
+        eval_env=eval_env,
+        eval_freq=eval_freq,
+        eval_missions=eval_missions,
+        eval_seed=plan.eval_seed,
+        eval_log_path=run_path / "eval",
+        stop_on_signal=handle_signals,
+        verbose=max(verbose - 1, 0),
+        stop_verbose=verbose,
+    )
+    configured = [
+        construct(cls, kwargs, "callback") if isinstance(cls, type) else cls
+        for cls, kwargs in named_objects(plan.cfg.entry.get("callback"), "callback")
+    ]
+    stop = [standard.stopper] if standard.stopper is not None else []
+    return standard, [*standard.as_list(), *configured, *(extra or []), *stop]
+
+
+def learn(
+    model: COMA,
+    plan: RunPlan,
+    standard: MissionCallbacks,
+    callback_list: list[BaseCallback],
+    progress_bar: bool = True,
+    say: Callable[[str], None] = print,
+) -> None:
+    """Train up to the plan's total; always restores signal handlers and closes the envs."""
+    remaining = plan.cfg.n_timesteps - int(model.num_timesteps)
+    try:
+        if remaining > 0:
+            say(
+                f"Training {plan.cfg.env_id}"
+                + (f" ({plan.cfg.variant})" if plan.cfg.variant else "")
+                + f" for {remaining} joint steps (to {plan.cfg.n_timesteps}); "
+                + f"TensorBoard: tensorboard --logdir {model.tensorboard_log}"
+            )
+            model.learn(
+                total_timesteps=remaining,
+                callback=callback_list,
+                tb_log_name=TB_LOG_NAME,
+                reset_num_timesteps=plan.resume_model is None,
+                progress_bar=progress_bar and getattr(sb3_callbacks, "tqdm", None) is not None,
+            )
+        else:
+            say(f"Nothing to train: the model is at {model.num_timesteps} >= {plan.cfg.n_timesteps} joint steps")
+    finally:
+        if standard.stopper is not None:
+            standard.stopper.restore()
+        standard.metrics.close()
+        if standard.evaluation is not None:
+            standard.evaluation.eval_env.close()
+        if model.env is not None:
+            model.env.close()
+        release_freed_memory()  # the training envs' maps, before whatever the process does next
+
+
+def _summary(history: list[dict[str, Any]], last: int = 20) -> str:
+    if not history:
+        return "no mission finished"
+    recent = history[-last:]
+
+    def mean(key: str) -> float:
+        values = [r[key] for r in recent if not math.isnan(r[key])]
+        return float(sum(values) / len(values)) if values else math.nan
+
+    return (
+        f"last {len(recent)} missions: team reward {mean('reward'):+.3f}, "
+        f"F1 {mean('f1'):.3f}, entropy {mean('entropy'):.3f}"
+    )
+
+
+def save_final(
+    model: COMA, plan: RunPlan, run_path: Path, standard: MissionCallbacks, say: Callable[[str], None] = print
+) -> Path:
+    """``model.zip`` when training completed; after a signal, a checkpoint at the last rollout
+    boundary and :class:`TrainingInterrupted`."""
+    stopper = standard.stopper
+    if stopper is not None and stopper.received is not None and model.num_timesteps < plan.cfg.n_timesteps:
+        at, reached = stopper.boundary_timesteps, int(model.num_timesteps)
+        assert standard.checkpoints is not None, "train() always checkpoints"
+        model.num_timesteps = at
+        try:
+            path = standard.checkpoints.save_now(at)
+        finally:
+            model.num_timesteps = reached
+        say(f"Interrupted: checkpoint {path} ({at} joint steps); resume with: sb3-coma train --resume {run_path}")
+        raise TrainingInterrupted(run_path, path, at, stopper.received)
+    final = atomic_save(model, run_path / MODEL_FILE)
+    say(f"Saved {final} ({model.num_timesteps} joint steps); {_summary(standard.metrics.history)}")
+    return final
+
+
+# =========================================================================== train()
+def train(
+    env: str | None = None,
+    *,
+    config: str | os.PathLike[str] | None = None,
+    variant: str | None = None,
+    total_timesteps: int | None = None,
+    seed: int | None = None,
+    run_dir: str | os.PathLike[str] | None = None,
+    resume: str | os.PathLike[str] | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    n_envs: int | None = None,
+    save_freq: int | None = None,
+    eval_freq: int = 0,
+    eval_missions: int = 5,
+    eval_seed: int | None = None,
+    callbacks: list[BaseCallback] | None = None,
+    progress_bar: bool = True,
+    device: str = "auto",
+    verbose: int = 1,
+    handle_signals: bool = True,
+    runs_root: str | os.PathLike[str] = "runs",
+    log: Callable[[str], None] | None = None,
+) -> tuple[COMA, Path]:
+    """Train COMA and return ``(model, run_dir)``.
+
+    The returned model's training env is closed (``model.env``); give it a new one
+    (``envs.make_vec_env``) to predict or evaluate, or load ``run_dir / "model.zip"``.
+
+    :param env: ``"env1"``/``"env2"``/``"env3"`` or a gymnasium id (default ``"env3"``; with
+        ``resume`` of a run folder, the run's own env)
+    :param config: rl-zoo3 style YAML (default ``zoo_configs/coma.yml``)
+    :param variant: a name from the config's ``variants`` mapping (ablation arm)
+    :param total_timesteps: joint steps to reach in total (default: the config's ``n_timesteps``);
+        when resuming, the total to reach, counting the steps already done
+    :param seed: seed of model and env (default: random, recorded in ``config.yml``; when
+        resuming, the run's seed plus the joint steps done)
+    :param run_dir: run folder (default ``runs/<env id>[-<variant>]_<n>``; a folder that holds
+        anything gets a ``_<n>`` suffix instead of being reused)
+    :param resume: a run folder or checkpoint zip to continue from (same timestep count,
+        optimiser states restored, ``reset_num_timesteps=False``)
+    :param overrides: config keys to change, dots reach into mappings (``{"env_kwargs.noise": "loud"}``)
+    :param n_envs: env copies (default: the config's ``n_envs``)
+    :param save_freq: joint steps between checkpoints (default: a tenth of the run)
+    :param eval_freq: joint steps between evaluations (0: none); best model -> ``best_model.zip``
+    :param eval_missions: missions per evaluation
+    :param eval_seed: env seed of the validation missions, the same at every evaluation (default
+        :data:`VALIDATION_SEED`, disjoint from the seeds ``evaluate`` and ``reproduce`` test on)
+    :param callbacks: extra SB3 callbacks
+    :param progress_bar: show SB3's progress bar (joint steps)
+    :param device: torch device
+    :param verbose: 0 silent, 1 run information, 2 also SB3's training tables
+    :param handle_signals: on SIGINT/SIGTERM save a checkpoint and raise :class:`TrainingInterrupted`
+    :param runs_root: parent of default run folders
+    :param log: where information lines go (default ``print`` when ``verbose >= 1``)
+    :raises TrainingError: bad env id, variant, config file or key, resume path, device (or no
+        such device here), a ``run_dir`` that cannot be made
+    :raises CheckpointError: a resume zip that is truncated or not a COMA model
+    :raises TrainingInterrupted: stopped by a signal (after saving a checkpoint)
+    """
+    say = log or (print if verbose >= 1 else (lambda _msg: None))
+    model_verbose = max(int(verbose) - 1, 0)
+    for name, value in (("eval_freq", eval_freq), ("save_freq", save_freq)):
+        if value is not None and (not is_int(value) or value < 0):
+            raise TrainingError(f"{name} must be an integer >= 0 (0: none) in joint steps, got {value!r}")
+    if eval_seed is not None and is_int(eval_seed) and eval_seed < 0:
+        raise TrainingError(f"eval_seed must be an integer >= 0, got {eval_seed!r}")
+    check_run_dir(run_dir)
+    plan = plan_run(env, config, variant, overrides, resume, total_timesteps, n_envs, seed, eval_seed, device)
+    venv = make_training_env(plan.cfg, seed=plan.seed)
+    try:  # nothing is written before the env and the model exist
+        model = build_model(plan, venv, device=device, verbose=model_verbose)
+        run_path = prepare_run_folder(plan, model, run_dir, runs_root)
+        standard, callback_list = attach_callbacks(
+            plan, run_path, save_freq, eval_freq, eval_missions, callbacks, handle_signals, verbose=verbose
+        )
+    except BaseException:
+        venv.close()
+        raise
+    say(f"Run folder: {run_path}")
+    if plan.resume_model is not None:
+        say(f"Resuming from {plan.resume_model} at {plan.done_steps} joint steps")
+    learn(model, plan, standard, callback_list, progress_bar=progress_bar, say=say)
+    save_final(model, plan, run_path, standard, say=say)
+    return model, run_path
