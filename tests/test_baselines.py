@@ -12,8 +12,10 @@ from envs import layout
 from envs.gain import gain_density
 from envs.ipp_env import ACTION_DELTAS
 from sb3_coma.baselines import PLANNERS, make_planner, plan_team, planner_class
+from sb3_coma.baselines.adaptive_gain import heard_matrix, strip_sums
 from sb3_coma.baselines.lawnmower import axis_ranges, best_lanes, union_length
 from sb3_coma.baselines.navigation import best_move, distance_field
+from sb3_coma.baselines.oracle import OTHER_WEIGHT, clairvoyant_density
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +57,7 @@ def _ag(sums, pos, mask, discount=0.5, lookahead=1, geometry=None):
         discount,
         lookahead,
         np.zeros((n, 6)),
+        np.ones((n, n), bool),
         scores,
         actions,
     )
@@ -88,7 +91,7 @@ def _all_valid(pairs):
 
 # ------------------------------------------------------------------ registry
 def test_registry_and_errors():
-    assert set(PLANNERS) == {"random", "lawnmower", "ag"}
+    assert set(PLANNERS) == {"random", "lawnmower", "ag", "oracle"}
     assert planner_class("NL").name == "lawnmower"
     venv = envs.make_vec_env("env1", n_envs=1, budget=2)
     with pytest.raises(ValueError, match="unknown baseline 'greedy'.*ag.*lawnmower.*random"):
@@ -292,3 +295,86 @@ def test_ag_end_to_end_valid_and_seeded():
     assert _all_valid(pairs_a)
     assert all(np.array_equal(a[1], b[1]) for a, b in zip(pairs_a, pairs_b))
     assert infos_a[0]["f1"] == infos_b[0]["f1"]
+
+
+# ---------------------------------------------------------------------------------------------
+# what AG knows of its teammates, and the clairvoyant oracle (upper references)
+# ---------------------------------------------------------------------------------------------
+def _fly_final(planner_name, seed=3, **kwargs):
+    """Final (f1, entropy, team_entropy, actions) of one env1 mission with a planner."""
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=seed, split="test", start="random")
+    planner = make_planner(planner_name, venv, seed=seed, **kwargs)
+    obs, actions = venv.reset(), []
+    for _ in range(15):
+        act, _ = planner.predict(obs)
+        actions.append(act.copy())
+        obs, _, dones, infos = venv.step(act)
+    venv.close()
+    return infos[0]["f1"], infos[0]["entropy"], np.stack(actions)
+
+
+def test_strip_sums_match_the_brute_force_sum():
+    env = envs.make_env("env1")
+    rng = np.random.default_rng(0)
+    density = rng.random((env.config.grid, env.config.grid))
+    fast = strip_sums(density, env.geometry)
+    slow = np.zeros_like(fast)
+    strip = env.geometry.strip_of_cell
+    np.add.at(slow, (strip[:, None], strip[None, :]), density)
+    np.testing.assert_allclose(fast, slow, rtol=1e-10)
+
+
+def test_heard_matrix_follows_the_range():
+    pos = np.array([[0.0, 0.0, 10.0], [20.0, 0.0, 10.0], [50.0, 0.0, 10.0]])
+    heard = heard_matrix(pos, 25.0)
+    assert heard.tolist() == [[True, True, False], [True, True, False], [False, False, True]]
+
+
+def test_comm_only_ag_equals_shared_ag_with_unlimited_range_and_differs_when_out_of_range():
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=3, split="test", start="random", comm_range=1e9)
+    a = make_planner("ag", venv, seed=3, knowledge="comm")
+    b = make_planner("ag", venv, seed=3, knowledge="shared")
+    obs = venv.reset()
+    for _ in range(5):
+        act_a, _ = a.predict(obs)
+        act_b, _ = b.predict(obs)
+        np.testing.assert_array_equal(act_a, act_b)
+        obs, *_ = venv.step(act_a)
+    venv.close()
+    # with no range at all no UAV hears another: claims are ignored, so the plans differ somewhere
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=3, split="test", start="random", comm_range=0.0)
+    deaf, full = make_planner("ag", venv, seed=3, knowledge="comm"), make_planner("ag", venv, seed=3)
+    obs = venv.reset()
+    differs = False
+    for _ in range(15):
+        act_d, _ = deaf.predict(obs)
+        act_f, _ = full.predict(obs)
+        differs |= bool((act_d != act_f).any())
+        obs, *_ = venv.step(act_f)
+    venv.close()
+    assert differs
+
+
+def test_oracle_density_prefers_truly_valuable_cells():
+    belief = np.full((2, 2), 0.5)
+    truth = np.array([[True, False], [False, False]])
+    d = clairvoyant_density(belief, truth, 0.1)
+    assert d[0, 0] > 0 and np.isclose(d[0, 1], OTHER_WEIGHT * d[0, 0])
+    # a noiseless reading of a cell at p = 0.5 removes its whole bit
+    assert np.isclose(clairvoyant_density(belief, truth, 0.0)[0, 0], 1.0)
+
+
+def test_oracle_and_central_ag_are_references_that_beat_ag_on_average():
+    f1 = {name: [] for name in ("ag", "central", "oracle")}
+    ent = {name: [] for name in f1}
+    for seed in range(4):
+        for name, planner, kwargs in (
+            ("ag", "ag", {}),
+            ("central", "ag", {"knowledge": "central"}),
+            ("oracle", "oracle", {}),
+        ):
+            f, e, _ = _fly_final(planner, seed=seed, **kwargs)
+            f1[name].append(f)
+            ent[name].append(e)
+    assert np.mean(ent["oracle"]) < np.mean(ent["ag"])
+    assert np.mean(f1["oracle"]) > np.mean(f1["ag"])

@@ -52,6 +52,7 @@ def test_action_gain_is_normalised_masked_and_matches_ag():
                 0.0,
                 1,
                 np.zeros((4, 6)),
+                np.ones((4, 4), bool),
                 scores,
                 actions,
             )

@@ -5,7 +5,10 @@
 * ``random``: uniform over valid actions;
 * ``lawnmower``: the paper's NL, a non-adaptive boustrophedon strip sweep;
 * ``ag``: adaptive gain, greedy (or ``lookahead=k`` steps) expected information gain from each
-  UAV's own belief, with a discount on cells that other UAVs are about to cover.
+  UAV's own belief, with a discount on cells that other UAVs are about to cover; ``knowledge``
+  says what a UAV knows of its teammates (``shared`` positions, ``comm`` only, or ``central``:
+  one planner over the global belief, an upper reference);
+* ``oracle``: clairvoyant greedy planner that knows the ground truth (the upper reference).
 """
 
 from __future__ import annotations
@@ -17,12 +20,14 @@ from stable_baselines3.common.vec_env import VecEnv
 from .adaptive_gain import AdaptiveGainPlanner, plan_team
 from .base import Planner
 from .lawnmower import LawnmowerPlanner
+from .oracle import OraclePlanner
 from .random_planner import RandomPlanner
 
 PLANNERS: dict[str, type[Planner]] = {
     RandomPlanner.name: RandomPlanner,
     LawnmowerPlanner.name: LawnmowerPlanner,
     AdaptiveGainPlanner.name: AdaptiveGainPlanner,
+    OraclePlanner.name: OraclePlanner,
 }
 #: Other spellings users reach for (the paper's labels).
 ALIASES: dict[str, str] = {"nl": "lawnmower", "adaptive_gain": "ag", "adaptive-gain": "ag"}
@@ -52,6 +57,7 @@ __all__ = [
     "ALIASES",
     "AdaptiveGainPlanner",
     "LawnmowerPlanner",
+    "OraclePlanner",
     "PLANNERS",
     "Planner",
     "RandomPlanner",

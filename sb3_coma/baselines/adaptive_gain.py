@@ -21,7 +21,7 @@ import numba
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from envs.gain import WEIGHTINGS, check_weighting
+from envs.gain import WEIGHTINGS, check_weighting, gain_density
 from envs.geometry import FieldGeometry
 from envs.ipp_env import ACTION_DELTAS
 
@@ -108,13 +108,15 @@ def _continuation(sums, start_keep, keep, moves, x0, y0, z0, no_fly, n_levels, d
 
 
 @numba.njit(cache=True)
-def plan_team(sums, positions, allowed, no_fly, deltas, strips, discount, horizon, jitter, scores, actions):
+def plan_team(sums, positions, allowed, no_fly, deltas, strips, discount, horizon, jitter, heard, scores, actions):
     """Sequential AG decision of one team (see module docstring).
 
     :param sums: (N, A, S, S) each UAV's gain strip sums for the chosen weighting
     :param positions: (N, 3) lattice (ix, iy, level)
     :param allowed: (N, 6) bool valid first moves (the env's mask)
     :param jitter: (N, 6) tie-break added to each first move's score
+    :param heard: (N, N) bool: ``heard[u, v]`` when UAV u knows where UAV v is and what it chose this
+        step (all true for "shared positions"; only UAVs within communication range for "comm only")
     :param scores: (N, 6) out: each first move's look-ahead value (``-inf`` where not allowed)
     :param actions: (N,) out: the chosen moves
     """
@@ -125,7 +127,15 @@ def plan_team(sums, positions, allowed, no_fly, deltas, strips, discount, horizo
     team_keep = np.ones((s, s))
     lat = no_fly.shape[0]
     taken = np.zeros((lat, lat), dtype=np.bool_)
+    targets = np.zeros((n, 3), dtype=np.int64)
     for u in range(n):
+        # what UAV u knows of the earlier UAVs' choices: their footprints and columns, if heard
+        team_keep[:, :] = 1.0
+        taken[:, :] = False
+        for v in range(u):
+            if heard[u, v]:
+                _claim(team_keep, strips, targets[v, 0], targets[v, 1], targets[v, 2], discount)
+                taken[targets[v, 1], targets[v, 0]] = True
         best_a = -1
         for a in range(deltas.shape[0]):
             scores[u, a] = -np.inf
@@ -157,8 +167,28 @@ def plan_team(sums, positions, allowed, no_fly, deltas, strips, discount, horizo
         )
         if not (0 <= tx < lat and 0 <= ty < lat and 0 <= tz < n_levels):
             tx, ty, tz = positions[u, 0], positions[u, 1], positions[u, 2]  # a hover
-        _claim(team_keep, strips, tx, ty, tz, discount)
-        taken[ty, tx] = True
+        targets[u, 0], targets[u, 1], targets[u, 2] = tx, ty, tz
+
+
+#: What an AG UAV knows of its teammates (labels in tables: "AG, shared positions", ...):
+#: ``shared``: every teammate's position and the moves lower ids chose this step (whatever the range);
+#: ``comm``: only teammates within communication range (3-D distance <= ``comm_range``);
+#: ``central``: one planner over the global belief (all readings, no channel noise): an upper
+#: reference that no UAV on board can run, never a competitor.
+KNOWLEDGE: tuple[str, ...] = ("shared", "comm", "central")
+
+
+def strip_sums(density: np.ndarray, geometry: FieldGeometry) -> np.ndarray:
+    """(S, S) sums of a per-cell density (grid, grid) over every gain-strip cell (rows = y strips)."""
+    starts = np.flatnonzero(np.diff(geometry.strip_of_cell)) + 1
+    starts = np.concatenate([[0], starts])
+    return np.add.reduceat(np.add.reduceat(density, starts, axis=0), starts, axis=1)
+
+
+def heard_matrix(positions_m: np.ndarray, comm_range: float) -> np.ndarray:
+    """(N, N) bool: which teammates each UAV is within communication range of (itself included)."""
+    gaps = np.linalg.norm(positions_m[:, None, :] - positions_m[None, :, :], axis=-1)
+    return gaps <= comm_range
 
 
 class AdaptiveGainPlanner(Planner):
@@ -168,13 +198,20 @@ class AdaptiveGainPlanner(Planner):
     :param weighting: ``"class"`` (ipp-marl's class-weighted entropy) or ``"plain"`` (binary entropy);
         ``sb3_coma.evaluate`` passes the map family's :data:`WEIGHTING_BY_MAP` unless told otherwise
     :param lookahead: moves searched ahead per UAV (1 = AG, at most :data:`MAX_LOOKAHEAD`)
+    :param knowledge: what a UAV knows of its teammates, one of :data:`KNOWLEDGE`
     """
 
     name = "ag"
     uses_env_state = True
 
     def __init__(
-        self, venv: VecEnv, seed: int | None = None, discount: float = 0.5, weighting: str = "class", lookahead: int = 1
+        self,
+        venv: VecEnv,
+        seed: int | None = None,
+        discount: float = 0.5,
+        weighting: str = "class",
+        lookahead: int = 1,
+        knowledge: str = "shared",
     ) -> None:
         super().__init__(venv, seed)
         if isinstance(discount, bool) or not isinstance(discount, (int, float)) or not 0.0 <= float(discount) <= 1.0:
@@ -187,17 +224,42 @@ class AdaptiveGainPlanner(Planner):
             or not 1 <= lookahead <= MAX_LOOKAHEAD
         ):
             raise ValueError(f"ag lookahead={lookahead!r}: an integer from 1 (greedy AG) to {MAX_LOOKAHEAD}")
+        if knowledge not in KNOWLEDGE:
+            raise ValueError(f"ag knowledge={knowledge!r}: choose one of {KNOWLEDGE}")
         self.discount = float(discount)
         self.weighting = check_weighting(weighting)
         self.lookahead = int(lookahead)
+        self.knowledge = knowledge
         self.geometry: FieldGeometry = venv.get_attr("geometry", indices=[0])[0]
+        self.config = venv.get_attr("config", indices=[0])[0]
         self._weighting_index = WEIGHTINGS.index(self.weighting)
         #: Look-ahead scores of the last decision, (copies, N, 6), for inspection.
         self.last_scores: np.ndarray | None = None
 
+    def _levels_flip(self) -> list[float]:
+        return [float(self.config.flip_probability[a]) for a in self.config.altitudes]
+
+    def _team_sums(self, copies: int) -> list[np.ndarray]:
+        """Per copy, (N, A, S, S) the strip sums each UAV plans with."""
+        if self.knowledge != "central":
+            return [
+                np.ascontiguousarray(s[:, self._weighting_index]) for s in self._per_copy("gain_strip_sums", copies)
+            ]
+        out = []
+        for belief in self._per_copy("global_belief", copies):
+            levels = [strip_sums(gain_density(belief, q, self.weighting), self.geometry) for q in self._levels_flip()]
+            out.append(np.ascontiguousarray(np.broadcast_to(np.stack(levels), (self.n_agents, *np.shape(levels)))))
+        return out
+
+    def _heard(self, copies: int) -> list[np.ndarray]:
+        if self.knowledge != "comm":
+            return [np.ones((self.n_agents, self.n_agents), dtype=bool)] * copies
+        return [heard_matrix(p, float(self.config.comm_range)) for p in self._per_copy("positions_m", copies)]
+
     def _plan(self, observation: dict[str, np.ndarray], mask: np.ndarray, starts: np.ndarray) -> np.ndarray:
         copies = mask.shape[0]
-        sums = self._per_copy("gain_strip_sums", copies)
+        sums = self._team_sums(copies)
+        heard = self._heard(copies)
         positions = self._per_copy("lattice_positions", copies)
         no_fly = self._per_copy("no_fly_columns", copies)
         actions = np.zeros((copies, self.n_agents), dtype=np.int64)
@@ -205,7 +267,7 @@ class AdaptiveGainPlanner(Planner):
         for c in range(copies):
             jitter = _JITTER * self.rng.random((self.n_agents, len(ACTION_DELTAS)))
             plan_team(
-                np.ascontiguousarray(sums[c][:, self._weighting_index]),
+                sums[c],
                 positions[c],
                 mask[c],
                 no_fly[c],
@@ -214,6 +276,7 @@ class AdaptiveGainPlanner(Planner):
                 self.discount,
                 self.lookahead,
                 jitter,
+                heard[c],
                 scores[c],
                 actions[c],
             )

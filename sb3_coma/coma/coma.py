@@ -25,6 +25,8 @@ Choices the paper leaves open, as implemented here:
 
 from __future__ import annotations
 
+import copy
+
 import math
 import warnings
 from collections import deque
@@ -163,6 +165,8 @@ class COMA(OnPolicyAlgorithm):
         exploration_initial_eps: float = 0.0,
         exploration_final_eps: float = 0.0,
         exploration_fraction: float = 0.5,
+        kl_coef: float = 0.0,
+        kl_fraction: float = 0.5,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -197,6 +201,8 @@ class COMA(OnPolicyAlgorithm):
         check_unit_interval("exploration_final_eps", exploration_final_eps)
         check_unit_interval("exploration_fraction", exploration_fraction, low_open=True)
         check_non_negative("ent_coef", ent_coef)
+        check_non_negative("kl_coef", kl_coef)
+        check_unit_interval("kl_fraction", kl_fraction, low_open=True)
         if isinstance(max_grad_norm, bool) or not isinstance(max_grad_norm, (int, float)) or not max_grad_norm > 0:
             raise ValueError(f"max_grad_norm must be positive, got {max_grad_norm!r}")
         check_positive_int("stats_window_size", stats_window_size)
@@ -242,6 +248,11 @@ class COMA(OnPolicyAlgorithm):
         self.exploration_final_eps = exploration_final_eps
         self.exploration_fraction = exploration_fraction
         self.exploration_rate = exploration_initial_eps
+        self.kl_coef = kl_coef
+        self.kl_fraction = kl_fraction
+        #: A frozen copy of the actor that the KL term pulls toward (``set_reference_actor``);
+        #: not saved: the pull decays to zero within the run that set it.
+        self.reference_actor: th.nn.Module | None = None
         self.env_options: dict[str, Any] | None = None
         #: Only ``load`` builds a model with ``_init_setup_model=False`` and then restores saved
         #: attributes, which may include settings earlier versions had (see ``_drop_removed_settings``).
@@ -339,7 +350,20 @@ class COMA(OnPolicyAlgorithm):
             )
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_restoring"]
+        return [*super()._excluded_save_params(), "_restoring", "reference_actor"]
+
+    def set_reference_actor(self) -> None:
+        """Freeze a copy of the current actor (e.g. after :func:`~sb3_coma.coma.imitation.clone_teacher`)
+        as the policy that ``kl_coef`` pulls the fine-tuning toward, with a weight that falls linearly
+        from ``kl_coef`` to 0 over the first ``kl_fraction`` of ``learn()``."""
+        self.reference_actor = copy.deepcopy(self.policy.actor).requires_grad_(False).eval()
+
+    def _kl_weight(self) -> float:
+        """The KL term's weight now: ``kl_coef`` at the start of ``learn()``, 0 after ``kl_fraction``."""
+        if self.reference_actor is None or self.kl_coef == 0.0:
+            return 0.0
+        elapsed = 1.0 - self._current_progress_remaining
+        return self.kl_coef * max(0.0, 1.0 - elapsed / self.kl_fraction)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         """The policy holds actor, critic and target critic; both optimizers are saved too."""
@@ -539,7 +563,22 @@ class COMA(OnPolicyAlgorithm):
             surrogate = th.min(surrogate, th.clamp(ratio, low, high) * advantage)
             clip_fraction = float(((ratio < low) | (ratio > high)).float().mean())
         entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
-        return -surrogate.mean() - self.ent_coef * entropy, entropy.item(), clip_fraction
+        loss = -surrogate.mean() - self.ent_coef * entropy
+        kl_weight = self._kl_weight()
+        if kl_weight > 0.0:
+            assert self.reference_actor is not None
+            with th.no_grad():
+                ref = th.log_softmax(
+                    self.policy.masked_logits_of(
+                        self.reference_actor,
+                        data["local"][idx].flatten(0, 1),
+                        data["mask"][idx].flatten(0, 1),
+                        data["prior"][idx].flatten(0, 1),
+                    ),
+                    dim=-1,
+                )
+            loss = loss + kl_weight * (ref.exp() * (ref - log_probs)).sum(-1).mean()
+        return loss, entropy.item(), clip_fraction
 
     def train(self) -> None:
         """Per rollout: the critic on TD(lambda) targets (``n_critic_epochs``), then the actor on
@@ -598,6 +637,7 @@ class COMA(OnPolicyAlgorithm):
             float(explained_variance(q_taken_flat.flatten().cpu().numpy(), targets.flatten().cpu().numpy())),
         )
         self.logger.record("train/epsilon", self.exploration_rate)
+        self.logger.record("train/kl_weight", self._kl_weight())
         self.logger.record("train/entropy", float(np.mean(entropies)))
         self.logger.record("train/target_updates", self._n_target_updates)
         weights = self.policy.actor.prior_weights

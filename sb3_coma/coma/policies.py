@@ -377,7 +377,13 @@ class COMAPolicy(BasePolicy):
     def masked_logits(self, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:
         """Actor logits with invalid actions pushed to a large negative value, ``(B, A)``.
         ``prior``: the ``action_gain`` rows, used when the actor has a gain prior."""
-        return mask_logits(self.actor(local, prior), mask)
+        return self.masked_logits_of(self.actor, local, mask, prior)
+
+    def masked_logits_of(
+        self, actor: nn.Module, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None
+    ) -> th.Tensor:
+        """:meth:`masked_logits` of another actor of the same shape (a frozen reference copy)."""
+        return mask_logits(actor(local, prior), mask)
 
     def action_probs(
         self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0, prior: th.Tensor | None = None

@@ -1,0 +1,92 @@
+"""DAgger from a teacher planner into COMA's actor, and the decaying KL pull toward the clone."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+
+import envs
+from sb3_coma import COMA
+from sb3_coma.baselines import make_planner
+from sb3_coma.coma.imitation import clone_teacher
+
+SMALL = {"features_extractor_kwargs": {"features_dim": 32, "channels": [8, 16, 16]}, "gain_inputs": True}
+
+
+def _model(seed: int = 0, **kwargs) -> COMA:
+    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=seed, split="train", start="random")
+    return COMA("CnnPolicy", venv, seed=seed, n_steps=8, batch_size=8, policy_kwargs=SMALL, **kwargs)
+
+
+def _agreement_with(model: COMA, teacher, missions: int = 2) -> float:
+    venv = model.env
+    venv.seed(123)
+    hits, total = 0, 0
+    for _ in range(missions // 2):
+        obs = venv.reset()
+        for _ in range(15):
+            target, _ = teacher.predict(obs)
+            mine, _ = model.predict(obs, deterministic=True)
+            hits += int((mine == target).sum())
+            total += target.size
+            obs, *_ = venv.step(target)
+    return hits / total
+
+
+def test_dagger_moves_the_actor_toward_the_teacher():
+    model = _model()
+    teacher = make_planner("oracle", model.env, seed=0)
+    before = _agreement_with(model, teacher)
+    report = clone_teacher(model, teacher, missions_per_round=4, rounds=2, epochs=6, batch_size=64, seed=1)
+    after = _agreement_with(model, teacher)
+    assert [r["beta"] for r in report.rounds] == [1.0, 0.5]
+    assert report.rounds[-1]["states"] == 2 * 4 * 15 * 4  # rounds x missions x steps x UAVs
+    assert after > before + 0.1, (before, after)
+    assert 0.0 <= report.agreement <= 1.0
+
+
+def test_dagger_is_deterministic_for_a_seed():
+    weights = []
+    for _ in range(2):
+        model = _model(seed=3)
+        clone_teacher(model, make_planner("oracle", model.env, seed=0), missions_per_round=2, rounds=1, epochs=1, seed=5)
+        weights.append(th.cat([p.flatten() for p in model.policy.actor.parameters()]))
+    assert th.equal(weights[0], weights[1])
+
+
+def test_kl_weight_decays_to_zero_and_is_off_without_a_reference():
+    model = _model(kl_coef=2.0, kl_fraction=0.5)
+    model._current_progress_remaining = 1.0
+    assert model._kl_weight() == 0.0  # no reference yet
+    model.set_reference_actor()
+    assert model._kl_weight() == 2.0
+    model._current_progress_remaining = 0.75
+    assert np.isclose(model._kl_weight(), 1.0)
+    model._current_progress_remaining = 0.4
+    assert model._kl_weight() == 0.0
+
+
+def test_kl_pull_keeps_the_fine_tuned_actor_near_its_reference():
+    def divergence(kl_coef: float) -> float:
+        """Mean KL(reference || fine-tuned) over the last rollout's states."""
+        model = _model(seed=2, kl_coef=kl_coef, kl_fraction=1.0)
+        model.set_reference_actor()
+        model.learn(64)
+        data = model.rollout_buffer.joint_steps()
+        local, mask, prior = (data[k].flatten(0, 1) for k in ("local", "mask", "prior"))
+        with th.no_grad():
+            ref = th.log_softmax(model.policy.masked_logits_of(model.reference_actor, local, mask, prior), -1)
+            now = th.log_softmax(model.policy.masked_logits(local, mask, prior), -1)
+        return float((ref.exp() * (ref - now)).sum(-1).mean())
+
+    assert divergence(10.0) < 0.5 * divergence(0.0)
+
+
+def test_bad_arguments_name_the_value():
+    model = _model()
+    teacher = make_planner("oracle", model.env)
+    with pytest.raises(ValueError, match="rounds=0"):
+        clone_teacher(model, teacher, rounds=0)
+    with pytest.raises(ValueError, match="kl_coef"):
+        _model(kl_coef=-1.0)
