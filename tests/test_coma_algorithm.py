@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -167,63 +165,6 @@ def test_save_load_round_trip_and_continue(tmp_path: Path) -> None:
     assert np.array_equal(a1, a3)
 
 
-def _rewrite_saved_data(path: Path, change) -> None:
-    """Edit the JSON ``data`` member of a saved model in place (what an older version wrote)."""
-    with zipfile.ZipFile(path) as archive:
-        members = {name: archive.read(name) for name in archive.namelist()}
-    data = json.loads(members["data"])
-    change(data)
-    members["data"] = json.dumps(data).encode()
-    with zipfile.ZipFile(path, "w") as archive:
-        for name, raw in members.items():
-            archive.writestr(name, raw)
-
-
-def test_zip_with_removed_settings_loads_with_one_warning(tmp_path: Path) -> None:
-    """Models saved before the experimental knobs were removed still load: the removed keys are
-    dropped, with one warning line naming those that were not at their "off" value."""
-    model = make()
-    model.learn(16)
-    path = tmp_path / "old.zip"
-    model.save(path)
-
-    def older(data: dict) -> None:
-        data["policy_kwargs"]["critic_gain"] = False
-        data.update(
-            tau=None,
-            prior_kl_coef=0.0,
-            temperature_initial=1.0,
-            temperature_final=0.25,
-            temperature_fraction=1.0,
-            temperature=0.5,
-        )
-
-    _rewrite_saved_data(path, older)
-    with pytest.warns(UserWarning) as caught:
-        loaded = COMA.load(path, env=make_fake_vec_env())
-    messages = [str(w.message) for w in caught if "no longer has" in str(w.message)]
-    assert len(messages) == 1 and "\n" not in messages[0]
-    assert "temperature_final=0.25" in messages[0] and "policy_kwargs critic_gain=False" in messages[0]
-    assert "tau" not in messages[0]  # at its "off" value: nothing changes, nothing to say
-    assert "critic_gain" not in loaded.policy_kwargs
-    assert not any(hasattr(loaded, key) for key in ("tau", "temperature_final", "temperature", "prior_kl_coef"))
-    obs = loaded.env.reset()
-    assert np.array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
-    loaded.save(tmp_path / "resaved.zip")  # saved again without them
-    with zipfile.ZipFile(tmp_path / "resaved.zip") as archive:
-        data = json.loads(archive.read("data"))
-    assert "critic_gain" not in data["policy_kwargs"] and "temperature_final" not in data and "_restoring" not in data
-
-
-def test_zip_with_a_gain_reading_critic_is_refused_by_name(tmp_path: Path) -> None:
-    model = make()
-    path = tmp_path / "old.zip"
-    model.save(path)
-    _rewrite_saved_data(path, lambda data: data["policy_kwargs"].update(critic_gain=True))
-    with pytest.raises(ValueError, match="critic_gain=True"):
-        COMA.load(path, env=make_fake_vec_env())
-
-
 @pytest.mark.parametrize("removed", [dict(tau=0.5), dict(prior_kl_coef=0.1), dict(temperature_final=0.25)])
 def test_removed_arguments_are_refused_for_new_models(removed: dict) -> None:
     with pytest.raises(TypeError, match=next(iter(removed))):
@@ -367,15 +308,48 @@ def test_advantage_is_the_chosen_term_minus_the_counterfactual_baseline(kind: st
 
 
 def test_clipped_and_plain_actor_updates_train() -> None:
+    """The logged clip fraction is the share of ratios outside ``[1 - clip, 1 + clip]``: exactly 0
+    for the policy that collected the rollout, the known share when some ratios are moved out on
+    purpose, > 0 once the actor itself is changed, and always 0 without clipping."""
     for clip in (0.2, None):
         model = make(clip_range=clip, n_epochs=3)
         logger, out = capture_logger()
         model.set_logger(logger)
         model.learn(48)
         clip_fraction = out.series("train/clip_fraction")
-        assert all(0.0 <= c <= 1.0 for c in clip_fraction)
+        assert len(clip_fraction) >= 2 and all(0.0 <= c <= 1.0 for c in clip_fraction)
         if clip is None:
             assert all(c == 0.0 for c in clip_fraction)
+
+        # The actor loss on the last rollout, against the policy that would have collected it.
+        data = model.rollout_buffer.joint_steps()
+        n_joint = data["actions"].shape[0]
+        idx = th.arange(n_joint)
+        advantage = th.randn(data["actions"].shape, generator=th.Generator().manual_seed(0))
+        with th.no_grad():
+            q_all = th.zeros(*data["actions"].shape, model.policy.n_actions)
+            _, old_log_prob = model._advantages(data, q_all, th.zeros(data["actions"].shape))
+            assert model._actor_loss(data, idx, advantage, old_log_prob)[2] == 0.0  # unchanged: ratio 1
+
+            # Ratios moved on purpose: exp(-log 1.5) = 0.67 (outside) on the first joint steps,
+            # exp(-log 1.1) = 0.91 (inside) on the next ones, 1 on the rest.
+            shifted = old_log_prob.clone()
+            shifted[: n_joint // 4] += np.log(1.5)
+            shifted[n_joint // 4 : n_joint // 2] += np.log(1.1)
+            expected = (n_joint // 4) / n_joint if clip is not None else 0.0
+            assert model._actor_loss(data, idx, advantage, shifted)[2] == pytest.approx(expected)
+            assert clip is None or expected > 0.0
+
+            # The policy changed on purpose (noise of std 0.5 on every actor weight, far more than
+            # the 0.01-scale action head holds): its ratios leave the band.
+            gen = th.Generator().manual_seed(1)
+            for param in model.policy.actor.parameters():
+                param.add_(0.5 * th.randn(param.shape, generator=gen))
+            changed = model._actor_loss(data, idx, advantage, old_log_prob)[2]
+        if clip is None:
+            assert changed == 0.0
+        else:
+            assert 0.0 < changed <= 1.0, changed
 
 
 @pytest.mark.parametrize(

@@ -101,7 +101,7 @@ def test_table_numbers_equal_mean_and_std(results, tmp_path):
 
 
 def test_clear_errors():
-    with pytest.raises(ValueError, match="unknown method 'greedy'.*ag, lawnmower, random|neither a baseline"):
+    with pytest.raises(ValueError, match="unknown method 'greedy'.*ag, lawnmower, oracle, random|neither a baseline"):
         evaluate("greedy", n_trials=1, **SMALL)
     with pytest.raises(FileNotFoundError, match="model file not found"):
         evaluate("runs/missing.zip", n_trials=1, **SMALL)

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import time
+import warnings
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from PIL import Image, ImageOps
 
 from envs.maps import MapError, available_maps, block_fraction, block_index, load_ground_truth, parse_rule
+from envs.maps.rules import orient, read_image
 
 STARTS = [(2, 2), (8, 2), (8, 8), (2, 8)]  # default start columns, lattice (x, y)
 
@@ -154,6 +158,150 @@ def test_user_dark_drawing_and_name_from_stem(images):
     assert "drawing.png" in g.source
 
 
+# ------------------------------------------------------------------ user images: EXIF orientation
+def _corner_image() -> np.ndarray:
+    """40 x 60 white with a dark block in the top-left corner: every flip / turn looks different."""
+    a = np.full((40, 60), 255, np.uint8)
+    a[:10, :20] = 0
+    return a
+
+
+def _with_orientation(path, array: np.ndarray, orientation: int, **save) -> None:
+    exif = Image.Exif()
+    exif[0x0112] = orientation  # the EXIF Orientation tag
+    Image.fromarray(array).save(path, exif=exif, **save)
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_exif_orientation_is_applied_as_exif_transpose_does(tmp_path, orientation):
+    path = tmp_path / f"o{orientation}.png"  # PNG (eXIf chunk): lossless, so pixels compare exactly
+    _with_orientation(path, _corner_image(), orientation)
+    with Image.open(path) as im:
+        expected = np.asarray(ImageOps.exif_transpose(im), dtype=np.float32) / 255.0
+    got = read_image(path)
+    assert got.orientation == orientation
+    np.testing.assert_array_equal(got.gray, expected)
+    np.testing.assert_array_equal(orient(_corner_image(), orientation) / 255.0, expected)
+
+
+def test_exif_rotated_jpeg_is_read_upright(tmp_path):
+    """A phone photo stored sideways (Orientation 6: turn a quarter clockwise to show)."""
+    path = tmp_path / "photo.jpg"
+    _with_orientation(path, np.dstack([_corner_image()] * 3), 6, quality=95)
+    g = load_ground_truth("photo", map_path=path, valuable="dark:0.5", grid=60, lattice=5)
+    shown = np.rot90(_corner_image(), -1) < 128  # 60 rows x 40 columns, dark block top-right
+    resized = cv2.resize(shown.astype(np.float32), (60, 60), interpolation=cv2.INTER_AREA) > 0.5
+    assert (g.valuable != resized).mean() < 0.02  # JPEG ringing at the block's edge only
+    assert g.valuable[:5, -5:].all() and not g.valuable[:5, :5].any()
+    assert not g.valuable[-5:, -5:].any()
+
+
+def test_image_without_exif_is_read_as_stored(images):
+    assert read_image(images["colour.png"]).orientation == 1
+    assert read_image(images["gray.png"]).alpha is None
+
+
+# ------------------------------------------------------------------ user images: transparency
+def _rgba(tmp_path, name: str = "logo.png"):
+    """20 x 20: columns 0-4 transparent (stored black, which 'dark' would take), a dark 5 x 5 block
+    at rows 5-9, columns 5-9, the rest opaque white."""
+    rgba = np.zeros((20, 20, 4), np.uint8)
+    rgba[..., :3] = 255
+    rgba[..., 3] = 255
+    rgba[:, :5] = 0  # colour black, alpha 0
+    rgba[5:10, 5:10, :3] = 0
+    path = tmp_path / name
+    Image.fromarray(rgba).save(path)
+    return path
+
+
+def test_rgba_transparent_pixels_are_never_valuable_and_warned(tmp_path):
+    path = _rgba(tmp_path)
+    with pytest.warns(UserWarning, match=r"logo\.png'?: 100 of 400 pixels \(25\.0 %\) are transparent; 100 of 400"):
+        g = load_ground_truth("logo", map_path=path, valuable="dark:0.5", grid=20, lattice=4)
+    assert not g.valuable[:, :5].any()  # stored black, but transparent
+    assert g.valuable[5:10, 5:10].all() and g.valuable.sum() == 25
+    assert "100 transparent cells never valuable" in g.source
+
+
+def test_transparent_pixels_take_no_part_in_a_rules_threshold(tmp_path):
+    path = _rgba(tmp_path)
+    with pytest.warns(UserWarning):
+        g = load_ground_truth("logo", map_path=path, valuable="coldest:0.1", grid=20, lattice=4)
+    # 10 % of the 300 opaque cells (not of all 400): the dark block's 25 cells are the coldest
+    assert g.valuable.sum() == 25 and not g.valuable[:, :5].any()
+    with pytest.warns(UserWarning):  # Otsu on the opaque cells alone splits block from white
+        otsu = load_ground_truth("logo", map_path=path, valuable="dark", grid=20, lattice=4)
+    np.testing.assert_array_equal(otsu.valuable, g.valuable)
+
+
+def test_colour_under_transparent_pixels_does_not_leak_into_cells(tmp_path):
+    """Every other column transparent (stored black): cells of 2 x 2 pixels are half opaque, so
+    valid, and show the opaque white, not the 50 % gray a plain average would give."""
+    rgba = np.full((40, 40, 4), 255, np.uint8)
+    rgba[:, ::2] = (0, 0, 0, 0)
+    rgba[20:, :, :3] = 0  # the lower half is opaque black where opaque
+    path = tmp_path / "stripes.png"
+    Image.fromarray(rgba).save(path)
+    with pytest.warns(UserWarning, match="800 of 1,600 pixels .* 0 of 400 grid cells"):
+        g = load_ground_truth("s", map_path=path, valuable="threshold:0.75", grid=20, lattice=4)
+    assert g.valuable[:10].all() and not g.valuable[10:].any()
+
+
+def test_palette_png_with_trns_transparency(tmp_path):
+    index = np.ones((20, 20), np.uint8)  # palette 1: white
+    index[:, :4] = 0  # palette 0: black, made transparent by tRNS
+    index[10:, 10:] = 2  # palette 2: dark gray, opaque
+    im = Image.fromarray(index).convert("P")
+    im.putpalette([0, 0, 0, 255, 255, 255, 40, 40, 40] + [0] * 759)
+    path = tmp_path / "palette.png"
+    im.save(path, transparency=0)
+    with Image.open(path) as check:
+        assert check.mode == "P" and check.info["transparency"] == 0
+    with pytest.warns(UserWarning, match="80 of 400 pixels"):
+        g = load_ground_truth("p", map_path=path, valuable="dark:0.5", grid=20, lattice=4)
+    assert g.valuable.sum() == 100 and g.valuable[10:, 10:].all() and not g.valuable[:, :4].any()
+
+
+def test_colour_key_trns_and_gray_alpha(tmp_path):
+    key = np.full((20, 20), 200, np.uint8)
+    key[:, :6] = 7  # the key colour: transparent (OpenCV ignores this tRNS; PIL reads it)
+    key[:5, 10:15] = 20
+    Image.fromarray(key).save(tmp_path / "key.png", transparency=7)
+    with pytest.warns(UserWarning, match="120 of 400 pixels"):
+        g = load_ground_truth("k", map_path=tmp_path / "key.png", valuable="dark:0.5", grid=20, lattice=4)
+    assert g.valuable.sum() == 25 and not g.valuable[:, :6].any()
+    la = np.dstack([key, np.where(key == 7, 0, 255).astype(np.uint8)])
+    Image.fromarray(la).save(tmp_path / "la.png")  # (H, W, 2) uint8: mode LA
+    with pytest.warns(UserWarning, match="120 of 400 pixels"):
+        h = load_ground_truth("la", map_path=tmp_path / "la.png", valuable="dark:0.5", grid=20, lattice=4)
+    np.testing.assert_array_equal(h.valuable, g.valuable)
+
+
+def test_opaque_alpha_channel_changes_nothing_and_warns_nothing(tmp_path, images):
+    bgr = cv2.imread(str(images["colour.png"]))
+    cv2.imwrite(str(tmp_path / "opaque.png"), np.dstack([bgr, np.full(bgr.shape[:2], 255, np.uint8)]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        a = load_ground_truth("a", map_path=tmp_path / "opaque.png", valuable="excess-green", grid=80, lattice=5)
+    b = load_ground_truth("b", map_path=images["colour.png"], valuable="excess-green", grid=80, lattice=5)
+    np.testing.assert_array_equal(a.valuable, b.valuable)
+
+
+def test_fully_transparent_image_is_an_error(tmp_path):
+    Image.fromarray(np.zeros((10, 10, 4), np.uint8)).save(tmp_path / "ghost.png")
+    with pytest.raises(MapError, match=r"ghost\.png' is fully transparent"):
+        load_ground_truth(map_path=tmp_path / "ghost.png")
+
+
+def test_transparent_image_whose_opaque_part_is_flat_names_the_transparency(tmp_path):
+    rgba = np.zeros((10, 10, 4), np.uint8)
+    rgba[:, 5:] = 255  # opaque white right half, transparent left half
+    Image.fromarray(rgba).save(tmp_path / "half.png")
+    with pytest.raises(MapError, match="no pixel .* 50 transparent grid cells"):
+        load_ground_truth(map_path=tmp_path / "half.png", grid=10, lattice=2)
+
+
 # ------------------------------------------------------------------ errors
 @pytest.mark.parametrize(
     "kwargs,match",
@@ -226,3 +374,37 @@ def test_parse_rule_round_trip():
     assert str(parse_rule(" Hottest:0.25 ")) == "hottest:0.25"
     assert str(parse_rule("excess_green")) == "excess-green"
     assert parse_rule("dark").value is None
+
+
+# ------------------------------------------------------------------ docs/errors.md rows of this module
+def _doc_message(row_id: str) -> str:
+    """The message column of a row of docs/errors.md."""
+    doc = (Path(__file__).resolve().parent.parent / "docs" / "errors.md").read_text(encoding="utf-8")
+    row = next(line for line in doc.splitlines() if line.startswith(f"| `{row_id}` |"))
+    return row.rstrip(" |").rsplit(" | ", 1)[1]
+
+
+def test_transparency_rows_of_the_errors_doc_are_the_real_messages(tmp_path):
+    import envs
+
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    logo = np.full((100, 100, 4), 255, np.uint8)
+    logo[:, :25, 3] = 0
+    logo[40:60, 40:60, :3] = 0
+    Image.fromarray(logo).save(maps / "logo.png")
+    Image.fromarray(np.zeros((10, 10, 4), np.uint8)).save(maps / "ghost.png")
+    half = np.zeros((10, 10, 4), np.uint8)
+    half[:, 5:] = 255
+    Image.fromarray(half).save(maps / "half.png")
+
+    def shown(message: str) -> str:
+        return message.replace(str(tmp_path), "<tmp>")
+
+    with pytest.warns(UserWarning) as caught:
+        envs.make_env("mine", map_path=str(maps / "logo.png"), valuable="dark:0.5")
+    assert [shown(str(w.message)) for w in caught] == [_doc_message("map-path-transparent-pixels")]
+    for row_id, file in (("map-path-fully-transparent", "ghost.png"), ("map-path-transparent-rest-flat", "half.png")):
+        with pytest.raises(MapError) as info:
+            envs.make_env("mine", map_path=str(maps / file))
+        assert shown(str(info.value)) == _doc_message(row_id)

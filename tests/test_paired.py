@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from sb3_coma.common.paired import PairedDifference, paired_difference, paired_markdown
+from sb3_coma.common.paired import NO_VERDICT, PairedDifference, paired_difference, paired_markdown
 
 
 def _result(
@@ -42,7 +42,9 @@ def test_verdicts_follow_the_metric_direction_and_call_small_differences_ties():
     noisy = _result("z", [0.48, 0.53, 0.50])
     assert paired_difference(noisy, b, "entropy").verdict == "tie"  # +0.003 +- 0.015
     one = paired_difference(_result("p", [0.1]), _result("q", [0.9]), "entropy")
-    assert np.isnan(one.se) and one.verdict == "tie"  # one mission cannot tell
+    # One mission cannot tell: it is one scene, so the clustered test has no degrees of freedom and
+    # says so (it used to read "tie"); no winner either way.
+    assert np.isnan(one.se) and one.verdict == NO_VERDICT and one.winner is None
 
 
 def test_refuses_different_missions_and_unknown_metrics():

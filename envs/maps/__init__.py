@@ -7,7 +7,8 @@
 
 ``split=`` chooses the mission distribution (:mod:`.scenes`): ``"paper"`` (the maps above, the
 default), or the disjoint ``"train"`` / ``"test"`` sets of stars and of further scenes cut from the
-same sources, each scene in its 8 flips and rotations, ``seed`` picking one.
+same sources, each scene in its 8 flips and rotations, ``seed`` picking one. Validation missions
+(every model choice) are train-split missions; the test scenes serve the final verdicts only.
 
 The real images ship as small PNGs in ``data/`` with their provenance (``data/PROVENANCE.md``);
 nothing is downloaded or read from other packages at run time.
@@ -25,7 +26,18 @@ from __future__ import annotations
 from .errors import MapError
 from .ground_truth import BUILTIN_MAPS, GroundTruth, available_maps, block_fraction, block_index, load_ground_truth
 from .rules import RULE_NAMES, parse_rule
-from .scenes import ENV1_SEED_RANGES, SCENES, SPLITS, TRANSFORMS, Scene, dihedral, scene_count, split_scenes
+from .scenes import (
+    ENV1_SEED_RANGES,
+    SCENES,
+    SPLIT_ROLES,
+    SPLITS,
+    TRANSFORMS,
+    VALIDATION_SPLIT,
+    Scene,
+    dihedral,
+    scene_count,
+    split_scenes,
+)
 from .synthetic import star_map
 
 __all__ = [
@@ -34,7 +46,9 @@ __all__ = [
     "RULE_NAMES",
     "SCENES",
     "SPLITS",
+    "SPLIT_ROLES",
     "TRANSFORMS",
+    "VALIDATION_SPLIT",
     "GroundTruth",
     "MapError",
     "Scene",

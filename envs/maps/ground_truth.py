@@ -14,6 +14,9 @@ Decisions a caller may rely on:
   need a built-in map: a user image (``map_path``) has no disjoint scenes, so asking for them is an
   error rather than a silent "paper". env3's extra scenes ship only their default-rule mask, so
   its train / test splits accept no other ``valuable`` rule.
+* A user's image is read as it is shown (EXIF orientation applied) and its transparent pixels are
+  no data: never valuable, out of the rule's threshold, counted in a one-line ``UserWarning``
+  (:mod:`.rules`); an image with no opaque pixel is an error.
 * Built-in names are case-insensitive (``"Env3"`` works), because gym ids spell them that way.
 * Results are cached (real maps per rule/grid/lattice, split missions per scene/transform/rule/
   grid/lattice, user files per path + modification time),
@@ -26,6 +29,7 @@ from __future__ import annotations
 import functools
 import os
 import secrets
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +37,7 @@ import numpy as np
 
 from . import shipped
 from .errors import MapError
-from .rules import DEFAULT_NDVI_THRESHOLD, MapImage, Rule, apply_rule, parse_rule, read_image, resize_to_grid
+from .rules import DEFAULT_NDVI_THRESHOLD, MapImage, Rule, apply_rule, image_on_grid, parse_rule, read_image
 from .scenes import ENV1_SEED_RANGES, TRANSFORMS, Scene, check_split, dihedral, pick, split_scenes
 from .synthetic import star_map
 
@@ -147,13 +151,35 @@ def _load_builtin(name: str, rule: Rule, grid: int, lattice: int) -> GroundTruth
 def _load_file(
     path: str, stamp: tuple[int, int], rule: Rule | None, grid: int, lattice: int, label: str
 ) -> GroundTruth:
-    """A user's image; ``stamp`` (mtime_ns, size) keys the cache so an edited file is re-read."""
-    gray, rgb = read_image(path)
-    image = MapImage(gray=resize_to_grid(gray, grid), rgb=None if rgb is None else resize_to_grid(rgb, grid))
+    """A user's image; ``stamp`` (mtime_ns, size) keys the cache so an edited file is re-read.
+
+    The file is read as shown (EXIF orientation applied) and its transparent pixels are no data:
+    never valuable. That is said once per loaded file and grid (a warning, not an error: a drawing
+    on a transparent background is a legitimate map), because the cells silently drop out of the
+    rule's threshold and the user should know how many.
+    """
+    file = read_image(path)
+    image, transparent_cells = image_on_grid(file, grid)
     effective = rule if rule is not None else Rule("threshold")
-    mask = apply_rule(effective, image, label)
+    try:
+        mask = apply_rule(effective, image, label)
+    except MapError as exc:
+        if transparent_cells:
+            raise MapError(f"{exc} (its {transparent_cells:,} transparent grid cells are never valuable)") from None
+        raise
     shown = "threshold at Otsu (default)" if rule is None else str(rule)
-    return GroundTruth(label, _readonly(mask), _no_fly_none(lattice), f"user image {path}, {shown}")
+    source = f"user image {path}, {shown}"
+    if file.alpha is not None:
+        pixels = file.alpha.size
+        warnings.warn(
+            f"map_path {path!r}: {file.transparent_pixels:,} of {pixels:,} pixels "
+            f"({100 * file.transparent_pixels / pixels:.1f} %) are transparent; {transparent_cells:,} of "
+            f"{grid * grid:,} grid cells are mostly transparent and never valuable",
+            UserWarning,
+            stacklevel=3,
+        )
+        source += f"; {transparent_cells} transparent cells never valuable"
+    return GroundTruth(label, _readonly(mask), _no_fly_none(lattice), source)
 
 
 def _env1_mask(seed: int | None, rule: Rule | None, grid: int) -> np.ndarray:

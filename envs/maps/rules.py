@@ -13,10 +13,16 @@ A rule is a short string so that it fits on a command line and in an rl-zoo YAML
 
 Images are resized to the belief grid *before* the rule is applied, so quantile rules hit their
 fraction on the grid the environment actually scores, and the mask is binary at that resolution.
+
+A user's file is read as it is *shown*: its EXIF orientation is applied (a phone photo stored
+sideways is turned upright, as every viewer does), and transparent pixels (an alpha channel, or a
+palette / colour-key ``tRNS`` transparency) are "no data": never valuable, and left out when a
+rule picks its threshold (Otsu, or the fraction of ``hottest`` / ``coldest``).
 """
 
 from __future__ import annotations
 
+import io
 import math
 import os
 from dataclasses import dataclass
@@ -24,14 +30,19 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from .errors import MapError
 
 __all__ = [
+    "OPAQUE",
     "RULE_NAMES",
+    "ImageFile",
     "MapImage",
     "Rule",
     "apply_rule",
+    "image_on_grid",
+    "orient",
     "otsu_threshold",
     "parse_rule",
     "read_image",
@@ -47,6 +58,11 @@ _FRACTION_RULES = ("hottest", "coldest")
 _THRESHOLD_RANGE = {"threshold": (0.0, 1.0), "dark": (0.0, 1.0), "excess-green": (-1.0, 2.0), "ndvi": (-1.0, 1.0)}
 #: The NDVI threshold used when ``ndvi`` comes without one: a common "dense green vegetation" cut.
 DEFAULT_NDVI_THRESHOLD = 0.5
+#: A pixel (or grid cell, by its area-averaged alpha) counts as transparent below this opacity:
+#: more transparent than opaque, so an anti-aliased edge pixel goes with the side it mostly is.
+OPAQUE = 0.5
+#: EXIF tag of the orientation (TIFF/EXIF 0x0112), 1 = as stored.
+_EXIF_ORIENTATION = 0x0112
 _RULE_HELP = (
     "allowed rules: 'threshold[:T]', 'dark[:T]', 'hottest:F', 'coldest:F', "
     "'excess-green[:T]', 'ndvi[:T]' (T a number, F a fraction in (0, 1))"
@@ -70,13 +86,16 @@ class MapImage:
 
     ``gray`` is always present (float32 in [0, 1]); ``rgb`` (H, W, 3, RGB order, float32 in [0, 1])
     only for colour images; ``ndvi`` (float32 in [-1, 1]) only for maps that ship a near-infrared
-    band. Keeping the derived forms here lets the rules stay one-liners and lets a missing form
-    become a clear error instead of a silent fallback.
+    band; ``valid`` (bool) only for images with transparency: the cells that hold data (the rest
+    are never valuable and do not take part in a rule's threshold). Keeping the derived forms here
+    lets the rules stay one-liners and lets a missing form become a clear error instead of a
+    silent fallback.
     """
 
     gray: np.ndarray
     rgb: np.ndarray | None = None
     ndvi: np.ndarray | None = None
+    valid: np.ndarray | None = None
 
 
 def parse_rule(rule: object) -> Rule:
@@ -153,16 +172,21 @@ def apply_rule(rule: Rule, image: MapImage, label: str) -> np.ndarray:
     """
     kind, value = rule.kind, rule.value
     gray = image.gray
+    valid = image.valid
+
+    def data(values: np.ndarray) -> np.ndarray:  # the cells a threshold is chosen on
+        return values if valid is None else values[valid]
+
     if kind == "threshold":
-        mask = gray > (otsu_threshold(gray) if value is None else value)
+        mask = gray > (otsu_threshold(data(gray)) if value is None else value)
     elif kind == "dark":
-        mask = ~(gray > otsu_threshold(gray)) if value is None else gray < value
+        mask = ~(gray > otsu_threshold(data(gray))) if value is None else gray < value
     elif kind == "hottest":
         assert value is not None  # parse_rule requires a fraction for "hottest"
-        mask = gray > np.quantile(gray, 1.0 - value)
+        mask = gray > np.quantile(data(gray), 1.0 - value)
     elif kind == "coldest":
         assert value is not None  # ... and for "coldest"
-        mask = gray < np.quantile(gray, value)
+        mask = gray < np.quantile(data(gray), value)
     elif kind == "excess-green":
         if image.rgb is None:
             raise MapError(
@@ -170,7 +194,7 @@ def apply_rule(rule: Rule, image: MapImage, label: str) -> np.ndarray:
                 "use 'threshold', 'dark', 'hottest' or 'coldest'"
             )
         exg = _chromatic_exg(image.rgb)
-        mask = exg > (otsu_threshold(exg) if value is None else value)
+        mask = exg > (otsu_threshold(data(exg)) if value is None else value)
     elif kind == "ndvi":
         if image.ndvi is None:
             raise MapError(
@@ -180,6 +204,8 @@ def apply_rule(rule: Rule, image: MapImage, label: str) -> np.ndarray:
         mask = image.ndvi > (DEFAULT_NDVI_THRESHOLD if value is None else value)
     else:  # parse_rule only produces RULE_NAMES; this guards future edits
         raise MapError(f"unknown valuable rule {kind!r}; {_RULE_HELP}")
+    if valid is not None:
+        mask &= valid
     n = int(mask.sum())
     if n == 0:
         raise MapError(
@@ -220,11 +246,90 @@ def _normalise(img: np.ndarray, path: str) -> np.ndarray:
     return (out - lo) / (hi - lo) if hi > lo else np.zeros_like(out)
 
 
-def read_image(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
-    """Read any image cv2 can decode: ``(gray, rgb)`` as float32 in [0, 1] at the file's own size.
+@dataclass(frozen=True)
+class ImageFile:
+    """A user's image as shown: EXIF orientation applied, values as float32 in [0, 1].
 
-    ``rgb`` is ``None`` for single-channel files. Transparent pixels are composited onto white,
-    so that a drawing with a transparent background reads as "nothing drawn" rather than black.
+    ``rgb`` is ``None`` for single-channel files; ``alpha`` (opacity, 1 = opaque) is ``None`` unless
+    some pixel is transparent (below :data:`OPAQUE`), so fully opaque RGBA files cost nothing extra.
+    """
+
+    gray: np.ndarray
+    rgb: np.ndarray | None
+    alpha: np.ndarray | None
+    orientation: int = 1
+
+    @property
+    def transparent_pixels(self) -> int:
+        """How many pixels are transparent (opacity below :data:`OPAQUE`)."""
+        return 0 if self.alpha is None else int((self.alpha < OPAQUE).sum())
+
+
+def orient(a: np.ndarray, orientation: int) -> np.ndarray:
+    """``a`` (rows = y) turned as ``PIL.ImageOps.exif_transpose`` turns an image with this EXIF
+    orientation (1-8; anything else is left as stored), on the first two axes.
+
+    Done on the decoded array rather than by decoding with PIL, so the pixel values stay OpenCV's
+    (16-bit, float TIFF, ...) whatever the orientation; ``tests/test_maps.py`` checks all 8 against
+    ``exif_transpose`` itself.
+    """
+    if orientation == 2:  # FLIP_LEFT_RIGHT
+        return a[:, ::-1]
+    if orientation == 3:  # ROTATE_180
+        return a[::-1, ::-1]
+    if orientation == 4:  # FLIP_TOP_BOTTOM
+        return a[::-1]
+    if orientation == 5:  # TRANSPOSE
+        return np.swapaxes(a, 0, 1)
+    if orientation == 6:  # ROTATE_270 (a quarter turn clockwise)
+        return np.rot90(a, -1)
+    if orientation == 7:  # TRANSVERSE
+        return np.swapaxes(a, 0, 1)[::-1, ::-1]
+    if orientation == 8:  # ROTATE_90 (a quarter turn counter-clockwise)
+        return np.rot90(a, 1)
+    return a
+
+
+def _pil_metadata(data: np.ndarray, shape: tuple[int, ...], need_alpha: bool) -> tuple[int, np.ndarray | None]:
+    """(EXIF orientation, alpha from PIL or ``None``) of the encoded file ``data``.
+
+    OpenCV ignores EXIF with ``IMREAD_UNCHANGED`` and a colour-key ``tRNS`` (gray or RGB PNG); PIL
+    reads both. ``Image.open`` only parses headers, so this costs nothing unless an alpha has to be
+    made. Any file PIL cannot open is taken as stored and opaque (OpenCV has already decoded it).
+    """
+    try:
+        with Image.open(io.BytesIO(data.tobytes())) as im:
+            orientation = int(im.getexif().get(_EXIF_ORIENTATION, 1) or 1)
+            if not need_alpha or not ("transparency" in im.info or "A" in im.getbands()):
+                return orientation, None
+            try:
+                alpha = np.asarray(im.convert("RGBA").getchannel("A"), dtype=np.float32) / 255.0
+            except Exception:  # a mode PIL cannot turn into RGBA (e.g. 16-bit with a key): opaque
+                return orientation, None
+    except Exception:  # PIL raises many types for files it does not know; OpenCV decoded it already
+        return 1, None
+    return orientation, (alpha if alpha.shape == shape[:2] else None)
+
+
+def _channels(img: np.ndarray, shown: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(gray, rgb, alpha) of a decoded OpenCV array (BGR / BGRA order), each float32 in [0, 1]."""
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 2:
+        return _normalise(img, shown), None, None
+    channels = img.shape[2]
+    if channels == 2:  # gray + alpha
+        return _normalise(img[:, :, 0], shown), None, _normalise(img[:, :, 1], shown)
+    if channels not in (3, 4):
+        raise MapError(f"map_path {shown!r} has {channels} channels; expected 1 (gray), 3 (colour) or 4 (with alpha)")
+    alpha = _normalise(img[:, :, 3], shown) if channels == 4 else None
+    rgb = np.ascontiguousarray(_normalise(img[:, :, 2::-1], shown))
+    return rgb_to_gray(rgb), rgb, alpha
+
+
+def _decode(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """(encoded bytes, OpenCV's decoded array) of a user's file, with the file errors phrased.
+
     Bytes are decoded with ``cv2.imdecode`` (not ``imread``) so paths with non-ASCII characters
     work and a non-image file is an error we phrase, not an empty return.
     """
@@ -251,22 +356,60 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
         )
     if img.size == 0 or img.ndim < 2 or img.shape[0] == 0 or img.shape[1] == 0:
         raise MapError(f"map_path {shown!r} is an empty image (0 pixels)")
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[:, :, 0]
-    img = _normalise(img, shown)
-    if img.ndim == 2:
-        return img, None
-    channels = img.shape[2]
-    if channels == 2:  # gray + alpha
-        alpha = img[:, :, 1]
-        return img[:, :, 0] * alpha + (1.0 - alpha), None
-    if channels == 4:  # BGRA
-        alpha = img[:, :, 3:4]
-        img = img[:, :, :3] * alpha + (1.0 - alpha)
-    elif channels != 3:
-        raise MapError(f"map_path {shown!r} has {channels} channels; expected 1 (gray), 3 (colour) or 4 (with alpha)")
-    rgb = np.ascontiguousarray(img[:, :, ::-1])
-    return rgb_to_gray(rgb), rgb
+    return data, img
+
+
+def read_image(path: str | os.PathLike) -> ImageFile:
+    """Read any image cv2 can decode, as it is shown: an :class:`ImageFile` at the file's own size.
+
+    The EXIF orientation (JPEG, TIFF, PNG, WebP) is applied, as ``PIL.ImageOps.exif_transpose``
+    would. Transparency comes from an alpha channel (RGBA, gray + alpha, a palette with ``tRNS``,
+    which OpenCV expands to BGRA) or from a colour-key ``tRNS`` (read through PIL); the colour of a
+    transparent pixel is whatever the file stores there, so the loader treats it as no data.
+    """
+    shown = os.fspath(path)
+    data, img = _decode(path)
+    gray, rgb, alpha = _channels(img, shown)
+    orientation, pil_alpha = _pil_metadata(data, img.shape, need_alpha=alpha is None)
+    alpha = pil_alpha if alpha is None else alpha
+    if alpha is not None and not (alpha < OPAQUE).any():
+        alpha = None  # an alpha channel that hides nothing
+    if alpha is not None and (alpha < OPAQUE).all():
+        raise MapError(f"map_path {shown!r} is fully transparent (every pixel has alpha < {OPAQUE:g}); nothing to map")
+    turned = [None if a is None else np.ascontiguousarray(orient(a, orientation)) for a in (gray, rgb, alpha)]
+    assert turned[0] is not None
+    return ImageFile(gray=turned[0], rgb=turned[1], alpha=turned[2], orientation=orientation)
+
+
+def image_on_grid(image: ImageFile, grid: int) -> tuple[MapImage, int]:
+    """``image`` resized to ``grid`` x ``grid`` and the number of grid cells that are transparent.
+
+    With transparency, colour is averaged weighted by opacity (what the opaque part of a cell
+    shows, not the arbitrary colour stored under transparent pixels) and a cell whose mean opacity
+    is below :data:`OPAQUE` is invalid: :func:`apply_rule` never marks it and leaves it out of its
+    threshold.
+    """
+    if image.alpha is None:
+        rgb = None if image.rgb is None else resize_to_grid(image.rgb, grid)
+        return MapImage(gray=resize_to_grid(image.gray, grid), rgb=rgb), 0
+    opacity = resize_to_grid(image.alpha, grid)
+    valid = opacity >= OPAQUE
+    if not valid.any():
+        raise MapError(
+            f"every cell of the {grid} x {grid} grid is mostly transparent (opacity < {OPAQUE:g}); "
+            "use a finer grid or an image with more opaque pixels"
+        )
+    weight = np.where(valid, opacity, 1.0)
+
+    def unpremultiply(premultiplied: np.ndarray, mask: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return np.clip(np.where(mask, premultiplied / w, 0.0), 0.0, 1.0).astype(np.float32)
+
+    gray = unpremultiply(resize_to_grid(image.gray * image.alpha, grid), valid, weight)
+    rgb = None
+    if image.rgb is not None:
+        premultiplied = resize_to_grid(image.rgb * image.alpha[:, :, None], grid)
+        rgb = unpremultiply(premultiplied, valid[:, :, None], weight[:, :, None])
+    return MapImage(gray=gray, rgb=rgb, valid=valid), int((~valid).sum())
 
 
 def rgb_to_gray(rgb: np.ndarray) -> np.ndarray:

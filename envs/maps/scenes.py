@@ -5,11 +5,23 @@
 
   - env1: fresh stars from disjoint star-seed ranges (:data:`ENV1_SEED_RANGES`): the split's
     ``seed`` becomes star seed ``start + seed % (stop - start)``.
-  - env2 / env3: several scenes cut from the *same* public sources as the shipped ones
-    (:data:`SCENES`; crops never overlap, and every test crop keeps :data:`SPLIT_GAP` source pixels
-    away from every train crop). ``seed`` picks the scene and one of its 8 flips / rotations
-    (:func:`pick`), so each scene gives 8 missions. The shipped scene is a train scene, never a
-    test scene.
+  - env2 / env3: many scenes cut from the *same* public sources as the shipped ones
+    (:data:`SCENES`: 9 train and 8 test for env2, 12 train and 9 test for env3; crops never
+    overlap, and every test crop keeps :data:`SPLIT_GAP` source pixels away from every train
+    crop). ``seed`` picks the scene and one of its 8 flips / rotations (:func:`pick`), so each
+    scene gives 8 missions. The shipped scene is a train scene, never a test scene.
+
+Roles of the splits (:data:`SPLIT_ROLES`): "train" missions train models *and* select them: the
+validation missions (checkpoint choice, AG's entropy weighting, any tuning) are train-split
+missions flown with their own env seeds (:data:`VALIDATION_SPLIT`), i.e. new flips, starts and
+noise of the train scenes, never a test scene. The test scenes are used for the final verdicts
+only and never for any choice, so the unseen protocol's numbers are not selected on.
+
+Why the crops are smaller than the paper scene: the sources hold little cloud-free land (the
+Landsat scene is mostly cumulus, half of the Sentinel-2 scene is sea), so 16 or more disjoint
+crops only fit at 48 px (env2, 1.44 km) and 240 px (env3, 2.4 km) instead of the paper's 140 px /
+493 px; every crop is resampled to the belief grid as the paper scene is (:data:`PIXEL_METRES`
+gives each source's ground resolution, :attr:`Scene.side_m` a crop's side).
 
 This module is the catalogue only (pure data and the dihedral transforms): the loader
 (:mod:`.ground_truth`) and the maintainer tool that cuts the crops (:mod:`.build_shipped_maps`) both
@@ -26,11 +38,14 @@ from .errors import MapError
 
 __all__ = [
     "ENV1_SEED_RANGES",
+    "PIXEL_METRES",
     "SCENES",
     "SOURCE_SHAPES",
     "SPLITS",
     "SPLIT_GAP",
+    "SPLIT_ROLES",
     "TRANSFORMS",
+    "VALIDATION_SPLIT",
     "Scene",
     "check_split",
     "dihedral",
@@ -41,6 +56,19 @@ __all__ = [
 
 #: Every allowed ``split``; "paper" is the paper's fixed mission (today's maps).
 SPLITS: tuple[str, ...] = ("paper", "train", "test")
+
+#: What each split is for. Written down here because the code that honours it (training, the
+#: protocols, the AG weighting picker) lives in ``sb3_coma``, and ``sb3-coma scenes`` prints it.
+SPLIT_ROLES: dict[str, str] = {
+    "paper": "the paper's fixed mission (Table I): comparison with the paper only",
+    "train": "training missions, and the validation missions every model choice is made on",
+    "test": "final verdicts only (the unseen protocol); never used for any choice",
+}
+
+#: The split validation missions come from: model selection (best checkpoint, AG's weighting,
+#: tuning) flies train-split missions with env seeds of its own (e.g. 1000.. for checkpoints,
+#: 2000.. for the AG weighting), so no choice ever looks at a test scene.
+VALIDATION_SPLIT = "train"
 
 #: env1 star seeds of each split, half-open ``[start, stop)``. "paper" passes its seed through
 #: unchanged (any seed >= 0 works; the benchmark's missions use 0..999,999, reserved here); "train"
@@ -71,6 +99,10 @@ TRANSFORMS: tuple[str, ...] = (
 #: env2: Landsat-8 ``l8_B10.tif`` (30 m grid); env3: the Sentinel-2 10 m bands ``s2_B0*.jp2``.
 SOURCE_SHAPES: dict[str, tuple[int, int]] = {"env2": (603, 627), "env3": (1947, 1933)}
 
+#: Ground size of one source pixel, metres: Landsat-8's 30 m product grid (TIRS itself resolves
+#: 100 m) and Sentinel-2's 10 m bands.
+PIXEL_METRES: dict[str, float] = {"env2": 30.0, "env3": 10.0}
+
 #: Smallest distance (source pixels, along rows or columns) between any train and any test crop.
 #: env2: 14 px = 420 m > the 400 m support of the cubic convolution that put TIRS's 100 m pixels
 #: on the product's 30 m grid, so no test pixel shares a native thermal pixel with a train pixel.
@@ -89,7 +121,8 @@ class Scene:
         rows, cols: the crop, half-open, 0-based, in the source image (row 0 = north).
         files: the shipped PNGs (``data/``); empty for the paper scene, which is read through the
             paper loader. env2: ``(thermal,)`` (8-bit gray at the crop's own size, white = hot);
-            env3: ``(valuable, builtup)`` (1-bit, 493 x 493: NDVI > 0.5 and the built-up mask).
+            env3: ``(valuable, builtup)`` (1-bit, 493 x 493: NDVI > 0.5 and the built-up mask,
+            computed after resampling the crop's bands to 493 x 493).
         note: what is on the ground, for logs and PROVENANCE.md.
     """
 
@@ -111,6 +144,16 @@ class Scene:
         """The crop as ``"rows a:b, cols c:d"``."""
         return f"rows {self.rows[0]}:{self.rows[1]}, cols {self.cols[0]}:{self.cols[1]}"
 
+    @property
+    def side_px(self) -> int:
+        """Side of the (square) crop in source pixels."""
+        return self.rows[1] - self.rows[0]
+
+    @property
+    def side_m(self) -> float:
+        """Side of the crop on the ground, metres (the simulated field is 50 m whatever this is)."""
+        return self.side_px * PIXEL_METRES[self.family]
+
 
 def _env2(key: str, split: str, rows: tuple[int, int], cols: tuple[int, int], note: str) -> Scene:
     return Scene("env2", key, split, rows, cols, () if key == "paper" else (f"env2_{key}_thermal.png",), note)
@@ -124,23 +167,56 @@ def _env3(key: str, split: str, rows: tuple[int, int], cols: tuple[int, int], no
 #: Every train / test scene, in split order: within a family and split, a scene's position is its
 #: index for :func:`pick`. env2 crops lie on the cloud-free ground along the southern edge of the
 #: Landsat scene (north of it the scene is a cumulus field, and a thin cirrus deck, visible in band
-#: 9, covers the northern edge); its train scenes are the shipped crop and two east of it, the test
-#: scenes two west of it. env3 crops are 493 x 493 at the native 10 m (no resampling); the test
-#: scenes are the south-west land block, the train scenes the shipped crop and the land north and
-#: east of it. Every crop leaves the default start columns (lattice (2, 2), (8, 2), (8, 8), (2, 8),
-#: a set every transform maps onto itself) flyable, so ``start="fixed"`` works in every mission.
+#: 9, covers the northern edge); the new crops are 48 px (1.44 km) squares, the train scenes the
+#: shipped crop and two rows east of it, the test scenes two rows west of it, 14 px away, leaving
+#: out a cirrus speck (band 9) at columns 144-181. env3 crops are 240 px (2.4 km) squares of the
+#: land in the 10 m bands: the train scenes the shipped crop and the land north and east of it
+#: (rows 0-720), the test scenes the land south of it (rows 920-1880, 7 px below the shipped
+#: crop). Every crop leaves the default start columns (lattice (2, 2), (8, 2), (8, 8), (2, 8), a
+#: set every transform maps onto itself) flyable and its flyable columns connected, so
+#: ``start="fixed"`` works in every mission. The env3 positions come from a raster scan of each
+#: split's land for squares that pass those checks; PROVENANCE.md has the details and the numbers.
 SCENES: tuple[Scene, ...] = (
     _env2("paper", "train", (463, 603), (243, 383), "the shipped env2 crop: fields, towns, woods"),
-    _env2("east1", "train", (503, 603), (383, 483), "warm fields and a town east of the paper crop"),
-    _env2("east2", "train", (513, 603), (483, 573), "fields and woods at the cumulus field's southern edge"),
-    _env2("west1", "test", (489, 603), (0, 114), "one large warm clearing in woods"),
-    _env2("west2", "test", (489, 603), (114, 228), "clearings and a road in woods"),
+    _env2("e1", "train", (507, 555), (383, 431), "woods, clearings and a hamlet in the south-east"),
+    _env2("e2", "train", (507, 555), (431, 479), "a small town's street grid in woods"),
+    _env2("e3", "train", (507, 555), (479, 527), "woods with a track, houses to the north"),
+    _env2("e4", "train", (555, 603), (383, 431), "woods and a clearing in the east"),
+    _env2("e5", "train", (555, 603), (431, 479), "woods, roads and clearings"),
+    _env2("e6", "train", (555, 603), (479, 527), "bare ground of a pit or works, and tracks"),
+    _env2("e7", "train", (555, 603), (527, 575), "bare pits and tracks in woods"),
+    _env2("e8", "train", (555, 603), (575, 623), "woods crossed by a road and a power line, a bare lot"),
+    _env2("w1", "test", (507, 555), (0, 48), "woods with small clearings"),
+    _env2("w2", "test", (507, 555), (48, 96), "a large square clearing in woods"),
+    _env2("w3", "test", (507, 555), (96, 144), "fields in the north, plots and roads"),
+    _env2("w4", "test", (507, 555), (181, 229), "a clearing and a track in woods"),
+    _env2("w5", "test", (555, 603), (0, 48), "woods with tracks and small clearings"),
+    _env2("w6", "test", (555, 603), (48, 96), "a cleared tract east of woods"),
+    _env2("w7", "test", (555, 603), (96, 144), "cleared tracts and a road in woods"),
+    _env2("w8", "test", (555, 603), (181, 229), "woods, a cleared patch in the east"),
     _env3("paper", "train", (420, 913), (0, 493), "the shipped env3 crop: a small town, crop fields, woods"),
-    _env3("north", "train", (0, 493), (493, 986), "crop fields, woods and a village"),
-    _env3("centre", "train", (493, 986), (500, 993), "crop fields and woods along a tidal creek"),
-    _env3("estuary", "train", (986, 1479), (500, 993), "marsh islands and open water of the bay, fields"),
-    _env3("south1", "test", (944, 1437), (0, 493), "crop fields, woods and farmsteads"),
-    _env3("south2", "test", (1437, 1930), (0, 493), "fields, woods, tidal creeks and a village by the bay"),
+    _env3("n1", "train", (0, 240), (248, 488), "crop fields, woods and a few farmsteads"),
+    _env3("n2", "train", (0, 240), (488, 728), "fields, woods, a hamlet and a bright bare field (marked built-up)"),
+    _env3("n3", "train", (0, 240), (728, 968), "fields and woods, houses along a road"),
+    _env3("n4", "train", (0, 240), (968, 1208), "large fields and woods"),
+    _env3("n5", "train", (64, 304), (0, 240), "fields and woods"),
+    _env3("n6", "train", (240, 480), (496, 736), "a village with an industrial site, fields"),
+    _env3("n7", "train", (240, 480), (736, 976), "fields, woods and farmsteads"),
+    _env3(
+        "n8", "train", (240, 480), (976, 1216), "fields and a tidal creek whose mud banks the SWIR rule marks built-up"
+    ),
+    _env3("n9", "train", (480, 720), (496, 736), "fields, woods and a tidal creek"),
+    _env3("n10", "train", (480, 720), (736, 976), "fields, woods and a creek mouth"),
+    _env3("n11", "train", (480, 720), (976, 1216), "bay shore: open water, woods and marsh"),
+    _env3("s1", "test", (920, 1160), (0, 240), "fields, woods and a poultry farm's long sheds"),
+    _env3("s2", "test", (920, 1160), (240, 480), "crop fields and woods"),
+    _env3("s3", "test", (920, 1160), (568, 808), "fields and woods along a creek valley"),
+    _env3("s4", "test", (1160, 1400), (0, 240), "fields, woods and farmsteads"),
+    _env3("s5", "test", (1160, 1400), (256, 496), "fields, woods, a creek and a poultry farm"),
+    _env3("s6", "test", (1160, 1400), (504, 744), "bay shore: fields and woods by open water"),
+    _env3("s7", "test", (1400, 1640), (0, 240), "fields and woods"),
+    _env3("s8", "test", (1400, 1640), (240, 480), "marsh creeks and the bay, fields"),
+    _env3("s9", "test", (1640, 1880), (0, 240), "woods and a few fields"),
 )
 
 

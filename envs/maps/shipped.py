@@ -28,6 +28,7 @@ __all__ = [
     "ENV3_RGB_FILE",
     "SHIPPED_SIZE",
     "env2_image",
+    "env2_image_from_codes",
     "env2_scene_image",
     "env3_builtup",
     "env3_image",
@@ -123,12 +124,17 @@ def env3_builtup(grid: int) -> np.ndarray:
 
 # --- the extra train / test scenes (envs.maps.scenes) ------------------------------------------------
 def env2_scene_image(file: str, grid: int) -> MapImage:
-    """An extra env2 scene: its 8-bit thermal crop (native crop size, white = hot) at ``grid``.
+    """An extra env2 scene: its 8-bit thermal crop (native crop size, white = hot) at ``grid``."""
+    return env2_image_from_codes(_read_shipped(file, cv2.IMREAD_GRAYSCALE), grid)
+
+
+def env2_image_from_codes(codes: np.ndarray, grid: int) -> MapImage:
+    """An 8-bit thermal crop at ``grid``: the loader's decoding, shared with the build tool's report.
 
     Upsampled bicubically (as the paper scene was at build time; clipped back to [0, 1], since
     cubic interpolation overshoots), or area-averaged when the grid is coarser than the crop.
     """
-    raw = _read_shipped(file, cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0
+    raw = codes.astype(np.float32) / 255.0
     if raw.shape[0] >= grid:
         return MapImage(gray=resize_to_grid(raw, grid))
     up = cv2.resize(raw, (grid, grid), interpolation=cv2.INTER_CUBIC)

@@ -26,9 +26,7 @@ Choices the paper leaves open, as implemented here:
 from __future__ import annotations
 
 import copy
-
 import math
-import warnings
 from collections import deque
 from typing import Any, ClassVar, TypeVar
 
@@ -56,43 +54,24 @@ from sb3_coma.coma.policies import CBAMPolicy, CnnPolicy, COMAPolicy
 from sb3_coma.coma.progress import JointStepProgressBar
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
+    ADVANTAGES,
     check_batch_fits_rollout,
+    check_coma_arguments,
     check_device,
-    check_non_negative,
     check_observation,
-    check_positive_int,
-    check_positive_rate,
     check_spaces,
-    check_unit_interval,
     resolve_n_agents,
 )
 
 SelfCOMA = TypeVar("SelfCOMA", bound="COMA")
 
-#: ``advantage`` options: the TD(lambda) return of the joint action, or the critic's Q (paper).
-ADVANTAGES = ("return", "q")
 #: Steps per env copy per rollout when ``n_steps`` is not given (256 joint steps with 8 copies).
 DEFAULT_ROLLOUT_STEPS = 32
 
-__all__ = ["ADVANTAGES", "COMA", "REMOVED_ARGUMENTS", "REMOVED_POLICY_KWARGS"]
+__all__ = ["ADVANTAGES", "COMA"]
 
 #: Joint steps per forward pass when the target critic scores a whole rollout (bounds memory).
 _SCORING_CHUNK = 1024
-
-#: Experimental arguments of earlier versions, removed (no config used them, none measured a
-#: benefit; docs/tuning_log.md), with the value that meant "off". A saved model that holds them
-#: still loads: see :meth:`COMA._drop_removed_settings`.
-REMOVED_ARGUMENTS: dict[str, Any] = {
-    "prior_kl_coef": 0.0,
-    "tau": None,
-    "temperature_initial": 1.0,
-    "temperature_final": 1.0,
-    "temperature_fraction": 1.0,
-}
-#: Saved state that came with them.
-_REMOVED_STATE = ("temperature", "temperature_schedule")
-#: Removed ``policy_kwargs`` keys (``critic_gain``: a gain-reading term in the critic).
-REMOVED_POLICY_KWARGS = ("critic_gain",)
 
 
 class COMA(OnPolicyAlgorithm):
@@ -181,33 +160,7 @@ class COMA(OnPolicyAlgorithm):
         if env is not None:
             n_agents = resolve_n_agents(env)  # type: ignore[arg-type]
             check_spaces(env.observation_space, env.action_space)
-        check_positive_rate("learning_rate", learning_rate)
-        check_positive_rate("critic_learning_rate", critic_learning_rate)
-        check_unit_interval("gamma", gamma)
-        check_unit_interval("td_lambda", td_lambda)
-        check_positive_int("batch_size", batch_size)
-        check_positive_int("n_critic_epochs", n_critic_epochs)
-        check_positive_int("n_epochs", n_epochs)
-        if clip_range is not None and (
-            isinstance(clip_range, bool) or not isinstance(clip_range, (int, float)) or not 0.0 < clip_range < math.inf
-        ):
-            raise ValueError(f"clip_range must be None or a positive number, got {clip_range!r}")
-        if advantage not in ADVANTAGES:
-            raise ValueError(f"advantage must be one of {ADVANTAGES}, got {advantage!r}")
-        check_positive_int("target_update_interval", target_update_interval)
-        if n_steps is not None:
-            check_positive_int("n_steps", n_steps)
-        check_unit_interval("exploration_initial_eps", exploration_initial_eps)
-        check_unit_interval("exploration_final_eps", exploration_final_eps)
-        check_unit_interval("exploration_fraction", exploration_fraction, low_open=True)
-        check_non_negative("ent_coef", ent_coef)
-        check_non_negative("kl_coef", kl_coef)
-        check_unit_interval("kl_fraction", kl_fraction, low_open=True)
-        if isinstance(max_grad_norm, bool) or not isinstance(max_grad_norm, (int, float)) or not max_grad_norm > 0:
-            raise ValueError(f"max_grad_norm must be positive, got {max_grad_norm!r}")
-        check_positive_int("stats_window_size", stats_window_size)
-        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
-            raise ValueError(f"seed must be None or an integer >= 0, got {seed!r}")
+        check_coma_arguments(locals())
         if env is not None and n_steps is not None:
             assert n_agents is not None
             check_batch_fits_rollout(batch_size, n_steps, env.num_envs // n_agents)  # type: ignore[union-attr]
@@ -254,9 +207,6 @@ class COMA(OnPolicyAlgorithm):
         #: not saved: the pull decays to zero within the run that set it.
         self.reference_actor: th.nn.Module | None = None
         self.env_options: dict[str, Any] | None = None
-        #: Only ``load`` builds a model with ``_init_setup_model=False`` and then restores saved
-        #: attributes, which may include settings earlier versions had (see ``_drop_removed_settings``).
-        self._restoring = not _init_setup_model
         self._n_critic_updates = 0
         self._n_target_updates = 0
         if _init_setup_model:
@@ -281,8 +231,6 @@ class COMA(OnPolicyAlgorithm):
         self.exploration_schedule = LinearSchedule(
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
         )
-        if self._restoring:
-            self._drop_removed_settings()
         if self.env is not None:
             check_spaces(self.observation_space, self.action_space)
             self.n_agents = resolve_n_agents(self.env)
@@ -319,38 +267,8 @@ class COMA(OnPolicyAlgorithm):
             "entropy": deque(maxlen=self._stats_window_size),
         }
 
-    def _drop_removed_settings(self) -> None:
-        """Forget what a model saved by an earlier version holds of the removed experimental
-        settings (:data:`REMOVED_ARGUMENTS`, :data:`REMOVED_POLICY_KWARGS`), with a one-line
-        warning where that changes what the model would do; refuse the one that changed the
-        network (a critic with a gain head)."""
-        changed = [
-            f"{key}={self.__dict__[key]!r}"
-            for key, default in REMOVED_ARGUMENTS.items()
-            if key in self.__dict__ and self.__dict__[key] != default
-        ]
-        for key in (*REMOVED_ARGUMENTS, *_REMOVED_STATE):
-            self.__dict__.pop(key, None)
-        kwargs = dict(self.policy_kwargs or {})
-        if kwargs.get("critic_gain"):
-            raise ValueError(
-                "this model was saved with policy_kwargs critic_gain=True, an experimental option that "
-                "sb3-coma no longer has (its critic holds an extra gain head): it cannot be loaded; "
-                "retrain it without critic_gain"
-            )
-        removed = [key for key in REMOVED_POLICY_KWARGS if key in kwargs]
-        for key in removed:
-            changed.append(f"policy_kwargs {key}={kwargs.pop(key)!r}")
-        self.policy_kwargs = kwargs
-        if changed:
-            warnings.warn(
-                f"saved model: ignoring settings that sb3-coma no longer has: {', '.join(changed)}",
-                UserWarning,
-                stacklevel=4,
-            )
-
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_restoring", "reference_actor"]
+        return [*super()._excluded_save_params(), "reference_actor"]
 
     def set_reference_actor(self) -> None:
         """Freeze a copy of the current actor (e.g. after :func:`~sb3_coma.coma.imitation.clone_teacher`)

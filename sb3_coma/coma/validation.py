@@ -178,3 +178,38 @@ def check_device(device: Any) -> None:
             )
     if parsed.type == "mps" and not th.backends.mps.is_available():
         raise ValueError(f"device {device!r}: no MPS (Apple GPU) device is available on this machine; use auto or cpu")
+
+
+#: COMA's advantage estimators: ``"return"`` (TD(lambda) return minus the counterfactual baseline,
+#: the default) and ``"q"`` (the paper's ``Q(s, u)`` minus the baseline).
+ADVANTAGES = ("return", "q")
+
+
+def _check_positive_number(name: str, value: Any, what: str = "positive") -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value < math.inf:
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+
+
+def check_coma_arguments(args: dict[str, Any]) -> None:
+    """Check ``COMA``'s constructor arguments (``locals()`` of ``__init__``), one rule per setting,
+    each error naming the argument and its value (SB3-style programming-error checks)."""
+    for name in ("learning_rate", "critic_learning_rate"):
+        check_positive_rate(name, args[name])
+    for name in ("gamma", "td_lambda", "exploration_initial_eps", "exploration_final_eps"):
+        check_unit_interval(name, args[name])
+    for name in ("exploration_fraction", "kl_fraction"):
+        check_unit_interval(name, args[name], low_open=True)
+    for name in ("batch_size", "n_critic_epochs", "n_epochs", "target_update_interval", "stats_window_size"):
+        check_positive_int(name, args[name])
+    for name in ("ent_coef", "kl_coef"):
+        check_non_negative(name, args[name])
+    if args["n_steps"] is not None:
+        check_positive_int("n_steps", args["n_steps"])
+    if args["clip_range"] is not None:
+        _check_positive_number("clip_range", args["clip_range"], "None or a positive number")
+    _check_positive_number("max_grad_norm", args["max_grad_norm"])
+    if args["advantage"] not in ADVANTAGES:
+        raise ValueError(f"advantage must be one of {ADVANTAGES}, got {args['advantage']!r}")
+    seed = args["seed"]
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+        raise ValueError(f"seed must be None or an integer >= 0, got {seed!r}")

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from envs.maps import TRANSFORMS
 from sb3_coma.baselines import Planner
 from sb3_coma.common.memory import release_freed_memory
 
@@ -144,6 +145,9 @@ class EvaluationResult:
     protocol: str | None = None
     #: the planner's options (AG: weighting, lookahead) as flown
     planner_kwargs: dict[str, Any] = field(default_factory=dict)
+    #: one scene label per trial (:func:`scene_label`): missions of one scene are not independent,
+    #: so ``sb3_coma.common.paired`` clusters its standard errors by them (``None``: unknown)
+    scenes: tuple[str, ...] | None = None
 
     def step_of(self, fraction: float) -> int:
         """Step index at a fraction of the budget (0 = the reset measurement)."""
@@ -222,6 +226,19 @@ class _FinalSnapshots:
             env.__dict__.pop("reset", None)
 
 
+def scene_label(name: str) -> str:
+    """The scene of a mission from its map's name: ``"env3/test/south1/rot90"`` -> ``"env3/test/south1"``.
+
+    A split mission is a scene (a map crop) under one of the 8 flips / rotations of
+    ``envs.maps.scenes.TRANSFORMS``; the missions of one scene share most of what makes a method
+    do well or badly, so they are one cluster of the paired statistics. Names without a trailing
+    transform (an env1 star ``"env1/test/star2000000007"``, a paper map ``"env3"``, a user map) are
+    their own scene.
+    """
+    head, sep, last = str(name).rpartition("/")
+    return head if sep and last in TRANSFORMS else str(name)
+
+
 def _env_copies(venv: Any) -> list[Any] | None:
     copies = getattr(getattr(venv, "unwrapped", venv), "copies", None)
     return list(copies) if copies is not None else None
@@ -233,7 +250,9 @@ def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int
     copies = venv.num_envs // n_agents
     rows = [c * n_agents for c in range(copies)]
     obs = venv.reset()
-    truth = venv.get_attr("ground_truth", indices=[0])[0]  # now: env1 without map seed redraws at reset
+    # After the reset: split missions (and env1 without a map seed) draw their map there.
+    truths = venv.get_attr("ground_truth", indices=rows)
+    truth = truths[0]
     if isinstance(predictor, Planner):
         predictor.reset()
     start = venv.env_method("metrics", indices=rows)
@@ -287,6 +306,7 @@ def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int
         **team,
         "returns": returns,
         "truth": truth,
+        "scenes": [scene_label(t.name) for t in truths],
         "plan_ms": plan_ms,
         "trajectories": trajectories,
         "final_beliefs": [b for b in final_beliefs if b is not None],
@@ -337,6 +357,7 @@ def _result_of(parts: list[dict[str, Any]], config: Any, label: str, seed: int, 
         altitudes=tuple(float(a) for a in config.altitudes),
         final_beliefs=np.stack(finals) if finals else None,
         belief_frames=parts[0]["belief_frames"],
+        scenes=tuple(s for p in parts for s in p["scenes"]),
     )
 
 

@@ -1,38 +1,233 @@
-"""Paired comparisons of two methods flown on the same seeded missions.
+"""Paired comparisons of two methods flown on the same seeded missions, clustered by scene.
 
-Table I and the ablation report mean +- std over 10 missions, and the standard deviation between
-missions (0.01-0.05 in entropy) is as large as many of the differences the tables rank. Because
-every method flies the *same* missions (env seed k for trial k), the per-mission difference
-``a_k - b_k`` cancels most of that spread: its mean and standard error say whether a difference
-is more than mission-to-mission noise. Every "A beats B" that ``sb3-coma reproduce`` writes comes
-from here: the paper and unseen protocols' verdict tables, the acceptance table, the noise sweep
-and a check on more missions than Table I (``--wide-trials``, default 50).
+Table I and the ablation report mean +- std over missions, and the spread between missions
+(0.01-0.05 in entropy) is as large as many of the differences the tables rank. Because every
+method flies the *same* missions (env seed k for trial k), the per-mission difference
+``a_k - b_k`` cancels most of that spread. But missions are not independent draws: an unseen
+mission is a scene (a map crop) under one of 8 flips / rotations, and several missions share a
+scene, so a method that suits one scene wins all of that scene's missions at once. The standard
+error is therefore clustered by scene (CR1, the cluster-robust standard error of a mean), the
+test is a t test with ``scenes - 1`` degrees of freedom, and the p-values of one verdict table
+are Holm-corrected together (docs/statistics.md has the formulas). With a single scene (the
+paper's protocol: one mission, 10 noise draws) no test is possible: the verdict says so
+(:data:`NO_VERDICT`) and the mission-level numbers are labelled as what they are.
 
-Metrics: the paper's ``f1`` / ``entropy`` of the global map and the team metrics ``team_f1`` /
-``team_entropy`` on the UAVs' own local beliefs (lower entropy is better either way).
+Every "A beats B" that ``sb3-coma reproduce`` writes comes from here. Metrics: the paper's
+``f1`` / ``entropy`` of the global map and the team metrics ``team_f1`` / ``team_entropy`` on the
+UAVs' own local beliefs (lower entropy is better either way).
+
+Two results are only paired when they are the same missions flown under the same settings
+(:func:`check_same_missions`): same env, seed, mission count and scenes, and the same value of
+every env option except the few in :data:`MAY_DIFFER`, which change what a model reads or how
+the run is executed but not the world the missions are flown in.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-__all__ = ["METRICS", "PairedDifference", "cell", "paired_difference", "paired_markdown"]
+from envs import IppConfig
 
-#: ``|difference| < TIE_SE * standard error`` is reported as a tie.
-TIE_SE = 2.0
+__all__ = [
+    "ALPHA",
+    "MAY_DIFFER",
+    "METRICS",
+    "NO_VERDICT",
+    "PairedDifference",
+    "SceneStat",
+    "cell",
+    "check_same_missions",
+    "clustered_mean_se",
+    "holm",
+    "holm_adjust",
+    "p_text",
+    "paired_difference",
+    "paired_markdown",
+    "scene_markdown",
+    "t_cdf",
+    "t_ppf",
+    "t_two_sided_p",
+]
+
+#: Two-sided level of every verdict: "a better" / "b better" only when the Holm-adjusted p < ALPHA.
+ALPHA = 0.05
+#: The verdict when all missions share one scene: the clustered test has no degrees of freedom.
+NO_VERDICT = "one scene: no verdict"
+#: What ``n`` counts when all missions share one scene (fixed starts, or random starts).
+ONE_MISSION = "noise draws of one mission"
+ONE_SCENE = "missions of one scene"
 #: Metrics a paired difference can be taken of, and whether lower is better.
 METRICS: dict[str, bool] = {"f1": False, "entropy": True, "team_f1": False, "team_entropy": True}
-#: Env options that must agree for two results to be the same missions (besides env, seed, count).
+#: Env options that decide *which* missions are flown; a difference in one of them reads "not the
+#: same missions", in any other option "not flown under the same settings".
 MISSION_OPTIONS = ("split", "start", "map_seed", "map_path", "n_uavs", "budget")
+#: Env options (``envs.IppConfig``) two paired results may differ in, and why that does not change
+#: the missions. Every other option (noise, comm_range, decoder, comm_grid, lattice, grid,
+#: altitudes, field_size, fov_deg, ...) changes the world or the channel and must match. Keys of
+#: ``env_options`` that are not ``IppConfig`` options (how the vec env is built: fusion_kwargs,
+#: monitor, workers) are not the world and are not compared; the fusion is the method's own.
+MAY_DIFFER: dict[str, str] = {
+    "action_gain": "adds an observation key (the expected gain of each move); the world is the same",
+    "render_mode": "display only",
+    "reward": "the return paid to a learner; no paired metric reads it",
+    "reward_entropy": "the return paid to a learner; no paired metric reads it",
+    "alpha": "the return paid to a learner (reward scale); no paired metric reads it",
+    "beta": "the return paid to a learner (reward offset); no paired metric reads it",
+}
+#: ``envs.IppConfig``'s options and defaults: an option a result does not name was flown at its default.
+_DEFAULTS: dict[str, Any] = {
+    f.name: (f.default if f.default is not dataclasses.MISSING else f.default_factory())  # type: ignore[misc]
+    for f in dataclasses.fields(IppConfig)
+    if f.name != "map_name"
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# Student's t distribution (no scipy dependency: the regularized incomplete beta function)
+# ---------------------------------------------------------------------------------------------
+def _beta_fraction(a: float, b: float, x: float) -> float:
+    """Continued fraction of the incomplete beta function (modified Lentz; Numerical Recipes 6.4)."""
+    tiny, eps = 1e-300, 1e-15
+
+    def guard(v: float) -> float:
+        return v if abs(v) > tiny else tiny
+
+    c, d = 1.0, 1.0 / guard(1.0 - (a + b) * x / (a + 1.0))
+    h = d
+    for m in range(1, 1000):
+        even = m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m))
+        odd = -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))
+        for num in (even, odd):
+            d = 1.0 / guard(1.0 + num * d)
+            c = guard(1.0 + num / c)
+            h *= d * c
+        if abs(d * c - 1.0) < eps:
+            break
+    return h
+
+
+def _betainc(a: float, b: float, x: float) -> float:
+    """Regularized incomplete beta ``I_x(a, b)``, for ``0 <= x <= 1``."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    log_front = math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
+    if x < (a + 1.0) / (a + b + 2.0):  # the fraction converges fast here; else use the symmetry
+        return math.exp(log_front) * _beta_fraction(a, b, x) / a
+    return 1.0 - math.exp(log_front) * _beta_fraction(b, a, 1.0 - x) / b
+
+
+def t_two_sided_p(t: float, df: float) -> float:
+    """``P(|T| >= |t|)`` for Student's t with ``df`` degrees of freedom (NaN in, NaN out)."""
+    if math.isnan(t) or math.isnan(df) or df <= 0:
+        return float("nan")
+    if math.isinf(t):
+        return 0.0
+    return min(1.0, _betainc(df / 2.0, 0.5, df / (df + t * t)))
+
+
+def t_cdf(t: float, df: float) -> float:
+    """``P(T <= t)`` for Student's t with ``df`` degrees of freedom."""
+    p = t_two_sided_p(t, df)
+    return p / 2.0 if t < 0 else 1.0 - p / 2.0
+
+
+def t_ppf(q: float, df: float) -> float:
+    """The ``q`` quantile of Student's t (``t_ppf(0.975, 9) = 2.262``), by bisection on :func:`t_cdf`."""
+    if not 0.0 < q < 1.0 or not df > 0:
+        raise ValueError(f"t_ppf needs 0 < q < 1 and df > 0, got q={q!r}, df={df!r}")
+    if q < 0.5:
+        return -t_ppf(1.0 - q, df)
+    lo, hi = 0.0, 1.0
+    while t_cdf(hi, df) < q:
+        lo, hi = hi, hi * 2.0
+    for _ in range(200):
+        mid = (lo + hi) / 2.0
+        lo, hi = (mid, hi) if t_cdf(mid, df) < q else (lo, mid)
+        if hi - lo < 1e-12 * max(1.0, hi):
+            break
+    return (lo + hi) / 2.0
+
+
+# ---------------------------------------------------------------------------------------------
+# the estimator and the multiple-comparison correction
+# ---------------------------------------------------------------------------------------------
+def clustered_mean_se(values: Sequence[float] | np.ndarray, clusters: Sequence[str]) -> tuple[float, float, int]:
+    """(mean, CR1 standard error, number of clusters) of ``values`` grouped by ``clusters``.
+
+    The cluster-robust (CR1) standard error of a mean, as ``regress d, vce(cluster scene)``:
+    ``se^2 = G / (G - 1) * sum_g (sum_{i in g} (d_i - mean))^2 / N^2``, the mean being the plain
+    mean over all N values. With equal cluster sizes this is the ordinary standard error of the G
+    cluster means; with one value per cluster it is the ordinary standard error of the N values.
+    One cluster: NaN (nothing to estimate the spread between clusters from).
+    """
+    d = np.asarray(values, dtype=np.float64)
+    if len(clusters) != len(d):
+        raise ValueError(f"{len(clusters)} cluster labels for {len(d)} values")
+    keys = list(dict.fromkeys(clusters))
+    g, n = len(keys), len(d)
+    mean = float(d.mean()) if n else float("nan")
+    if g < 2:
+        return mean, float("nan"), g
+    index = np.array([keys.index(c) for c in clusters])
+    sums = np.bincount(index, weights=d - mean, minlength=g)
+    return mean, float(math.sqrt(g / (g - 1) * float(np.sum(sums**2)) / n**2)), g
+
+
+def holm(p_values: Sequence[float]) -> list[float]:
+    """Holm's step-down adjusted p-values of one family (in the input order).
+
+    Sorted ascending, the k-th smallest of m gets ``max_{j <= k} min(1, (m - j + 1) p_(j))``;
+    rejecting where the adjusted p < alpha keeps the chance of any false "better" in the family
+    below alpha. NaN entries (comparisons without a test) are left out of the family and stay NaN.
+    """
+    p = [float(v) for v in p_values]
+    bad = [v for v in p if not math.isnan(v) and not 0.0 <= v <= 1.0]
+    if bad:
+        raise ValueError(f"p-values must be in [0, 1], got {bad}")
+    order = sorted((i for i, v in enumerate(p) if not math.isnan(v)), key=lambda i: p[i])
+    out = [float("nan")] * len(p)
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (len(order) - rank) * p[i]))
+        out[i] = running
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# one comparison
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SceneStat:
+    """One scene of a comparison: its missions and both methods' means there."""
+
+    scene: str
+    n: int
+    mean_a: float
+    mean_b: float
+
+    @property
+    def diff(self) -> float:
+        return self.mean_a - self.mean_b
 
 
 @dataclass(frozen=True)
 class PairedDifference:
-    """``a - b`` of one metric at 100 % of the budget, over ``n`` shared missions."""
+    """``a - b`` of one metric at 100 % of the budget, over ``n`` shared missions in ``n_clusters`` scenes.
+
+    ``se`` is the plain standard error over the missions (what the missions alone say; with one
+    scene, over ``unit``); ``se_clustered`` the CR1 standard error over scenes, which the verdict
+    uses. ``n_clusters`` / ``se_clustered`` left ``None`` mean "every mission its own scene".
+    ``p_holm`` is set by :func:`holm_adjust` for the table the comparison sits in; ``None``: a
+    family of one (``p_value``).
+    """
 
     a: str
     b: str
@@ -42,24 +237,62 @@ class PairedDifference:
     mean_b: float
     diff: float
     se: float
+    n_clusters: int | None = None
+    se_clustered: float | None = None
+    p_holm: float | None = None
+    unit: str = "missions"
+    per_scene: tuple[SceneStat, ...] = field(default=(), repr=False)
+
+    def __post_init__(self) -> None:
+        if self.n_clusters is None:
+            object.__setattr__(self, "n_clusters", self.n)
+        if self.se_clustered is None:
+            object.__setattr__(self, "se_clustered", self.se if self.n_clusters >= 2 else float("nan"))
 
     @property
     def lower_is_better(self) -> bool:
         return METRICS.get(self.metric, False)
 
     @property
+    def df(self) -> int:
+        """Degrees of freedom of the t test: scenes - 1."""
+        return int(self.n_clusters) - 1  # type: ignore[arg-type]
+
+    @property
+    def t(self) -> float:
+        """``diff / se_clustered`` (NaN with one scene; 0 for no difference at all)."""
+        se = float(self.se_clustered)  # type: ignore[arg-type]
+        if self.df < 1 or math.isnan(se) or math.isnan(self.diff):
+            return float("nan")
+        if se == 0.0:
+            return 0.0 if self.diff == 0.0 else math.copysign(math.inf, self.diff)
+        return self.diff / se
+
+    @property
+    def p_value(self) -> float:
+        """Two-sided p of the t test, before any correction (NaN with one scene)."""
+        return t_two_sided_p(self.t, self.df)
+
+    @property
+    def p_adjusted(self) -> float:
+        """The p the verdict reads: ``p_holm`` when a table set it, else ``p_value``."""
+        return self.p_value if self.p_holm is None else float(self.p_holm)
+
+    @property
     def verdict(self) -> str:
-        """``"a better"``, ``"b better"`` or ``"tie"`` (within ``TIE_SE`` standard errors)."""
-        if not abs(self.diff) > TIE_SE * self.se:  # also a tie: no difference at all, or one mission (se NaN)
+        """``"a better"``, ``"b better"``, ``"tie"`` (adjusted p >= :data:`ALPHA`) or :data:`NO_VERDICT`."""
+        if self.df < 1:
+            return NO_VERDICT
+        if not self.p_adjusted < ALPHA:  # also a tie: NaN values
             return "tie"
         a_better = self.diff < 0 if self.lower_is_better else self.diff > 0
         return f"{self.a} better" if a_better else f"{self.b} better"
 
     @property
     def winner(self) -> str | None:
-        """The better method's label, ``None`` for a tie."""
+        """The better method's label, ``None`` for a tie or no verdict."""
         v = self.verdict
-        return None if v == "tie" else v[: -len(" better")]
+        return v[: -len(" better")] if v.endswith(" better") else None
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -72,26 +305,105 @@ class PairedDifference:
             "diff": self.diff,
             "se": self.se,
             "verdict": self.verdict,
+            "unit": self.unit,
+            "n_clusters": self.n_clusters,
+            "se_clustered": self.se_clustered,
+            "df": self.df,
+            "t": self.t,
+            "p_value": self.p_value,
+            "p_holm": self.p_adjusted,
         }
 
 
-def paired_difference(a: object, b: object, metric: str = "entropy") -> PairedDifference:
-    """Per-mission ``a - b`` of ``metric`` at the last step, for two ``EvaluationResult`` objects
-    flown on the same missions (same env, seed, trial count and mission options such as the
-    split: checked)."""
-    if metric not in METRICS:
-        raise ValueError(f"metric must be 'f1', 'entropy', 'team_f1' or 'team_entropy', got {metric!r}")
+def holm_adjust(diffs: Sequence[PairedDifference]) -> list[PairedDifference]:
+    """The comparisons of one table with ``p_holm`` set by :func:`holm` over all of them (from
+    their raw ``p_value``, so adjusting twice gives the same result)."""
+    adjusted = holm([d.p_value for d in diffs])
+    return [dataclasses.replace(d, p_holm=p) for d, p in zip(diffs, adjusted)]
+
+
+# ---------------------------------------------------------------------------------------------
+# pairing two results
+# ---------------------------------------------------------------------------------------------
+def _normal(value: Any) -> Any:
+    """A comparable form of an option value: (5, 10, 15) == [5.0, 10.0, 15.0], numpy scalars as Python."""
+    if isinstance(value, Mapping):
+        return tuple(sorted((_normal(k), _normal(v)) for k, v in value.items()))
+    if isinstance(value, (list, tuple)):
+        return tuple(_normal(v) for v in value)
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _effective_options(result: Any) -> dict[str, Any]:
+    """The world options (``envs.IppConfig``'s) a result was flown with, defaults filled in,
+    ``start`` as its rule (``None`` means "fixed" on split "paper", "random" elsewhere)."""
+    given = getattr(result, "env_options", None) or {}
+    options = {k: given.get(k, default) for k, default in _DEFAULTS.items()}
+    if options.get("start") is None:  # envs.IppConfig.start_rule: the split decides
+        options["start"] = "fixed" if options.get("split") == "paper" else "random"
+    return options
+
+
+def check_same_missions(a: Any, b: Any) -> tuple[str, ...] | None:
+    """Refuse (``ValueError`` naming the option and both values) to pair two results that are not
+    the same missions flown under the same settings; return their scene labels (``None`` when
+    neither result has them)."""
     for attr in ("env", "seed", "n_trials"):
         if getattr(a, attr) != getattr(b, attr):
             raise ValueError(f"not the same missions: {attr} {getattr(a, attr)!r} vs {getattr(b, attr)!r}")
-    oa, ob = getattr(a, "env_options", None) or {}, getattr(b, "env_options", None) or {}
-    for key in MISSION_OPTIONS:
-        if oa.get(key) != ob.get(key):
-            raise ValueError(f"not the same missions: {key} {oa.get(key)!r} vs {ob.get(key)!r}")
+    oa, ob = _effective_options(a), _effective_options(b)
+    keys = list(MISSION_OPTIONS) + sorted(set(_DEFAULTS) - set(MISSION_OPTIONS) - set(MAY_DIFFER))
+    for key in keys:
+        if _normal(oa.get(key)) != _normal(ob.get(key)):
+            what = "not the same missions" if key in MISSION_OPTIONS else "not flown under the same settings"
+            raise ValueError(
+                f"{what}: {key} {oa.get(key)!r} vs {ob.get(key)!r} ({getattr(a, 'method', 'a')} vs "
+                f"{getattr(b, 'method', 'b')})"
+            )
+    sa, sb = getattr(a, "scenes", None), getattr(b, "scenes", None)
+    for s in (sa, sb):
+        if s is not None and len(s) != a.n_trials:
+            raise ValueError(f"{len(s)} scene labels for {a.n_trials} missions")
+    if sa is not None and sb is not None and tuple(sa) != tuple(sb):
+        k = next(i for i, (x, y) in enumerate(zip(sa, sb)) if x != y)
+        raise ValueError(f"not the same missions: scene of mission {k} {sa[k]!r} vs {sb[k]!r}")
+    known = sa if sa is not None else sb
+    return None if known is None else tuple(str(s) for s in known)
+
+
+def _per_scene(va: np.ndarray, vb: np.ndarray, labels: Sequence[str]) -> tuple[SceneStat, ...]:
+    out = []
+    for scene in dict.fromkeys(labels):
+        rows = np.array([label == scene for label in labels])
+        out.append(SceneStat(scene, int(rows.sum()), float(va[rows].mean()), float(vb[rows].mean())))
+    return tuple(out)
+
+
+def paired_difference(
+    a: Any, b: Any, metric: str = "entropy", *, scenes: Sequence[str] | None = None
+) -> PairedDifference:
+    """Per-mission ``a - b`` of ``metric`` at the last step for two ``EvaluationResult`` objects
+    flown on the same missions under the same settings (:func:`check_same_missions`), with the
+    standard error clustered by scene.
+
+    :param scenes: one scene label per mission; default: the results' own ``scenes``. Without
+        labels every mission counts as its own scene (the caller vouches they are independent).
+    """
+    if metric not in METRICS:
+        raise ValueError(f"metric must be 'f1', 'entropy', 'team_f1' or 'team_entropy', got {metric!r}")
+    known = check_same_missions(a, b)
+    labels = known if scenes is None else tuple(str(s) for s in scenes)
     va = np.asarray(getattr(a, metric))[:, -1].astype(np.float64)
     vb = np.asarray(getattr(b, metric))[:, -1].astype(np.float64)
     d = va - vb
+    if labels is not None and len(labels) != len(d):
+        raise ValueError(f"{len(labels)} scene labels for {len(d)} missions")
     se = float(d.std(ddof=1) / math.sqrt(len(d))) if len(d) > 1 else float("nan")
+    clusters = labels if labels is not None else tuple(str(k) for k in range(len(d)))
+    _, se_clustered, g = clustered_mean_se(d, clusters)
+    fixed = _effective_options(a)["start"] == "fixed"
     return PairedDifference(
         a=str(a.method),
         b=str(b.method),
@@ -101,13 +413,51 @@ def paired_difference(a: object, b: object, metric: str = "entropy") -> PairedDi
         mean_b=float(vb.mean()),
         diff=float(d.mean()),
         se=se,
+        n_clusters=g,
+        se_clustered=se_clustered,
+        unit="missions" if g >= 2 else (ONE_MISSION if fixed else ONE_SCENE),
+        per_scene=() if labels is None else _per_scene(va, vb, labels),
     )
 
 
+# ---------------------------------------------------------------------------------------------
+# text
+# ---------------------------------------------------------------------------------------------
+def p_text(p: float) -> str:
+    """A p-value for a table: ``"0.012"``, ``"<0.001"``, ``"n/a"`` (no test)."""
+    if math.isnan(p):
+        return "n/a"
+    return "<0.001" if p < 0.001 else f"{p:.3f}"
+
+
+def _spread(d: PairedDifference, digits: int = 4) -> str:
+    """``"+0.0123 ± 0.0040"`` (clustered s.e.), or with one scene the plain s.e. and what it is over."""
+    if d.df < 1:
+        return f"{d.diff:+.{digits}f} ± {d.se:.{digits}f} over {d.unit}"
+    return f"{d.diff:+.{digits}f} ± {d.se_clustered:.{digits}f}"
+
+
+def cell(d: PairedDifference, digits: int = 4) -> str:
+    """``"+0.0123 ± 0.0040, p 0.012 (ag)"``: the difference, its clustered standard error, the
+    (Holm-adjusted) p and who is better (or ``tie``, or :data:`NO_VERDICT` with one scene)."""
+    if d.df < 1:
+        return f"{_spread(d, digits)} ({NO_VERDICT})"
+    return f"{_spread(d, digits)}, p {p_text(d.p_adjusted)} ({d.winner or 'tie'})"
+
+
 def paired_markdown(
-    rows: Sequence[PairedDifference], first_column: Sequence[str] | None = None, first_title: str = "Env"
+    rows: Sequence[PairedDifference],
+    first_column: Sequence[str] | None = None,
+    first_title: str = "Env",
+    *,
+    adjust: bool = True,
 ) -> str:
-    """A Markdown table: one row per comparison (optionally led by a label column)."""
+    """A Markdown table: one row per comparison (optionally led by a label column).
+
+    The rows are one family: their p-values are Holm-adjusted together (``adjust=False`` keeps
+    what the caller set, e.g. when the family is larger than this table).
+    """
+    rows = holm_adjust(rows) if adjust else list(rows)
     head = ([first_title] if first_column is not None else []) + [
         "a",
         "b",
@@ -117,6 +467,8 @@ def paired_markdown(
         "mean b",
         "a - b (± s.e.)",
         "verdict",
+        "scenes",
+        "p (Holm)",
     ]
     lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * len(head)) + " |"]
     for i, r in enumerate(rows):
@@ -127,13 +479,26 @@ def paired_markdown(
             str(r.n),
             f"{r.mean_a:.4f}",
             f"{r.mean_b:.4f}",
-            f"{r.diff:+.4f} ± {r.se:.4f}",
+            _spread(r),
             r.verdict,
+            str(r.n_clusters),
+            p_text(r.p_adjusted),
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
-def cell(d: PairedDifference, digits: int = 4) -> str:
-    """``"+0.0123 ± 0.0040 (ag)"``: the difference, its standard error and who is better (or tie)."""
-    return f"{d.diff:+.{digits}f} ± {d.se:.{digits}f} ({d.winner or 'tie'})"
+def scene_markdown(d: PairedDifference, digits: int = 4) -> str:
+    """Per scene of one comparison: missions, mean of ``a``, mean of ``b``, their difference.
+
+    Shows which scenes carry a difference (the clustered test weighs scenes, not missions).
+    """
+    if not d.per_scene:
+        return f"{d.a} vs {d.b} ({d.metric}): no scene labels.\n"
+    head = ["scene", "missions", f"{d.a} {d.metric}", f"{d.b} {d.metric}", "a - b"]
+    lines = ["| " + " | ".join(head) + " |", "| --- | ---: | ---: | ---: | ---: |"]
+    for s in d.per_scene:
+        lines.append(f"| {s.scene} | {s.n} | {s.mean_a:.{digits}f} | {s.mean_b:.{digits}f} | {s.diff:+.{digits}f} |")
+    scenes = f"{d.n_clusters} scene" + ("" if d.n_clusters == 1 else "s")
+    lines.append(f"| all ({scenes}) | {d.n} | {d.mean_a:.{digits}f} | {d.mean_b:.{digits}f} | {d.diff:+.{digits}f} |")
+    return "\n".join(lines) + "\n"

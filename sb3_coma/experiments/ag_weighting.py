@@ -10,7 +10,7 @@ and from the training runs' checkpoint-validation seeds 1000..1019), never on ``
 on the paper's fixed mission, and picks by a paired test (``sb3_coma.common.paired``):
 
 1. the weighting with the lower valuable-cell entropy of the global map at 100 % of the budget,
-   when the paired difference exceeds :data:`sb3_coma.common.paired.TIE_SE` standard errors;
+   when the paired difference is significant by the scene-clustered t test (docs/statistics.md);
 2. else the one with the higher F1, by the same rule;
 3. else (a tie on both) ``"class"``, ipp-marl's choice.
 
@@ -100,9 +100,11 @@ def _decide(paired: Mapping[str, Any]) -> tuple[str, str]:
     """(choice, reason) from the paired differences "plain" - "class" (module docstring's rule)."""
     for metric in ("entropy", "f1"):
         d = paired[metric]
-        if d.verdict != "tie":
+        if d.winner is not None:
             winner = "plain" if d.verdict == "plain better" else "class"
-            return winner, f"{metric} {d.verdict.replace(' better', '')} better by {abs(d.diff):.4f} ± {d.se:.4f}"
+            return winner, (
+                f"{metric} {winner} better by {abs(d.diff):.4f} ± {d.se_clustered:.4f} (scene-clustered, p {d.p_value:.3g})"
+            )
     return "class", "tie on entropy and F1: ipp-marl's class weighting"
 
 

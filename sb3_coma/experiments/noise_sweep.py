@@ -13,7 +13,8 @@ alpha_low 0.8, no drops), each under both decoders: :data:`SIGMAS`, :data:`ALPHA
 :data:`DROP_PROBABILITIES`; ``grid=True`` flies the full product instead (96 settings).
 Every setting flies the same missions (env seeds ``seed .. seed + n - 1`` of ``split``, default
 the unseen protocol's ``"test"`` with random starts), so each arm is compared with AG mission by
-mission (``sb3_coma.common.paired``).
+mission (``sb3_coma.common.paired``: standard errors clustered by scene, and the p-values of the
+whole table Holm-adjusted together, :meth:`NoiseSweepResult.paired`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from __future__ import annotations
 import csv
 import itertools
 import os
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,9 +31,17 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from sb3_coma.app.evaluation import evaluate
+from envs import ENV_IDS, IppConfig
+from sb3_coma.app.config import map_key
+from sb3_coma.app.evaluation import (
+    WorldMismatchWarning,
+    check_observation_options,
+    evaluate,
+    trained_options,
+    world_differences,
+)
 from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult
-from sb3_coma.common.paired import PairedDifference, cell, paired_difference
+from sb3_coma.common.paired import PairedDifference, cell, holm_adjust, paired_difference
 from sb3_coma.experiments.protocols import Method
 
 __all__ = [
@@ -136,13 +146,30 @@ class NoiseSweepResult:
         return self.results[(arm, point)].metric(metric)[:, -1]
 
     def vs_reference(self, arm: str, point: SweepPoint, metric: str) -> PairedDifference | None:
+        """One arm minus the reference at one setting, on its own (a family of one: not
+        Holm-adjusted; the table's verdicts come from :meth:`paired`)."""
         if arm == self.reference or (self.reference, point) not in self.results:
             return None
         return paired_difference(self.results[(arm, point)], self.results[(self.reference, point)], metric)
 
+    def paired(self) -> dict[tuple[str, SweepPoint, str], PairedDifference]:
+        """Every arm minus the reference at every setting on both entropies, keyed ``(arm, point,
+        metric)``, Holm-adjusted together: the sweep's table is one family of verdicts."""
+        keys = [
+            (arm, point, m)
+            for point in self.points
+            for arm in self.arms
+            if (arm, point) in self.results
+            for m in ("entropy", "team_entropy")
+        ]
+        found = [(k, self.vs_reference(*k)) for k in keys]
+        present = [(k, d) for k, d in found if d is not None]
+        return dict(zip([k for k, _ in present], holm_adjust([d for _, d in present])))
+
     def rows(self) -> list[dict[str, Any]]:
         """One dict per (point, arm): the setting, the four metrics' mean and s.e. at 100 %, and the
-        paired differences to the reference arm on both entropies."""
+        paired differences to the reference arm on both entropies (Holm-adjusted, :meth:`paired`)."""
+        paired = self.paired()
         out = []
         for point in self.points:
             for arm in self.arms:
@@ -162,7 +189,7 @@ class NoiseSweepResult:
                     row[f"{m}_mean"] = float(v.mean())
                     row[f"{m}_se"] = float(v.std(ddof=1) / np.sqrt(len(v))) if len(v) > 1 else float("nan")
                 for m in ("entropy", "team_entropy"):
-                    d = self.vs_reference(arm, point, m)
+                    d = paired.get((arm, point, m))
                     row[f"{m}_vs_{self.reference}"] = None if d is None else d.as_dict()
                 out.append(row)
         return out
@@ -175,6 +202,7 @@ class NoiseSweepResult:
             + [f"entropy − {self.reference}", f"team entropy − {self.reference}"]
         )
         lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---:"] * 3 + ["---"] * 2 + ["---:"] * 6) + " |"]
+        diffs = self.paired()
         for point in self.points:
             setting = [f"{point.sigma:g}", f"{point.alpha_low:g}", f"{point.drop_probability:g}", point.decoder]
             for arm in self.arms:
@@ -185,12 +213,15 @@ class NoiseSweepResult:
                     v = self.final(arm, point, m)
                     se = v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else float("nan")
                     values.append(f"{v.mean():.4f} ± {se:.4f}")
-                paired = [self.vs_reference(arm, point, m) for m in ("entropy", "team_entropy")]
+                paired = [diffs.get((arm, point, m)) for m in ("entropy", "team_entropy")]
                 lines.append(
                     "| " + " | ".join(setting + [arm] + values + ["" if d is None else cell(d) for d in paired]) + " |"
                 )
                 setting = [""] * 4
         return "\n".join(lines) + "\n"
+
+    #: Columns of each paired difference in the CSV (``se``: over missions; the verdict uses ``se_clustered``).
+    PAIRED_COLUMNS = ("diff", "se", "se_clustered", "p_holm", "verdict")
 
     def write_csv(self, path: str | os.PathLike) -> Path:
         path = Path(path)
@@ -199,7 +230,7 @@ class NoiseSweepResult:
         columns = (
             ["axis", "sigma", "alpha_low", "drop_probability", "decoder", "arm", "missions"]
             + [f"{m}_{s}" for m in ALL_METRICS for s in ("mean", "se")]
-            + [f"{m}_vs_{self.reference}_{k}" for m in ("entropy", "team_entropy") for k in ("diff", "se", "verdict")]
+            + [f"{m}_vs_{self.reference}_{k}" for m in ("entropy", "team_entropy") for k in self.PAIRED_COLUMNS]
         )
         with path.open("w", newline="") as fh:
             writer = csv.writer(fh)
@@ -208,7 +239,7 @@ class NoiseSweepResult:
                 flat = dict(row)
                 for m in ("entropy", "team_entropy"):
                     d = row[f"{m}_vs_{self.reference}"] or {}
-                    for k in ("diff", "se", "verdict"):
+                    for k in self.PAIRED_COLUMNS:
                         flat[f"{m}_vs_{self.reference}_{k}"] = d.get(k, "")
                 writer.writerow([f"{flat[c]:.6f}" if isinstance(flat[c], float) else flat[c] for c in columns])
         return path
@@ -243,6 +274,57 @@ class NoiseSweepResult:
         }
 
 
+#: Env options each setting sets itself: the arms' training values of these are not warned about.
+SWEPT_OPTIONS = ("noise", "sigma", "alpha_low", "drop_probability", "decoder")
+
+
+def _check_arms(arms: Sequence[Method], env: str, n_missions: int, options: Mapping[str, Any]) -> None:
+    """Everything about the arms that would waste the sweep, refused before any mission is flown:
+    two arms under one label (their results would overwrite each other), too few missions for
+    the paired columns (one mission makes every verdict nan), a model of another map family, or
+    a model whose observation options differ from the sweep's. Other world differences of a
+    model (budget ...) are one warning here; the swept settings differ on purpose (no warning)."""
+    if not arms:
+        raise ValueError("no arms to sweep")
+    if len(arms) > 1 and n_missions < 2:
+        raise ValueError(
+            f"n_missions={n_missions}: each arm minus the reference is a paired test on shared missions and needs "
+            f"at least 2 (with 1 every verdict is nan)"
+        )
+    builtin = set(ENV_IDS.values())
+    trained = {a.label: trained_options(a.policy) for a in arms if a.learned}
+    for label, own in trained.items():
+        own_map = str(own.get("map", ""))
+        if map_key(own_map) in builtin and map_key(env) in builtin and map_key(own_map) != map_key(env):
+            raise ValueError(
+                f"arm {label!r} is a model of {own_map} but the sweep flies {env}: sweep it on {own_map}, "
+                f"or pass a model of {env}"
+            )
+    labels = [a.label for a in arms]
+    twice = sorted({label for label in labels if labels.count(label) > 1})
+    if twice:
+        raise ValueError(f"arm(s) {twice} given twice: give each arm once")
+    fields = {f for f in IppConfig.__dataclass_fields__ if f != "map_name"}
+    fixed = {k: v for k, v in options.items() if k in fields}
+    for label, own in trained.items():
+        check_observation_options(f"arm {label!r}", own, fixed)
+        differences = world_differences(own, IppConfig.from_options(str(env), **fixed), skip=SWEPT_OPTIONS)
+        if differences:
+            warnings.warn(
+                f"arm {label!r} flies in another world than it trained in: {', '.join(differences)}",
+                WorldMismatchWarning,
+                stacklevel=3,
+            )
+
+
+def _fly(policy: Any, **kwargs: Any) -> EvaluationResult:
+    """:func:`evaluate` without its :class:`WorldMismatchWarning`: every setting changes the
+    channel on purpose, and the rest was checked once by :func:`_check_arms`."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", WorldMismatchWarning)
+        return evaluate(policy, **kwargs)
+
+
 def run_noise_sweep(
     arms: Sequence[Method],
     env: str = "env3",
@@ -264,14 +346,13 @@ def run_noise_sweep(
         starts unless ``start=`` says otherwise)
     :param env_options: more env options (``budget``, ``n_uavs`` ...); not the swept ones
     """
-    clash = sorted(set(env_options) & {"noise", "sigma", "alpha_low", "drop_probability", "decoder"})
+    clash = sorted(set(env_options) & set(SWEPT_OPTIONS))
     if clash:
         raise ValueError(f"the noise sweep sets {clash} itself; pass the settings with points=")
-    if not arms:
-        raise ValueError("no arms to sweep")
     if points is None:
         points = sweep_points(QUICK_AXES if quick else AXES, grid=grid)
     options = {"split": split, **({"start": "random"} if split != "paper" else {}), **env_options}
+    _check_arms(arms, env, n_missions, options)
     reference = next(
         (
             a.label
@@ -288,7 +369,7 @@ def run_noise_sweep(
             if arm.learned:
                 th.manual_seed(seed)
             try:
-                out.results[(arm.label, point)] = evaluate(
+                out.results[(arm.label, point)] = _fly(
                     arm.policy,
                     env=env,
                     n_trials=n_missions,

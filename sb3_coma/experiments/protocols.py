@@ -8,9 +8,11 @@ every method, so the results are shared missions. :class:`ProtocolResult` holds 
 * Table I style tables (mean ± std at 33 / 67 / 100 % of the budget) for the paper's metrics on the
   global map and for the team metrics on the UAVs' own beliefs (Markdown and CSV);
 * a compact table at 100 % with the planning time per UAV decision;
-* the verdicts: paired differences ``a - b`` at 100 % (± standard error; a difference within
-  ``sb3_coma.common.paired.TIE_SE`` standard errors is a tie) for the comparisons of
-  :func:`default_pairs`, on all four metrics.
+* the verdicts: paired differences ``a - b`` at 100 % (± standard error clustered by scene; a t
+  test with scenes - 1 degrees of freedom, Holm-corrected over the whole verdict table; one scene
+  gives no verdict: ``sb3_coma.common.paired``, docs/statistics.md) for the comparisons of
+  :func:`default_pairs`, on all four metrics;
+* the per-scene breakdown of each map's first comparison (:meth:`ProtocolResult.scene_table`).
 
 Methods (:class:`Method`): the baselines of :data:`BASELINE_METHODS` (AG with the map's weighting,
 AG with look-ahead 2 and 3, lawnmower, random) and whatever learned models exist: every shipped
@@ -33,7 +35,7 @@ from envs import WORLD_VERSION
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.app.pretrained import load_pretrained, read_manifest
 from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult, Protocol, protocol_of
-from sb3_coma.common.paired import PairedDifference, cell, paired_difference
+from sb3_coma.common.paired import PairedDifference, cell, holm_adjust, p_text, paired_difference, scene_markdown
 from sb3_coma.common.tables import TableRow, table_markdown, write_per_step_csv, write_table_csv
 
 __all__ = [
@@ -43,6 +45,7 @@ __all__ = [
     "Method",
     "ProtocolResult",
     "default_pairs",
+    "holm_comparisons",
     "run_protocol",
     "shipped_methods",
 ]
@@ -168,6 +171,17 @@ class Comparison:
         return {"env": self.env, "a": self.a, "b": self.b, **{m: d.as_dict() for m, d in self.diffs.items()}}
 
 
+def holm_comparisons(comparisons: Sequence[Comparison]) -> list[Comparison]:
+    """The comparisons with every metric's p-value Holm-adjusted over all of them: one verdict
+    table is one family (``sb3_coma.common.paired.holm``)."""
+    flat = [(i, m, d) for i, c in enumerate(comparisons) for m, d in c.diffs.items()]
+    adjusted = holm_adjust([d for _, _, d in flat])
+    diffs: list[dict[str, PairedDifference]] = [{} for _ in comparisons]
+    for (i, m, _), d in zip(flat, adjusted):
+        diffs[i][m] = d
+    return [Comparison(c.env, c.a, c.b, diffs[i]) for i, c in enumerate(comparisons)]
+
+
 def default_pairs(methods: Sequence[Method]) -> list[tuple[str, str]]:
     """Which ``(a, b)`` a protocol's verdict table compares, in order:
 
@@ -227,14 +241,15 @@ class ProtocolResult:
         ]
 
     def comparisons(self, pairs: Mapping[str, Sequence[tuple[str, str]]] | None = None) -> list[Comparison]:
-        """Paired differences on every metric for :func:`default_pairs` (or ``pairs[env]``)."""
+        """Paired differences on every metric for :func:`default_pairs` (or ``pairs[env]``), their
+        p-values Holm-adjusted over all of them (the verdict table's family)."""
         out = []
         for env, ms in self.methods.items():
             flown = [m for m in ms if (env, m.label) in self.results]
             for a, b in (pairs or {}).get(env, default_pairs(flown)):
                 ra, rb = self.results[(env, a)], self.results[(env, b)]
                 out.append(Comparison(env, a, b, {m: paired_difference(ra, rb, m) for m in ALL_METRICS}))
-        return out
+        return holm_comparisons(out)
 
     def describe(self) -> str:
         """One sentence: which missions, how many, which noise."""
@@ -272,8 +287,9 @@ class ProtocolResult:
         return "\n".join(lines) + "\n"
 
     def verdict_table(self, comparisons: Sequence[Comparison] | None = None) -> str:
-        """One row per comparison: ``a - b`` ± s.e. (who is better, or tie) on each metric."""
-        comparisons = self.comparisons() if comparisons is None else comparisons
+        """One row per comparison: ``a - b`` ± clustered s.e., Holm-adjusted p (who is better, tie,
+        or no verdict with one scene) on each metric; the table's comparisons are one Holm family."""
+        comparisons = self.comparisons() if comparisons is None else holm_comparisons(comparisons)
         head = ["Env", "a", "b"] + [f"{ALL_METRICS[m][0]} a − b" for m in ALL_METRICS]
         lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * len(head)) + " |"]
         previous = None
@@ -286,10 +302,27 @@ class ProtocolResult:
             previous = c.env
         return "\n".join(lines) + "\n"
 
+    def scene_table(self, metric: str = "entropy", comparisons: Sequence[Comparison] | None = None) -> str:
+        """Per map, its first comparison (a learned model vs AG when one flew) scene by scene:
+        missions, both means and the difference, so a verdict carried by one scene shows. A map
+        whose every mission is its own scene (env1's stars) gets one line instead of a table."""
+        comparisons = self.comparisons() if comparisons is None else comparisons
+        parts = []
+        for env in dict.fromkeys(c.env for c in comparisons):
+            c = next(c for c in comparisons if c.env == env)
+            d = c.diffs[metric]
+            if d.per_scene and all(s.n == 1 for s in d.per_scene):
+                parts.append(f"{env}, {c.a} vs {c.b}: every mission is its own scene ({d.n_clusters} scenes).\n")
+                continue
+            p = "" if d.df < 1 else f" (p {p_text(d.p_adjusted)}, Holm)"
+            title = f"{env}, {c.a} vs {c.b}, {metric} @100%: {d.verdict}{p}"
+            parts.append(f"{title}\n\n{scene_markdown(d)}")
+        return "\n".join(parts)
+
     # ---------------------------------------------------------------- files
     def write(self, out: str | os.PathLike, stem: str | None = None) -> list[Path]:
         """``{stem}_table.md/.csv`` (global), ``{stem}_team_table.md/.csv``, ``{stem}_per_step.csv``,
-        ``{stem}_verdicts.md/.csv``; stem defaults to the protocol's name."""
+        ``{stem}_verdicts.md/.csv``, ``{stem}_scenes.md``; stem defaults to the protocol's name."""
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         stem = stem or self.protocol.name
@@ -304,28 +337,23 @@ class ProtocolResult:
             (f"{stem}_table.md", self.table("global")),
             (f"{stem}_team_table.md", self.table("team")),
             (f"{stem}_verdicts.md", self.verdict_table(comparisons)),
+            (f"{stem}_scenes.md", self.scene_table(comparisons=comparisons)),
         ):
             (out / name).write_text(text)
             written.append(out / name)
         path = out / f"{stem}_verdicts.csv"
         with path.open("w", newline="") as fh:
             writer = csv.writer(fh)
-            writer.writerow(["env", "a", "b", "metric", "missions", "mean_a", "mean_b", "diff", "se", "verdict"])
+            writer.writerow(
+                ["env", "a", "b", "metric", "missions", "mean_a", "mean_b", "diff", "se", "verdict"]
+                + ["unit", "scenes", "se_clustered", "df", "p_value", "p_holm"]
+            )
             for c in comparisons:
                 for m, d in c.diffs.items():
                     writer.writerow(
-                        [
-                            c.env,
-                            c.a,
-                            c.b,
-                            m,
-                            d.n,
-                            f"{d.mean_a:.6f}",
-                            f"{d.mean_b:.6f}",
-                            f"{d.diff:.6f}",
-                            f"{d.se:.6f}",
-                            d.verdict,
-                        ]
+                        [c.env, c.a, c.b, m, d.n, f"{d.mean_a:.6f}", f"{d.mean_b:.6f}", f"{d.diff:.6f}"]
+                        + [f"{d.se:.6f}", d.verdict, d.unit, d.n_clusters, f"{d.se_clustered:.6f}", d.df]
+                        + [f"{d.p_value:.6g}", f"{d.p_adjusted:.6g}"]
                     )
         written.append(path)
         return written

@@ -1,7 +1,8 @@
 """RESULTS.md from a ``sb3_coma.experiments.reproduce`` run: every table, every verdict, a paste-ready paragraph.
 
-Nothing here measures anything: it formats what the run measured. Verdicts ("A beats B", "tie")
-are read from paired differences on shared missions (``sb3_coma.common.paired``) and never from means.
+Nothing here measures anything: it formats what the run measured. Verdicts ("A beats B", "tie",
+"one scene: no verdict") are read from paired differences on shared missions, clustered by scene and
+Holm-corrected per table (``sb3_coma.common.paired``, docs/statistics.md), and never from means.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_coma.common.paired import TIE_SE, PairedDifference, paired_markdown
+from sb3_coma.common.paired import NO_VERDICT, PairedDifference, p_text, paired_markdown
 from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, VALIDATION_SPLIT
 
 #: The comparisons the README paragraph states, when both methods were flown.
@@ -32,8 +33,38 @@ _NAMES = {
 PLANNER_NAMES: tuple[str, ...] = ("ag", "lawnmower", "random")
 
 
+#: How every verdict on the page is reached (docs/statistics.md), for the sentences that say so.
+RULE = (
+    "± is the standard error clustered by scene (missions of one scene are not independent); the method named "
+    "is better when a two-sided t test with scenes − 1 degrees of freedom gives p < 0.05 after Holm's "
+    'correction over its table, "tie" otherwise, and "one scene: no verdict" when every mission shares one '
+    "scene (± is then over the noise draws of that one mission; docs/statistics.md)"
+)
+
+
 def _name(label: str) -> str:
     return _NAMES.get(label, label)
+
+
+def _dict_cell(d: dict[str, Any]) -> str:
+    """``a - b ± s.e., p (verdict)`` from ``PairedDifference.as_dict()``; with one scene the plain
+    s.e. and what it is over (dicts written before the clustered test: the plain s.e.)."""
+    se = d.get("se_clustered", d["se"])
+    if d["verdict"] == NO_VERDICT or se is None or se != se:
+        return f"{d['diff']:+.4f} ± {d['se']:.4f} over {d.get('unit', 'missions')} ({d['verdict']})"
+    return f"{d['diff']:+.4f} ± {se:.4f}, p {p_text(float(d.get('p_holm', d.get('p_value', 'nan'))))} ({d['verdict']})"
+
+
+def _verdict_word(d: PairedDifference) -> str:
+    """The verdict in words: "AG better", "tie" or "no verdict" (one scene)."""
+    if d.verdict == NO_VERDICT:
+        return "no verdict"
+    return "tie" if d.winner is None else f"{_name(d.winner)} better"
+
+
+def _has_verdicts(result: Any) -> bool:
+    """Whether any comparison of a protocol result could be tested (more than one scene)."""
+    return any(d.df >= 1 for c in result.comparisons() for d in c.diffs.values())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -114,11 +145,7 @@ def ablation_verdict(a: dict[str, Any]) -> str:
         )
     paired = [d for d in a.get("paired", []) if d.get("noise") == a["noise"]]
     if paired:
-        head += (
-            " Paired on the same missions: "
-            + "; ".join(f"vs {d['b']} {d['diff']:+.4f} ± {d['se']:.4f} ({d['verdict']})" for d in paired)
-            + "."
-        )
+        head += " Paired on the same missions: " + "; ".join(f"vs {d['b']} {_dict_cell(d)}" for d in paired) + "."
     return head
 
 
@@ -131,13 +158,9 @@ _PROTOCOL_NAMES = {"paper": "Table I", "unseen": "unseen missions"}
 
 def _short(c: Any, family: str) -> str:
     """What a comparison's two paired differences of one family say: "AG better on both",
-    "tie on both", "F1 tie, entropy AG better"."""
-    wf, we = (c.diffs[m].winner for m in _FAMILIES[family])
-    if wf == we:
-        return "tie on both" if wf is None else f"{_name(wf)} better on both"
-    return (
-        f"F1 {'tie' if wf is None else _name(wf) + ' better'}, entropy {'tie' if we is None else _name(we) + ' better'}"
-    )
+    "tie on both", "F1 tie, entropy AG better", "no verdict on both" (one scene)."""
+    wf, we = (_verdict_word(c.diffs[m]) for m in _FAMILIES[family])
+    return f"{wf} on both" if wf == we else f"F1 {wf}, entropy {we}"
 
 
 def _cells(results: Sequence[Any], a: str, b: str) -> list[tuple[str, str, Any]]:
@@ -172,15 +195,16 @@ def baseline_sentence(results: Sequence[Any]) -> str:
 
 def lookahead_sentence(results: Sequence[Any]) -> str:
     """How often AG with look-ahead 2 / 3 beats, loses to or ties greedy AG."""
-    counts = {fam: {"better": 0, "worse": 0, "tie": 0} for fam in _FAMILIES}
+    counts = {fam: {"better": 0, "worse": 0, "tie": 0, "none": 0} for fam in _FAMILIES}
     n_maps = set()
     for k in ("ag-k2", "ag-k3"):
         for _, env, c in _cells(results, k, "ag"):
             n_maps.add(env)
             for fam, metrics in _FAMILIES.items():
                 for m in metrics:
-                    w = c.diffs[m].winner
-                    counts[fam]["tie" if w is None else ("better" if w == k else "worse")] += 1
+                    d = c.diffs[m]
+                    w = "none" if d.verdict == NO_VERDICT else ("tie" if d.winner is None else d.winner)
+                    counts[fam][w if w in ("none", "tie") else ("better" if w == k else "worse")] += 1
     total = sum(counts["global"].values())
     if not total:
         return ""
@@ -195,9 +219,10 @@ def lookahead_sentence(results: Sequence[Any]) -> str:
         ]
         if pairs:
             ratios.append(f"{sum(a for a, _ in pairs) / max(sum(b for _, b in pairs), 1e-12):.1f}x (k={k[-1]})")
+    none = f", no verdict (one scene) in {g['none']}" if g["none"] else ""
     return (
         f"AG with look-ahead 2 or 3 against greedy AG: better in {g['better']}, worse in {g['worse']}, tied in "
-        f"{g['tie']} of {total} comparisons on the global map (2 depths x {len(n_maps)} maps x {len(results)} "
+        f"{g['tie']}{none} of {total} comparisons on the global map (2 depths x {len(n_maps)} maps x {len(results)} "
         f"protocols x F1 / entropy); better in {t['better']}, worse in {t['worse']}, tied in {t['tie']} on the "
         f"team metrics" + (f"; its planning time per decision is {' and '.join(ratios)} AG's" if ratios else "") + "."
     )
@@ -239,10 +264,19 @@ def readme_paragraph(run: Any) -> str:
     )
     parts = [
         f"From `{s['command_line']}` ({s['date'][:10]}, `{s['noise']}` noise, {missions} per method): every "
-        f"verdict is a paired difference on shared missions at 100 % of the budget (± standard error; within "
-        f"{TIE_SE:g} standard errors it is a tie); the tables are in docs/RESULTS.md. AG plans with the entropy "
-        f"weighting chosen per map on validation missions ({', '.join(f'{e} {w}' for e, w in s['ag_weighting'].items())})."
+        f"verdict is a paired difference on shared missions at 100 % of the budget ({RULE}); the tables are in "
+        f"docs/RESULTS.md. AG plans with the entropy weighting chosen per map on validation missions "
+        f"({', '.join(f'{e} {w}' for e, w in s['ag_weighting'].items())})."
     ]
+    untested = [r for r in results if not _has_verdicts(r)]
+    results = [r for r in results if _has_verdicts(r)]
+    parts += [
+        f"{_PROTOCOL_NAMES.get(r.protocol.name, r.protocol.name)} has one scene per map (its missions are noise "
+        "draws of one mission), so it gives no verdict: its numbers describe that mission only."
+        for r in untested
+    ]
+    if not results:
+        return " ".join(parts)
     parts += [baseline_sentence(results), lookahead_sentence(results)]
     learned = list(dict.fromkeys(a for r in results for a, b in key_pairs(r) if b == "ag" and not a.startswith("ag")))
     outdated = sorted({m.note for ms in run.methods.values() for m in ms if m.learned and m.note})
@@ -260,16 +294,14 @@ def readme_paragraph(run: Any) -> str:
 
 
 def sweep_sentence(sweep: Any) -> str:
-    """How the arms fare against the reference (AG) across the sweep, from the paired columns."""
-    counts = {m: {"arm": 0, "ref": 0, "tie": 0} for m in ("entropy", "team_entropy")}
+    """How the arms fare against the reference (AG) across the sweep, from the paired columns
+    (Holm-adjusted over the sweep's table, ``NoiseSweepResult.paired``)."""
+    counts = {m: {"arm": 0, "ref": 0, "tie": 0, "none": 0} for m in ("entropy", "team_entropy")}
     arms = [a for a in sweep.arms if a != sweep.reference]
-    for point in sweep.points:
-        for arm in arms:
-            if (arm, point) not in sweep.results:
-                continue
-            for m in counts:
-                d = sweep.vs_reference(arm, point, m)
-                counts[m]["tie" if d.winner is None else ("arm" if d.winner == arm else "ref")] += 1
+    for (arm, _, m), d in sweep.paired().items():
+        if arm in arms and m in counts:
+            w = "none" if d.verdict == NO_VERDICT else ("tie" if d.winner is None else d.winner)
+            counts[m][w if w in ("none", "tie") else ("arm" if w == arm else "ref")] += 1
     head = (
         f"Noise sweep ({sweep.env}, {sweep.n_missions} shared missions per setting, {len(sweep.points)} settings "
         f"of sigma, a_low, drop probability and decoder)"
@@ -281,7 +313,9 @@ def sweep_sentence(sweep: Any) -> str:
     return (
         f"{head}, each trained arm ({', '.join(arms)}) minus {_name(sweep.reference)}: global entropy better at "
         f"{e['arm']}, worse at {e['ref']}, tied at {e['tie']} of {n} arm-settings; team entropy better at "
-        f"{t['arm']}, worse at {t['ref']}, tied at {t['tie']}."
+        f"{t['arm']}, worse at {t['ref']}, tied at {t['tie']}"
+        + (f" (no verdict, one scene, at {e['none']} and {t['none']})" if e["none"] or t["none"] else "")
+        + "."
     )
 
 
@@ -349,7 +383,15 @@ def _ag_section(run: Any) -> list[str]:
     ]
 
 
-def _protocol_section(result: Any, title: str, extra: Sequence[str] = ()) -> list[str]:
+def _protocol_section(result: Any, title: str, extra: Sequence[str] = (), scenes: bool = False) -> list[str]:
+    """One protocol's tables and verdicts; ``scenes``: also the per-scene breakdown (unseen protocol)."""
+    breakdown = [
+        "Scene by scene (each map's first comparison, entropy at 100 %): a verdict rests on the scenes, "
+        "not on the number of missions.",
+        "",
+        result.scene_table(),
+        "",
+    ]
     return [
         f"## {title}",
         "",
@@ -368,12 +410,104 @@ def _protocol_section(result: Any, title: str, extra: Sequence[str] = ()) -> lis
         "",
         result.table("team"),
         "",
-        f"Paired verdicts at 100 % (a − b ± standard error over the shared missions; the method in brackets is "
-        f'better, "tie" when |a − b| is within {TIE_SE:g} standard errors):',
+        f"Paired verdicts at 100 % (a − b over the shared missions, p after Holm's correction over this table; {RULE}):",
         "",
         result.verdict_table(),
         "",
+        *(breakdown if scenes else []),
         *extra,
+    ]
+
+
+def _acceptance_verdict(acc: dict[str, dict[str, Any]]) -> str:
+    """The bold line under the acceptance table: beats every baseline, does not, or (one scene per
+    map, every paired verdict "no verdict") cannot be told on Table I's missions."""
+    if acc and all(a["beats_all"] for a in acc.values()):
+        return "**Verdict: COMA beats every baseline on both F1 and entropy on every evaluated environment (paired tests).**"
+    verdicts = [d[m]["verdict"] for a in acc.values() for d in a.get("paired", {}).values() for m in d]
+    if verdicts and all(v == NO_VERDICT for v in verdicts):
+        return (
+            "**No verdict: Table I flies one mission per map (its trials are noise draws of it), so the paired "
+            "test has one scene; the unseen protocol below is where the verdicts are.**"
+        )
+    return (
+        "**Verdict: COMA does NOT beat every baseline on both metrics everywhere (paired tests); see the NO cells "
+        "above.**"
+    )
+
+
+def _paper_section(run: Any) -> list[str]:
+    """Table I's tables and verdicts, then the acceptance table and its verdict."""
+    acc = run.summary.get("acceptance", {})
+    return _protocol_section(
+        run.paper,
+        "Table I (paper protocol)",
+        [
+            "### Acceptance: COMA vs every baseline at 100 % of the budget (paired)",
+            "",
+            acceptance_markdown(acc),
+            "",
+            _acceptance_verdict(acc),
+            "",
+        ],
+    )
+
+
+def _ablation_section(run: Any) -> list[str]:
+    """The env3 ablation table, the full model minus each arm (paired) and the verdict sentence."""
+    return [
+        "## Ablation: SenDFuse x CBAM under three noise levels (env3)",
+        "",
+        "The paper's Table II / Fig. 4. SenDFuse+CBAM is the env3 model above; the other three arms are the "
+        "shipped models `env3-sendfuse-cnn`, `env3-mean-cbam`, `env3-mean-cnn`; each flown with the fusion "
+        "it was trained with, the Table I missions, argmax actions, at every noise level. Best of each "
+        "noise level in bold. More in docs/ABLATION.md.",
+        "",
+        run.sections.get("ablation", ""),
+        "",
+        "The full model minus each other arm, entropy at 100 %, paired on the same missions:",
+        "",
+        run.sections.get("ablation_paired", ""),
+        "",
+        f"**{ablation_verdict(run.summary['ablation'])}**",
+        "",
+    ]
+
+
+def _paired_check_section(run: Any) -> list[str]:
+    """``--wide-trials``: more paper-split missions, which are still one scene per map."""
+    return [
+        "## A paired check on more missions",
+        "",
+        "Each pair of methods flies the same paper-split missions, more of them than Table I, and the "
+        f"per-mission difference is averaged ({RULE}; `sb3_coma.common.paired`; `--wide-trials`). The paper "
+        "split is one scene per map, so these are noise draws of one mission: the numbers describe that "
+        "mission, and no verdict can generalise beyond it.",
+        "",
+        run.sections["paired"],
+        "",
+    ]
+
+
+def _sweep_section(run: Any) -> list[str]:
+    """The noise sweep: its settings, the sentence of verdicts and the table."""
+    sw = run.sweep
+    return [
+        "## Noise sweep",
+        "",
+        f"`sb3-coma noise-sweep`: {sw.env}, {sw.n_missions} shared missions per setting (split "
+        f"`{sw.env_options.get('split')}`, env seeds {sw.seed}..{sw.seed + sw.n_missions - 1}, random starts), "
+        f"{len(sw.points)} settings: one axis at a time around the moderate preset (sigma 0.02, a_low 0.8, "
+        "no drops), each under both decoders. Values at 100 % of the budget, mean ± standard error over the "
+        f"missions; the last two columns are the arm minus {_name(sw.reference)} on the same missions (paired: "
+        "± clustered by scene, p Holm-adjusted over the whole table, docs/statistics.md). The "
+        "global map never passes through the channel, so noise moves it only through the decisions; the "
+        "team metrics read the UAVs' own maps, which the channel feeds.",
+        "",
+        sweep_sentence(sw),
+        "",
+        run.sections.get("noise_sweep", ""),
+        "",
     ]
 
 
@@ -396,26 +530,7 @@ def results_markdown(run: Any, figures: Sequence[Path], base: Path) -> str:
         *_ag_section(run),
     ]
     if run.paper is not None:
-        acc = s.get("acceptance", {})
-        verdict = all(a["beats_all"] for a in acc.values()) if acc else False
-        lines += _protocol_section(
-            run.paper,
-            "Table I (paper protocol)",
-            [
-                "### Acceptance: COMA vs every baseline at 100 % of the budget (paired)",
-                "",
-                acceptance_markdown(acc),
-                "",
-                (
-                    "**Verdict: COMA beats every baseline on both F1 and entropy on every evaluated environment (paired "
-                    "tests).**"
-                )
-                if verdict
-                else "**Verdict: COMA does NOT beat every baseline on both metrics everywhere (paired tests); see the NO cells "
-                "above.**",
-                "",
-            ],
-        )
+        lines += _paper_section(run)
     lines += [
         "## What training adds: the untrained gain prior vs the trained model (100 % budget)",
         "",
@@ -428,54 +543,13 @@ def results_markdown(run: Any, figures: Sequence[Path], base: Path) -> str:
         "",
     ]
     if s.get("ablation"):
-        lines += [
-            "## Ablation: SenDFuse x CBAM under three noise levels (env3)",
-            "",
-            "The paper's Table II / Fig. 4. SenDFuse+CBAM is the env3 model above; the other three arms are the "
-            "shipped models `env3-sendfuse-cnn`, `env3-mean-cbam`, `env3-mean-cnn`; each flown with the fusion "
-            "it was trained with, the Table I missions, argmax actions, at every noise level. Best of each "
-            "noise level in bold. More in docs/ABLATION.md.",
-            "",
-            run.sections.get("ablation", ""),
-            "",
-            "The full model minus each other arm, entropy at 100 %, paired on the same missions:",
-            "",
-            run.sections.get("ablation_paired", ""),
-            "",
-            f"**{ablation_verdict(s['ablation'])}**",
-            "",
-        ]
+        lines += _ablation_section(run)
     if run.sections.get("paired"):
-        lines += [
-            "## A paired check on more missions",
-            "",
-            "Each pair of methods flies the same paper-split missions, more of them than Table I, and the "
-            f"per-mission difference is averaged: ± is its standard error, and a difference within {TIE_SE:g} "
-            "standard errors is called a tie (`sb3_coma.common.paired`; `--wide-trials`).",
-            "",
-            run.sections["paired"],
-            "",
-        ]
+        lines += _paired_check_section(run)
     if run.unseen is not None:
-        lines += _protocol_section(run.unseen, "Unseen protocol (split test, random starts)")
+        lines += _protocol_section(run.unseen, "Unseen protocol (split test, random starts)", scenes=True)
     if run.sweep is not None:
-        sw = run.sweep
-        lines += [
-            "## Noise sweep",
-            "",
-            f"`sb3-coma noise-sweep`: {sw.env}, {sw.n_missions} shared missions per setting (split "
-            f"`{sw.env_options.get('split')}`, env seeds {sw.seed}..{sw.seed + sw.n_missions - 1}, random starts), "
-            f"{len(sw.points)} settings: one axis at a time around the moderate preset (sigma 0.02, a_low 0.8, "
-            "no drops), each under both decoders. Values at 100 % of the budget, mean ± standard error; the "
-            f"last two columns are the arm minus {_name(sw.reference)} on the same missions (paired). The "
-            "global map never passes through the channel, so noise moves it only through the decisions; the "
-            "team metrics read the UAVs' own maps, which the channel feeds.",
-            "",
-            sweep_sentence(sw),
-            "",
-            run.sections.get("noise_sweep", ""),
-            "",
-        ]
+        lines += _sweep_section(run)
     lines += [
         "## Generalisation (100 % budget)",
         "",

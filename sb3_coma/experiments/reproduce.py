@@ -21,6 +21,11 @@ when such models are shipped) in named steps (:data:`STEPS`), writing into ``out
 * ``summary.json`` -- every number above; ``figures/``; ``RESULTS.md`` (``sb3_coma.experiments.report``),
   with ``docs=...`` also written there (figures next to it)
 
+``out`` is written as one staged output (``sb3_coma.common.outputs.staged_output``): everything goes
+into ``<out>.partial-<pid>`` and replaces ``out`` only when the run is complete, so an interrupted
+run (SIGKILL, SIGTERM, an error) leaves the previous results as they were. The ``docs`` copy is
+written at the end of the run, just before that swap.
+
 Every "A beats B" in the report is a paired test on shared missions (``sb3_coma.common.paired``);
 everything in it is measured by the run that writes it; nothing is copied in.
 """
@@ -53,6 +58,7 @@ from sb3_coma.app.pretrained import PretrainedError
 from sb3_coma.app.training import train
 from sb3_coma.baselines.adaptive_gain import default_weighting
 from sb3_coma.common import tables
+from sb3_coma.common.outputs import staged_output
 from sb3_coma.common.paired import paired_difference, paired_markdown
 from sb3_coma.experiments import ablation as ab
 from sb3_coma.experiments import plots as pl
@@ -109,6 +115,26 @@ SWEEP_MISSIONS = UNSEEN_MISSIONS
 QUICK_TRIALS = 2
 QUICK_REPEATS = 5
 COST_REPEATS = 200
+#: What ``reproduce`` writes into ``out`` (``fnmatch`` patterns): how a results folder written
+#: before outputs carried a manifest tells this command's files from others' (those are kept).
+OUTPUT_PATTERNS: tuple[str, ...] = (
+    "table.*",
+    "team_table.*",
+    "per_step.csv",
+    "planning_time.*",
+    "acceptance.md",
+    "ablation.*",
+    "paired.md",
+    "paper_*",
+    "unseen_*",
+    "generalisation.md",
+    "noise_sweep.*",
+    "latency.md",
+    "summary.json",
+    "RESULTS.md",
+    "figures",
+    "runs",
+)
 #: Errors that make an optional step or row "skipped, with the reason" instead of a failed run.
 OPTIONAL_ERRORS: tuple[type[BaseException], ...] = (ImportError, FileNotFoundError, ValueError, RuntimeError, OSError)
 
@@ -212,6 +238,8 @@ class Run:
     opts: ReproduceOptions
     out: Path
     say: Callable[[str], None]
+    #: Where ``out`` (the staging folder) goes when the run is complete (``None``: ``out`` itself).
+    target: Path | None = None
     started: float = field(default_factory=time.perf_counter)
     sources: dict[str, ModelSource] = field(default_factory=dict)
     arms: dict[tuple[str, str], Any] = field(default_factory=dict)
@@ -230,6 +258,16 @@ class Run:
     def results(self) -> list[Any]:
         """The paper protocol's results (Table I), in table order."""
         return [row.result for row in self.paper.rows()] if self.paper is not None else []
+
+    def final(self, path: Path) -> Path:
+        """Where ``path``, written under the staging folder, lies once the run is in place: what
+        the summary and the log name."""
+        if self.target is None:
+            return path
+        try:
+            return self.target / Path(path).relative_to(self.out)
+        except ValueError:
+            return path
 
 
 def attempt(run: Run, what: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
@@ -267,12 +305,14 @@ def reproduce(
     unknown = sorted(set(options) - {f.name for f in dataclasses.fields(ReproduceOptions)})
     if unknown:
         raise TypeError(f"reproduce() got unknown options {unknown}")
-    run = Run(ReproduceOptions(**options).checked(), Path(out), log or (lambda _m: None))
-    run.out.mkdir(parents=True, exist_ok=True)
-    for step in STEPS:
-        tic = time.perf_counter()
-        step(run)
-        run.timings[step.__name__] = round(time.perf_counter() - tic, 1)
+    opts = ReproduceOptions(**options).checked()
+    say = log or (lambda _m: None)
+    with staged_output(out, command="reproduce", own=OUTPUT_PATTERNS, say=say) as staging:
+        run = Run(opts, staging, say, target=Path(out))
+        for step in STEPS:
+            tic = time.perf_counter()
+            step(run)
+            run.timings[step.__name__] = round(time.perf_counter() - tic, 1)
     return run.summary
 
 
@@ -352,8 +392,9 @@ def train_command(env: str, fusion: str, seed: int = TRAIN_SEED, validate: bool 
     return command + (f" --eval-freq {TRAIN_EVAL_FREQ} --eval-missions {TRAIN_EVAL_MISSIONS}" if validate else "")
 
 
-def _curve_from_metrics(path: Path) -> list[float]:
-
+def curve_from_metrics(path: Path) -> list[float]:
+    """The ``reward`` column of a run's ``metrics.csv`` (the team reward of every finished mission),
+    the training curve that ``models.json`` records; empty when the run wrote none."""
     if not path.is_file():
         return []
     with path.open() as fh:
@@ -379,7 +420,9 @@ def _retrained_model(run: Run, env: str) -> ModelSource:
     if fusion in ("sendfuse", None):
         fusion = "sendfuse" if sendfuse_available() else "mean"
     deterministic = o.deterministic if o.deterministic is not None else bool(manifest_value(env, "deterministic", True))
-    return _train_model(env, fusion, run.out, o.quick, o.timesteps, run.say, deterministic)
+    src = _train_model(env, fusion, run.out, o.quick, o.timesteps, run.say, deterministic)
+    src.source = str(run.final(Path(src.source)))  # the run folder where it will be, not the staging one
+    return src
 
 
 def _train_model(
@@ -429,7 +472,7 @@ def _train_model(
         command,
         wall,
         int(model.num_timesteps),
-        _curve_from_metrics(Path(run_path) / "metrics.csv"),
+        curve_from_metrics(Path(run_path) / "metrics.csv"),
         deterministic=deterministic,
     )
 
@@ -1028,7 +1071,7 @@ def write_results(run: Run) -> None:
     if run.summary.get("ablation"):
         run.say(report.ablation_verdict(run.summary["ablation"]))
     run.say(
-        f"wrote {run.out}/ (table.md, team_table.md, paper_verdicts.md, acceptance.md, unseen_*.md, "
+        f"wrote {run.target or run.out}/ (table.md, team_table.md, paper_verdicts.md, acceptance.md, unseen_*.md, "
         f"noise_sweep.md, generalisation.md, latency.md, summary.json, RESULTS.md) in {run.summary['wall_s']} s"
     )
 

@@ -1,0 +1,509 @@
+"""Learning curves: validation F1 / entropy against missions trained, mean ± std over seeds, with
+AG's and random's levels on the same validation missions; one row per map family or ablation arm.
+
+    python -m sb3_coma.experiments.learning_curves --out docs/figures/learning_curves.png \\
+        --table docs/figures/learning_curves.md \\
+        env1=runs/env1_s0,runs/env1_s1,runs/env1_s2 \\
+        env2=runs/env2_s0,runs/env2_s1,runs/env2_s2 \\
+        env3=runs/env3_s0,runs/env3_s1,runs/env3_s2 \\
+        "env3[mean-cnn]=runs/env3_meancnn_s0,runs/env3_meancnn_s1,runs/env3_meancnn_s2"
+
+Every ``GROUP=RUN_DIR[,RUN_DIR...]`` is one row of the figure and of the table; its run folders
+are the seeds of one setting, each written by ``sb3-coma train ... --seed S --eval-freq 3000
+--eval-missions 10`` (docs/training.md, "Picking the model" and "The run folder").
+
+Why: the final test numbers (Table I, ``sb3-coma reproduce``) say where a model ended, not whether
+training had converged, how much seeds disagree, or when COMA passed AG or random. These curves
+answer that on the validation missions only (env seeds 1000+, never the test missions).
+
+Where the numbers come from, per run folder:
+
+* ``config.yml``: env id, ``env_kwargs`` (map, team size, budget, noise, split, ...) and the seed;
+* ``eval/evaluations.npz``: the evaluation steps (joint steps) and SB3's per-row returns; its
+  width is ``missions x UAVs`` (SB3 counts one episode per vec-env row), which gives the number
+  of validation missions M;
+* the TensorBoard scalars ``eval/mean_f1`` and ``eval/mean_entropy`` under ``tb/``, which
+  ``MissionEvalCallback`` logs once per evaluation at the evaluation's joint step: the mean over
+  the M missions of the final global F1 / entropy.
+
+x = joint steps / budget (missions trained per env copy count: one mission is ``budget`` joint
+steps). A group's curve is the mean ± std (population, ``ddof=0``) over its runs at their shared
+evaluation steps (the common prefix when one run stopped earlier).
+
+AG's and random's levels (dashed lines) are flown on exactly the validation missions, through the
+mechanism the callback uses, not with ``sb3_coma.evaluate``: training builds its eval env as
+``make_training_env(cfg, n_envs=eval_copies(M), seed=eval_seed)`` (C = 5, 4, 3, 2 or 1 env copies,
+the largest that divides M) and every evaluation calls ``eval_env.seed(eval_seed)`` and then SB3's
+``evaluate_policy`` for ``M x UAVs`` episodes: copy ``c`` resets with env seed ``eval_seed + c`` and
+flies M / C missions in a row, the later ones drawn by auto-reset from the copy's own stream.
+``evaluate(seed=S, n_trials=M)`` instead flies one mission per env seed S..S+M-1, which are other
+missions whenever M > 5 (M = 10: 5 copies x 2 missions). So the levels here are the same
+``evaluate_policy`` call on the same vec env and seed, with the planner's ``predict`` in place of
+the model's, read the way the callback reads its infos (the final F1 / entropy of each mission, on
+the first UAV's row), averaged over the M missions. A copy's missions do not depend on the
+actions flown (its random stream is drawn at reset and once per step, never by what the UAVs do),
+so every method meets the same maps, starts and noise. As ``evaluate`` flies baselines, the
+baselines' env fuses with ``mean`` (they never read the fused channel, and the global map and the
+env's streams do not depend on the fusion) and the config's ``vec_env_wrapper`` is left out (it
+changes what a learner sees, not the missions); AG takes its map family's weighting
+(``sb3_coma.common.evaluation.planner_options``) and both planners are seeded with the eval seed.
+
+The eval seed is the one the run's command recorded (``--eval-seed``), else
+``sb3_coma.app.training.VALIDATION_SEED`` (1000); ``--eval-seed`` here overrides it for runs made
+from Python with another seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import VecEnv
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from sb3_coma.app.config import TrainConfig, TrainingError, env_options_of, make_vec_env_from_kwargs, plain
+from sb3_coma.app.evaluation import planner_options
+from sb3_coma.app.runs import CONFIG_FILE, TENSORBOARD_DIR, read_run_config
+from sb3_coma.app.training import VALIDATION_SEED, eval_copies
+from sb3_coma.baselines import make_planner
+
+__all__ = [
+    "BASELINES",
+    "TAGS",
+    "GroupCurve",
+    "MissionScores",
+    "RunCurve",
+    "RunDirError",
+    "Validation",
+    "baseline_level",
+    "baseline_levels_cache",
+    "baseline_scores",
+    "build_group",
+    "fly_validation",
+    "main",
+    "parse_groups",
+    "plot_groups",
+    "read_run",
+    "table_markdown",
+]
+
+#: The TensorBoard scalars ``MissionEvalCallback`` logs at each evaluation.
+TAGS: dict[str, str] = {"f1": "eval/mean_f1", "entropy": "eval/mean_entropy"}
+#: The baselines whose levels are drawn, and their line colours.
+BASELINES: dict[str, str] = {"ag": "tab:red", "random": "tab:gray"}
+EVALUATIONS = Path("eval") / "evaluations.npz"
+
+
+class RunDirError(ValueError):
+    """A run folder that cannot be read as a run with validation missions (the message names it)."""
+
+
+# ------------------------------------------------------------------------------------ run folders
+@dataclass(frozen=True)
+class Validation:
+    """The validation missions of a run: what its ``MissionEvalCallback`` flew at every evaluation."""
+
+    env_id: str
+    #: ``env_kwargs`` without the fusion, as sorted JSON (hashable: runs that share it share missions)
+    options_json: str
+    missions: int
+    seed: int
+    n_agents: int
+
+    @property
+    def copies(self) -> int:
+        """Eval env copies, chosen as training chose them (so each copy flies the same missions)."""
+        return eval_copies(self.missions)
+
+    @property
+    def options(self) -> dict[str, Any]:
+        """The env options of the validation missions (without the fusion)."""
+        return json.loads(self.options_json)
+
+    def describe(self) -> str:
+        """One line for the table's notes: which missions, how many copies, which seeds."""
+        per_copy = self.missions // self.copies
+        return (
+            f"{self.missions} missions of {self.env_id} ({self.copies} env copies x {per_copy}, "
+            f"copy c from env seed {self.seed} + c), {self.n_agents} UAVs"
+        )
+
+
+@dataclass
+class RunCurve:
+    """Validation F1 / entropy of one run at each evaluation."""
+
+    path: Path
+    seed: int | None
+    budget: int
+    validation: Validation
+    steps: np.ndarray
+    f1: np.ndarray
+    entropy: np.ndarray
+
+
+def _run_config(run: Path) -> TrainConfig:
+    """The run's recorded config, or a :class:`RunDirError` naming the folder and what is wrong."""
+    if not run.is_dir():
+        raise RunDirError(f"run folder {run}: not a folder")
+    if not (run / CONFIG_FILE).is_file():
+        raise RunDirError(f"run folder {run}: no {CONFIG_FILE} (not an sb3-coma train run folder)")
+    try:
+        return read_run_config(run)
+    except TrainingError as exc:
+        raise RunDirError(f"run folder {run}: {exc}") from exc
+
+
+def _flag(command: str, name: str) -> str | None:
+    """The value of ``--name V`` / ``--name=V`` in a recorded command line (the last one wins)."""
+    words = shlex.split(command) if command else []
+    value = None
+    for k, word in enumerate(words):
+        if word == name and k + 1 < len(words):
+            value = words[k + 1]
+        elif word.startswith(name + "="):
+            value = word.split("=", 1)[1]
+    return value
+
+
+def _eval_seed(cfg: TrainConfig, override: int | None) -> int:
+    """The validation env seed: ``override``, else the run's recorded ``--eval-seed``, else the default."""
+    if override is not None:
+        return int(override)
+    recorded = _flag(str(cfg.run.get("command") or ""), "--eval-seed")
+    return int(recorded) if recorded is not None else VALIDATION_SEED
+
+
+def _evaluations(run: Path, n_agents: int) -> tuple[np.ndarray, int]:
+    """(evaluation steps, validation missions M) from ``eval/evaluations.npz``."""
+    path = run / EVALUATIONS
+    if not path.is_file():
+        raise RunDirError(f"run folder {run}: no {EVALUATIONS} (train it with --eval-freq N --eval-missions M)")
+    with np.load(path) as data:
+        steps, results = np.asarray(data["timesteps"], dtype=np.int64), np.asarray(data["results"])
+    if steps.size == 0 or results.ndim != 2 or results.shape[1] % n_agents:
+        raise RunDirError(
+            f"run folder {run}: {EVALUATIONS} holds no evaluation of whole missions "
+            f"(results {results.shape}, {n_agents} UAVs per mission)"
+        )
+    return steps, results.shape[1] // n_agents
+
+
+def _tensorboard_scalars(run: Path, tags: Sequence[str]) -> dict[str, dict[int, float]]:
+    """``{tag: {step: value}}`` over every event file under ``run/tb`` (a resumed run appends files;
+    the last value written at a step wins). ``sb3_coma.experiments.plots._read_tensorboard`` numbers the points
+    1..n instead of keeping their steps, which these curves need, so this reads the same
+    ``EventAccumulator`` keeping them."""
+    folders = sorted({p.parent for p in (run / TENSORBOARD_DIR).glob("**/events.out.tfevents.*")})
+    if not folders:
+        raise RunDirError(f"run folder {run}: no TensorBoard event file under {TENSORBOARD_DIR}/")
+    found: dict[str, dict[int, float]] = {tag: {} for tag in tags}
+    seen: set[str] = set()
+    for folder in folders:
+        acc = EventAccumulator(str(folder), size_guidance={"scalars": 0})
+        acc.Reload()
+        present = set(acc.Tags().get("scalars", []))
+        seen |= present
+        for tag in tags:
+            if tag in present:
+                found[tag].update({int(e.step): float(e.value) for e in acc.Scalars(tag)})
+    missing = [tag for tag in tags if not found[tag]]
+    if missing:
+        raise RunDirError(
+            f"run folder {run}: no {', '.join(missing)} in its TensorBoard log (scalars: {sorted(seen) or 'none'})"
+        )
+    return found
+
+
+def _at_steps(run: Path, tag: str, values: dict[int, float], steps: np.ndarray) -> np.ndarray:
+    """``values`` at every evaluation step; a step without a scalar is an error, not a gap."""
+    lost = [int(s) for s in steps if int(s) not in values]
+    if lost:
+        raise RunDirError(f"run folder {run}: {tag} is missing at evaluation steps {lost} of {EVALUATIONS}")
+    return np.array([values[int(s)] for s in steps], dtype=np.float64)
+
+
+def read_run(run: str | Path, eval_seed: int | None = None) -> RunCurve:
+    """The validation curve and validation missions of one ``sb3-coma train`` run folder."""
+    run = Path(run)
+    cfg = _run_config(run)
+    n_agents = int(cfg.n_agents)
+    steps, missions = _evaluations(run, n_agents)
+    scalars = _tensorboard_scalars(run, list(TAGS.values()))
+    env_kwargs = {k: v for k, v in cfg.env_kwargs.items() if k not in ("fusion", "fusion_kwargs")}
+    validation = Validation(
+        env_id=cfg.env_id,
+        options_json=json.dumps(plain(env_kwargs), sort_keys=True),
+        missions=missions,
+        seed=_eval_seed(cfg, eval_seed),
+        n_agents=n_agents,
+    )
+    seed = cfg.run.get("seed")
+    return RunCurve(
+        path=run,
+        seed=int(seed) if isinstance(seed, int) else None,
+        budget=int(env_options_of(cfg.map_name, cfg.env_kwargs)["budget"]),
+        validation=validation,
+        steps=steps,
+        f1=_at_steps(run, TAGS["f1"], scalars[TAGS["f1"]], steps),
+        entropy=_at_steps(run, TAGS["entropy"], scalars[TAGS["entropy"]], steps),
+    )
+
+
+# ------------------------------------------------------------------------------------ validation missions
+@dataclass
+class MissionScores:
+    """Per-mission final F1, entropy and team return of one flight of the validation missions."""
+
+    f1: np.ndarray
+    entropy: np.ndarray
+    returns: np.ndarray
+
+
+def fly_validation(
+    validation: Validation,
+    predictor_for: Callable[[VecEnv], Any],
+    fusion: str = "mean",
+    fusion_kwargs: dict[str, Any] | None = None,
+) -> MissionScores:
+    """Fly the validation missions as ``MissionEvalCallback`` does (module docstring), with the
+    predictor ``predictor_for(venv)`` builds on the eval env (``returns``: SB3's per-row returns)."""
+    env_kwargs = {**validation.options, "fusion": fusion, **({"fusion_kwargs": fusion_kwargs} if fusion_kwargs else {})}
+    venv = make_vec_env_from_kwargs(validation.env_id, env_kwargs, n_envs=validation.copies, seed=validation.seed)
+    f1: list[float] = []
+    entropy: list[float] = []
+
+    def read_infos(locals_: dict[str, Any], _globals: dict[str, Any]) -> None:
+        # MissionEvalCallback._log_success_callback: a mission ends on every row of its copy; read it once.
+        if locals_["done"] and locals_["i"] % validation.n_agents == 0:
+            f1.append(float(locals_["info"]["f1"]))
+            entropy.append(float(locals_["info"]["entropy"]))
+
+    try:
+        predictor = predictor_for(venv)
+        venv.seed(validation.seed)  # MissionEvalCallback._on_step: applies to evaluate_policy's reset
+        returns, _ = evaluate_policy(
+            predictor,
+            venv,
+            n_eval_episodes=validation.missions * validation.n_agents,
+            deterministic=True,
+            return_episode_rewards=True,
+            warn=False,
+            callback=read_infos,
+        )
+    finally:
+        venv.close()
+    return MissionScores(np.array(f1), np.array(entropy), np.asarray(returns, dtype=np.float64))
+
+
+def baseline_scores(validation: Validation, name: str) -> MissionScores:
+    """Baseline ``name`` (built as ``evaluate`` builds it) flown on the validation missions."""
+
+    def planner(venv: VecEnv) -> Any:
+        config = venv.get_attr("config", indices=[0])[0]
+        return make_planner(name, venv, seed=validation.seed, **planner_options(name, config, None))
+
+    scores = fly_validation(validation, planner)
+    if len(scores.f1) != validation.missions:  # pragma: no cover - evaluate_policy counts missions exactly
+        raise RuntimeError(f"{name}: flew {len(scores.f1)} of {validation.missions} validation missions")
+    return scores
+
+
+def baseline_level(validation: Validation, name: str) -> tuple[float, float]:
+    """(mean final F1, mean final entropy) of baseline ``name`` on the validation missions."""
+    scores = baseline_scores(validation, name)
+    return float(scores.f1.mean()), float(scores.entropy.mean())
+
+
+# ------------------------------------------------------------------------------------ groups
+@dataclass
+class GroupCurve:
+    """Mean ± std over the runs (seeds) of one group, and the baselines' levels."""
+
+    name: str
+    runs: list[RunCurve]
+    steps: np.ndarray
+    missions: np.ndarray
+    f1: np.ndarray  # (runs, evaluations)
+    entropy: np.ndarray
+    levels: dict[str, tuple[float, float]]
+
+    @property
+    def validation(self) -> Validation:
+        return self.runs[0].validation
+
+    def mean_std(self, metric: str) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and population std (``ddof=0``) over the seeds at every shared evaluation."""
+        values = getattr(self, metric)
+        return values.mean(axis=0), values.std(axis=0)
+
+
+def _check_same(name: str, runs: Sequence[RunCurve], what: str, key: Callable[[RunCurve], Any]) -> None:
+    if len({key(r) for r in runs}) > 1:
+        listed = "; ".join(f"{r.path}: {key(r)}" for r in runs)
+        raise RunDirError(f"group {name}: its runs differ in {what} ({listed}); a group is seeds of one setting")
+
+
+def build_group(
+    name: str, runs: Sequence[RunCurve], levels: Callable[[Validation], dict[str, tuple[float, float]]]
+) -> GroupCurve:
+    """A group's curves on the evaluation steps all its runs share (the common prefix)."""
+    if not runs:
+        raise RunDirError(f"group {name}: no run folder")
+    _check_same(name, runs, "validation missions", lambda r: r.validation)
+    _check_same(name, runs, "budget", lambda r: r.budget)
+    n = min(len(r.steps) for r in runs)
+    _check_same(name, runs, f"evaluation steps (first {n})", lambda r: tuple(int(s) for s in r.steps[:n]))
+    steps = runs[0].steps[:n]
+    return GroupCurve(
+        name=name,
+        runs=list(runs),
+        steps=steps,
+        missions=steps / runs[0].budget,
+        f1=np.stack([r.f1[:n] for r in runs]),
+        entropy=np.stack([r.entropy[:n] for r in runs]),
+        levels=levels(runs[0].validation),
+    )
+
+
+def baseline_levels_cache() -> Callable[[Validation], dict[str, tuple[float, float]]]:
+    """AG's and random's levels per set of validation missions, flown once for all groups sharing it
+    (the ablation arms of one map: the fusion is not part of the missions)."""
+    cache: dict[Validation, dict[str, tuple[float, float]]] = {}
+
+    def levels(validation: Validation) -> dict[str, tuple[float, float]]:
+        if validation not in cache:
+            cache[validation] = {name: baseline_level(validation, name) for name in BASELINES}
+        return cache[validation]
+
+    return levels
+
+
+# ------------------------------------------------------------------------------------ output
+def plot_groups(groups: Sequence[GroupCurve], path: str | Path) -> Path:
+    """One row per group: validation F1 (left) and entropy (right) against missions trained."""
+    path = Path(path)
+    # A bare Figure (no pyplot): no backend to choose, nothing global to close, PNG through Agg.
+    fig = Figure(figsize=(10, 3.0 * len(groups)))
+    axes = fig.subplots(len(groups), 2, squeeze=False)
+    for row, group in zip(axes, groups):
+        for ax, metric, title in zip(row, ("f1", "entropy"), ("validation F1 ↑", "validation entropy ↓")):
+            mean, std = group.mean_std(metric)
+            ax.plot(
+                group.missions,
+                mean,
+                color="tab:blue",
+                marker="o",
+                ms=3,
+                label=f"COMA ({len(group.runs)} seed{'s' if len(group.runs) > 1 else ''})",
+            )
+            ax.fill_between(group.missions, mean - std, mean + std, color="tab:blue", alpha=0.25, lw=0)
+            for k, (name, colour) in enumerate(BASELINES.items()):
+                level = group.levels[name][0 if metric == "f1" else 1]
+                ax.axhline(level, color=colour, ls="--", lw=1.2, label=f"{name} {level:.3f}", zorder=1 + k)
+            ax.set_title(f"{group.name}: {title} ({group.validation.missions} missions)", fontsize=10)
+            ax.set_xlabel("missions trained")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8, loc="best")
+    fig.suptitle("COMA: mean ± std over seeds; dashed: AG and random on the same validation missions", fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.25 / len(groups)))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    return path
+
+
+def _seeds(group: GroupCurve) -> str:
+    """``"N (s0, s1, ...)"``: how many seeds and which (``?`` where a run recorded none)."""
+    seeds = ", ".join("?" if r.seed is None else str(r.seed) for r in group.runs)
+    return f"{len(group.runs)} ({seeds})"
+
+
+def table_markdown(groups: Sequence[GroupCurve], digits: int = 3) -> str:
+    """One line per group: final and best validation F1 / entropy, AG's and random's levels."""
+    head = (
+        "| group | seeds | missions at last eval | final F1 ↑ | final entropy ↓ | best mean F1 (missions) "
+        "| best mean entropy (missions) | AG F1 / entropy | random F1 / entropy |"
+    )
+    lines = [head, "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for g in groups:
+        (f1, f1_sd), (ent, ent_sd) = g.mean_std("f1"), g.mean_std("entropy")
+        bf, be = int(np.argmax(f1)), int(np.argmin(ent))
+        ag, rnd = g.levels["ag"], g.levels["random"]
+        cells = [
+            g.name,
+            _seeds(g),
+            f"{g.missions[-1]:g}",
+            f"{f1[-1]:.{digits}f} ± {f1_sd[-1]:.{digits}f}",
+            f"{ent[-1]:.{digits}f} ± {ent_sd[-1]:.{digits}f}",
+            f"{f1[bf]:.{digits}f} ({g.missions[bf]:g})",
+            f"{ent[be]:.{digits}f} ({g.missions[be]:g})",
+            f"{ag[0]:.{digits}f} / {ag[1]:.{digits}f}",
+            f"{rnd[0]:.{digits}f} / {rnd[1]:.{digits}f}",
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    notes = [f"- {g.name}: {g.validation.describe()}" for g in groups]
+    return (
+        "\n".join(
+            lines
+            + [
+                "",
+                "Validation F1 / entropy at the final step, mean over the validation missions; ± std over seeds.",
+                "",
+            ]
+            + notes
+        )
+        + "\n"
+    )
+
+
+# ------------------------------------------------------------------------------------ command line
+def parse_groups(specs: Sequence[str]) -> list[tuple[str, list[Path]]]:
+    """``GROUP=RUN_DIR[,RUN_DIR...]`` -> ``(group, run folders)``."""
+    groups = []
+    for spec in specs:
+        name, sep, dirs = spec.partition("=")
+        paths = [Path(d) for d in dirs.split(",") if d.strip()]
+        if not sep or not name.strip() or not paths:
+            raise RunDirError(f"{spec!r}: expected GROUP=RUN_DIR[,RUN_DIR...]")
+        groups.append((name.strip(), paths))
+    return groups
+
+
+def main(argv: Sequence[str] | None = None) -> list[GroupCurve]:
+    """Read every group's runs, fly the baselines' levels, draw the figure, print (and write) the table."""
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("groups", nargs="+", metavar="GROUP=RUN_DIR[,RUN_DIR...]")
+    parser.add_argument("--out", default="docs/figures/learning_curves.png", help="figure file (PNG)")
+    parser.add_argument("--table", default=None, help="also write the Markdown table to this file")
+    parser.add_argument(
+        "--eval-seed", type=int, default=None, help="validation env seed (default: the run's --eval-seed, else 1000)"
+    )
+    args = parser.parse_args(argv)
+    specs = parse_groups(args.groups)
+    levels = baseline_levels_cache()
+    groups = [build_group(name, [read_run(p, args.eval_seed) for p in paths], levels) for name, paths in specs]
+    figure = plot_groups(groups, args.out)
+    table = table_markdown(groups)
+    print(table, end="")
+    if args.table:
+        out = Path(args.table)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(table, encoding="utf-8")
+    print(f"figure: {figure}")
+    return groups
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except RunDirError as exc:  # a bad run folder is the user's to fix: one line naming it, status 1
+        sys.exit(f"learning_curves: {exc}")

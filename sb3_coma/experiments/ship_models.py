@@ -1,0 +1,136 @@
+"""Maintainer tool: pick the shipped COMA models from training runs, on validation missions only.
+
+What it does: each shipped model is trained with one or more seeds, every run with
+``--eval-freq`` and ``--eval-missions``: its ``best_model.zip`` is its best checkpoint on the
+validation missions (split train, env seeds 1000+, re-seeded at every evaluation, never the test
+split). This tool reads each run's ``eval/evaluations.npz``, keeps the run whose best validation
+return is highest, re-saves that ``best_model.zip`` into ``sb3_coma/pretrained/`` in compact form
+(no Adam moments, no target critic, half precision: ~1.4 MB) and writes its ``models.json``
+entry: checksum, the exact command, the validation scores of every candidate, training
+wall-clock and curve. Test metrics are added afterwards by ``sb3-coma reproduce --record``.
+
+    python -m sb3_coma.experiments.ship_models env1=runs/env1_s0,runs/env1_s1 \\
+        env3-mean-cnn=runs/meancnn_s0,runs/meancnn_s1 ...
+
+A name ``envN`` ships the model of that map; ``env3-{fusion}-{extractor}`` an ablation arm.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from envs import WORLD_VERSION
+from sb3_coma import COMA, training_options
+from sb3_coma.app import pretrained as pt
+from sb3_coma.experiments.reproduce import curve_from_metrics
+
+__all__ = ["main", "run_command", "run_length", "ship", "validation_best"]
+
+
+def validation_best(run: Path) -> tuple[float, int]:
+    """(best mean validation return, joint steps of that evaluation) of a run."""
+    data = np.load(run / "eval" / "evaluations.npz")
+    means = data["results"].mean(axis=1)
+    best = int(np.argmax(means))  # the first of equal bests, as EvalCallback keeps it
+    return float(means[best]), int(data["timesteps"][best])
+
+
+def run_length(run: Path) -> int:
+    """Joint steps the run trained for (its last evaluation)."""
+    return int(np.load(run / "eval" / "evaluations.npz")["timesteps"][-1])
+
+
+def run_command(run: Path) -> tuple[str, dict[str, Any]]:
+    """The ``sb3-coma train`` command a run folder records (without its run-folder and display
+    flags), and its ``run`` section."""
+    info = yaml.safe_load((run / "config.yml").read_text())["run"]
+    words = info["command"].split()
+    words = words[words.index("train") :]
+    kept, skip = [], False
+    for word in words:
+        if skip:
+            skip = False
+        elif word == "--run-dir":
+            skip = True
+        elif word != "--no-progress":
+            kept.append(word)
+    return "sb3-coma " + " ".join(kept), info
+
+
+def _selection(scored: dict[Path, tuple[float, int]]) -> dict[str, Any]:
+    """The ``selection`` entry: the rule and every candidate's validation score."""
+    return {
+        "rule": "highest mean return on the run's validation missions (split train, env seeds 1000+, "
+        "argmax; never the test split), over every evaluation of every seed",
+        "candidates": {
+            f"seed {run_command(r)[1]['seed']}": {"best_validation_return": round(v, 4), "at_joint_steps": t}
+            for r, (v, t) in scored.items()
+        },
+    }
+
+
+def ship(name: str, runs: list[Path]) -> dict[str, Any]:
+    """Ship the best of ``runs`` (by validation return) as model ``name``; returns its manifest entry."""
+    scored = {run: validation_best(run) for run in runs}
+    chosen = max(runs, key=lambda r: scored[r][0])
+    command, info = run_command(chosen)
+    model = COMA.load(chosen / "best_model.zip", device="cpu")
+    env_options = training_options(model)
+    fusion = env_options["fusion"]
+    extractor = "cnn" if model.policy.features_extractor_class.__name__.startswith("Cnn") else "cbam"
+    wall = (chosen / "model.zip").stat().st_mtime - (chosen / "config.yml").stat().st_mtime
+    entry = {
+        **pt.save_for_shipping(model, f"coma_{name.replace('-', '_')}.zip"),
+        "env": info["env"].split("-")[1].lower(),
+        "fusion": fusion,
+        "extractor": extractor,
+        "actor_inputs": "8 local channels + on-board gains" if model.policy.gain_inputs else "8 local channels",
+        "variant": info["variant"],
+        "world": WORLD_VERSION,
+        "seed": int(info["seed"]),
+        "deterministic": True,
+        "timesteps": int(model.num_timesteps),
+        "command": command,
+        "config": "zoo_configs/coma.yml",
+        "model_file_of_run": "best_model.zip",
+        "selection": _selection(scored),
+        "train_wall_s": round(wall, 1),
+        "train_wall_note": f"wall-clock of that command (whole run, {run_length(chosen)} joint steps) on 2 CPU cores "
+        "shared with another training, 1 torch thread each",
+        "shipped_form": "compact: no Adam moments, no target critic, half-precision weights (pretrained.save_for_shipping)",
+        "training_curve": curve_from_metrics(chosen / "metrics.csv"),
+        "env_options": env_options,
+    }
+    if "-" in name:
+        entry["ablation_arm"] = [fusion, extractor]
+    return entry
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Ship every ``NAME=RUN[,RUN...]`` and rewrite ``models.json``; status 2 (and the usage) without any."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv:
+        print(__doc__)
+        return 2
+    manifest = pt.read_manifest()
+    for spec in argv:
+        name, runs = spec.split("=", 1)
+        entry = ship(name, [Path(r) for r in runs.split(",")])
+        old = manifest["models"].get(name, {})
+        manifest["models"][name] = entry
+        print(
+            f"{name}: {entry['command']} -> {entry['file']} ({entry['size_bytes']} bytes); "
+            f"candidates {entry['selection']['candidates']}" + (" (replaced)" if old else "")
+        )
+    pt.write_manifest(manifest)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
