@@ -34,7 +34,16 @@ def unseen():
 def test_protocols_fly_their_missions_end_to_end_with_baselines_only(unseen, tmp_path):
     paper = run_protocol("paper", {"env1": list(BASELINE_METHODS)}, n_trials=2, seed=0, log=None, **TINY)
     for result, split, start in ((paper, "paper", None), (unseen, "test", "random")):
-        assert [m.label for m in result.methods["env1"]] == ["ag", "ag-k2", "ag-k3", "lawnmower", "random"]
+        assert [m.label for m in result.methods["env1"]] == [
+            "ag",
+            "ag-k2",
+            "ag-k3",
+            "ag-comm",
+            "lawnmower",
+            "random",
+            "ag-central",
+            "oracle",
+        ]
         for r in result.results.values():
             assert r.protocol == result.protocol.name and r.env_options["split"] == split
             assert r.env_options.get("start") == start
@@ -73,6 +82,8 @@ def test_default_pairs_compare_models_with_ag_and_lookahead_with_ag():
         pairs
     )
     assert len(pairs) == len(set(pairs))
+    assert ("ag-comm", "ag") in pairs
+    assert not any("oracle" in pair or "ag-central" in pair for pair in pairs)  # references: shown, not compared
     assert default_pairs(list(BASELINE_METHODS))[0] == ("ag-k2", "ag")
 
 

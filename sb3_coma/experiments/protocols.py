@@ -15,7 +15,8 @@ every method, so the results are shared missions. :class:`ProtocolResult` holds 
 * the per-scene breakdown of each map's first comparison (:meth:`ProtocolResult.scene_table`).
 
 Methods (:class:`Method`): the baselines of :data:`BASELINE_METHODS` (AG with the map's weighting,
-AG with look-ahead 2 and 3, lawnmower, random) and whatever learned models exist: every shipped
+AG with look-ahead 2 and 3, AG with communication-only knowledge, lawnmower, random, and the
+upper references centralised AG and the oracle) and whatever learned models exist: every shipped
 COMA model trained on the map (:func:`shipped_methods`) and, as a hook for when they are
 shipped, IPPO / MAPPO models (manifest entries with ``"algo": "ippo" | "mappo"``).
 """
@@ -61,7 +62,8 @@ class Method:
 
     :param label: row label (unique per map)
     :param policy: a baseline name, a model object, a ``.zip`` path or a shipped model name
-    :param kind: ``"baseline"``, ``"coma"``, ``"ippo"`` or ``"mappo"``
+    :param kind: ``"baseline"``, ``"reference"`` (an upper reference that knows what no UAV knows:
+        shown, never compared), ``"coma"``, ``"ippo"`` or ``"mappo"``
     :param fusion: fusion of received maps (models; ``None``: evaluate's default)
     :param deterministic: argmax (``True``) or seeded draws (``False``); ``None``: evaluate's default
     :param planner_kwargs: baseline options (AG: ``lookahead``, ``weighting``)
@@ -78,17 +80,23 @@ class Method:
 
     @property
     def learned(self) -> bool:
-        return self.kind != "baseline"
+        return self.kind not in ("baseline", "reference")
 
 
-#: The baselines every protocol flies: AG (the map's weighting), AG searching 2 and 3 moves ahead,
-#: the lawnmower (the paper's NL) and random.
+#: The baselines every protocol flies: AG (the map's weighting; every UAV knows every teammate's
+#: position and the moves lower ids chose this step, whatever the range: "AG, shared positions"),
+#: AG searching 2 and 3 moves ahead, AG that knows only the teammates within communication range
+#: ("AG, comm only"), the lawnmower (the paper's NL) and random; and two upper references, never
+#: competitors: AG planning centrally from the global belief, and the clairvoyant oracle.
 BASELINE_METHODS: tuple[Method, ...] = (
     Method("ag", "ag"),
     Method("ag-k2", "ag", planner_kwargs={"lookahead": 2}),
     Method("ag-k3", "ag", planner_kwargs={"lookahead": 3}),
+    Method("ag-comm", "ag", planner_kwargs={"knowledge": "comm"}),
     Method("lawnmower", "lawnmower"),
     Method("random", "random"),
+    Method("ag-central", "ag", kind="reference", planner_kwargs={"knowledge": "central"}),
+    Method("oracle", "oracle", kind="reference"),
 )
 
 
@@ -185,8 +193,8 @@ def holm_comparisons(comparisons: Sequence[Comparison]) -> list[Comparison]:
 def default_pairs(methods: Sequence[Method]) -> list[tuple[str, str]]:
     """Which ``(a, b)`` a protocol's verdict table compares, in order:
 
-    every learned model vs AG; the first learned model vs every other method; each look-ahead
-    AG vs AG; AG vs lawnmower and random; lawnmower vs random."""
+    every learned model vs AG; the first learned model vs every other competitor; each AG variant
+    vs AG; AG vs lawnmower and random; lawnmower vs random. References are shown, never compared."""
     labels = [m.label for m in methods]
     learned = [m.label for m in methods if m.learned]
     pairs: list[tuple[str, str]] = []
@@ -197,11 +205,12 @@ def default_pairs(methods: Sequence[Method]) -> list[tuple[str, str]]:
 
     for m in learned:
         add(m, "ag")
+    competitors = [m.label for m in methods if m.kind != "reference"]
     if learned:
-        for other in labels:
+        for other in competitors:
             add(learned[0], other)
     for m in methods:
-        if not m.learned and m.label != "ag" and m.policy == "ag":
+        if m.kind == "baseline" and m.label != "ag" and m.policy == "ag":
             add(m.label, "ag")
     for b in ("lawnmower", "random"):
         add("ag", b)
