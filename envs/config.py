@@ -262,12 +262,24 @@ class IppConfig:
                 self.reward,
                 "'entropy' (the paper's entropy-drop reward) or 'metrics' (the change of F1 and valuable-cell entropy)",
             )
+        self._validate_reward_pair()
         if not isinstance(self.action_gain, bool):
             _fail("action_gain", self.action_gain, "True (observe each action's expected information gain) or False")
         if self.render_mode not in (None, "rgb_array", "ansi"):
             _fail("render_mode", self.render_mode, "None, 'rgb_array' or 'ansi'")
         if self.map_seed is not None and (not is_int(self.map_seed) or self.map_seed < 0):
             _fail("map_seed", self.map_seed, "None (a new map each reset, env1 only) or an integer >= 0")
+
+    def _validate_reward_pair(self) -> None:
+        """``reward_entropy`` shapes only the entropy-drop reward: with ``reward="metrics"`` a
+        weighted entropy would be ignored while the run's config claims it, so the pair is refused."""
+        if self.reward == "metrics" and self.reward_entropy == "weighted":
+            _fail(
+                "reward_entropy",
+                self.reward_entropy,
+                "not with reward='metrics', which ignores it (it weights the 'entropy' reward only); "
+                "drop reward_entropy or use reward='entropy'",
+            )
 
     def _validate_start_positions(self, positions: tuple[tuple[float, float, float], ...]) -> None:
         if len(positions) != self.n_uavs:

@@ -23,6 +23,7 @@ import errno
 import functools
 import io
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -421,6 +422,34 @@ def _zoo_args(argv: list[str]):
     return zoo.train_parser().parse_args(argv)
 
 
+#: A file name whose bytes are not valid UTF-8, as Python hands it over from the command line.
+BAD_NAME = os.fsdecode(b"bad\xff")
+
+
+def _replaced_shipped_weights(files: Files):
+    """``make_vec_env(fusion="sendfuse")`` while the package's weights folder (a copy) holds
+    another network under the shipped file name."""
+    from sb3_coma.sendfuse import save_weights
+    from sb3_coma.sendfuse import weights as weights_mod
+
+    folder = files.folder("pkg_weights").resolve()
+    save_weights(files._net(), folder / "sendfuse_r44.safetensors")
+    with mock.patch.object(weights_mod, "shipped_weights_dir", lambda: folder):
+        return envs.make_vec_env("env1", fusion="sendfuse", n_uavs=2, budget=2)
+
+
+def _replaced_shipped_model(files: Files):
+    """``evaluate(<package>/coma_env1.zip)`` by its path, while that file (in a copy of the package's
+    folder) holds another model."""
+    from sb3_coma.app import pretrained
+
+    folder = files.folder("pkg_models").resolve()
+    shutil.copyfile(pretrained.pretrained_dir() / pretrained.MANIFEST, folder / pretrained.MANIFEST)
+    shutil.copyfile(pretrained.pretrained_dir() / "coma_env2.zip", folder / "coma_env1.zip")
+    with mock.patch.object(pretrained, "pretrained_dir", lambda: folder):
+        return _evaluate(str(folder / "coma_env1.zip"), n_uavs=2, budget=2)
+
+
 def _errors():
     from sb3_coma.app.training import TrainingError
     from sb3_coma.common.checkpoints import CheckpointError, DiskFullError
@@ -430,6 +459,16 @@ def _errors():
 
 
 CheckpointError, DiskFullError, SenDFuseWeightsError, TrainingError = _errors()
+
+
+def _v3_types():
+    from sb3_coma.app.evaluation import WorldMismatchWarning
+    from sb3_coma.app.pretrained import PretrainedError
+
+    return PretrainedError, WorldMismatchWarning
+
+
+PretrainedError, WorldMismatchWarning = _v3_types()
 E = "env option"
 M = "map"
 F = "fusion"
@@ -1397,7 +1436,7 @@ CASES: list[Case | CliCase] = [
         lambda f: _evaluate("bogus"),
         ValueError,
         ("'bogus'",),
-        "ag, lawnmower, random",
+        "ag, lawnmower, oracle, random",
     ),
     Case(
         "evaluate-n_trials-zero",
@@ -1461,6 +1500,79 @@ CASES: list[Case | CliCase] = [
         UserWarning,
         ("'mean'", "'sendfuse'"),
         "pass fusion='mean'",
+    ),
+    # ------------------------------------------------------------------ reliability v3
+    Case(
+        "env-reward-metrics-weighted-entropy",
+        E,
+        'make_env("env1", reward="metrics", reward_entropy="weighted")',
+        lambda f: envs.make_env("env1", reward="metrics", reward_entropy="weighted"),
+        ConfigError,
+        ("reward_entropy='weighted'", "reward='metrics'"),
+        "drop reward_entropy",
+    ),
+    Case(
+        "config-split-test-without-permission",
+        Y,
+        'load_config(set env_kwargs.split="test")',
+        lambda f: _load_config(f, {"env_kwargs.split": "test"}),
+        TrainingError,
+        ("split='test'",),
+        "--allow-test-split",
+    ),
+    Case(
+        "config-allow-test-split-ignored",
+        Y,
+        "load_config(set env_kwargs.allow_test_split=True)  # the entry trains on another split",
+        lambda f: _load_config(f, {"env_kwargs.allow_test_split": True}),
+        TrainingError,
+        ("allow_test_split=True", "split='paper'"),
+        "is ignored",
+    ),
+    Case(
+        "config-count-not-whole",
+        Y,
+        'load_config(set n_timesteps="1.005e1")  # 10.05 joint steps',
+        lambda f: _load_config(f, {"n_timesteps": "1.005e1"}),
+        TrainingError,
+        ("n_timesteps", "10.05"),
+        "a whole number",
+    ),
+    Case(
+        "weights-shipped-replaced",
+        W,
+        'make_vec_env("env1", fusion="sendfuse")  # the package\'s sendfuse_r44.safetensors was replaced',
+        _replaced_shipped_weights,
+        SenDFuseWeightsError,
+        ("sendfuse_r44.safetensors", "SHA-256"),
+        "pass your own file",
+    ),
+    Case(
+        "model-shipped-replaced-by-path",
+        MF,
+        'evaluate("<package>/coma_env1.zip")  # the shipped file was replaced, given by its path',
+        _replaced_shipped_model,
+        PretrainedError,
+        ("coma_env1.zip", "checksum mismatch"),
+        "NOT loaded",
+    ),
+    Case(
+        "evaluate-observation-option-differs",
+        EV,
+        "evaluate(<zip trained with lattice 11>, lattice=9)",
+        lambda f: _evaluate(str(f.trained_zip), n_uavs=2, budget=2, lattice=9),
+        ValueError,
+        ("lattice=11", "lattice=9"),
+        "drop lattice=",
+    ),
+    Case(
+        "evaluate-world-differs",
+        EV,
+        "evaluate(<zip trained with budget 4>, budget=2, noise='loud')  # a warning",
+        lambda f: _as_error(lambda: _evaluate(str(f.trained_zip), n_uavs=2, budget=2, noise="loud")),
+        WorldMismatchWarning,
+        ("budget=2 (trained: 4)", "noise='loud' (trained: 'moderate')"),
+        "allowed",
     ),
     # ------------------------------------------------------------------ CLI
     CliCase(
@@ -1615,7 +1727,7 @@ CASES: list[Case | CliCase] = [
         "sb3-coma evaluate --methods bogus",
         lambda f: ["evaluate", "--methods", "bogus", "--trials", "1"],
         ("'bogus'",),
-        "ag, lawnmower, random",
+        "ag, lawnmower, oracle, random",
     ),
     CliCase(
         "cli-evaluate-trials-zero",
@@ -1710,6 +1822,118 @@ CASES: list[Case | CliCase] = [
         lambda f: ["demo", "--env", "env1", "--uavs", "0"],
         ("n_uavs=0",),
         "an integer >= 1",
+    ),
+    CliCase(
+        "cli-train-set-split-test",
+        "sb3-coma train --set env_kwargs.split=test",
+        lambda f: ["train", "--env", "env1", "--config", str(f.config()), "--set", "env_kwargs.split=test"],
+        ("split='test'",),
+        "--allow-test-split",
+    ),
+    CliCase(
+        "cli-train-allow-test-split-with-resume",
+        "sb3-coma train --resume RUN --allow-test-split",
+        lambda f: ["train", "--resume", str(f.path("nowhere")), "--allow-test-split"],
+        ("--allow-test-split", "--resume"),
+        "is ignored",
+    ),
+    CliCase(
+        "cli-train-set-count-not-whole",
+        "sb3-coma train --set n_timesteps=1.005e1",
+        lambda f: ["train", "--env", "env1", "--config", str(f.config()), "--set", "n_timesteps=1.005e1"],
+        ("n_timesteps", "10.05"),
+        "a whole number",
+    ),
+    CliCase(
+        "cli-train-run-dir-not-text",
+        "sb3-coma train --run-dir $'bad\\xff'  # not valid UTF-8",
+        lambda f: ["train", "--env", "env1", "--config", str(f.config()), "--run-dir", BAD_NAME],
+        ("--run-dir", "bad\\udcff"),
+        "not valid utf-8 text",
+    ),
+    CliCase(
+        "cli-evaluate-env-twice",
+        "sb3-coma evaluate --env env1,UavIpp-Env1-v0",
+        lambda f: ["evaluate", "--methods", "random", "--env", "env1,UavIpp-Env1-v0", "--trials", "1"],
+        ("'UavIpp-Env1-v0'", "twice"),
+        "each map once",
+    ),
+    CliCase(
+        "cli-evaluate-out-not-text",
+        "sb3-coma evaluate --out $'bad\\xff'  # not valid UTF-8",
+        lambda f: [*_QUICK_EVALUATE, "--out", BAD_NAME],
+        ("--out", "bad\\udcff"),
+        "not valid utf-8 text",
+    ),
+    CliCase(
+        "cli-evaluate-model-is-a-folder",
+        "sb3-coma evaluate --methods '' --model <tmp>/maps  # a folder, not a zip",
+        lambda f: ["evaluate", "--methods", "", "--model", str(f.folder("maps")), "--trials", "1"],
+        ("maps' is a folder",),
+        "pass the model .zip inside it",
+    ),
+    CliCase(
+        "cli-export-opset-out-of-range",
+        "sb3-coma export --model env1 --out <tmp>/onnx --opset 99",
+        lambda f: ["export", "--model", "env1", "--out", str(f.path("onnx")), "--opset", "99"],
+        ("--opset 99",),
+        "from 17 to",
+    ),
+    CliCase(
+        "cli-export-fusion-differs",
+        "sb3-coma export --model <zip trained with fusion mean> --fusion sendfuse",
+        lambda f: ["export", "--model", str(f.trained_zip), "--out", str(f.path("onnx")), "--fusion", "sendfuse"],
+        ("--fusion sendfuse", "'mean'"),
+        "must not claim a fusion",
+    ),
+    CliCase(
+        "cli-export-out-not-text",
+        "sb3-coma export --model env1 --out $'bad\\xff'  # not valid UTF-8",
+        lambda f: ["export", "--model", "env1", "--out", BAD_NAME],
+        ("--out", "bad\\udcff"),
+        "not valid utf-8 text",
+    ),
+    CliCase(
+        "cli-noise-sweep-arm-other-map",
+        "sb3-coma noise-sweep --env env3 --arms env1",
+        lambda f: ["noise-sweep", "--quick", "--env", "env3", "--arms", "env1", "--out", str(f.path("sweep"))],
+        ("model of env1", "flies env3"),
+        "sweep it on env1",
+    ),
+    CliCase(
+        "cli-noise-sweep-arms-twice",
+        "sb3-coma noise-sweep --arms ag,ag",
+        lambda f: ["noise-sweep", "--quick", "--env", "env1", "--arms", "ag,ag", "--out", str(f.path("sweep"))],
+        ("['ag']", "twice"),
+        "each arm once",
+    ),
+    CliCase(
+        "cli-noise-sweep-out-is-a-file",
+        "sb3-coma noise-sweep --out <tmp>/a_file  # a file, not a folder",
+        lambda f: ["noise-sweep", "--quick", "--arms", "ag", "--out", str(f.a_file)],
+        ("a_file",),
+        "is a file",
+    ),
+    CliCase(
+        "cli-reproduce-trials-one",
+        "sb3-coma reproduce --quick --trials 1",
+        lambda f: ["reproduce", "--quick", "--trials", "1", "--out", str(f.path("repro"))],
+        ("--trials 1",),
+        "at least 2 missions",
+    ),
+    CliCase(
+        "cli-reproduce-env-twice",
+        "sb3-coma reproduce --env env1,env1",
+        lambda f: ["reproduce", "--quick", "--env", "env1,env1", "--out", str(f.path("repro"))],
+        ("'env1'", "twice"),
+        "each map once",
+    ),
+    CliCase(
+        "cli-reproduce-out-is-a-file",
+        "sb3-coma reproduce --out <tmp>/a_file  # a file, not a folder",
+        lambda f: ["reproduce", "--quick", "--out", str(f.a_file)],
+        ("a_file",),
+        "is a file",
     ),
 ]
 

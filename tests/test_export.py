@@ -24,8 +24,8 @@ from sb3_coma.app.export import (
     FUSION_FILE,
     METADATA_FILE,
     ExportError,
-    _fusion_wrapper,
     export_onnx,
+    fusion_wrapper,
     onnx_session,
 )
 from sb3_coma.cli import main as cli_main
@@ -69,7 +69,7 @@ def exported(request, raw_observations, tmp_path_factory):
     venv = envs.make_vec_env("env1", n_envs=1, fusion=fusion, seed=0)
     model = COMA("CBAMPolicy", venv, seed=0, device="cpu", policy_kwargs=policy_kwargs)
     paths = export_onnx(model, tmp_path_factory.mktemp(f"onnx_{request.param}"))
-    wrapper = _fusion_wrapper(venv)
+    wrapper = fusion_wrapper(venv)
     assert wrapper is not None and wrapper.name == fusion
     fused = wrapper.observations(dict(raw_observations))
     yield model, paths, fused, raw_observations, wrapper

@@ -1,12 +1,12 @@
-"""``benchmarks/learning_curves.py``: curves and table from two tiny run folders, AG's and random's
+"""``sb3_coma.experiments.learning_curves``: curves and table from two tiny run folders, AG's and random's
 levels on exactly the validation missions, and clear errors naming a bad run folder."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import re
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -15,27 +15,16 @@ import pytest
 import yaml
 from tiny_runs import ENV, ENV_KWARGS, tiny_entry
 
+import sb3_coma.experiments.learning_curves as lc
 from sb3_coma import COMA, evaluate
 from sb3_coma.app.training import train
 from sb3_coma.common.checkpoints import validate_checkpoint
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "learning_curves.py"
 # tests/test_training.py's tiny runs: 2 UAVs, 4-step missions, 8 joint steps per rollout.
 TINY = {ENV: tiny_entry()}
 #: 6 validation missions: 3 eval env copies x 2 missions each, so the second mission of each copy
 #: comes from auto-reset, not from a seed of its own (what evaluate's per-trial seeds would fly).
 MISSIONS = 6
-
-
-def _load_script():
-    spec = importlib.util.spec_from_file_location("learning_curves", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while the class is made
-    spec.loader.exec_module(module)
-    return module
-
-
-lc = _load_script()
 
 
 @pytest.fixture(scope="module")
@@ -123,4 +112,27 @@ def test_a_bad_run_folder_is_named(runs, tmp_path):
 
     with pytest.raises(lc.RunDirError, match="expected GROUP=RUN_DIR"):
         lc.main(["--out", str(tmp_path / "x.png"), str(runs[0])])
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_runs_as_a_module_and_names_a_bad_run_folder_in_one_line(tmp_path):
+    """``python -m sb3_coma.experiments.learning_curves`` is the documented command: a bad run folder
+    is one line naming it and a non-zero status, not a traceback (no run folder to train for this)."""
+    missing = tmp_path / "missing"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "sb3_coma.experiments.learning_curves",
+            "--out",
+            str(tmp_path / "x.png"),
+            f"g={missing}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines()[-1] == f"learning_curves: run folder {missing}: not a folder"
     assert not (tmp_path / "x.png").exists()

@@ -112,12 +112,12 @@ def test_one_batched_network_call_per_step() -> None:
 def test_large_batches_are_fused_in_chunks_with_the_same_result() -> None:
     """More agents than ``FUSE_CHUNK`` are fused in several calls (bounded memory), each row as
     if fused alone."""
-    from sb3_coma.app.export import _fusion_wrapper
+    from sb3_coma.app.export import fusion_wrapper
     from sb3_coma.sendfuse.wrapper import FUSE_CHUNK
 
     net = CountingNet()
     venv = envs.make_vec_env("env3", n_envs=1, fusion="sendfuse", seed=0, fusion_kwargs={"network": net})
-    wrapper = _fusion_wrapper(venv)
+    wrapper = fusion_wrapper(venv)
     rng = np.random.default_rng(1)
     rows = 2 * FUSE_CHUNK + 5
     received = rng.random((rows, 4, 44, 44), dtype=np.float32)

@@ -418,3 +418,69 @@ def test_negative_frequencies_and_seeds_are_refused_before_anything_is_made(tmp_
             env="env1", config=write_config(tmp_path), run_dir=tmp_path / "run", progress_bar=False, verbose=0, **kwargs
         )
     assert not (tmp_path / "run").exists()
+
+
+# ----------------------------------------------------------------------------- resume: same world
+def _edit_config(run: Path, edit) -> None:
+    """Edit a run's config.yml by hand, as a user would."""
+    data = yaml.safe_load((run / "config.yml").read_text())
+    edit(data)
+    (run / "config.yml").write_text(yaml.safe_dump(data, sort_keys=False))
+
+
+def test_resume_refuses_a_change_of_world_unless_allowed_and_records_it(tmp_path):
+    config = write_config(tmp_path)
+    _, run = train(env="env1", config=config, seed=0, run_dir=tmp_path / "run", total_timesteps=8, **quiet())
+    saved = yaml.safe_load((run / "config.yml").read_text())
+    assert saved["run"]["settings"] == {k: v for k, v in saved[ENV].items() if k != "n_timesteps"}
+
+    _edit_config(run, lambda d: d[ENV]["env_kwargs"].update(noise="loud"))  # by hand, after the start
+    edited = (run / "config.yml").read_text()
+    with pytest.raises(TrainingError) as info:
+        train(resume=run, total_timesteps=16, **quiet())
+    message = str(info.value)
+    assert "env_kwargs.noise from 'moderate' to 'loud' (config.yml was edited after the run started)" in message
+    assert "--allow-change" in message and "\n" not in message
+    with pytest.raises(TrainingError, match=r"n_envs from 1 to 2 \(--n-envs\)"):
+        train(resume=run, n_envs=2, total_timesteps=16, **quiet())
+    assert (run / "config.yml").read_text() == edited
+    assert validate_checkpoint(run / "model.zip").num_timesteps == 8  # nothing trained
+
+    model, _ = train(resume=run, total_timesteps=16, allow_change=True, **quiet())
+    assert model.num_timesteps == 16 and training_options(run / "model.zip")["noise"] == "loud"
+    saved = yaml.safe_load((run / "config.yml").read_text())
+    assert saved["run"]["resumes"][-1]["changes"] == {"env_kwargs.noise": {"from": "moderate", "to": "loud"}}
+    assert saved["run"]["settings"]["env_kwargs"]["noise"] == "loud"  # the next resume compares with this
+    model, _ = train(resume=run, total_timesteps=24, **quiet())  # no change now: no flag needed
+    assert model.num_timesteps == 24
+    assert "changes" not in yaml.safe_load((run / "config.yml").read_text())["run"]["resumes"][-1]
+
+
+def test_resume_refuses_a_hand_edit_the_checkpoint_would_ignore(tmp_path, capsys):
+    config = write_config(tmp_path)
+    _, run = train(env="env1", config=config, seed=0, run_dir=tmp_path / "run", total_timesteps=8, **quiet())
+    _edit_config(run, lambda d: d[ENV].update(learning_rate=1.0e-3))
+    for allow in (False, True):  # the checkpoint keeps its own learning rate: --allow-change cannot help
+        with pytest.raises(
+            TrainingError, match=r"learning_rate from 0.0001 to 0.001 .*which the checkpoint keeps as it was saved"
+        ):
+            train(resume=run, allow_change=allow, **quiet())
+    assert cli.main(["train", "--resume", str(run), "--allow-change"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("sb3-coma train: error: --resume") and "learning_rate" in err and "\n" not in err
+
+
+def test_resume_of_a_run_without_a_settings_copy_compares_with_the_checkpoint(tmp_path, capsys):
+    """Runs started before the record kept a copy: the env options saved in the checkpoint tell."""
+    config = write_config(tmp_path)
+    _, run = train(env="env1", config=config, seed=0, run_dir=tmp_path / "run", total_timesteps=8, **quiet())
+
+    def legacy_and_loud(data: dict) -> None:
+        del data["run"]["settings"]
+        data[ENV]["env_kwargs"]["noise"] = "loud"
+
+    _edit_config(run, legacy_and_loud)
+    assert cli.main(["train", "--resume", str(run), "--no-progress", "-v", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "env_kwargs.noise from 'moderate' to 'loud' (the checkpoint recorded another env)" in err
+    assert cli.main(["train", "--resume", str(run), "--allow-change", "--no-progress", "-v", "0"]) == 0

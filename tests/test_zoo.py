@@ -193,10 +193,10 @@ def test_zoo_optimize_with_shared_storage(tmp_path, conf, monkeypatch):
 
 def test_python_dash_m_entry_point(tmp_path):
     result = subprocess.run(
-        [sys.executable, "-m", "sb3_coma.app.zoo", "--help"],
+        [sys.executable, "-m", "sb3_coma.zoo", "--help"],
         capture_output=True,
         text=True,
         cwd=Path(__file__).resolve().parent.parent,
         timeout=60,
     )
-    assert result.returncode == 0 and "python -m sb3_coma.app.zoo" in result.stdout
+    assert result.returncode == 0 and "python -m sb3_coma.zoo" in result.stdout

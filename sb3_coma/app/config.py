@@ -20,7 +20,7 @@ import inspect
 import os
 import re
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -34,9 +34,11 @@ from torch import nn
 import envs
 from envs import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
 from sb3_coma.coma import COMA
+from sb3_coma.common.checkpoints import folder_write_problem
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 
 __all__ = [
+    "ALLOW_TEST_SPLIT",
     "DEFAULT_ENV_ID",
     "RESERVED_KEYS",
     "RUN_KEY",
@@ -54,14 +56,22 @@ __all__ = [
     "load_config",
     "make_training_env",
     "make_vec_env_from_kwargs",
+    "map_key",
     "named_objects",
+    "output_file_problem",
+    "output_folder_problem",
     "parse_schedule",
+    "path_name_problem",
     "plain",
     "read_config_file",
+    "read_numbers",
+    "repeated",
     "resolve_env_id",
     "resolve_policy_kwargs",
     "split_env_kwargs",
     "validate_entry",
+    "whole_number",
+    "written_number",
 ]
 
 #: Top-level keys of a config file that are not gymnasium ids.
@@ -88,6 +98,10 @@ UNSUPPORTED_KEYS = {
     "replay_buffer_class": "COMA is on-policy (no replay buffer)",
     "replay_buffer_kwargs": "COMA is on-policy (no replay buffer)",
 }
+#: ``env_kwargs`` key that says "train on split 'test', on purpose" (``sb3-coma train --allow-test-split``).
+#: It sits next to ``split`` so that the run's ``config.yml`` records it with the split it allows, and
+#: both trainers read it through :func:`split_env_kwargs`, which takes it out before the env is built.
+ALLOW_TEST_SPLIT = "allow_test_split"
 #: The gymnasium id of ``envs.DEFAULT_MAP``: what ``sb3-coma train`` trains without ``--env``.
 DEFAULT_ENV_ID = next(env_id for env_id, name in ENV_IDS.items() if name == DEFAULT_MAP)
 _SCHEDULE_KEYS = ("learning_rate", "critic_learning_rate")
@@ -208,6 +222,7 @@ def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[str, dict[str, Any]
     options = dict(env_kwargs)
     fusion = options.pop("fusion", DEFAULT_FUSION)
     fusion_kwargs = options.pop("fusion_kwargs", None) or {}
+    options.pop(ALLOW_TEST_SPLIT, None)  # a permission of the run, not an env option
     return fusion, fusion_kwargs, options
 
 
@@ -258,11 +273,37 @@ def _check_env_kwargs(entry: Mapping[str, Any], where: str, map_name: str | None
         _fail(where, f"env_kwargs.fusion must be one of {tuple(_trainable_fusions())}, got {fusion!r}")
     if not isinstance(fusion_kwargs, dict):
         _fail(where, f"env_kwargs.fusion_kwargs must be a mapping, got {fusion_kwargs!r}")
+    _check_test_split(env_kwargs, where)
     if map_name is not None:
         try:
             IppConfig.from_options(map_name, **options)
         except (ConfigError, TypeError) as exc:
             _fail(where, f"env_kwargs: {exc}")
+
+
+def _check_test_split(env_kwargs: Mapping[str, Any], where: str) -> None:
+    """Training on ``split="test"`` needs :data:`ALLOW_TEST_SPLIT`; the permission alone is refused.
+
+    The test scenes are the unseen protocol's missions, on which every verdict rests: a model
+    that trained on them is no longer measured on unseen missions, which is easy to do by
+    accident with one ``--set``. The permission without the split would be silently ignored.
+    """
+    allowed = env_kwargs.get(ALLOW_TEST_SPLIT, False)
+    if not isinstance(allowed, bool):
+        _fail(where, f"env_kwargs.{ALLOW_TEST_SPLIT} must be true or false, got {allowed!r}")
+    split = env_kwargs.get("split", "paper")
+    if split == "test" and not allowed:
+        _fail(
+            where,
+            "env_kwargs.split='test' trains on the unseen protocol's test missions, on which every verdict is "
+            f"measured; pass --allow-test-split (a config: env_kwargs.{ALLOW_TEST_SPLIT}: true) to do it on purpose",
+        )
+    if allowed and split != "test":
+        _fail(
+            where,
+            f"env_kwargs.{ALLOW_TEST_SPLIT}=True (--allow-test-split) is ignored: the entry trains on "
+            f"split={split!r}, not 'test'; drop it",
+        )
 
 
 def validate_entry(entry: Mapping[str, Any], where: str, map_name: str | None = None) -> None:
@@ -275,6 +316,134 @@ def validate_entry(entry: Mapping[str, Any], where: str, map_name: str | None = 
     _check_keys(entry, where)
     _check_zoo_values(entry, where)
     _check_env_kwargs(entry, where, map_name)
+
+
+# =========================================================================== numbers
+#: A number in exponent notation. PyYAML (YAML 1.1) reads it as a string unless it has both a dot
+#: and a signed exponent: ``1e-4``, ``1e2`` and ``1.0e5`` are strings to it, ``1.0e-5`` is a float.
+_EXPONENT_RE = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)[eE][+-]?\d+")
+
+
+def written_number(value: Any) -> Any:
+    """``"1e-4"`` -> ``0.0001``: a string in exponent notation is the number people mean by it;
+    anything else stays as it is (words stay words)."""
+    if isinstance(value, str) and _EXPONENT_RE.fullmatch(value.strip()):
+        return float(value)
+    return value
+
+
+def _numbers_in(value: Any) -> Any:
+    """:func:`written_number` through mappings and lists (``env_kwargs``, ``policy_kwargs`` ...)."""
+    if isinstance(value, Mapping):
+        return {k: _numbers_in(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_numbers_in(v) for v in value]
+    return written_number(value)
+
+
+def _is_int_annotation(annotation: Any) -> bool:
+    return str(annotation) in ("int", "int | None")
+
+
+def _integer_settings() -> tuple[set[str], set[str]]:
+    """``(entry keys, env options)`` that take whole numbers: rl-zoo3's counts, COMA's ``int``
+    arguments and ``envs.IppConfig``'s ``int`` fields, read from their signatures so that a new
+    argument is covered without a list to keep in step."""
+    params = inspect.signature(COMA.__init__).parameters
+    coma = {name for name, p in params.items() if _is_int_annotation(p.annotation) and name not in RESERVED_KEYS}
+    env = {f.name for f in fields(IppConfig) if _is_int_annotation(f.type)}
+    return {"n_timesteps", "n_envs"} | coma, env
+
+
+def whole_number(where: str, key: str, value: Any) -> Any:
+    """An integer-valued float (``1e2``, ``8.0``) as the int it is, so a count written in exponent
+    notation works; a float with a fraction is refused naming ``key``; anything else is left to the
+    checks that follow."""
+    if isinstance(value, float):
+        if value.is_integer():
+            return int(value)
+        _fail(where, f"{key} must be a whole number, got {value!r}")
+    return value
+
+
+def read_numbers(entry: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """The entry with written numbers read (:func:`written_number`) and whole-number settings as
+    ints (:func:`whole_number`), at any depth.
+
+    The config loader runs this before any check, so every check sees the number the user meant
+    (``learning_rate: 1e-4`` in YAML, ``--set n_timesteps=1e2``, ``env_kwargs.sigma=1e-1``) and the
+    run's ``config.yml`` records it as a number.
+    """
+    out = _numbers_in(entry)
+    top, env = _integer_settings()
+    for key in sorted(top & set(out)):
+        out[key] = whole_number(where, key, out[key])
+    env_kwargs = out.get("env_kwargs")
+    if isinstance(env_kwargs, dict):
+        for key in sorted(env & set(env_kwargs)):
+            env_kwargs[key] = whole_number(where, f"env_kwargs.{key}", env_kwargs[key])
+    return out
+
+
+# =========================================================================== paths and names
+def path_name_problem(path: str | os.PathLike[str]) -> str | None:
+    """Why a path's name cannot be used as text, or ``None``.
+
+    A name whose bytes are not valid in the file system's encoding (``os.fsdecode(b"bad\xff")``,
+    which is what Python makes of such a command-line argument) can be opened, but neither
+    printed nor written into ``config.yml`` or ``export.json``: the command would end in a
+    traceback after its work. Commands check it before any work instead.
+    """
+    text = os.fsdecode(os.fspath(path))
+    if not text.strip():
+        return "the path is empty"
+    encoding = sys.getfilesystemencoding()
+    try:
+        text.encode(encoding)
+    except UnicodeEncodeError as exc:
+        bad = text[exc.start : exc.end]
+        try:
+            shown = repr(os.fsencode(bad))
+        except UnicodeEncodeError:
+            shown = ascii(bad)
+        return f"its name is not valid {encoding} text ({shown} at position {exc.start}); rename it"
+    return None
+
+
+def output_folder_problem(path: str | os.PathLike[str]) -> str | None:
+    """Why files cannot be written into the folder ``path`` (made when missing), or ``None``: its
+    name (:func:`path_name_problem`), a file in its place or a parent's, a read-only location."""
+    return path_name_problem(path) or folder_write_problem(path)
+
+
+def output_file_problem(path: str | os.PathLike[str]) -> str | None:
+    """Why the file ``path`` cannot be written, or ``None``: its name, a folder in its place, or a
+    parent folder that cannot be made or written."""
+    problem = path_name_problem(path)
+    if problem is None and Path(path).is_dir():
+        problem = f"{os.fsdecode(os.fspath(path))} is a folder, not a file"
+    return problem or folder_write_problem(Path(path).parent)
+
+
+def map_key(name: str) -> str:
+    """The map a name means, to spot one map listed twice: ``"env1"``, ``"Env1"`` and
+    ``"UavIpp-Env1-v0"`` are one map; any other name (an image's stem) means itself."""
+    try:
+        return ENV_IDS[resolve_env_id(name)]
+    except TrainingError:
+        return str(name).strip()
+
+
+def repeated(names: Sequence[str], key: Callable[[str], str]) -> list[str]:
+    """The names that mean (``key``) the same as an earlier one in ``names``, in order."""
+    seen: set[str] = set()
+    out = []
+    for name in names:
+        meaning = key(name)
+        if meaning in seen:
+            out.append(name)
+        seen.add(meaning)
+    return out
 
 
 # =========================================================================== entries and variants
@@ -347,6 +516,7 @@ def config_entry(
     if overrides:
         entry = _apply_overrides(entry, overrides)
         where += " with overrides"
+    entry = read_numbers(entry, where)
     if validate:
         validate_entry(entry, where, ENV_IDS[env_id])
     return entry

@@ -17,13 +17,14 @@ from __future__ import annotations
 import os
 import pickle
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 import envs
+from envs import NOISE_PRESETS, IppConfig
 from sb3_coma.app import pretrained
 from sb3_coma.app.pretrained import shipped_env_options
 from sb3_coma.baselines import PLANNERS, Planner, make_planner, planner_class
@@ -42,7 +43,20 @@ from sb3_coma.common.evaluation import (
     relabel,
 )
 
-__all__ = ["PROTOCOLS", "check_policy", "evaluate", "is_model", "planner_options", "resolve_policy"]
+__all__ = [
+    "OBSERVATION_OPTIONS",
+    "PROTOCOLS",
+    "WORLD_OPTIONS",
+    "WorldMismatchWarning",
+    "check_observation_options",
+    "check_policy",
+    "evaluate",
+    "is_model",
+    "planner_options",
+    "resolve_policy",
+    "trained_options",
+    "world_differences",
+]
 
 
 def baseline_names() -> list[str]:
@@ -62,6 +76,7 @@ def _looks_like_path(name: str) -> bool:
 
 
 def _load_model_file(path: Path, venv: Any) -> Any:
+    pretrained.verify_shipped_file(path)  # a shipped zip reached by its path is verified all the same
     validate_checkpoint(path)  # truncated / corrupt / another algorithm: CheckpointError naming the file
     try:
         return COMA.load(str(path), env=venv, device="cpu")
@@ -104,7 +119,11 @@ def check_policy(policy_or_name: Any) -> None:
         if not text.strip():
             raise ValueError("empty method name")
         if Path(text).is_file() or Path(text + ".zip").is_file():
+            # A shipped zip reached by its path is verified like the shipped name (PretrainedError).
+            pretrained.verify_shipped_file(Path(text) if Path(text).is_file() else Path(text + ".zip"))
             return
+        if Path(text).is_dir():
+            raise ValueError(f"model {text!r} is a folder: pass the model .zip inside it (e.g. {text}/model.zip)")
         if isinstance(policy_or_name, os.PathLike) or _looks_like_path(text):
             raise FileNotFoundError(f"model file not found: {text!r}")
         raise ValueError(
@@ -143,34 +162,132 @@ def resolve_policy(
 
 
 #: Env options that shape a model's observation: ``evaluate`` takes them from the model's training
-#: options unless the caller sets them. The mission (map, split, start, noise, team size) stays the
+#: options unless the caller sets them, and refuses a caller's value that differs
+#: (:func:`check_observation_options`). The mission (map, split, start, noise, team size) stays the
 #: caller's choice.
 OBSERVATION_OPTIONS = ("action_gain", "comm_grid", "lattice", "grid", "altitudes", "field_size", "fov_deg")
+#: Env options that change the world a model flies in, not its observation: flying a model with
+#: other values is legal but the results then describe another world than its own, so it is a
+#: :class:`WorldMismatchWarning` (team size and fusion have their own warnings).
+WORLD_OPTIONS = (
+    "budget",
+    "noise",
+    "alpha_low",
+    "sigma",
+    "attenuation",
+    "decoder",
+    "comm_range",
+    "drop_probability",
+    "flip_probability",
+    "start_altitude",
+)
 
 
-def _trained_options(policy_or_name: Any, shipped: dict[str, Any]) -> dict[str, Any]:
-    """The env options a model was trained with (``sb3_coma.training_options``); ``{}`` for
-    baselines and for models that do not record them."""
+class WorldMismatchWarning(UserWarning):
+    """A model flies in another world than it trained in (budget, channel, decoder, flip table ...)."""
+
+
+def trained_options(policy_or_name: Any, shipped: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The env options a model was trained with (``sb3_coma.training_options``, a shipped model's
+    manifest ``env_options``); ``{}`` for baselines and for models that do not record them."""
     if not is_model(policy_or_name):
         return {}
+    shipped = _shipped_info(policy_or_name) if shipped is None else shipped
     if isinstance(policy_or_name, str) and not policy_or_name.endswith(".zip") and shipped:
         return shipped_env_options(policy_or_name) or {}
     return training_options(policy_or_name) or {}
 
 
-def _warn_if_flown_differently(
-    policy_or_name: Any, trained: dict[str, Any], shipped: dict[str, Any], fusion: str | None, n_uavs: int
-) -> None:
-    """Warn (not refuse) when a model flies with another team size or fusion than it trained with.
+def _same(a: Any, b: Any) -> bool:
+    """Option values compared in one form: a recorded option comes from JSON (lists, string keys),
+    a given one from Python (tuples, ints, float keys)."""
+    return _comparable(a) == _comparable(b)
 
-    Both are legal (the actor is per agent and the fusions take any number of maps, see
-    docs/deployment.md), but the results then describe another method than the model's own,
-    which is easy to do by accident with ``--uavs`` or ``--fusion``. ``fusion`` is the caller's
-    (``None``: the model's own is used, nothing to warn about).
+
+def _comparable(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return tuple(sorted((_comparable_key(k), _comparable(v)) for k, v in value.items()))
+    if isinstance(value, (list, tuple)):
+        return tuple(_comparable(v) for v in value)
+    if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)):
+        return float(value)
+    return value
+
+
+def _comparable_key(key: Any) -> Any:
+    try:
+        return float(key)
+    except (TypeError, ValueError):
+        return str(key)
+
+
+def _described(policy_or_name: Any) -> str:
+    if isinstance(policy_or_name, (str, os.PathLike)):
+        return f"model {os.fspath(policy_or_name)!r}"
+    return "the model"
+
+
+def check_observation_options(what: str, trained: Mapping[str, Any], env_options: Mapping[str, Any]) -> None:
+    """Refuse an option that shapes the observation, set by the caller to another value than the
+    model trained with: SB3 would fail later with a bare "Observation spaces do not match" (or a
+    layout of the same shape would be read as another one). ``ValueError`` naming both values."""
+    for key in OBSERVATION_OPTIONS:
+        if key in trained and key in env_options and not _same(trained[key], env_options[key]):
+            raise ValueError(
+                f"{what} was trained with {key}={trained[key]!r} but is asked to fly with {key}={env_options[key]!r}: "
+                f"{key} changes the observation its network reads; drop {key}= to fly it with its own"
+            )
+
+
+def _take_observation_options(policy_or_name: Any, trained: Mapping[str, Any], env_options: dict[str, Any]) -> None:
+    """What the network's inputs are made of follows the model: a caller's other value is refused
+    (:func:`check_observation_options`), an unset one is taken from the training (in place)."""
+    check_observation_options(_described(policy_or_name), trained, env_options)
+    for key in OBSERVATION_OPTIONS:
+        if key in trained and key not in env_options:
+            env_options[key] = trained[key]
+
+
+def _channel(options: Mapping[str, Any]) -> tuple[Any, Any]:
+    """``(alpha_low, sigma)`` of recorded options, the noise preset's where they are ``None``."""
+    low, sigma = NOISE_PRESETS.get(str(options.get("noise")), (None, None))
+    given_low, given_sigma = options.get("alpha_low"), options.get("sigma")
+    return (low if given_low is None else given_low, sigma if given_sigma is None else given_sigma)
+
+
+def world_differences(trained: Mapping[str, Any], config: IppConfig, skip: Iterable[str] = ()) -> list[str]:
+    """``"budget=2 (trained: 15)"`` for each of :data:`WORLD_OPTIONS` the flight (``config``) sets
+    otherwise than the training did (``alpha_low`` / ``sigma`` compared as the channel really is,
+    preset included), except those in ``skip`` (a sweep's own axes)."""
+    out = []
+    flown_channel, own_channel = dict(zip(("alpha_low", "sigma"), config.noise_params)), _channel(trained)
+    for key in WORLD_OPTIONS:
+        if key not in trained or key in skip:
+            continue
+        if key in ("alpha_low", "sigma"):
+            if trained[key] is None and getattr(config, key) is None:
+                continue  # both the preset's: "noise" tells the difference, if any
+            flown, own = flown_channel[key], own_channel[("alpha_low", "sigma").index(key)]
+        else:
+            flown, own = getattr(config, key), trained[key]
+        if not _same(flown, own):
+            out.append(f"{key}={flown!r} (trained: {own!r})")
+    return out
+
+
+def _warn_if_flown_differently(
+    policy_or_name: Any, trained: dict[str, Any], shipped: dict[str, Any], fusion: str | None, config: IppConfig
+) -> None:
+    """Warn (not refuse) when a model flies with another team size, fusion or world than it trained with.
+
+    All are legal (the actor is per agent and the fusions take any number of maps, see
+    docs/deployment.md), but the results then describe another method or world than the model's
+    own, which is easy to do by accident with ``--uavs``, ``--fusion`` or ``--budget``. ``fusion``
+    is the caller's (``None``: the model's own is used, nothing to warn about).
     """
     if not is_model(policy_or_name):
         return
-    what = f"model {os.fspath(policy_or_name)!r}" if isinstance(policy_or_name, (str, os.PathLike)) else "the model"
+    what, n_uavs = _described(policy_or_name), int(config.n_uavs)
     own_n = trained.get("n_uavs")
     if own_n is None and not isinstance(policy_or_name, (str, os.PathLike)):
         own_n = getattr(policy_or_name, "n_agents", None)  # a COMA object that records no options
@@ -187,6 +304,14 @@ def _warn_if_flown_differently(
             f"{what} was trained with fusion {own_fusion!r} but flies with fusion {fusion!r}: its actor reads "
             f"fused maps of another kind; pass fusion={own_fusion!r} (or leave it unset) to fly it as trained",
             UserWarning,
+            stacklevel=3,
+        )
+    differences = world_differences(trained, config)
+    if differences:
+        warnings.warn(
+            f"{what} flies in another world than it trained in: {', '.join(differences)}; allowed, but the "
+            f"results describe that world, not the model's own",
+            WorldMismatchWarning,
             stacklevel=3,
         )
 
@@ -279,10 +404,8 @@ def evaluate(
     n_trials = _check_int("n_trials", n_trials, 1)
     check_policy(policy_or_name)
     shipped = _shipped_info(policy_or_name)
-    trained = _trained_options(policy_or_name, shipped)
-    for key in OBSERVATION_OPTIONS:  # what the network's inputs are made of follows the model
-        if key in trained and key not in env_options:
-            env_options[key] = trained[key]
+    trained = trained_options(policy_or_name, shipped)
+    _take_observation_options(policy_or_name, trained, env_options)
     own_fusion = trained.get("fusion") or shipped.get("fusion")
     flown_fusion = fusion or own_fusion or ("sendfuse" if is_model(policy_or_name) else "mean")
     if deterministic is None:
@@ -294,7 +417,7 @@ def evaluate(
         try:
             return envs.make_vec_env(env, n_envs=n, fusion=flown_fusion, seed=None, **env_options)
         except ValueError as exc:
-            if flown_fusion == "sendfuse" and "sendfuse" in str(exc):
+            if flown_fusion == "sendfuse" and own_fusion != "sendfuse" and "sendfuse" in str(exc):
                 raise ValueError(f"{exc}; evaluate a model trained without SenDFuse with fusion='mean'") from exc
             raise
 
@@ -302,7 +425,7 @@ def evaluate(
         config = venv.get_attr("config", indices=[0])[0]
         if first_batch.pop() if first_batch else False:
             flown_kwargs.update(planner_options(policy_or_name, config, planner_kwargs))
-            _warn_if_flown_differently(policy_or_name, trained, shipped, fusion, int(config.n_uavs))
+            _warn_if_flown_differently(policy_or_name, trained, shipped, fusion, config)
         return resolve_policy(policy_or_name, venv, batch_seed, flown_kwargs)[0]
 
     result = evaluate_policy(

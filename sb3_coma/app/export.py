@@ -59,9 +59,9 @@ from envs import IppConfig, layout
 from envs.fusion import FusionWrapper, mean_fusion
 from envs.geometry import overlap_matrix
 from sb3_coma import __version__
-from sb3_coma.app.config import TrainingError, load_config, split_env_kwargs
+from sb3_coma.app.config import TrainingError, load_config, path_name_problem, split_env_kwargs
 from sb3_coma.app.evaluation import _looks_like_path
-from sb3_coma.app.pretrained import PretrainedError, model_info, pretrained_dir, sha256_file
+from sb3_coma.app.pretrained import PretrainedError, model_info, pretrained_dir, sha256_file, verify_shipped_file
 from sb3_coma.app.runs import read_run_config, run_folder_of
 from sb3_coma.baselines import planner_class
 from sb3_coma.coma.masking import MASKED_LOGIT, mask_logits
@@ -80,14 +80,18 @@ __all__ = [
     "ExportError",
     "FusionGraph",
     "ModelSource",
+    "check_fusion_matches",
+    "check_opset",
     "check_out_dir",
     "export_onnx",
     "fusion_reference",
+    "fusion_wrapper",
     "onnx_feeds",
     "onnx_session",
     "resolve_model_source",
     "settings_of_model",
     "settings_of_source",
+    "supported_opsets",
 ]
 
 ACTOR_FILE = "actor.onnx"
@@ -206,8 +210,15 @@ def resolve_model_source(name_or_path: str | os.PathLike[str]) -> ModelSource:
     text = os.fspath(name_or_path)
     if not text.strip():
         raise ExportError("--model is empty: pass a COMA model .zip or a shipped model name")
+    problem = path_name_problem(text)
+    if problem is not None:
+        raise ExportError(f"--model {text!r}: {problem}")
     for candidate in (Path(text), Path(text + ".zip")):
         if candidate.is_file():
+            try:
+                verify_shipped_file(candidate)  # a shipped zip reached by its path is verified all the same
+            except PretrainedError as exc:
+                raise ExportError(str(exc)) from None
             return ModelSource(text, candidate, None, run_folder_of(candidate))
     if Path(text).is_dir():
         raise ExportError(f"model {text!r} is a folder: pass the model .zip inside it (e.g. {text}/model.zip)")
@@ -238,6 +249,9 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
     out = Path(out_dir)
     if not str(out_dir).strip():
         raise ExportError("--out is empty: pass the folder to write the ONNX files into")
+    problem = path_name_problem(out)
+    if problem is not None:
+        raise ExportError(f"--out {str(out)!r}: {problem}")
     if out.exists() and not out.is_dir():
         raise ExportError(f"--out {str(out)!r} is an existing file, not a folder")
     probe = out
@@ -251,6 +265,42 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
         where = "" if probe == out else f" ({str(probe)!r} is not writable)"
         raise ExportError(f"--out {str(out)!r} is not writable{where}")
     return out
+
+
+def supported_opsets() -> tuple[int, int]:
+    """``(lowest, newest)`` opset an export can write: from :data:`MIN_OPSET` to the newest that both
+    onnx (``onnx.defs.onnx_opset_version()``) and torch's TorchScript exporter (``dynamo=False``)
+    know, so a bad ``--opset`` is one line up front rather than an exporter traceback."""
+    newest = int(onnx.defs.onnx_opset_version())
+    exporter = getattr(getattr(th.onnx, "_constants", None), "ONNX_TORCHSCRIPT_EXPORTER_MAX_OPSET", None)
+    if isinstance(exporter, int):
+        newest = min(newest, exporter)
+    return MIN_OPSET, newest
+
+
+def check_opset(opset: Any, label: str) -> int:
+    """``opset`` when :func:`supported_opsets` has it; else :class:`ExportError` naming ``label``
+    (``--opset 99`` / ``opset=99``) and the supported range."""
+    low, high = supported_opsets()
+    if isinstance(opset, bool) or not isinstance(opset, int) or not low <= opset <= high:
+        raise ExportError(
+            f"{label}: must be an integer from {low} to {high} (the opsets that onnx {onnx.__version__} and "
+            f"torch {th.__version__}'s exporter both write)"
+        )
+    return opset
+
+
+def check_fusion_matches(fusion: str | None, settings: Mapping[str, Any] | None, label: str) -> None:
+    """Refuse exporting a fusion the model was not trained with: ``export.json`` would claim it,
+    and an on-board actor fed another fusion's channel acts on maps it never saw. ``fusion`` is the
+    caller's (``None``: the recorded one is used); ``label`` is how the caller named it."""
+    recorded = (settings or {}).get("fusion")
+    if fusion is None or recorded not in FUSIONS or fusion == recorded:
+        return
+    raise ExportError(
+        f"{label}: the model was trained with fusion {recorded!r} ({settings.get('from', 'its record')}); "
+        f"export.json must not claim a fusion it was not trained with: drop the fusion or pass {recorded!r}"
+    )
 
 
 def _jsonable(value: Any) -> Any:
@@ -338,7 +388,7 @@ def settings_of_source(source: ModelSource) -> dict[str, Any] | None:
     return None
 
 
-def _fusion_wrapper(venv: Any) -> Any:
+def fusion_wrapper(venv: Any) -> Any:
     """The :class:`envs.fusion.FusionWrapper` inside a vec env from ``envs.make_vec_env``, or ``None``."""
     seen = 0
     while venv is not None and seen < 16:
@@ -365,7 +415,7 @@ def settings_of_model(model: Any) -> dict[str, Any] | None:
     if venv is None:
         return None
     config = venv.get_attr("config", indices=[0])[0]
-    wrapper = _fusion_wrapper(venv)
+    wrapper = fusion_wrapper(venv)
     defaults = _config_dict(IppConfig(map_name=config.map_name))
     options = {k: v for k, v in _config_dict(config).items() if k != "map_name" and v != defaults[k]}
     fusion_kwargs = {"alpha": wrapper.alpha} if getattr(wrapper, "alpha", None) is not None else {}
@@ -391,7 +441,7 @@ def _fusion_graph(model: Any, fusion: str, settings: Mapping[str, Any]) -> tuple
     info: dict[str, Any] = {"kind": fusion}
     if fusion == "mean":
         return FusionGraph(None, n, to_lattice).eval(), info
-    wrapper = _fusion_wrapper(getattr(model, "env", None))
+    wrapper = fusion_wrapper(getattr(model, "env", None))
     if wrapper is not None and getattr(wrapper, "name", None) == "sendfuse":
         network, alpha = wrapper.network, wrapper.alpha
     else:
@@ -567,10 +617,10 @@ def export_onnx(
         ends in the lattice projection, so on board the pipeline is the same.
     :raises ExportError: unknown fusion, unknown training settings, bad opset or output folder
     """
-    if isinstance(opset, bool) or not isinstance(opset, int) or opset < MIN_OPSET:
-        raise ExportError(f"opset={opset!r}: must be an integer >= {MIN_OPSET}")
+    check_opset(opset, f"opset={opset!r}")
     out = check_out_dir(out_dir)
     settings = dict(settings) if settings is not None else settings_of_model(model)
+    check_fusion_matches(fusion, settings, f"fusion={fusion!r}")
     if fusion is None:
         fusion = (settings or {}).get("fusion")
     if fusion not in FUSIONS:

@@ -8,9 +8,11 @@ training wall-clock, the fusion it was trained with and the metrics measured by
 Security: an SB3 ``.zip`` is loaded with ``torch.load`` and may contain pickled Python objects,
 so loading a zip from an untrusted source can run code. :func:`load_pretrained` therefore checks
 the file's SHA-256 against ``models.json`` *before* loading it; a missing file or a checksum
-mismatch raises :class:`PretrainedError` and nothing is loaded. This checked route is the
-verified one: loading a zip by path (``COMA.load``, ``sb3-coma evaluate --model PATH``) trusts
-the file as it is.
+mismatch raises :class:`PretrainedError` and nothing is loaded. The check follows the file, not
+the name: a path that leads to a shipped zip (``sb3-coma evaluate --model
+<package>/pretrained/coma_env1.zip``, ``sb3-coma export --model ...``) is verified the same way
+(:func:`verify_shipped_file`). Any other zip loaded by path (``COMA.load``, ``sb3-coma evaluate
+--model PATH``) is the user's own and is trusted as it is.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ from sb3_coma.coma import COMA
 
 __all__ = [
     "is_shipped",
+    "shipped_name_of",
+    "verify_shipped_file",
     "shipped_env_options",
     "PretrainedError",
     "load_pretrained",
@@ -181,6 +185,33 @@ def model_path(name: str, directory: str | os.PathLike[str] | None = None, verif
                 f"is NOT loaded (an SB3 zip can run code when loaded)"
             )
     return path
+
+
+def shipped_name_of(path: str | os.PathLike[str], directory: str | os.PathLike[str] | None = None) -> str | None:
+    """The shipped model a file *is* (its manifest name), or ``None``: decided by where the file
+    really is (symlinks and ``..`` resolved), so no path or argument reaches a shipped zip unchecked."""
+    folder = Path(directory or pretrained_dir()).resolve()
+    target = Path(path).resolve()
+    if target.parent != folder:
+        return None
+    try:
+        models = read_manifest(directory)["models"]
+    except PretrainedError:
+        return None
+    return next((name for name, info in sorted(models.items()) if info.get("file") == target.name), None)
+
+
+def verify_shipped_file(path: str | os.PathLike[str], directory: str | os.PathLike[str] | None = None) -> None:
+    """Refuse a shipped model's zip that does not match its recorded SHA-256, whatever path led to it.
+
+    An SB3 zip can run code when loaded, and a replaced shipped file would otherwise be used under
+    the shipped model's name. A zip elsewhere is the user's own and passes unchecked.
+
+    :raises PretrainedError: the file is a shipped one and its checksum differs
+    """
+    name = shipped_name_of(path, directory)
+    if name is not None:
+        model_path(name, directory, verify=True)
 
 
 def load_pretrained(

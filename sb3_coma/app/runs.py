@@ -9,8 +9,11 @@
         metrics.csv        one row per mission: reward, length, final F1 and entropy
         model.zip          the final model, written atomically when training completes
         best_model.zip     with --eval-freq: the best checkpoint on the validation missions
+        .lock              held (flock) by the process training in the folder; names its pid
 
 The layout is a data format: the trainer writes it, ``--resume`` and ``sb3-coma export`` read it.
+One process writes a run folder at a time (:func:`lock_run_folder`): a second ``train`` into it
+(a resume, or a new run with that ``--run-dir``) is refused while the first runs.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from sb3_coma.common.checkpoints import (
     folder_write_problem,
     validate_checkpoint,
 )
+from sb3_coma.common.outputs import LOCK_FILE, FolderInUseError, FolderLock, LockHolder, lock_holder
 
 __all__ = [
     "CHECKPOINT_DIR",
@@ -46,6 +50,8 @@ __all__ = [
     "MODEL_FILE",
     "TENSORBOARD_DIR",
     "check_run_dir",
+    "claim_run_dir",
+    "lock_run_folder",
     "new_run_dir",
     "newest_model",
     "read_run_config",
@@ -74,6 +80,43 @@ def check_run_dir(run_dir: str | os.PathLike[str] | None) -> None:
     problem = folder_write_problem(run_dir)
     if problem is not None:
         raise TrainingError(f"run folder {run_dir} cannot be made: {problem}")
+    holder = lock_holder(run_dir) if Path(run_dir).is_dir() else None
+    if holder is not None:
+        raise TrainingError(_in_use(Path(run_dir), holder, resuming=False))
+
+
+def _in_use(run_dir: Path, holder: LockHolder, resuming: bool) -> str:
+    """The one line that refuses a second writer, naming the holder so the user can find it."""
+    tail = "wait for it to finish before resuming" if resuming else "wait for it or pass another --run-dir"
+    return f"run folder {run_dir} is in use by {holder.describe()}; {tail}"
+
+
+def lock_run_folder(run_dir: Path, resuming: bool = False) -> FolderLock:
+    """Take the run folder's lock for this process (held until released or the process ends).
+
+    Two trainers in one folder would interleave checkpoints, truncate each other's
+    ``metrics.csv`` and rewrite ``config.yml``; the lock makes the second one stop before it
+    touches anything.
+
+    :raises TrainingError: another process holds it (the message names its pid and start time)
+    """
+    try:
+        return FolderLock(run_dir).acquire()
+    except FolderInUseError as exc:
+        raise TrainingError(_in_use(run_dir, exc.holder, resuming)) from None
+
+
+def claim_run_dir(
+    run_dir: str | os.PathLike[str] | None,
+    env_id: str,
+    variant: str | None = None,
+    root: str | os.PathLike[str] = "runs",
+) -> tuple[Path, FolderLock]:
+    """:func:`new_run_dir` with its lock taken: an explicit ``run_dir`` that a running trainer
+    holds is refused instead of being passed over for ``<run_dir>_2``."""
+    check_run_dir(run_dir)
+    path = new_run_dir(run_dir, env_id, variant, root)
+    return path, lock_run_folder(path)
 
 
 def new_run_dir(
@@ -94,8 +137,8 @@ def new_run_dir(
         candidates = (Path(f"{base}_{n}") for n in range(1, 1_000_000))
     else:
         base = Path(run_dir)
-        if base.is_dir() and not any(base.iterdir()):
-            return base
+        if base.is_dir() and not any(p.name != LOCK_FILE for p in base.iterdir()):
+            return base  # empty, or left with only the lock file of a run that died at once
         check_run_dir(base)
         candidates = (base if n == 1 else Path(f"{base}_{n}") for n in range(1, 1_000_000))
     for candidate in candidates:

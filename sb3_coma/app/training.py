@@ -23,7 +23,7 @@ import os
 import sys
 import traceback
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +52,7 @@ from sb3_coma.app.config import (
     load_config,
     make_training_env,
     named_objects,
+    plain,
     positive_int,
     read_config_file,
     resolve_env_id,
@@ -65,6 +66,8 @@ from sb3_coma.app.runs import (
     MODEL_FILE,
     TENSORBOARD_DIR,
     check_run_dir,
+    claim_run_dir,
+    lock_run_folder,
     new_run_dir,
     read_run_config,
     resolve_resume,
@@ -79,24 +82,28 @@ from sb3_coma.common.callbacks import (
     SignalStopCallback,
     truncate_metrics_csv,
 )
-from sb3_coma.common.checkpoints import atomic_save, load_checkpoint, validate_checkpoint
+from sb3_coma.common.checkpoints import atomic_save, load_checkpoint, training_options, validate_checkpoint
 from sb3_coma.common.memory import release_freed_memory
+from sb3_coma.common.outputs import FolderLock
 
 __all__ = [
     # the trainer
     "TB_LOG_NAME",
     "VALIDATION_SEED",
     "MissionCallbacks",
+    "RESUME_APPLIED_KEYS",
     "RunPlan",
     "TrainingInterrupted",
     "attach_callbacks",
     "build_model",
     "check_device",
+    "eval_copies",
     "learn",
     "mission_callbacks",
     "plan_run",
     "prepare_run_folder",
     "record_env_options",
+    "run_settings",
     "save_final",
     "train",
     # kept importable from here: the config format (sb3_coma.app.config) and run folders (sb3_coma.app.runs)
@@ -131,6 +138,13 @@ TB_LOG_NAME = "COMA"
 #: from the seeds 0..n-1 that ``evaluate`` and ``reproduce`` report, so picking the best
 #: checkpoint never looks at the test missions.
 VALIDATION_SEED = 1000
+#: Config keys whose change a resumed run applies (its world and its parallel layout: the env
+#: options, fusion and team included): a resume refuses such a change unless ``allow_change``.
+#: Every other key but the run length the checkpoint keeps as it was saved, so a change of it is
+#: refused outright (config.yml would misstate the run).
+RESUME_APPLIED_KEYS = ("env_kwargs", "n_envs", "vec_env_wrapper", "workers", "backend", "callback")
+#: Config keys a resume may change freely: the run length (``--timesteps``).
+RESUME_FREE_KEYS = ("n_timesteps",)
 
 
 class TrainingInterrupted(KeyboardInterrupt):
@@ -215,10 +229,19 @@ class RunPlan:
     run_path: Path | None = None
     done_steps: int = 0
     eval_seed: int = VALIDATION_SEED
+    #: Settings a resume changes with ``allow_change``: ``{key: {"from": old, "to": new}}``.
+    changes: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: The run folder's lock, held from planning (a resume) or from the folder's creation.
+    lock: FolderLock | None = None
 
     @property
     def resumed_in_place(self) -> bool:
         return self.run_path is not None
+
+    def release(self) -> None:
+        """Let go of the run folder (the run is over, or never started)."""
+        if self.lock is not None:
+            self.lock.release()
 
 
 def check_device(device: Any) -> None:
@@ -257,6 +280,80 @@ def _resumed_config(
     return cfg
 
 
+def run_settings(entry: Mapping[str, Any]) -> dict[str, Any]:
+    """What a run record keeps of its config entry (all but the run length), so that a resume can
+    tell a change of ``config.yml`` made by hand after the run started."""
+    return {str(k): plain(v) for k, v in entry.items() if k not in RESUME_FREE_KEYS}
+
+
+def _spread(entry: Mapping[str, Any], map_name: str) -> dict[str, Any]:
+    """An entry as comparable settings: ``env_kwargs`` spread into ``env_kwargs.<option>`` and
+    resolved (an option written out equals the same default left out), ``n_envs`` filled in."""
+    flat = {str(k): plain(v) for k, v in entry.items() if k != "env_kwargs" and k not in RESUME_FREE_KEYS}
+    flat.setdefault("n_envs", 1)
+    env_kwargs = dict(entry.get("env_kwargs") or {})
+    try:
+        options = env_options_of(map_name, env_kwargs)
+        options.pop("map", None)
+    except (ValueError, TypeError):  # an option this version does not know: compare as written
+        options = plain(env_kwargs)
+    flat.update({f"env_kwargs.{k}": v for k, v in options.items()})
+    return flat
+
+
+def _differences(before: Mapping[str, Any], after: Mapping[str, Any], why: str) -> dict[str, tuple[Any, Any, str]]:
+    keys = sorted(set(before) | set(after))
+    return {k: (before.get(k), after.get(k), why) for k in keys if before.get(k) != after.get(k)}
+
+
+def _resume_changes(cfg: TrainConfig, resume_model: Path, n_envs: int | None) -> dict[str, tuple[Any, Any, str]]:
+    """``{key: (the run's value, the resumed run's value, why)}`` for every setting that differs.
+
+    The run's values are the copy its record took at the start (or at the last allowed change);
+    a run recorded before that copy existed is compared with its ``config.yml`` as it stands (so
+    only ``--n-envs`` shows). Either way the env options saved in the checkpoint are compared
+    too: they are what the model actually trained on.
+    """
+    entry = {**cfg.entry, **({"n_envs": n_envs} if n_envs is not None else {})}
+    now = _spread(entry, cfg.map_name)
+    recorded = cfg.run.get("settings")
+    base = recorded if isinstance(recorded, Mapping) else cfg.entry
+    changes = _differences(_spread(base, cfg.map_name), now, "config.yml was edited after the run started")
+    if n_envs is not None and "n_envs" in changes:
+        changes["n_envs"] = (changes["n_envs"][0], n_envs, "--n-envs")
+    trained = {f"env_kwargs.{k}": v for k, v in (training_options(resume_model) or {}).items() if k != "map"}
+    seen = {k: now.get(k) for k in trained}
+    for key, change in _differences(trained, seen, "the checkpoint recorded another env").items():
+        changes.setdefault(key, change)
+    return changes
+
+
+def _allowed_changes(
+    resume: Any, changes: Mapping[str, tuple[Any, Any, str]], allow_change: bool
+) -> dict[str, dict[str, Any]]:
+    """The changes a resume may make, as its ``resumes:`` entry records them.
+
+    :raises TrainingError: a change of a setting the checkpoint keeps (always), or of the world or
+        the layout without ``allow_change``; one line naming each option and both values
+    """
+
+    def listing(items: Mapping[str, tuple[Any, Any, str]]) -> str:
+        return ", ".join(f"{k} from {old!r} to {new!r} ({why})" for k, (old, new, why) in items.items())
+
+    kept = {k: c for k, c in changes.items() if k.split(".")[0] not in RESUME_APPLIED_KEYS}
+    if kept:
+        raise TrainingError(
+            f"--resume {resume} would change {listing(kept)}, which the checkpoint keeps as it was saved; "
+            "restore config.yml or start a new run"
+        )
+    if changes and not allow_change:
+        raise TrainingError(
+            f"--resume {resume} would change {listing(changes)}; pass --allow-change to resume with the "
+            "change (it is recorded in config.yml)"
+        )
+    return {k: {"from": old, "to": new} for k, (old, new, _) in changes.items()}
+
+
 def plan_run(
     env: str | None = None,
     config: str | os.PathLike[str] | None = None,
@@ -268,8 +365,13 @@ def plan_run(
     seed: int | None = None,
     eval_seed: int | None = None,
     device: str = "auto",
+    allow_change: bool = False,
 ) -> RunPlan:
-    """Load the config (or the resumed run's), apply the command-line settings, pick the seed."""
+    """Load the config (or the resumed run's), apply the command-line settings, pick the seed.
+
+    A resume in place takes the run folder's lock first (a second writer is refused before it
+    reads or touches anything) and holds it in the plan; :meth:`RunPlan.release` lets it go.
+    """
     if total_timesteps is not None:
         total_timesteps = positive_int("train()", "total_timesteps", total_timesteps)
     if n_envs is not None:
@@ -280,19 +382,28 @@ def plan_run(
         raise TrainingError(f"eval_seed must be an integer, got {eval_seed!r}")
     check_device(device)
     resume_run, resume_model = resolve_resume(resume) if resume is not None else (None, None)
-    if resume_run is not None:
-        cfg = _resumed_config(resume_run, resume, env, config, variant, overrides)
-    else:
-        cfg = load_config(env, config, variant, overrides)
-    if n_envs is not None:
-        cfg.entry["n_envs"] = n_envs
-    if total_timesteps is not None:
-        cfg.entry["n_timesteps"] = total_timesteps
-    info = validate_checkpoint(resume_model) if resume_model is not None else None
-    if info is not None and info.n_agents is not None and info.n_agents != cfg.n_agents:
-        raise TrainingError(
-            f"checkpoint {resume_model} was trained with {info.n_agents} UAVs but the config has {cfg.n_agents}"
-        )
+    lock = lock_run_folder(resume_run, resuming=True) if resume_run is not None else None
+    try:
+        changes: dict[str, dict[str, Any]] = {}
+        if resume_run is not None:
+            assert resume_model is not None, "resolve_resume() gives a model with a run folder"
+            cfg = _resumed_config(resume_run, resume, env, config, variant, overrides)
+            changes = _allowed_changes(resume, _resume_changes(cfg, resume_model, n_envs), allow_change)
+        else:
+            cfg = load_config(env, config, variant, overrides)
+        if n_envs is not None:
+            cfg.entry["n_envs"] = n_envs
+        if total_timesteps is not None:
+            cfg.entry["n_timesteps"] = total_timesteps
+        info = validate_checkpoint(resume_model) if resume_model is not None else None
+        if info is not None and info.n_agents is not None and info.n_agents != cfg.n_agents:
+            raise TrainingError(
+                f"checkpoint {resume_model} was trained with {info.n_agents} UAVs but the config has {cfg.n_agents}"
+            )
+    except BaseException:
+        if lock is not None:
+            lock.release()
+        raise
     done = info.num_timesteps if info is not None else 0
     if seed is None:  # a resumed run continues its own seed, moved on by the steps done
         base = cfg.run.get("seed") if resume_run is not None else None
@@ -304,6 +415,8 @@ def plan_run(
         run_path=resume_run,
         done_steps=done,
         eval_seed=VALIDATION_SEED if eval_seed is None else int(eval_seed),
+        changes=changes,
+        lock=lock,
     )
 
 
@@ -349,11 +462,12 @@ def _run_record(plan: RunPlan) -> dict[str, Any]:
     """The ``run`` block of ``config.yml``: where the run came from (or one more resume of it)."""
     now = _dt.datetime.now().isoformat(timespec="seconds")
     if plan.resumed_in_place:
-        resumes = [
-            *list(plan.cfg.run.get("resumes") or []),
-            {"from": str(plan.resume_model), "at": plan.done_steps, "seed": plan.seed, "when": now},
-        ]
-        return {**plan.cfg.run, "resumes": resumes}
+        resume: dict[str, Any] = {"from": str(plan.resume_model), "at": plan.done_steps, "seed": plan.seed, "when": now}
+        if plan.changes:
+            resume["changes"] = plan.changes
+        resumes = [*list(plan.cfg.run.get("resumes") or []), resume]
+        # the settings copy follows an allowed change, so the next resume compares with what runs now
+        return {**plan.cfg.run, "settings": run_settings(plan.cfg.entry), "resumes": resumes}
     run = {
         "env": plan.cfg.env_id,
         "variant": plan.cfg.variant,
@@ -365,6 +479,7 @@ def _run_record(plan: RunPlan) -> dict[str, Any]:
     }
     if plan.resume_model is not None:
         run["resumed_from"] = str(plan.resume_model)
+    run["settings"] = run_settings(plan.cfg.entry)  # to tell a later hand edit of the entry above
     return run
 
 
@@ -374,8 +489,17 @@ def prepare_run_folder(
     run_dir: str | os.PathLike[str] | None = None,
     runs_root: str | os.PathLike[str] = "runs",
 ) -> Path:
-    """The run folder (new, or the resumed one) with its ``config.yml``; TensorBoard logs go there."""
-    run_path = plan.run_path or new_run_dir(run_dir, plan.cfg.env_id, plan.cfg.variant, runs_root)
+    """The run folder (new, or the resumed one) with its ``config.yml``; TensorBoard logs go there.
+
+    The folder's lock is taken here for a new run (a resume took it when planning) and kept in
+    ``plan.lock`` for the whole run.
+    """
+    if plan.run_path is None:
+        run_path, plan.lock = claim_run_dir(run_dir, plan.cfg.env_id, plan.cfg.variant, runs_root)
+    else:
+        run_path = plan.run_path
+        if plan.lock is None:
+            plan.lock = lock_run_folder(run_path, resuming=True)
     plan.cfg.run = _run_record(plan)
     write_run_config(run_path, plan.cfg)
     model.tensorboard_log = str(run_path / TENSORBOARD_DIR)  # read when learn() sets up its logger
@@ -384,7 +508,7 @@ def prepare_run_folder(
     return run_path
 
 
-def _eval_copies(missions: int) -> int:
+def eval_copies(missions: int) -> int:
     """Env copies for an evaluation of ``missions`` missions: a divisor of it (every copy flies the
     same number), at most 5, so one forward pass acts for several missions."""
     return next(c for c in (5, 4, 3, 2, 1) if missions % c == 0)
@@ -406,7 +530,7 @@ def attach_callbacks(
     eval_env = None
     if eval_freq and eval_freq > 0:
         eval_missions = positive_int("train()", "eval_missions", eval_missions)
-        eval_env = make_training_env(plan.cfg, n_envs=_eval_copies(eval_missions), seed=plan.eval_seed)
+        eval_env = make_training_env(plan.cfg, n_envs=eval_copies(eval_missions), seed=plan.eval_seed)
     standard = mission_callbacks(
         run_path,
         every,
@@ -503,6 +627,15 @@ def save_final(
 
 
 # =========================================================================== train()
+def _check_counts(eval_freq: Any, save_freq: Any, eval_seed: Any) -> None:
+    """Frequencies and the validation seed, refused before anything is built."""
+    for name, value in (("eval_freq", eval_freq), ("save_freq", save_freq)):
+        if value is not None and (not is_int(value) or value < 0):
+            raise TrainingError(f"{name} must be an integer >= 0 (0: none) in joint steps, got {value!r}")
+    if eval_seed is not None and is_int(eval_seed) and eval_seed < 0:
+        raise TrainingError(f"eval_seed must be an integer >= 0, got {eval_seed!r}")
+
+
 def train(
     env: str | None = None,
     *,
@@ -525,6 +658,7 @@ def train(
     handle_signals: bool = True,
     runs_root: str | os.PathLike[str] = "runs",
     log: Callable[[str], None] | None = None,
+    allow_change: bool = False,
 ) -> tuple[COMA, Path]:
     """Train COMA and return ``(model, run_dir)``.
 
@@ -557,33 +691,50 @@ def train(
     :param handle_signals: on SIGINT/SIGTERM save a checkpoint and raise :class:`TrainingInterrupted`
     :param runs_root: parent of default run folders
     :param log: where information lines go (default ``print`` when ``verbose >= 1``)
-    :raises TrainingError: bad env id, variant, config file or key, resume path, device (or no
-        such device here), a ``run_dir`` that cannot be made
+    :param allow_change: let a resume change the world or the layout (:data:`RESUME_APPLIED_KEYS`;
+        a hand-edited ``config.yml``, ``n_envs``), recorded in its ``resumes:`` entry
+    :raises TrainingError: bad env id, variant, config file or key, resume path, device (or none
+        here), a ``run_dir`` that cannot be made or is in use, a resume that changes the settings
     :raises CheckpointError: a resume zip that is truncated or not a COMA model
     :raises TrainingInterrupted: stopped by a signal (after saving a checkpoint)
     """
     say = log or (print if verbose >= 1 else (lambda _msg: None))
-    model_verbose = max(int(verbose) - 1, 0)
-    for name, value in (("eval_freq", eval_freq), ("save_freq", save_freq)):
-        if value is not None and (not is_int(value) or value < 0):
-            raise TrainingError(f"{name} must be an integer >= 0 (0: none) in joint steps, got {value!r}")
-    if eval_seed is not None and is_int(eval_seed) and eval_seed < 0:
-        raise TrainingError(f"eval_seed must be an integer >= 0, got {eval_seed!r}")
+    _check_counts(eval_freq, save_freq, eval_seed)
     check_run_dir(run_dir)
-    plan = plan_run(env, config, variant, overrides, resume, total_timesteps, n_envs, seed, eval_seed, device)
-    venv = make_training_env(plan.cfg, seed=plan.seed)
-    try:  # nothing is written before the env and the model exist
-        model = build_model(plan, venv, device=device, verbose=model_verbose)
-        run_path = prepare_run_folder(plan, model, run_dir, runs_root)
-        standard, callback_list = attach_callbacks(
-            plan, run_path, save_freq, eval_freq, eval_missions, callbacks, handle_signals, verbose=verbose
+    plan = plan_run(
+        env, config, variant, overrides, resume, total_timesteps, n_envs, seed, eval_seed, device, allow_change
+    )
+    try:  # the run folder stays locked until the run is over, however it ends
+        model, run_path, standard, callback_list = _set_up(
+            plan, run_dir, runs_root, device, verbose, (save_freq, eval_freq, eval_missions, callbacks, handle_signals)
         )
+        say(f"Run folder: {run_path}")
+        if plan.resume_model is not None:
+            say(f"Resuming from {plan.resume_model} at {plan.done_steps} joint steps")
+        learn(model, plan, standard, callback_list, progress_bar=progress_bar, say=say)
+        save_final(model, plan, run_path, standard, say=say)
+    finally:
+        plan.release()
+    return model, run_path
+
+
+def _set_up(
+    plan: RunPlan,
+    run_dir: str | os.PathLike[str] | None,
+    runs_root: str | os.PathLike[str],
+    device: str,
+    verbose: int,
+    callback_args: tuple[Any, ...],
+) -> tuple[COMA, Path, MissionCallbacks, list[BaseCallback]]:
+    """Steps 2-5 of :func:`train`: envs, model, run folder, callbacks (``callback_args``: the
+    arguments of :func:`attach_callbacks` after the run folder). Nothing is written before the
+    env and the model exist; the env is closed if a later step fails."""
+    venv = make_training_env(plan.cfg, seed=plan.seed)
+    try:
+        model = build_model(plan, venv, device=device, verbose=max(int(verbose) - 1, 0))
+        run_path = prepare_run_folder(plan, model, run_dir, runs_root)
+        standard, callback_list = attach_callbacks(plan, run_path, *callback_args, verbose=verbose)
     except BaseException:
         venv.close()
         raise
-    say(f"Run folder: {run_path}")
-    if plan.resume_model is not None:
-        say(f"Resuming from {plan.resume_model} at {plan.done_steps} joint steps")
-    learn(model, plan, standard, callback_list, progress_bar=progress_bar, say=say)
-    save_final(model, plan, run_path, standard, say=say)
-    return model, run_path
+    return model, run_path, standard, callback_list

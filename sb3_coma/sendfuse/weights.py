@@ -35,6 +35,8 @@ __all__ = [
     "load_weights",
     "read_metadata",
     "save_weights",
+    "shipped_digest",
+    "shipped_weights_dir",
 ]
 
 #: Value of the ``format`` metadata key: tells our files from other safetensors files.
@@ -55,13 +57,23 @@ class SenDFuseWeightsError(ValueError):
     """A SenDFuse weight file is missing, unreadable, corrupt, or does not fit the expected network."""
 
 
+def shipped_weights_dir() -> Path:
+    """The package folder that holds the shipped weights (``sb3_coma/pretrained``): a file there
+    under a shipped name is verified against :data:`SHIPPED_SHA256`, however it is named."""
+    return Path(__file__).resolve().parent.parent / "pretrained"
+
+
+def _shipped_name(grid_size: int) -> str:
+    return f"sendfuse_r{int(grid_size)}.safetensors"
+
+
 def default_weights_path(grid_size: int = DEFAULT_GRID_SIZE) -> Path:
     """Where the shipped pre-trained weights for an R x R grid live (inside the package).
 
     The file may not exist (e.g. in a source checkout before pre-training); :func:`load_weights`
     then says how to create it.
     """
-    return Path(__file__).resolve().parent.parent / "pretrained" / f"sendfuse_r{int(grid_size)}.safetensors"
+    return shipped_weights_dir() / _shipped_name(grid_size)
 
 
 def _digest(tensors: Mapping[str, Tensor]) -> str:
@@ -162,6 +174,22 @@ def _file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+def shipped_digest(path: str | os.PathLike[str]) -> str | None:
+    """The recorded SHA-256 when ``path`` *is* a shipped weight file, else ``None``.
+
+    Decided by where the file really is (symlinks and ``..`` resolved), not by how it was named:
+    the shipped weights are checked whether they come as ``None``, as the default path the fusion
+    wrapper passes, or as any path that leads to them; a user's own file elsewhere is not compared
+    with the shipped hash.
+    """
+    target = Path(path).resolve()
+    folder = shipped_weights_dir().resolve()
+    for grid_size, digest in SHIPPED_SHA256.items():
+        if target == folder / _shipped_name(grid_size):
+            return digest
+    return None
+
+
 def _resolve(path: str | os.PathLike[str] | None) -> Path:
     target = default_weights_path() if path is None else Path(path)
     if not target.exists():
@@ -169,14 +197,13 @@ def _resolve(path: str | os.PathLike[str] | None) -> Path:
         raise SenDFuseWeightsError(f"{which} not found at {target}; {_HOW_TO_CREATE}")
     if not target.is_file():
         raise SenDFuseWeightsError(f"SenDFuse weights path {target} is not a file")
-    if path is None:
-        expected = SHIPPED_SHA256.get(DEFAULT_GRID_SIZE)
-        if _file_sha256(target) != expected:
-            raise SenDFuseWeightsError(
-                f"the shipped SenDFuse weights {target} do not match their recorded SHA-256 "
-                f"({expected}): the install is damaged or the file was replaced; reinstall "
-                f"sb3-coma, or pass your own file explicitly"
-            )
+    expected = SHIPPED_SHA256.get(DEFAULT_GRID_SIZE) if path is None else shipped_digest(target)
+    if expected is not None and _file_sha256(target) != expected:
+        raise SenDFuseWeightsError(
+            f"the shipped SenDFuse weights {target} do not match their recorded SHA-256 "
+            f"({expected}): the install is damaged or the file was replaced; reinstall "
+            f"sb3-coma, or pass your own file from another folder"
+        )
     return target
 
 

@@ -30,7 +30,9 @@ class SenDFuseFusionWrapper(FusionWrapper):
     """Fuses ``received`` with SenDFuse (denoise + attention fusion) into the 8th local channel.
 
     :param weights: a safetensors file from ``sb3-coma pretrain-sendfuse``; ``None`` = the
-        weights shipped with the package for this communication grid.
+        weights shipped with the package for this communication grid. Whichever path leads to a
+        shipped file, it is checked against its recorded SHA-256 before it is read
+        (:func:`sb3_coma.sendfuse.weights.shipped_digest`), so a replaced shipped file is refused.
     :param network: an already built ``SenDFuseNet`` (overrides ``weights``; used by tools that
         evaluate a network being trained).
     :param alpha: channel- vs spatial-attention weight of the fusion (None = the network's).

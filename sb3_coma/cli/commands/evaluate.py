@@ -8,19 +8,24 @@ Example::
 writes into ``--out``: ``table.md`` / ``table.csv`` (F1 and entropy at 33/67/100 % of the budget,
 mean +- std over trials, best in bold), ``per_step.csv``, ``planning_time.md`` / ``.csv`` (mean
 ms per UAV decision), ``curves_<env>.png`` (Figures 4/5), ``mission_<env>_<method>.png`` and
-``.gif``, and ``training_reward.png`` (Figure 3) when ``--training-log`` is given.
+``.gif``, and ``training_reward.png`` (Figure 3) when ``--training-log`` is given. The files are
+staged in a folder next to ``--out`` and moved into place together when all are written
+(``sb3_coma.common.outputs``); files of other commands in ``--out`` are kept.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
 from sb3_coma.app import evaluation as ev
+from sb3_coma.app.config import map_key, path_name_problem, repeated
 from sb3_coma.cli import UserError, set_threads
 from sb3_coma.common import tables
 from sb3_coma.common.checkpoints import folder_write_problem
+from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
 from sb3_coma.experiments import plots
 
 NAME = "evaluate"
@@ -152,6 +157,9 @@ def _env_names(args: argparse.Namespace) -> list[str]:
     names = [e.strip() for e in args.env.split(",") if e.strip()]
     if not names:
         raise UserError("--env is empty")
+    twice = repeated(names, map_key)
+    if twice:
+        raise UserError(f"--env {args.env!r} lists the map {twice[0]!r} twice: give each map once")
     return names
 
 
@@ -166,8 +174,24 @@ def _check_args(args: argparse.Namespace) -> None:
             raise UserError(f"{flag} must be >= {low}, got {value}")
     if args.n_envs is not None and args.n_envs < 1:
         raise UserError(f"--n-envs must be >= 1, got {args.n_envs}")
+    _check_path_names(args)
 
 
+def _check_path_names(args: argparse.Namespace) -> None:
+    """Paths this command prints and records: a name that is not valid text in the file system's
+    encoding is refused before any mission is flown, not in a traceback after them."""
+    paths = [("--map-path", args.map_path)]
+    paths += [("--model", _labelled(spec, "")[1]) for spec in args.model]
+    paths += [("--training-log", _labelled(spec, "")[1]) for spec in args.training_log]
+    for flag, value in paths:
+        problem = None if value is None else path_name_problem(value)
+        if problem is not None:
+            raise UserError(f"{flag} {value!r}: {problem}")
+
+
+#: What an evaluation writes into --out (``fnmatch`` patterns): how a folder written before
+#: outputs carried a manifest tells this command's files from others' (those are kept).
+OUTPUT_PATTERNS = ("table.*", "per_step.csv", "planning_time.*", "curves_*.png", "mission_*", "training_reward.png")
 #: The files every evaluation writes into --out (the figures depend on the maps and methods).
 OUTPUT_FILES = ("table.csv", "per_step.csv", "planning_time.csv", "table.md", "planning_time.md")
 
@@ -177,6 +201,9 @@ def _check_out(out: Path) -> None:
     a file (or a path below one), a read-only location, or a folder where a table file goes.
     Files already in --out are replaced, as every evaluation does."""
 
+    problem = path_name_problem(out)
+    if problem is not None:
+        raise UserError(f"--out {str(out)!r}: {problem}")
     problem = folder_write_problem(out)
     if problem is None:
         problem = next((f"{out / name} is a folder" for name in OUTPUT_FILES if (out / name).is_dir()), None)
@@ -202,8 +229,30 @@ def run(args: argparse.Namespace) -> int:
     for _, path in logs:
         if not Path(path).exists():
             raise FileNotFoundError(f"training log not found: {path!r}")
-    out = Path(args.out)
-    _check_out(out)
+    target = Path(args.out)
+    _check_out(target)
+    try:  # everything goes into a staging folder that replaces --out once complete
+        with staged_output(target, command=NAME, own=OUTPUT_PATTERNS) as out:
+            written = _fly_and_write(args, methods, env_names, options, logs, out)
+    except OutputFolderError as exc:
+        raise UserError(str(exc)) from None
+    except OutputInterrupted as exc:  # SIGTERM: nothing was moved into --out
+        print(f"sb3-coma {NAME}: {exc}", file=sys.stderr)
+        return 128 + exc.signum
+    print("wrote " + ", ".join(str(target / p.relative_to(out)) for p in written))
+    return 0
+
+
+def _fly_and_write(
+    args: argparse.Namespace,
+    methods: list[tuple[str | None, str]],
+    env_names: list[str],
+    options: dict[str, Any],
+    logs: list[tuple[str, str]],
+    out: Path,
+) -> list[Path]:
+    """Fly every method on every map, write the tables and figures into ``out`` (the staging
+    folder) and print the tables; the files written."""
     results: list[ev.EvaluationResult] = []
     for env_name in env_names:
         for label, method in methods:
@@ -249,8 +298,7 @@ def run(args: argparse.Namespace) -> int:
     print(markdown)
     print("Planning time (wall time of predict per UAV decision):")
     print(timing)
-    print("wrote " + ", ".join(str(p) for p in written))
-    return 0
+    return written
 
 
 def _plots(

@@ -8,10 +8,14 @@ import sys
 from pathlib import Path
 
 from sb3_coma.app.export import (
-    MIN_OPSET,
+    ACTOR_FILE,
+    FUSION_FILE,
+    METADATA_FILE,
     OPSET,
     ExportError,
     ModelSource,
+    check_fusion_matches,
+    check_opset,
     check_out_dir,
     export_onnx,
     resolve_model_source,
@@ -21,6 +25,7 @@ from sb3_coma.app.pretrained import PretrainedError, load_pretrained
 from sb3_coma.cli import UserError
 from sb3_coma.coma import COMA
 from sb3_coma.common.checkpoints import CheckpointError, load_checkpoint, validate_checkpoint
+from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
 
 NAME = "export"
 HELP = "export a trained model's actor and its fusion network to ONNX (+ a JSON of inputs and env options)"
@@ -39,7 +44,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME_OR_PATH",
         help="a shipped model name (env1, env2, env3, ...) or the path of a COMA model .zip",
     )
-    parser.add_argument("--out", required=True, metavar="DIR", help="folder to write the files into (created)")
+    parser.add_argument(
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="folder to write the files into (created; replaced as a whole once all files are written and "
+        "checked, other files in it kept)",
+    )
     parser.add_argument(
         "--fusion",
         default=None,
@@ -47,7 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="fusion to export (default: the one the model was trained with, from models.json or "
         "the run folder's config.yml; needed for a bare .zip)",
     )
-    parser.add_argument("--opset", type=int, default=None, help="ONNX opset (default 17; at least 17)")
+    parser.add_argument(
+        "--opset", type=int, default=None, help="ONNX opset (default 17; from 17 to the newest onnx and torch write)"
+    )
     parser.add_argument(
         "--no-verify", action="store_true", help="skip the onnxruntime-vs-PyTorch check of the written files"
     )
@@ -64,15 +77,14 @@ def _load(source: ModelSource) -> COMA:
 
 
 def run(args: argparse.Namespace) -> int:
-    opset = OPSET if args.opset is None else args.opset
-    if opset < MIN_OPSET:
-        raise UserError(f"--opset {opset}: must be at least {MIN_OPSET}")
-    # Every check that needs no model comes first: a bad --model or --out costs nothing.
+    # Every check that needs no model comes first: a bad --opset, --model or --out costs nothing.
     try:
+        opset = check_opset(OPSET if args.opset is None else args.opset, f"--opset {args.opset}")
         source = resolve_model_source(args.model)
         out = check_out_dir(args.out)
         validate_checkpoint(source.path)  # CheckpointError (a user error): empty, truncated, not COMA
         settings = settings_of_source(source)
+        check_fusion_matches(args.fusion, settings, f"--fusion {args.fusion}")
     except ExportError as exc:
         raise UserError(str(exc)) from None
     fusion = args.fusion or (settings or {}).get("fusion")
@@ -82,13 +94,17 @@ def run(args: argparse.Namespace) -> int:
             f"run config.yml next to it): pass --fusion sendfuse or --fusion mean"
         )
     model = _load(source)
-    try:
-        paths = export_onnx(
-            model, out, fusion=fusion, settings=settings, source=source, opset=opset, verify=not args.no_verify
-        )
-    except ExportError as exc:
+    try:  # the files go into a staging folder that replaces --out once all are written and checked
+        with staged_output(out, command=NAME, own=(ACTOR_FILE, FUSION_FILE, METADATA_FILE)) as staging:
+            paths = export_onnx(
+                model, staging, fusion=fusion, settings=settings, source=source, opset=opset, verify=not args.no_verify
+            )
+    except (ExportError, OutputFolderError) as exc:
         raise UserError(str(exc)) from None
-    _report(paths, fusion)
+    except OutputInterrupted as exc:  # SIGTERM: nothing was moved into --out
+        print(f"sb3-coma {NAME}: {exc}", file=sys.stderr)
+        return 128 + exc.signum
+    _report({key: out / path.relative_to(staging) for key, path in paths.items()}, fusion)
     return 0
 
 

@@ -17,10 +17,14 @@ standard error, and each arm minus AG on both entropies, paired) and ``noise_swe
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
+from typing import Any
 
+from sb3_coma.app.config import output_folder_problem
 from sb3_coma.app.pretrained import load_pretrained, read_manifest
 from sb3_coma.cli import UserError, set_threads
+from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
 from sb3_coma.experiments import ablation as ab
 from sb3_coma.experiments import plots
 from sb3_coma.experiments.noise_sweep import run_noise_sweep
@@ -81,12 +85,20 @@ def _arm(name: str, env: str):
     return Method(label, model, kind="coma", fusion=info.get("fusion"), deterministic=info.get("deterministic", True))
 
 
+def _check_out(out: str) -> None:
+    """An --out the table cannot be written into is refused before the sweep, not after it."""
+    problem = output_folder_problem(out)
+    if problem is not None:
+        raise UserError(f"--out {out!r} cannot take the results: {problem}")
+
+
 def run(args: argparse.Namespace) -> int:
 
     set_threads(args.threads)
     missions = args.missions if args.missions is not None else (2 if args.quick else 20)
     if missions < 1 or args.seed < 0:
         raise UserError(f"--missions must be >= 1 and --seed >= 0, got {missions} and {args.seed}")
+    _check_out(args.out)
     names = [a.strip() for a in args.arms.split(",") if a.strip()] if args.arms is not None else default_arms(args.env)
     if not names:
         raise UserError("--arms is empty")
@@ -95,6 +107,33 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     options = {} if args.budget is None else {"budget": args.budget}
+    target = Path(args.out)
+    try:  # the sweep writes into a staging folder that replaces --out once complete
+        with staged_output(target, command=NAME, own=OUTPUT_PATTERNS) as out:
+            result, written = _sweep(args, arms, missions, options, out)
+    except OutputFolderError as exc:
+        raise UserError(str(exc)) from None
+    except OutputInterrupted as exc:  # SIGTERM: nothing was moved into --out
+        print(f"sb3-coma {NAME}: {exc}", file=sys.stderr)
+        return 128 + exc.signum
+    print()
+    print(result.markdown())
+    print(sweep_sentence(result))
+    for label, why in result.skipped.items():
+        print(f"skipped {label}: {why}")
+    print("wrote " + ", ".join(str(target / p.relative_to(out)) for p in written))
+    return 0
+
+
+#: What the sweep writes into --out (``fnmatch`` patterns), for a folder written before outputs
+#: carried a manifest.
+OUTPUT_PATTERNS = ("noise_sweep.*",)
+
+
+def _sweep(
+    args: argparse.Namespace, arms: list[Method], missions: int, options: dict[str, Any], out: Path
+) -> tuple[Any, list[Path]]:
+    """Fly the sweep and write its table, CSV and figure into ``out`` (the staging folder)."""
     try:
         result = run_noise_sweep(
             arms,
@@ -109,18 +148,8 @@ def run(args: argparse.Namespace) -> int:
         )
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-
-    table = result.markdown()
-    (out / "noise_sweep.md").write_text(f"{sweep_sentence(result)}\n\n{table}")
+    (out / "noise_sweep.md").write_text(f"{sweep_sentence(result)}\n\n{result.markdown()}")
     written = [out / "noise_sweep.md", result.write_csv(out / "noise_sweep.csv")]
     if not args.no_plots and result.results:
         written.append(plots.plot_noise_sweep(result, out / "noise_sweep.png"))
-    print()
-    print(table)
-    print(sweep_sentence(result))
-    for label, why in result.skipped.items():
-        print(f"skipped {label}: {why}")
-    print("wrote " + ", ".join(str(p) for p in written))
-    return 0
+    return result, written

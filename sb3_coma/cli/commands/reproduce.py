@@ -11,9 +11,12 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
+from sb3_coma.app.config import map_key, output_file_problem, output_folder_problem, repeated
 from sb3_coma.cli import UserError, set_threads
+from sb3_coma.common.outputs import OutputInterrupted
 from sb3_coma.experiments.reproduce import reproduce
 
 NAME = "reproduce"
@@ -27,7 +30,8 @@ DESCRIPTION = (
     "env1-env3 under moderate noise: the paper protocol (split paper, 10 seeded trials, Table I at 33/67/100 %% of "
     "the budget, mean +- std) and the unseen protocol (50 missions on split test, random starts), global and team "
     "metrics, paired verdicts; the SenDFuse x CBAM ablation on env3; the noise sweep; generalisation; the cost per "
-    "UAV decision; figures and RESULTS.md."
+    "UAV decision; figures and RESULTS.md. --out is written into a staging folder next to it and replaced as a "
+    "whole when the run completes (files of other commands in it are kept): an interrupted run leaves it as it was."
 )
 
 
@@ -134,6 +138,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _check_paired_counts(args: argparse.Namespace) -> None:
+    """Every verdict is a paired test on shared missions and needs at least 2 of them: a count of 1
+    would fly everything and report "nan" everywhere, so it is refused before any work, naming the
+    option. (--quick caps each count at 2, never below what is given.)"""
+    for flag, value in (
+        ("--trials", args.trials),
+        ("--unseen-missions", args.unseen_missions),
+        ("--sweep-missions", args.sweep_missions),
+    ):
+        if value == 1:
+            skip = "" if flag == "--trials" else " (0 skips it)"
+            raise UserError(
+                f"{flag} 1: the paired verdicts need at least 2 missions (with 1 every verdict is nan); "
+                f"use {flag} 2 or more{skip}"
+            )
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """--out and --docs, checked before minutes of missions rather than when the report is written."""
+    problem = output_folder_problem(args.out)
+    if problem is not None:
+        raise UserError(f"--out {args.out!r} cannot take the results: {problem}")
+    problem = None if args.docs is None else output_file_problem(args.docs)
+    if problem is not None:
+        raise UserError(f"--docs {args.docs!r} cannot be written: {problem}")
+
+
 def run(args: argparse.Namespace) -> int:
 
     set_threads(args.threads)
@@ -141,8 +172,13 @@ def run(args: argparse.Namespace) -> int:
     envs = [e.strip() for e in args.env.split(",") if e.strip()]
     if not envs:
         raise UserError("--env is empty")
+    twice = repeated(envs, map_key)
+    if twice:
+        raise UserError(f"--env {args.env!r} lists the map {twice[0]!r} twice: give each map once")
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
+    _check_paired_counts(args)
+    _check_outputs(args)
     if args.seed < 0:
         raise UserError(f"--seed must be >= 0, got {args.seed}")
     if args.ship and (not args.train or args.quick):
@@ -193,6 +229,9 @@ def run(args: argparse.Namespace) -> int:
             baselines_only=args.baselines_only,
             **counts,
         )
-    except ValueError as exc:  # unknown/missing/corrupt shipped model, bad env options
+    except ValueError as exc:  # unknown/missing/corrupt shipped model, bad env options, an --out it cannot replace
         raise UserError(str(exc)) from None
+    except OutputInterrupted as exc:  # SIGTERM: the staged results were dropped, --out is as it was
+        print(f"sb3-coma {NAME}: {exc}", file=sys.stderr)
+        return 128 + exc.signum
     return 0

@@ -5,11 +5,20 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+from pathlib import Path
 
 import yaml
 
 from sb3_coma.app import training
-from sb3_coma.app.config import TrainingError, default_config_path, list_variants
+from sb3_coma.app.config import (
+    ALLOW_TEST_SPLIT,
+    TrainingError,
+    default_config_path,
+    list_variants,
+    path_name_problem,
+    written_number,
+)
+from sb3_coma.app.pretrained import PretrainedError, verify_shipped_file
 from sb3_coma.app.training import TrainingInterrupted
 from sb3_coma.cli import UserError, set_threads
 from sb3_coma.common.checkpoints import CheckpointError
@@ -20,7 +29,8 @@ DESCRIPTION = (
     "Train COMA (SenDFuse + CBAM by default) with the rl-zoo style config zoo_configs/coma.yml. "
     "A run folder receives config.yml, TensorBoard logs (tb/), checkpoints/, metrics.csv (one row "
     "per mission) and model.zip. Ctrl-C or SIGTERM saves a checkpoint before exiting; "
-    "--resume RUN_DIR continues with the same timestep count and optimiser state. "
+    "--resume RUN_DIR continues with the same timestep count and optimiser state, in the same world "
+    "(a change of it is refused unless --allow-change); one process trains in a run folder at a time. "
     "Timesteps are joint steps (one per env copy per step): the paper's 1200 missions x 15 = 18000."
 )
 
@@ -34,6 +44,28 @@ def _parse_set(text: str) -> tuple[str, object]:
     except yaml.YAMLError:
         parsed = value
     return key.strip(), parsed
+
+
+def _joint_steps(text: str) -> int:
+    """argparse type of the joint-step counts: a whole number, also written ``3.6e4``."""
+    value = written_number(text.strip())
+    try:
+        number = value if isinstance(value, float) else int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid whole number: {text!r}") from None
+    if isinstance(number, float) and not number.is_integer():
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of joint steps")
+    return int(number)
+
+
+def _add_change_option(parser: argparse.ArgumentParser) -> None:
+    """``--allow-change``: a resume in another world or layout is refused unless the user says so."""
+    parser.add_argument(
+        "--allow-change",
+        action="store_true",
+        help="with --resume: accept a change of the run's world or layout (env_kwargs, n_envs: a config.yml "
+        "edited since the run started, or --n-envs) instead of refusing it; the change is recorded in config.yml",
+    )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,7 +90,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--list-variants", action="store_true", help="print the config's variants and exit")
     parser.add_argument(
         "--timesteps",
-        type=int,
+        type=_joint_steps,
         default=None,
         metavar="N",
         help="total joint steps to reach (default: the config's n_timesteps)",
@@ -70,6 +102,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="PATH",
         help="continue a run folder (its newest checkpoint) or a checkpoint .zip",
     )
+    _add_change_option(parser)
     parser.add_argument(
         "--run-dir",
         default=None,
@@ -89,14 +122,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--save-freq",
-        type=int,
+        type=_joint_steps,
         default=None,
         metavar="N",
         help="joint steps between checkpoints (default: a tenth of the run)",
     )
     parser.add_argument(
         "--eval-freq",
-        type=int,
+        type=_joint_steps,
         default=0,
         metavar="N",
         help="joint steps between evaluations (0: none; best model -> best_model.zip)",
@@ -110,6 +143,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="env seed of the validation missions, the same at every evaluation "
         "(default 1000: disjoint from the test seeds 0..n-1 of evaluate/reproduce)",
     )
+    parser.add_argument(
+        "--allow-test-split",
+        action="store_true",
+        help="train on split 'test' (env_kwargs.split=test) on purpose: those are the unseen protocol's "
+        "missions, on which every verdict is measured; recorded in the run's config.yml",
+    )
     parser.add_argument("--device", default="auto", help="torch device (auto, cpu, cuda)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.add_argument(
@@ -122,8 +161,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _check_paths(args: argparse.Namespace) -> None:
+    """Path names the run would print or record (config.yml) but could not, and a --resume zip that
+    is a shipped model failing its SHA-256: refused before any work (the run folder's location is
+    checked by train() before anything is built)."""
+    for flag, value in (("--config", args.config), ("--resume", args.resume), ("--run-dir", args.run_dir)):
+        problem = None if value is None else path_name_problem(value)
+        if problem is not None:
+            raise UserError(f"{flag} {value!r}: {problem}")
+    if args.resume is not None and Path(args.resume).is_file():
+        try:
+            verify_shipped_file(args.resume)
+        except PretrainedError as exc:
+            raise UserError(str(exc)) from None
+
+
+def _overrides(args: argparse.Namespace) -> dict[str, object]:
+    """``--set`` pairs plus ``--allow-test-split`` (the config loader checks the split against it)."""
+    overrides = dict(args.overrides)
+    if args.allow_test_split:
+        if args.resume is not None:
+            raise UserError(
+                "--allow-test-split is ignored with --resume: the run continues with its own config.yml, "
+                "which records whether it trains on split 'test'"
+            )
+        overrides[f"env_kwargs.{ALLOW_TEST_SPLIT}"] = True
+    return overrides
+
+
 def run(args: argparse.Namespace) -> int:
     set_threads(args.threads)
+    _check_paths(args)
     try:
         if args.list_variants:
             variants = list_variants(args.config or default_config_path())
@@ -144,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             run_dir=args.run_dir,
             resume=args.resume,
-            overrides=dict(args.overrides),
+            overrides=_overrides(args),
             n_envs=args.n_envs,
             save_freq=args.save_freq,
             eval_freq=args.eval_freq,
@@ -153,6 +221,7 @@ def run(args: argparse.Namespace) -> int:
             progress_bar=not args.no_progress,
             device=args.device,
             verbose=args.verbose,
+            allow_change=args.allow_change,
         )
     except (TrainingError, CheckpointError) as exc:
         raise UserError(str(exc)) from exc
