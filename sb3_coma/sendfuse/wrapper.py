@@ -46,6 +46,7 @@ class SenDFuseFusionWrapper(FusionWrapper):
         weights: str | os.PathLike[str] | None = None,
         network: SenDFuseNet | None = None,
         alpha: float | None = None,
+        device: str = "cpu",
     ) -> None:
         if alpha is not None and (
             isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0.0 <= alpha <= 1.0
@@ -63,15 +64,18 @@ class SenDFuseFusionWrapper(FusionWrapper):
                 f"SenDFuse network was built for a {network.grid_size} x {network.grid_size} "
                 f"communication grid, but the env uses comm_grid={grid}"
             )
-        self.network = network.eval()
+        #: Where the fusion runs: ``"cpu"`` (default; every worker fuses its own copies) or a torch
+        #: device such as ``"cuda"`` (the in-process learner's GPU; nothing changes but where).
+        self.device = torch.device(device)
+        self.network = network.eval().to(self.device)
         self.alpha = alpha
 
     def fuse(self, received: np.ndarray, valid: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
-            maps = torch.from_numpy(np.ascontiguousarray(received, dtype=np.float32))
-            mask = torch.from_numpy(np.asarray(valid) > 0.5)
+            maps = torch.from_numpy(np.ascontiguousarray(received, dtype=np.float32)).to(self.device)
+            mask = torch.from_numpy(np.asarray(valid) > 0.5).to(self.device)
             parts = [
                 self.network.fuse(maps[i : i + FUSE_CHUNK], mask[i : i + FUSE_CHUNK], alpha=self.alpha)
                 for i in range(0, len(maps), FUSE_CHUNK)
             ]
-        return (parts[0] if len(parts) == 1 else torch.cat(parts)).numpy()
+        return (parts[0] if len(parts) == 1 else torch.cat(parts)).cpu().numpy()

@@ -1,0 +1,252 @@
+"""Staged outputs (``sb3_coma.common.outputs.staged_output``): a multi-file output replaces its
+``--out`` as a whole or not at all.
+
+Unit tests of the context manager (an exception or SIGTERM inside leaves the target untouched;
+success replaces it, keeps other commands' files, drops the command's own old ones; stale staging
+folders of dead runs are cleaned with one line; the fallback swap and its crash recovery), the
+CLI's SIGTERM exit status, and a real ``sb3-coma reproduce --quick`` killed with SIGKILL while it
+writes into a folder that holds a finished run: afterwards that folder is the old run, byte for byte.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from sb3_coma import cli
+from sb3_coma.common import outputs
+from sb3_coma.common.outputs import (
+    FolderLock,
+    OutputFolderError,
+    OutputInterrupted,
+    manifest_name,
+    staged_output,
+)
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def snapshot(folder: Path) -> dict[str, str]:
+    """``{relative path: sha256}`` of every file under ``folder`` (folders as ``"<dir>"``)."""
+    out = {}
+    for path in sorted(folder.rglob("*")):
+        key = str(path.relative_to(folder))
+        out[key] = "<dir>" if path.is_dir() else hashlib.sha256(path.read_bytes()).hexdigest()
+    return out
+
+
+def siblings(target: Path) -> list[str]:
+    return sorted(p.name for p in target.parent.iterdir() if p.name != target.name)
+
+
+def dead_pid() -> int:
+    """The pid of a process that has ended (so no live process has it, for now)."""
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def write_run(target: Path, command: str, files: dict[str, str]) -> None:
+    """A finished output of ``command``: its files and its complete manifest."""
+    target.mkdir(parents=True, exist_ok=True)
+    for name, text in files.items():
+        (target / name).parent.mkdir(parents=True, exist_ok=True)
+        (target / name).write_text(text)
+    entries = sorted({name.split("/")[0] for name in files})
+    record = {"command": command, "complete": True, "entries": entries}
+    (target / manifest_name(command)).write_text(json.dumps(record))
+
+
+# ----------------------------------------------------------------------------- the context manager
+def test_an_exception_inside_leaves_the_target_untouched(tmp_path):
+    target = tmp_path / "out"
+    write_run(target, "evaluate", {"table.md": "old", "figures/a.png": "old png"})
+    before = snapshot(target)
+    with pytest.raises(RuntimeError, match="boom"), staged_output(target, command="evaluate") as stage:
+        assert stage.parent == target.parent and stage.name.startswith("out.partial-")
+        (stage / "table.md").write_text("new")
+        raise RuntimeError("boom")
+    assert snapshot(target) == before
+    assert siblings(target) == []  # the staging folder is gone
+
+
+def test_success_replaces_the_target_and_keeps_files_of_others(tmp_path):
+    target = tmp_path / "out"
+    write_run(target, "evaluate", {"table.md": "old", "mission_env1_ag.gif": "old gif"})
+    (target / "notes.txt").write_text("the user's")  # not written by evaluate: kept
+    (target / "noise_sweep").mkdir()
+    (target / "noise_sweep" / "noise_sweep.md").write_text("another command's")
+    with staged_output(target, command="evaluate") as stage:
+        (stage / "table.md").write_text("new")
+    assert (target / "table.md").read_text() == "new"
+    assert not (target / "mission_env1_ag.gif").exists()  # the old run's own file: not mixed in
+    assert (target / "notes.txt").read_text() == "the user's"
+    assert (target / "noise_sweep" / "noise_sweep.md").read_text() == "another command's"
+    manifest = json.loads((target / manifest_name("evaluate")).read_text())
+    assert manifest["complete"] is True and manifest["entries"] == ["table.md"]
+    assert not (target / outputs.STAGING_LOCK).exists()
+    assert siblings(target) == []
+
+
+def test_a_new_target_is_made_and_a_folder_without_manifest_keeps_what_is_not_the_commands(tmp_path):
+    target = tmp_path / "deep" / "out"
+    with staged_output(target, command="noise-sweep", own=("noise_sweep.*",)) as stage:
+        (stage / "noise_sweep.md").write_text("first")
+    assert (target / "noise_sweep.md").read_text() == "first"
+    legacy = tmp_path / "legacy"  # written before outputs had a manifest
+    legacy.mkdir()
+    (legacy / "noise_sweep.png").write_text("old figure")
+    (legacy / "mine.txt").write_text("keep")
+    with staged_output(legacy, command="noise-sweep", own=("noise_sweep.*",)) as stage:
+        (stage / "noise_sweep.md").write_text("new")
+    assert sorted(p.name for p in legacy.iterdir()) == [manifest_name("noise-sweep"), "mine.txt", "noise_sweep.md"]
+
+
+def test_sigterm_inside_raises_and_leaves_the_target_untouched(tmp_path):
+    target = tmp_path / "out"
+    write_run(target, "reproduce", {"summary.json": "{}"})
+    before = snapshot(target)
+    previous = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(OutputInterrupted) as info, staged_output(target, command="reproduce") as stage:
+        (stage / "summary.json").write_text('{"new": 1}')
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises before this ends
+    assert info.value.signum == signal.SIGTERM
+    assert str(info.value) == f"stopped by SIGTERM: --out {target} was not written (its previous content is untouched)"
+    assert snapshot(target) == before and siblings(target) == []
+    assert signal.getsignal(signal.SIGTERM) == previous
+
+
+def test_a_stale_staging_folder_is_removed_with_one_line_and_a_live_one_is_left(tmp_path):
+    target = tmp_path / "out"
+    write_run(target, "evaluate", {"table.md": "old"})
+    stale = target.with_name(f"out.partial-{dead_pid()}")
+    write_run(stale, "evaluate", {"table.md": "half"})
+    killed = target.with_name("out.partial-1")  # its lock file is free: the writer died (pid 1 lives on)
+    killed.mkdir()
+    (killed / outputs.STAGING_LOCK).write_text("{}")
+    live = target.with_name("out.partial-2")  # its lock is held: a run writing right now
+    live.mkdir()
+    lines: list[str] = []
+    with FolderLock(live, outputs.STAGING_LOCK), staged_output(target, command="evaluate", say=lines.append) as stage:
+        (stage / "table.md").write_text("new")
+    assert (target / "table.md").read_text() == "new"
+    assert siblings(target) == ["out.partial-2"]
+    assert len(lines) == 2 and all("the unfinished output of an interrupted run" in line for line in lines)
+    assert str(stale) in " ".join(lines) and "starting clean" in lines[0]
+
+
+def test_the_fallback_swap_and_its_crash_recovery(tmp_path, monkeypatch):
+    """Without renameat2: rename the old folder aside, rename the new one in. A crash between the
+    two is finished by the next run: a complete staging folder is moved in, or the old one back."""
+    monkeypatch.setattr(outputs, "_exchange", lambda a, b: False)
+    target = tmp_path / "out"
+    write_run(target, "evaluate", {"table.md": "old"})
+    with staged_output(target, command="evaluate") as stage:
+        (stage / "table.md").write_text("new")
+    assert (target / "table.md").read_text() == "new" and siblings(target) == []
+
+    pid = dead_pid()  # crashed after "old aside", before "new in": the new one is complete
+    target.rename(target.with_name(f"out.old-{pid}"))
+    write_run(target.with_name(f"out.partial-{pid}"), "evaluate", {"table.md": "newer"})
+    lines: list[str] = []
+    with pytest.raises(RuntimeError), staged_output(target, command="evaluate", say=lines.append):
+        raise RuntimeError("this run fails; the recovery before it stands")
+    assert (target / "table.md").read_text() == "newer" and siblings(target) == []
+    assert any("moved" in line for line in lines)
+
+    target.rename(target.with_name(f"out.old-{pid}"))  # only the old one is left: it comes back
+    with pytest.raises(RuntimeError), staged_output(target, command="evaluate", say=lines.append):
+        raise RuntimeError("fails too")
+    assert (target / "table.md").read_text() == "newer" and siblings(target) == []
+    assert any("restored" in line for line in lines)
+
+
+def test_the_current_folder_and_files_are_refused(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for where in (".", str(tmp_path), str(tmp_path.parent)):
+        with (
+            pytest.raises(OutputFolderError, match="is the current folder or holds it"),
+            staged_output(where, command="evaluate"),
+        ):
+            pass
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(OutputFolderError, match="is a file, not a folder"), staged_output("a_file", command="export"):
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+# ----------------------------------------------------------------------------- the CLI
+def test_sigterm_during_evaluate_is_exit_143_with_one_line(tmp_path, monkeypatch, capsys):
+    from sb3_coma.app import evaluation as ev
+
+    def killed(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)
+
+    out = tmp_path / "res"
+    write_run(out, "evaluate", {"table.md": "old"})
+    before = snapshot(out)
+    monkeypatch.setattr(ev, "evaluate", killed)
+    rc = cli.main(["evaluate", "--methods", "random", "--env", "env1", "--trials", "1", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 143, err
+    assert err == [
+        f"sb3-coma evaluate: stopped by SIGTERM: --out {out} was not written (its previous content is untouched)"
+    ]
+    assert snapshot(out) == before and siblings(out) == []
+
+
+# ----------------------------------------------------------------------------- SIGKILL mid reproduce
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    env["OMP_NUM_THREADS"] = "1"
+    env["MKL_NUM_THREADS"] = "1"
+    return env
+
+
+def test_sigkill_mid_reproduce_leaves_the_previous_results_untouched(tmp_path):
+    out = tmp_path / "res"
+    write_run(out, "reproduce", {"table.md": "the finished run", "summary.json": '{"wall_s": 1}', "figures/x.png": "x"})
+    (out / "noise_sweep").mkdir()  # another command's output inside
+    (out / "noise_sweep" / "noise_sweep.md").write_text("sweep")
+    before = snapshot(out)
+    command = [sys.executable, "-m", "sb3_coma.cli", "reproduce", "--quick", "--baselines-only", "--env", "env1"]
+    command += ["--out", str(out), "--no-docs", "--no-plots", "--no-generalisation", "--no-ablation", "--no-costs"]
+    command += ["--sweep-missions", "0", "--wide-trials", "0"]  # the paper protocol, then the unseen one
+    log = (tmp_path / "reproduce.log").open("wb")
+    proc = subprocess.Popen(command, cwd=tmp_path, env=_env(), stdout=log, stderr=subprocess.STDOUT)
+    staging = out.with_name(f"res.partial-{proc.pid}")
+    try:
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline and proc.poll() is None and not (staging / "table.md").exists():
+            time.sleep(0.005)
+        assert proc.poll() is None, (
+            f"reproduce ended before it could be killed:\n{(tmp_path / 'reproduce.log').read_text()}"
+        )
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        log.close()
+    assert proc.returncode == -signal.SIGKILL
+    assert snapshot(out) == before  # the old run, untouched: nothing of the killed one mixed in
+    assert (staging / "table.md").exists()  # what the killed run had written stayed aside
+
+    lines: list[str] = []  # the next run says so in one line and starts clean
+    with staged_output(out, command="reproduce", say=lines.append) as stage:
+        (stage / "table.md").write_text("the next run")
+    assert lines == [f"removed {staging}: the unfinished output of an interrupted run (pid {proc.pid}); starting clean"]
+    assert (out / "table.md").read_text() == "the next run" and (out / "noise_sweep" / "noise_sweep.md").exists()
+    assert not (out / "summary.json").exists() and siblings(out) == ["reproduce.log"]
