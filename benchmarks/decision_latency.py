@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -35,21 +36,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import onnxruntime
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import envs  # noqa: E402
-from envs import layout  # noqa: E402
+import envs
+from envs import layout
+from envs.geometry import overlap_matrix
+from sb3_coma import COMA, load_pretrained
+from sb3_coma.app.export import ActorGraph, export_onnx, fusion_wrapper, onnx_feeds, onnx_session
+from sb3_coma.sendfuse.network import tune_cpu_allocator
 
 
 def _model(name: str) -> tuple[Any, str]:
     """The shipped model (real weights, gain prior), else a fresh SenDFuse CBAM model of the same size."""
-    from sb3_coma import COMA
-
     try:
-        from sb3_coma.app.pretrained import load_pretrained
-
         return load_pretrained(name), f"shipped model {name!r}"
     except Exception as exc:  # noqa: BLE001 - any failure: the cost does not depend on the weights
         venv = envs.make_vec_env("env3", n_envs=1, fusion="sendfuse", seed=0)
@@ -66,9 +66,7 @@ def _one_decision(env: str, seed: int = 0) -> tuple[dict[str, np.ndarray], dict[
     raw_env.close()
     raw = {k: np.ascontiguousarray(v[:1]) for k, v in obs.items()}
     fused_env = envs.make_vec_env(env, n_envs=1, fusion="sendfuse", seed=seed, comm_range=float("inf"))
-    from sb3_coma.app.export import _fusion_wrapper
-
-    wrapper = _fusion_wrapper(fused_env)
+    wrapper = fusion_wrapper(fused_env)
     return raw, wrapper.observations(dict(raw)), wrapper
 
 
@@ -93,6 +91,7 @@ def _row(label: str, t: tuple[float, float, float, float]) -> None:
 def _ag_in_process(env: str, repeats: int) -> None:
     """AG's time per UAV decision, or why it cannot be timed in this checkout."""
     try:
+        # imported here, inside the guard: a planner mid-change costs this row, not the benchmark
         from sb3_coma.baselines import make_planner
 
         venv = envs.make_vec_env(env, n_envs=1, fusion="mean", seed=0)
@@ -109,8 +108,6 @@ def _ag_in_process(env: str, repeats: int) -> None:
 def _ag(env: str, repeats: int) -> None:
     """:func:`_ag_in_process` in a child process, so that even a planner that crashes the
     interpreter (a numba kernel mid-change) costs this benchmark one line, not its results."""
-    import subprocess
-
     argv = [sys.executable, str(Path(__file__).resolve()), "--ag-only", "--env", env, "--repeats", str(repeats)]
     try:
         done = subprocess.run(argv, capture_output=True, text=True, timeout=600)
@@ -138,14 +135,12 @@ def _stage(node: str) -> str:
 
 def _profile(path: Path, feeds: dict[str, np.ndarray], repeats: int) -> None:
     """ONNX Runtime's own per-node timing of ``path``, summed by network stage and by operator."""
-    import onnxruntime as ort
-
-    options = ort.SessionOptions()
+    options = onnxruntime.SessionOptions()
     options.intra_op_num_threads = 1
     options.inter_op_num_threads = 1
     options.enable_profiling = True
     options.profile_file_prefix = str(path.with_suffix(""))
-    session = ort.InferenceSession(str(path), sess_options=options, providers=["CPUExecutionProvider"])
+    session = onnxruntime.InferenceSession(str(path), sess_options=options, providers=["CPUExecutionProvider"])
     for _ in range(repeats):
         session.run(None, feeds)
     events = json.loads(Path(session.end_profiling()).read_text())
@@ -190,11 +185,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run(args: argparse.Namespace, out: Path) -> int:
     """Export the model into ``out``, time every row, print the table (and the profiles)."""
-    from sb3_coma.app.export import ActorGraph, export_onnx, onnx_feeds, onnx_session
-
     if args.tune_malloc:
-        from sb3_coma.sendfuse.network import tune_cpu_allocator
-
         tune_cpu_allocator()
     model, which = _model(args.model)
     raw, obs, wrapper = _one_decision(args.env)
@@ -208,7 +199,9 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     t_received = torch.from_numpy(raw[layout.KEY_RECEIVED])
     t_valid = torch.from_numpy(raw[layout.KEY_RECEIVED_VALID] > 0.5)
     network, alpha = wrapper.network, wrapper.alpha
-    to_lattice = torch.from_numpy(wrapper._to_lattice)
+    # the fused map's projection onto the lattice, built as FusionWrapper builds it
+    comm, lattice = raw[layout.KEY_RECEIVED].shape[-1], raw[layout.KEY_LOCAL].shape[-1]
+    to_lattice = torch.from_numpy(overlap_matrix(comm, float(lattice - 1), lattice))
     rest = [t_obs[k] for k in actor_names[1:]]
 
     def torch_actor() -> Any:
@@ -241,7 +234,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     n_valid = int(raw[layout.KEY_RECEIVED_VALID].sum())
     print(
         f"{which}; one UAV of {args.env} (own map + {n_valid - 1} received, all valid), 1 thread, "
-        f"{args.repeats} calls; torch {torch.__version__}, onnxruntime {_ort_version()}"
+        f"{args.repeats} calls; torch {torch.__version__}, onnxruntime {onnxruntime.__version__}"
     )
     print(f"{'per decision (ms)':<44} {'median':>8} {'p10':>8} {'p90':>8} {'CPU med':>9}")
     _row("PyTorch actor (module call)", _time(torch_actor, args.repeats))
@@ -256,12 +249,6 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         _profile(paths["fusion"], fusion_feeds, args.repeats)
         _profile(paths["actor"], actor_feeds, args.repeats)
     return 0
-
-
-def _ort_version() -> str:
-    import onnxruntime
-
-    return onnxruntime.__version__
 
 
 if __name__ == "__main__":

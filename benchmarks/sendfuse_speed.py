@@ -22,11 +22,14 @@ import time
 import numpy as np
 import torch
 
+import envs
+from envs import layout
+from sb3_coma.sendfuse.network import SenDFuseNet, tune_cpu_allocator
+from sb3_coma.sendfuse.weights import SenDFuseWeightsError, default_weights_path, load_weights
 
-def _network():
-    from sb3_coma.sendfuse.network import SenDFuseNet
-    from sb3_coma.sendfuse.weights import SenDFuseWeightsError, default_weights_path, load_weights
 
+def _network() -> tuple[SenDFuseNet, str]:
+    """The shipped network, else a fresh one: the fusion's cost does not depend on the weights."""
     try:
         return load_weights(default_weights_path(44)), "shipped weights"
     except SenDFuseWeightsError:
@@ -36,9 +39,6 @@ def _network():
 
 def _realistic_inputs(uavs: int, sources: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Received maps after a few steps of a random env3 mission, all slots valid (worst case)."""
-    import envs
-    from envs import layout
-
     env = envs.make_env("env3", n_uavs=max(uavs, sources), noise="moderate", comm_range=float("inf"))
     obs, _ = env.reset(seed=0)
     rng = np.random.default_rng(0)
@@ -74,8 +74,6 @@ def time_fusion(uavs: int = 4, sources: int = 4, repeats: int = 300) -> dict[str
 
 def env_rate(fusion: str, steps: int = 600, seed: int = 0) -> float:
     """Joint steps per second of the SB3 vec env with the given fusion wrapper (one copy)."""
-    import envs
-
     venv = envs.make_vec_env("env3", n_envs=1, fusion=fusion, seed=seed, n_uavs=4, budget=15)
     rng = np.random.default_rng(seed)
     obs = venv.reset()
@@ -101,8 +99,6 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     if args.tune_malloc:
-        from sb3_coma.sendfuse.network import tune_cpu_allocator
-
         tune_cpu_allocator()
     t = time_fusion(repeats=args.repeats)
     per_wall, per_cpu = t["wall_ms"] / t["uavs"], t["cpu_ms"] / t["uavs"]

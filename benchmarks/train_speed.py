@@ -29,6 +29,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import torch as th  # noqa: E402
 from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 
+from sb3_coma.app.export import fusion_wrapper  # noqa: E402
+from sb3_coma.app.training import build_model, make_training_env, plan_run  # noqa: E402
+
 PAPER_MISSIONS = 1200
 
 
@@ -65,6 +68,7 @@ def timed(obj: Any, name: str, seconds: dict[str, float], bucket: str) -> None:
 
 
 def parse_args() -> argparse.Namespace:
+    """The command-line options (module docstring)."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="env3")
     parser.add_argument("--variant", default=None, help="a variant of zoo_configs/coma.yml, e.g. mean-cbam")
@@ -75,11 +79,9 @@ def parse_args() -> argparse.Namespace:
 
 
 def main() -> None:
+    """Warm up, time ``--rollouts`` rollouts + updates with every part instrumented, print the split."""
     args = parse_args()
     th.set_num_threads(args.threads)
-    from sb3_coma.app.export import _fusion_wrapper
-    from sb3_coma.app.training import build_model, make_training_env, plan_run
-
     plan = plan_run(env=args.env, variant=args.variant, seed=args.seed, device="cpu")
     venv = make_training_env(plan.cfg, seed=plan.seed)
     model = build_model(plan, venv, device="cpu")
@@ -89,7 +91,7 @@ def main() -> None:
 
     seconds: dict[str, float] = defaultdict(float)
     timed(model.env, "step_wait", seconds, "env + fusion")
-    fusion = _fusion_wrapper(model.env)
+    fusion = fusion_wrapper(model.env)
     if fusion is not None:
         timed(fusion, "fuse", seconds, "fusion")
     timed(model.policy, "act", seconds, "actor (collect)")

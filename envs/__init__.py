@@ -3,7 +3,8 @@
 Public entry points (DESIGN section 7):
 
 * :func:`make_env` -> PettingZoo ``ParallelEnv`` with raw observations;
-* :func:`make_vec_env` -> SB3 ``VecEnv`` (SuperSuit + fusion wrapper + adapter + VecMonitor);
+* :func:`make_vec_env` -> SB3 ``VecEnv`` (SuperSuit + fusion wrapper + adapter + VecMonitor), its
+  copies in this process or, with ``workers=`` / ``backend=``, in worker processes or Ray actors;
 * gymnasium ids ``UavIpp-Env1-v0`` .. ``UavIpp-Env3-v0`` (vector entry points).
 """
 
@@ -18,8 +19,9 @@ from .fusion import DEFAULT_FUSION, available_fusions
 from .ipp_env import UavIppEnv
 from .maps import GroundTruth, MapError, available_maps, load_ground_truth
 from .registration import ENV_IDS, map_name_of, register_envs
-from .vec_env import DEFAULT_MAP, IppVecEnv
+from .vec_env import DEFAULT_MAP, IppVecEnv, check_copies_and_seed
 from .vec_env import make_vec_env as _make_vec_env
+from .workers import BACKENDS, EnvWorkerError, WorkerVecEnv, check_workers, make_worker_vec_env
 
 
 def make_env(name: str = DEFAULT_MAP, **options: Any) -> UavIppEnv:
@@ -29,29 +31,52 @@ def make_env(name: str = DEFAULT_MAP, **options: Any) -> UavIppEnv:
 
 
 def make_vec_env(
-    name: str = DEFAULT_MAP, n_envs: int = 1, fusion: str = DEFAULT_FUSION, seed: int | None = None, **options: Any
+    name: str = DEFAULT_MAP,
+    n_envs: int = 1,
+    fusion: str = DEFAULT_FUSION,
+    seed: int | None = None,
+    workers: int = 1,
+    backend: str = "subprocess",
+    ray_address: str | None = None,
+    **options: Any,
 ) -> VecEnv:
     """SB3 ``VecEnv`` of ``n_envs`` copies; agent ``a`` of copy ``e`` at index ``e * n_agents + a``.
 
     ``fusion``: ``"sendfuse"`` (default), ``"mean"``, ``"none"`` or any name in
-    :func:`available_fusions`; ``options``: :class:`IppConfig` options, ``fusion_kwargs``, ``monitor``."""
-    return _make_vec_env(map_name_of(name), n_envs=n_envs, fusion=fusion, seed=seed, **options)
+    :func:`available_fusions`; ``options``: :class:`IppConfig` options, ``fusion_kwargs``, ``monitor``.
+
+    Scale-out (docs/scaling.md): ``workers=1`` with the default backend steps every copy in this
+    process (:class:`IppVecEnv`); ``workers=W > 1`` splits the copies into ``W`` contiguous blocks
+    stepped in worker processes (``backend="subprocess"``) or, with ``backend="ray"`` (any
+    ``workers``), in Ray actors on this machine or on the cluster at ``ray_address``. Row order,
+    seeds and so trajectories are the same whatever ``workers`` and ``backend`` are."""
+    check_copies_and_seed(n_envs, seed)
+    check_workers(int(n_envs), workers, backend, ray_address)
+    if workers == 1 and backend == "subprocess":
+        return _make_vec_env(map_name_of(name), n_envs=n_envs, fusion=fusion, seed=seed, **options)
+    return make_worker_vec_env(
+        map_name_of(name), n_envs=n_envs, fusion=fusion, seed=seed, workers=int(workers), backend=backend,
+        ray_address=ray_address, **options,
+    )  # fmt: skip
 
 
 register_envs()
 
 __all__ = [
+    "BACKENDS",
     "DEFAULT_FUSION",
     "DEFAULT_MAP",
     "ENV_IDS",
     "NOISE_PRESETS",
     "WORLD_VERSION",
     "ConfigError",
+    "EnvWorkerError",
     "GroundTruth",
     "IppConfig",
     "IppVecEnv",
     "MapError",
     "UavIppEnv",
+    "WorkerVecEnv",
     "available_fusions",
     "available_maps",
     "load_ground_truth",

@@ -107,6 +107,15 @@ class IppVecEnv(VecEnv):
         return [self.copies[i // self.n_agents].render() for i in range(self.num_envs)]
 
 
+def check_copies_and_seed(n_envs: Any, seed: Any) -> None:
+    """One-line :class:`ConfigError` for a bad ``n_envs`` or ``seed``; shared with the worker
+    pipeline (``envs.workers``), which must refuse them before it starts any process."""
+    if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
+        raise ConfigError(f"invalid option n_envs={n_envs!r}: an integer >= 1 (env copies)")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+        raise ConfigError(f"invalid option seed={seed!r}: an integer or None")
+
+
 def make_vec_env(
     name: str = DEFAULT_MAP,
     n_envs: int = 1,
@@ -123,10 +132,7 @@ def make_vec_env(
     for tools); ``fusion_kwargs`` are the fusion wrapper's options; ``options`` are environment
     options (:class:`envs.config.IppConfig`).
     """
-    if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
-        raise ConfigError(f"invalid option n_envs={n_envs!r}: an integer >= 1 (env copies)")
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
-        raise ConfigError(f"invalid option seed={seed!r}: an integer or None")
+    check_copies_and_seed(n_envs, seed)
     config = IppConfig.from_options(name, **options)
     base = UavIppEnv(config)
     markov = supersuit.pettingzoo_env_to_vec_env_v1(base)

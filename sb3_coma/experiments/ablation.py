@@ -139,9 +139,11 @@ def run_ablation(
     n_trials: int = 10,
     seed: int = 0,
     log: Callable[[str], None] | None = print,
+    protocol: str | None = None,
     **env_options: Any,
 ) -> AblationResult:
-    """Evaluate every available variant at every noise level on the same seeded missions."""
+    """Evaluate every available variant at every noise level on the same seeded missions
+    (``protocol="unseen"``: the unseen protocol's missions, on which verdicts rest)."""
     if "noise" in env_options:
         raise ValueError("pass noise levels with noises=..., not noise=")
     noises = tuple(noises)
@@ -162,6 +164,14 @@ def run_ablation(
             if log:
                 log(f"evaluating {label} ({variant[0]}_{variant[1]}) on {env}, noise {noise} ...")
             out.results[(label, noise)] = evaluate(
-                model, env=env, n_trials=n_trials, seed=seed, fusion=variant[0], label=label, noise=noise, **env_options
+                model,
+                env=env,
+                n_trials=n_trials,
+                seed=seed,
+                fusion=variant[0],
+                label=label,
+                noise=noise,
+                protocol=protocol,
+                **env_options,
             )
     return out

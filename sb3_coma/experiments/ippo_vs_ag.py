@@ -65,9 +65,11 @@ class Curve(BaseCallback):
         self.tic = time.perf_counter()
 
     def _on_step(self) -> bool:
+        """Nothing per step: the curve is read once per rollout."""
         return True
 
     def _on_rollout_end(self) -> None:
+        """Append one row (and print every ``every``-th)."""
         buf = list(self.model.ep_info_buffer)
         row = {
             "missions": self.num_timesteps / self.per_mission,
@@ -85,6 +87,7 @@ class Curve(BaseCallback):
             )
 
     def _on_training_end(self) -> None:
+        """Write the rows to ``path`` as CSV."""
         with open(self.path, "w", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=list(self.rows[0]) if self.rows else ["missions"])
             writer.writeheader()

@@ -348,6 +348,7 @@ class GroupCurve:
 
 
 def _check_same(name: str, runs: Sequence[RunCurve], what: str, key: Callable[[RunCurve], Any]) -> None:
+    """Refuse a group whose runs differ in ``key``: averaging over seeds needs one setting."""
     if len({key(r) for r in runs}) > 1:
         listed = "; ".join(f"{r.path}: {key(r)}" for r in runs)
         raise RunDirError(f"group {name}: its runs differ in {what} ({listed}); a group is seeds of one setting")

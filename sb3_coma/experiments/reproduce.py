@@ -59,7 +59,7 @@ from sb3_coma.app.training import train
 from sb3_coma.baselines.adaptive_gain import default_weighting
 from sb3_coma.common import tables
 from sb3_coma.common.outputs import staged_output
-from sb3_coma.common.paired import paired_difference, paired_markdown
+from sb3_coma.common.paired import holm_adjust, paired_difference, paired_markdown
 from sb3_coma.experiments import ablation as ab
 from sb3_coma.experiments import plots as pl
 from sb3_coma.experiments import report
@@ -534,12 +534,12 @@ def paper_protocol(run: Run) -> None:
     run.sections["table"] = run.paper.table("global")
     (run.out / "table.md").write_text(run.sections["table"])
     (run.out / "team_table.md").write_text(run.paper.table("team"))
-    baselines = list(dict.fromkeys(m.label for ms in run.methods.values() for m in ms if m.kind != "coma"))
-    accept = acceptance(run.results, baselines=baselines)
-    (run.out / "acceptance.md").write_text(_report().acceptance_markdown(accept))
-    run.summary.update(
-        table={f"{r.env}/{r.method}": r.summary() for r in run.results}, acceptance=accept, paper=run.paper.summary()
-    )
+    run.summary.update(table={f"{r.env}/{r.method}": r.summary() for r in run.results}, paper=run.paper.summary())
+
+
+def _competitors(run: Run) -> list[str]:
+    """The methods a COMA model must beat: every baseline, never the upper references."""
+    return list(dict.fromkeys(m.label for ms in run.methods.values() for m in ms if m.kind in ("baseline",)))
 
 
 def acceptance(
@@ -563,7 +563,9 @@ def acceptance(
             for k, v in group.items()
             if k != model_label and (k in baselines if baselines is not None else not k.startswith(model_label))
         }
-        diffs = {k: {m: paired_difference(mine, v, m) for m in ("f1", "entropy")} for k, v in others.items()}
+        diffs = _holm_nested(
+            {k: {m: paired_difference(mine, v, m) for m in ("f1", "entropy")} for k, v in others.items()}
+        )
         finals = {k: _final(v) for k, v in others.items()}
         best_f1 = max(finals.items(), key=lambda kv: kv[1]["f1"]) if finals else None
         best_en = min(finals.items(), key=lambda kv: kv[1]["entropy"]) if finals else None
@@ -580,6 +582,16 @@ def acceptance(
             "beats_all": beats["f1"] and beats["entropy"],
             "missions": mine.n_trials,
         }
+    return out
+
+
+def _holm_nested(diffs: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Holm over every comparison of one acceptance row (all baselines x both metrics)."""
+    keys = [(k, m) for k, per in diffs.items() for m in per]
+    adjusted = holm_adjust([diffs[k][m] for k, m in keys])
+    out: dict[str, dict[str, Any]] = {k: {} for k in diffs}
+    for (k, m), d in zip(keys, adjusted):
+        out[k][m] = d
     return out
 
 
@@ -603,17 +615,26 @@ def ablation_step(run: Run) -> None:
         return
 
     run.ablation = ab.run_ablation(
-        run.arms, env=ABLATION_ENV, n_trials=run.opts.trials, seed=run.opts.seed, log=run.say
+        run.arms,
+        env=ABLATION_ENV,
+        n_trials=run.opts.unseen_missions or run.opts.trials,
+        seed=run.opts.seed,
+        log=run.say,
+        protocol="unseen",
     )
     tables.write_table_csv(run.ablation.rows(), run.out / "ablation.csv", group_title="noise")
     run.sections["ablation"] = run.ablation.markdown()
     (run.out / "ablation.md").write_text(run.sections["ablation"])
     full = ab.LABELS[ABLATION_FULL]
-    paired = [
-        (noise, paired_difference(run.ablation.results[(full, noise)], r, "entropy"))
-        for (label, noise), r in run.ablation.results.items()
+    keys = [
+        (noise, label)
+        for (label, noise) in run.ablation.results
         if label != full and (full, noise) in run.ablation.results
     ]
+    adjusted = holm_adjust(
+        [paired_difference(run.ablation.results[(full, n)], run.ablation.results[(lb, n)], "entropy") for n, lb in keys]
+    )
+    paired = [(noise, d) for (noise, _), d in zip(keys, adjusted)]
     run.sections["ablation_paired"] = _report().paired_table(paired, "noise")
     run.arms = {v: m for v, m in run.arms.items() if ab.LABELS[v] not in run.ablation.skipped}  # flown above
     run.summary["ablation"] = {
@@ -680,8 +701,8 @@ def _paired_check(
     table1 = []
     for env, src in sources.items():
         say(f"paired check: coma vs ag on {env} ({trials} missions) ...")
-        coma = _evaluate_model(src, env, trials, seed, noise, "coma")
-        ag = ev.evaluate("ag", env=env, n_trials=trials, seed=seed, noise=noise, record=0)
+        coma = _evaluate_model(src, env, trials, seed, noise, "coma", protocol="unseen")
+        ag = ev.evaluate("ag", env=env, n_trials=trials, seed=seed, noise=noise, record=0, protocol="unseen")
         table1 += [(env, paired_difference(coma, ag, "f1")), (env, paired_difference(coma, ag, "entropy"))]
     runs = {}
     for variant, model in arms.items():
@@ -696,12 +717,16 @@ def _paired_check(
             label=label,
             noise=ABLATION_CHECK_NOISE,
             record=0,
+            protocol="unseen",
         )
+    table1 = list(zip([env for env, _ in table1], holm_adjust([d for _, d in table1])))
     full = ab.LABELS[ABLATION_FULL]
-    diffs = [paired_difference(runs[full], r, "entropy") for label, r in runs.items() if label != full and full in runs]
+    diffs = holm_adjust(
+        [paired_difference(runs[full], r, "entropy") for label, r in runs.items() if label != full and full in runs]
+    )
     met = all(d.diff <= 0 for d in diffs) if len(diffs) == len(ABLATION_ARMS) else None
 
-    missions = f"{trials} missions (env seeds {seed}..{seed + trials - 1})"
+    missions = f"{trials} unseen missions (split `test`, random starts, env seeds {seed}..{seed + trials - 1})"
     parts = [
         f"COMA vs AG on the same {missions} per env, noise `{noise}`:\n",
         paired_markdown([d for _, d in table1], [env for env, _ in table1]),
@@ -711,7 +736,7 @@ def _paired_check(
         parts += [
             f"\nThe full model against each other ablation arm on the same {missions}, "
             f"`{ABLATION_CHECK_NOISE}` noise: its mean entropy is {verdict} every other arm's "
-            f"(the verdict column says which differences exceed two standard errors).\n",
+            f"(verdicts: scene-clustered t test, Holm-corrected within the table; docs/statistics.md).\n",
             paired_markdown(diffs, [ABLATION_CHECK_NOISE] * len(diffs), first_title="noise"),
         ]
     numbers = {
@@ -741,6 +766,10 @@ def unseen_protocol(run: Run) -> None:
     run.unseen.write(run.out, "unseen")
     run.skipped.update({f"unseen protocol: {k}": v for k, v in run.unseen.skipped.items()})
     run.summary["unseen"] = run.unseen.summary()
+    unseen_results = [row.result for row in run.unseen.rows()]
+    accept = acceptance(unseen_results, baselines=_competitors(run))
+    (run.out / "acceptance.md").write_text(_report().acceptance_markdown(accept))
+    run.summary["acceptance"] = accept
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1066,6 +1095,9 @@ def write_results(run: Run) -> None:
             shutil.copyfile(f, fig_docs / f.name)
         docs.write_text(report.results_markdown(run, [fig_docs / f.name for f in run.figures], docs.parent))
         run.say(f"wrote {docs}")
+        readme = docs.parent.parent / "README.md"
+        if write_readme_block(readme, report.readme_paragraph(run)):
+            run.say(f"wrote the results block of {readme}")
     if "acceptance" in run.summary:
         run.say(report.acceptance_markdown(run.summary["acceptance"]))
     if run.summary.get("ablation"):
@@ -1074,6 +1106,27 @@ def write_results(run: Run) -> None:
         f"wrote {run.target or run.out}/ (table.md, team_table.md, paper_verdicts.md, acceptance.md, unseen_*.md, "
         f"noise_sweep.md, generalisation.md, latency.md, summary.json, RESULTS.md) in {run.summary['wall_s']} s"
     )
+
+
+#: README's results block lies between these markers; ``reproduce`` writes it, nobody pastes it.
+README_MARKERS = ("<!-- results:start (written by sb3-coma reproduce) -->", "<!-- results:end -->")
+
+
+def write_readme_block(readme: Path, text: str) -> bool:
+    """Replace what lies between :data:`README_MARKERS` in ``readme`` by ``text`` (atomically);
+    ``False`` when the file or its markers are missing (nothing is written then)."""
+    if not readme.is_file():
+        return False
+    content = readme.read_text(encoding="utf-8")
+    start, end = README_MARKERS
+    if start not in content or end not in content.split(start, 1)[1]:
+        return False
+    head, rest = content.split(start, 1)
+    tail = rest.split(end, 1)[1]
+    staging = readme.with_name(readme.name + ".tmp")
+    staging.write_text(f"{head}{start}\n{text.strip()}\n{end}{tail}", encoding="utf-8")
+    staging.replace(readme)
+    return True
 
 
 def _jsonable(value: Any) -> Any:
