@@ -45,6 +45,7 @@ __all__ = [
     "UNSUPPORTED_KEYS",
     "VARIANTS_KEY",
     "ZOO_KEYS",
+    "LAYOUT_KEYS",
     "TrainConfig",
     "TrainingError",
     "coma_kwargs",
@@ -56,6 +57,7 @@ __all__ = [
     "load_config",
     "make_training_env",
     "make_vec_env_from_kwargs",
+    "resolve_workers",
     "map_key",
     "named_objects",
     "output_file_problem",
@@ -79,6 +81,9 @@ VARIANTS_KEY = "variants"
 RUN_KEY = "run"
 #: rl-zoo3 keys that both trainers understand besides COMA's arguments.
 ZOO_KEYS = ("n_timesteps", "n_envs", "policy", "policy_kwargs", "env_kwargs", "callback", "vec_env_wrapper")
+#: Keys that say where the env copies run (``envs.make_vec_env``'s ``workers`` / ``backend``), not
+#: what they are: ``workers`` is an integer >= 1 or ``"auto"`` (every core, at most one per copy).
+LAYOUT_KEYS = ("workers", "backend")
 #: Arguments set by the trainer, not by a config.
 RESERVED_KEYS = {
     "seed": "pass --seed (sb3-coma train / rl-zoo3) or seed= (Python)",
@@ -232,7 +237,7 @@ def _trainable_fusions() -> list[str]:
 
 
 def _check_keys(entry: Mapping[str, Any], where: str) -> None:
-    allowed = set(coma_parameter_names()) | set(ZOO_KEYS)
+    allowed = set(coma_parameter_names()) | set(ZOO_KEYS) | set(LAYOUT_KEYS)
     for key in entry:
         if key in RESERVED_KEYS:
             _fail(where, f"{key!r} cannot be set in a config: {RESERVED_KEYS[key]}")
@@ -254,6 +259,10 @@ def _check_zoo_values(entry: Mapping[str, Any], where: str) -> None:
     positive_int(where, "n_timesteps", entry["n_timesteps"])
     if "n_envs" in entry:
         positive_int(where, "n_envs", entry["n_envs"])
+    if entry.get("workers", "auto") != "auto":
+        positive_int(where, "workers", entry["workers"])
+    if entry.get("backend", "subprocess") not in envs.BACKENDS:
+        _fail(where, f"backend must be one of {tuple(envs.BACKENDS)}, got {entry['backend']!r}")
     if "policy" in entry and not isinstance(entry["policy"], str):
         _fail(where, f"policy must be an alias (CBAMPolicy, CnnPolicy) or a dotted class path, got {entry['policy']!r}")
     if "policy_kwargs" in entry and not isinstance(entry["policy_kwargs"], (dict, str)):
@@ -549,6 +558,15 @@ class TrainConfig:
         return dict(self.entry.get("env_kwargs") or {})
 
     @property
+    def workers(self) -> int:
+        """Worker processes the training copies run in (``"auto"``: every core, at most one per copy)."""
+        return resolve_workers(self.entry.get("workers", 1), self.n_envs)
+
+    @property
+    def backend(self) -> str:
+        return str(self.entry.get("backend", "subprocess"))
+
+    @property
     def n_agents(self) -> int:
         _, _, options = split_env_kwargs(self.env_kwargs)
         return IppConfig.from_options(self.map_name, **options).n_uavs
@@ -626,7 +644,7 @@ def _number_or_value(value: Any) -> Any:
 
 def coma_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
     """COMA constructor arguments from a config entry (zoo keys removed, strings resolved)."""
-    kwargs = {k: _number_or_value(v) for k, v in entry.items() if k not in ZOO_KEYS}
+    kwargs = {k: _number_or_value(v) for k, v in entry.items() if k not in ZOO_KEYS and k not in LAYOUT_KEYS}
     for key in _SCHEDULE_KEYS:
         if key in kwargs:
             kwargs[key] = parse_schedule(kwargs[key])
@@ -667,25 +685,50 @@ def construct(target: Any, kwargs: dict[str, Any], what: str, *args: Any) -> Any
         raise TrainingError(f"{what} {name} with arguments {kwargs!r}: {exc}") from exc
 
 
+def resolve_workers(value: Any, n_envs: int) -> int:
+    """An entry's ``workers``: the number itself, or for ``"auto"`` every core (at most one per copy)."""
+    if value == "auto":
+        return max(1, min(os.cpu_count() or 1, int(n_envs)))
+    return int(value)
+
+
 def make_vec_env_from_kwargs(
-    env_id: str, env_kwargs: Mapping[str, Any] | None, n_envs: int, seed: int | None
+    env_id: str,
+    env_kwargs: Mapping[str, Any] | None,
+    n_envs: int,
+    seed: int | None,
+    workers: int = 1,
+    backend: str = "subprocess",
 ) -> VecEnv:
     """``envs.make_vec_env`` of a gymnasium id and a config's ``env_kwargs`` (``fusion``,
-    ``fusion_kwargs`` and env options); a bad option becomes a :class:`TrainingError`."""
+    ``fusion_kwargs`` and env options) on ``workers`` processes; a bad option becomes a
+    :class:`TrainingError`."""
     fusion, fusion_kwargs, options = split_env_kwargs(env_kwargs or {})
     if options.get("render_mode") == "human":  # rl-zoo3's default for enjoy; maps render headless
         options.pop("render_mode")
     try:
         return envs.make_vec_env(
-            ENV_IDS[env_id], n_envs=n_envs, fusion=fusion, seed=seed, fusion_kwargs=fusion_kwargs or None, **options
+            ENV_IDS[env_id],
+            n_envs=n_envs,
+            fusion=fusion,
+            seed=seed,
+            fusion_kwargs=fusion_kwargs or None,
+            workers=min(workers, n_envs),
+            backend=backend,
+            **options,
         )
     except ValueError as exc:  # envs.ConfigError, an unavailable fusion, ...
         raise TrainingError(f"cannot build {env_id} (fusion={fusion!r}, options {options}): {exc}") from exc
 
 
-def make_training_env(cfg: TrainConfig, n_envs: int | None = None, seed: int | None = None) -> VecEnv:
-    """The SB3 vec env of a config (``envs.make_vec_env`` + the config's ``vec_env_wrapper``)."""
-    env = make_vec_env_from_kwargs(cfg.env_id, cfg.env_kwargs, n_envs or cfg.n_envs, seed)
+def make_training_env(
+    cfg: TrainConfig, n_envs: int | None = None, seed: int | None = None, workers: int | None = None
+) -> VecEnv:
+    """The SB3 vec env of a config (``envs.make_vec_env`` + the config's ``vec_env_wrapper``), its
+    copies on the config's ``workers`` (or ``workers``) processes."""
+    copies = n_envs or cfg.n_envs
+    layout = resolve_workers(cfg.entry.get("workers", 1), copies) if workers is None else workers
+    env = make_vec_env_from_kwargs(cfg.env_id, cfg.env_kwargs, copies, seed, layout, cfg.backend)
     try:
         for wrapper, wkwargs in named_objects(cfg.entry.get("vec_env_wrapper"), "vec_env_wrapper"):
             env = construct(wrapper, wkwargs, "vec_env_wrapper", env)

@@ -530,7 +530,7 @@ def attach_callbacks(
     eval_env = None
     if eval_freq and eval_freq > 0:
         eval_missions = positive_int("train()", "eval_missions", eval_missions)
-        eval_env = make_training_env(plan.cfg, n_envs=eval_copies(eval_missions), seed=plan.eval_seed)
+        eval_env = make_training_env(plan.cfg, n_envs=eval_copies(eval_missions), seed=plan.eval_seed, workers=1)
     standard = mission_callbacks(
         run_path,
         every,

@@ -57,6 +57,7 @@ from sb3_coma.app.config import (
     parse_schedule,
     read_config_file,
     resolve_policy_kwargs,
+    resolve_workers,
     split_env_kwargs,
     validate_entry,
 )
@@ -139,6 +140,9 @@ class ComaExperimentManager(ExperimentManager):
         return hyperparams
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
+        # where the training copies run: ours to read, not COMA's arguments
+        self.workers = resolve_workers(hyperparams.pop("workers", 1), int(hyperparams.get("n_envs", 1)))
+        self.backend = str(hyperparams.pop("backend", "subprocess"))
         if "policy_kwargs" in hyperparams:
             # Evaluate here, with COMA's names (CBAMExtractor, CnnExtractor, dotted *_class paths).
             hyperparams["policy_kwargs"] = resolve_policy_kwargs(hyperparams["policy_kwargs"])
@@ -155,7 +159,9 @@ class ComaExperimentManager(ExperimentManager):
             self._told_vec_env = True
         # rl-zoo3 would give the eval env no env_kwargs when they come from the config only.
         kwargs = self.eval_env_kwargs if eval_env and self._eval_env_kwargs_args is not None else self.env_kwargs
-        env = make_vec_env_from_kwargs(self.env_name.gym_id, kwargs, n_envs, self.seed)
+        workers = 1 if eval_env else getattr(self, "workers", 1)
+        backend = getattr(self, "backend", "subprocess")
+        env = make_vec_env_from_kwargs(self.env_name.gym_id, kwargs, n_envs, self.seed, workers, backend)
         if self.vec_env_wrapper is not None:
             env = self.vec_env_wrapper(env)
         return env
