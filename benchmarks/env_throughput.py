@@ -6,7 +6,9 @@ uniformly random *valid* actions, one thread. Measures the raw PettingZoo env an
 with the ``mean`` and ``sendfuse`` fusion wrappers (SuperSuit + adapter + VecMonitor), after a
 warm-up that compiles the kernels, and the memory one env copy holds.
 
-    python benchmarks/env_throughput.py [--map env3] [--missions 200]
+    python benchmarks/env_throughput.py [--map env3] [--missions 200] [--parts raw,mean,sendfuse]
+
+``--parts raw`` times the raw env alone (the kernels' share, a short run for A/B comparisons).
 """
 
 from __future__ import annotations
@@ -19,10 +21,10 @@ import time
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-import envs  # noqa: E402
-from envs import layout  # noqa: E402
+import envs
+from envs import layout
 
 
 def pick_valid(masks: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -78,17 +80,27 @@ def main() -> None:
     parser.add_argument("--map", default="env3")
     parser.add_argument("--missions", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--parts", default="raw,mean,sendfuse", help="comma-separated subset of raw, mean, sendfuse to time"
+    )
     args = parser.parse_args()
+    parts = set(args.parts.split(","))
+    unknown = parts - {"raw", "mean", "sendfuse"}
+    if unknown:
+        parser.error(f"unknown --parts {sorted(unknown)}; choose from raw, mean, sendfuse")
     bench_raw(args.map, 2, args.seed)  # warm-up: numba cache load / compile
-    bench_vec(args.map, 2, args.seed, "mean")
     print(f"map={args.map} uavs=4 budget=15 grid=493x493 missions={args.missions} (one thread)")
-    sps, mps = bench_raw(args.map, args.missions, args.seed)
-    print(f"raw ParallelEnv         : {sps:8.0f} joint steps/s  {mps:7.1f} missions/s")
-    sps, mps = bench_vec(args.map, args.missions, args.seed, "mean")
-    print(f"vec env + mean fusion   : {sps:8.0f} joint steps/s  {mps:7.1f} missions/s")
-    bench_vec(args.map, 1, args.seed, "sendfuse")  # warm-up: weights, oneDNN kernels
-    sps, mps = bench_vec(args.map, max(args.missions // 4, 1), args.seed, "sendfuse")
-    print(f"vec env + SenDFuse      : {sps:8.0f} joint steps/s  {mps:7.1f} missions/s (one copy, 4 UAVs per pass)")
+    if "raw" in parts:
+        sps, mps = bench_raw(args.map, args.missions, args.seed)
+        print(f"raw ParallelEnv         : {sps:8.0f} joint steps/s  {mps:7.1f} missions/s")
+    if "mean" in parts:
+        bench_vec(args.map, 2, args.seed, "mean")  # warm-up: the wrappers
+        sps, mps = bench_vec(args.map, args.missions, args.seed, "mean")
+        print(f"vec env + mean fusion   : {sps:8.0f} joint steps/s  {mps:7.1f} missions/s")
+    if "sendfuse" in parts:
+        bench_vec(args.map, 1, args.seed, "sendfuse")  # warm-up: weights, oneDNN kernels
+        sps, mps = bench_vec(args.map, max(args.missions // 4, 1), args.seed, "sendfuse")
+        print(f"vec env + SenDFuse      : {sps:8.0f} joint steps/s  {mps:7.1f} missions/s (one copy, 4 UAVs per pass)")
     print(f"state of one env copy   : {env_state_mib(args.map):8.1f} MiB (every numpy array the env holds)")
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"peak resident memory    : {peak_mib:8.0f} MiB (whole process, torch/SB3 imports included)")

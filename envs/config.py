@@ -58,6 +58,14 @@ def _fail(option: str, value: Any, allowed: str) -> None:
     raise ConfigError(f"invalid option {option}={value!r}: {allowed}")
 
 
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
 @dataclass(frozen=True)
 class IppConfig:
     """All options of one environment instance (frozen: an env never changes its rules mid-run)."""
@@ -161,26 +169,38 @@ class IppConfig:
 
     # ------------------------------------------------------------------ validation
     def validate(self) -> None:
-        """Check every option; raise :class:`ConfigError` naming the first bad one."""
+        """Check every option; raise :class:`ConfigError` naming the first bad one.
 
-        def is_int(v: Any) -> bool:
-            return isinstance(v, int) and not isinstance(v, bool)
+        The checks run in a fixed order (lattice and sizes, altitudes, sensor, starts, channel,
+        communication, reward, the rest), so the option a message names does not depend on
+        which other options are also bad.
+        """
+        self._validate_sizes()
+        self._validate_altitudes()
+        self._validate_flip_probability()
+        self._validate_starts()
+        self._validate_channel()
+        self._validate_comm()
+        self._validate_reward()
+        self._validate_outputs()
 
-        def is_number(v: Any) -> bool:
-            return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-        if not is_int(self.lattice) or self.lattice < 2:
+    def _validate_sizes(self) -> None:
+        """``lattice``, ``grid``, ``n_uavs``, ``budget`` and ``field_size``."""
+        if not _is_int(self.lattice) or self.lattice < 2:
             _fail("lattice", self.lattice, "an integer >= 2")
-        if not is_int(self.grid) or self.grid < self.lattice:
+        if not _is_int(self.grid) or self.grid < self.lattice:
             _fail("grid", self.grid, f"an integer >= lattice ({self.lattice})")
-        if not is_int(self.n_uavs) or self.n_uavs < 1:
+        if not _is_int(self.n_uavs) or self.n_uavs < 1:
             _fail("n_uavs", self.n_uavs, "an integer >= 1")
         if self.n_uavs > self.lattice * self.lattice:
             _fail("n_uavs", self.n_uavs, f"at most {self.lattice * self.lattice} (one UAV per lattice column)")
-        if not is_int(self.budget) or self.budget < 1:
+        if not _is_int(self.budget) or self.budget < 1:
             _fail("budget", self.budget, "an integer >= 1 (decisions per UAV)")
         if not (isinstance(self.field_size, (int, float)) and math.isfinite(self.field_size) and self.field_size > 0):
             _fail("field_size", self.field_size, "a positive number of metres")
+
+    def _validate_altitudes(self) -> None:
+        """At most 3 positive, strictly increasing, equally spaced altitudes."""
         if not self.altitudes or any(not math.isfinite(a) or a <= 0 for a in self.altitudes):
             _fail("altitudes", self.altitudes, "a non-empty list of positive altitudes in metres")
         if len(self.altitudes) > 3:
@@ -195,6 +215,9 @@ class IppConfig:
             steps = {round(b - a, 9) for a, b in zip(self.altitudes, self.altitudes[1:])}
             if len(steps) != 1:
                 _fail("altitudes", self.altitudes, "equally spaced altitudes (up/down move one level)")
+
+    def _validate_flip_probability(self) -> None:
+        """One flip probability in (0, 0.5) for every altitude."""
         if not isinstance(self.flip_probability, Mapping):
             _fail("flip_probability", self.flip_probability, "a mapping altitude (m) -> flip probability")
         missing = [a for a in self.altitudes if a not in self.flip_probability]
@@ -207,7 +230,10 @@ class IppConfig:
                     dict(self.flip_probability),
                     f"probabilities strictly between 0 and 0.5 (altitude {alt} has {q})",
                 )
-        if not (is_number(self.fov_deg) and 0 < self.fov_deg < 180):
+
+    def _validate_starts(self) -> None:
+        """``fov_deg``, ``start``, ``split``, ``start_altitude`` and ``start_positions``."""
+        if not (_is_number(self.fov_deg) and 0 < self.fov_deg < 180):
             _fail("fov_deg", self.fov_deg, "an angle in (0, 180) degrees")
         if self.start is not None and self.start not in STARTS:
             _fail("start", self.start, "None (the split's rule), 'fixed' or 'random'")
@@ -224,24 +250,33 @@ class IppConfig:
             _fail("start_altitude", self.start_altitude, f"one of the altitudes {list(self.altitudes)}")
         if self.start_positions is not None:
             self._validate_start_positions(self.start_positions)
+
+    def _validate_channel(self) -> None:
+        """``noise``, ``alpha_low``, ``sigma``, ``attenuation`` and ``decoder``."""
         if not isinstance(self.noise, str) or self.noise not in NOISE_PRESETS:
             _fail("noise", self.noise, f"one of {sorted(NOISE_PRESETS)}")
-        if self.alpha_low is not None and not (is_number(self.alpha_low) and 0.0 <= self.alpha_low <= 1.0):
+        if self.alpha_low is not None and not (_is_number(self.alpha_low) and 0.0 <= self.alpha_low <= 1.0):
             _fail("alpha_low", self.alpha_low, "None (the noise preset's) or a lower attenuation bound in [0, 1]")
-        if self.sigma is not None and not (is_number(self.sigma) and math.isfinite(self.sigma) and self.sigma >= 0):
+        if self.sigma is not None and not (_is_number(self.sigma) and math.isfinite(self.sigma) and self.sigma >= 0):
             _fail("sigma", self.sigma, "None (the noise preset's) or a noise standard deviation >= 0")
         if self.attenuation not in ATTENUATIONS:
             _fail("attenuation", self.attenuation, f"one of {list(ATTENUATIONS)}")
         if self.decoder not in DECODERS:
             _fail("decoder", self.decoder, f"one of {list(DECODERS)}")
+
+    def _validate_comm(self) -> None:
+        """``comm_range``, ``drop_probability`` and ``comm_grid``."""
         if not (isinstance(self.comm_range, (int, float)) and self.comm_range >= 0 and not math.isnan(self.comm_range)):
             _fail("comm_range", self.comm_range, "a distance >= 0 in metres (inf for unlimited)")
-        if not (is_number(self.drop_probability) and 0.0 <= self.drop_probability <= 1.0):
+        if not (_is_number(self.drop_probability) and 0.0 <= self.drop_probability <= 1.0):
             _fail("drop_probability", self.drop_probability, "a probability in [0, 1]")
-        if not is_int(self.comm_grid) or self.comm_grid < 4 or self.comm_grid % 4 or self.comm_grid > self.grid:
+        if not _is_int(self.comm_grid) or self.comm_grid < 4 or self.comm_grid % 4 or self.comm_grid > self.grid:
             _fail("comm_grid", self.comm_grid, f"a multiple of 4 between 4 and grid ({self.grid})")
+
+    def _validate_reward(self) -> None:
+        """``alpha``, ``beta``, ``reward_entropy``, ``reward`` and the pair of the last two."""
         if not (
-            is_number(self.alpha) and is_number(self.beta) and math.isfinite(self.alpha) and math.isfinite(self.beta)
+            _is_number(self.alpha) and _is_number(self.beta) and math.isfinite(self.alpha) and math.isfinite(self.beta)
         ):
             _fail("alpha/beta", (self.alpha, self.beta), "finite reward scale and offset")
         if max(abs(self.alpha), abs(self.beta)) > MAX_REWARD_SCALE:
@@ -263,11 +298,14 @@ class IppConfig:
                 "'entropy' (the paper's entropy-drop reward) or 'metrics' (the change of F1 and valuable-cell entropy)",
             )
         self._validate_reward_pair()
+
+    def _validate_outputs(self) -> None:
+        """``action_gain``, ``render_mode`` and ``map_seed``."""
         if not isinstance(self.action_gain, bool):
             _fail("action_gain", self.action_gain, "True (observe each action's expected information gain) or False")
         if self.render_mode not in (None, "rgb_array", "ansi"):
             _fail("render_mode", self.render_mode, "None, 'rgb_array' or 'ansi'")
-        if self.map_seed is not None and (not is_int(self.map_seed) or self.map_seed < 0):
+        if self.map_seed is not None and (not _is_int(self.map_seed) or self.map_seed < 0):
             _fail("map_seed", self.map_seed, "None (a new map each reset, env1 only) or an integer >= 0")
 
     def _validate_reward_pair(self) -> None:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .config import ConfigError, IppConfig
 from .maps import block_index
 
@@ -124,6 +125,22 @@ class FieldGeometry:
         self.footprint_ranges = self._ranges
         self.max_footprint = int((self._ranges[..., 1] - self._ranges[..., 0]).max())
 
+    def kernel_geometry(self) -> kernels.Geometry:
+        """The index arrays the footprint kernels read, as one bundle (the same arrays, except the
+        comm-cell areas in float64 for the kernels' half-covered test)."""
+        return kernels.Geometry(
+            ranges=self.footprint_ranges,
+            seg_start=self.seg_start,
+            seg_of_cell=self.seg_of_cell,
+            seg_block=self.seg_block,
+            seg_comm=self.seg_comm,
+            seg_strip=self.seg_strip,
+            block_of_cell=self.block_of_cell,
+            comm_of_cell=self.comm_of_cell,
+            strip_of_cell=self.strip_of_cell,
+            comm_area=self.comm_cell_area.astype(np.float64),
+        )
+
     def _comm_block_weights(self) -> tuple[np.ndarray, np.ndarray]:
         """For each comm cell along one axis, the (at most two) lattice blocks it overlaps and
         the weights of ``comm_to_lattice`` for them, for incremental block means."""
@@ -173,4 +190,4 @@ class FieldGeometry:
         return np.matmul(np.matmul(a, comm_map), a.T)
 
     def lattice_of(self, x: float, y: float) -> tuple[int, int]:
-        return int(round(x / self.spacing)), int(round(y / self.spacing))
+        return round(x / self.spacing), round(y / self.spacing)

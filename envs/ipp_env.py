@@ -22,6 +22,10 @@ Semantics worth knowing (also in ``docs/environment.md``):
   measurements. ``received`` holds each sender's latest patch as the comm-grid average of I_r.
 * ``infos`` carry the paper's metrics on the global map (``f1``, ``entropy``) and the team metrics
   on the M_i (``team_f1``, ``team_entropy``) at every step.
+* Randomness is counter-based (common random numbers, ``kernels.stream_key``): a sensor flip is a
+  hash of (mission seed, step, UAV, cell), channel noise of (seed, step, sender, receiver, cell),
+  a message drop of (seed, step, sender, receiver); the mission seed is the reset seed. Two plans
+  that take the same measurement on the same seeded mission get the same reading, bit for bit.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ from __future__ import annotations
 import functools
 import math
 import warnings
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium
 import numpy as np
@@ -41,6 +45,7 @@ from .config import ConfigError, IppConfig
 from .gain import WEIGHTINGS
 from .geometry import FieldGeometry
 from .maps import GroundTruth, load_ground_truth
+from .maps.ground_truth import check_grid
 
 #: (dx, dy, dz) of each action in lattice steps: 0 up(+z), 1 -x, 2 -y, 3 +y, 4 +x, 5 down(-z).
 ACTION_DELTAS = np.array([(0, 0, 1), (-1, 0, 0), (0, -1, 0), (0, 1, 0), (1, 0, 0), (0, 0, -1)], dtype=np.int64)
@@ -54,12 +59,17 @@ RECEIVED_RANGE = (-0.5, 1.5)
 class UavIppEnv(ParallelEnv):
     """Parameter-sharing multi-UAV IPP environment (see module docstring)."""
 
-    metadata = {"name": "uav_ipp_v0", "render_modes": ["rgb_array", "ansi"], "is_parallelizable": True}
+    metadata: ClassVar[dict[str, Any]] = {
+        "name": "uav_ipp_v0",
+        "render_modes": ["rgb_array", "ansi"],
+        "is_parallelizable": True,
+    }
 
     def __init__(self, config: IppConfig | None = None) -> None:
         self.config = config if config is not None else IppConfig()
         self.config.validate()
         cfg = self.config
+        check_grid(cfg.grid, cfg.lattice)  # before the maps are allocated: a huge grid is one clear line
         self.render_mode = cfg.render_mode
         self.n_uavs = cfg.n_uavs
         self.possible_agents = [f"uav_{i}" for i in range(cfg.n_uavs)]
@@ -76,40 +86,40 @@ class UavIppEnv(ParallelEnv):
         self._thresholds = np.array([kernels.flip_threshold(q) for q in flips], dtype=np.int64)
         self._alpha_low, self._sigma = cfg.noise_params
         n = cfg.n_uavs
-        self._slots = np.array([[s + 1 if s < i else s for s in range(n)] for i in range(n)], dtype=np.int64)
-        for i in range(n):
-            self._slots[i, i] = 0
+        self._allocate(n)  # before any map: the truth is copied into the kernels' buffer
         self._redraw_map = cfg.map_path is None and (cfg.split != "paper" or cfg.map_seed is None)
         self._rng = np.random.default_rng()
         self._truth: GroundTruth | None = None
         if not self._redraw_map:
             self._set_truth(self._load_truth(cfg.map_seed if cfg.map_seed is not None else 0))
             self._start_positions()  # a fixed map: bad starts fail at construction, not at the first reset
-        self._flip_state = np.ones(1, dtype=np.uint64)  # sensor flips
-        self._comm_state = np.ones(1, dtype=np.uint64)  # channel noise: its own stream, so the
-        # noise preset never changes which cells flip (the global map must not see the channel)
-        self._allocate(n)
+        # Mission seed of the counter-based draws (sensor flips, channel noise, drops; kernels.stream_key):
+        # the reset seed, so every draw is a function of (seed, step, ids, cell) and never of the plan.
+        self._seed = kernels.mission_seed(0)
         self._build_spaces(n, cfg.comm_grid)
         self._steps = 0
 
     def _allocate(self, n: int) -> None:
-        """Arrays that live as long as the env; :meth:`reset` only refills them."""
+        """Arrays that live as long as the env; :meth:`reset` only refills them.
+
+        The kernels see the state as a few named tuples of arrays (``kernels.GlobalMaps``, ...),
+        built here once; the env keeps short names for the same arrays (no copies).
+        """
         cfg, geo = self.config, self.geometry
-        G, L, R, S = cfg.grid, cfg.lattice, cfg.comm_grid, geo.n_strips
-        self._logodds = np.zeros((G, G), dtype=np.int16)
-        self._measured = np.zeros((G, G), dtype=np.uint8)
-        self._local_logodds = np.zeros((n, G, G), dtype=np.int16)
-        self._readings = np.zeros((n, geo.max_footprint, geo.max_footprint), dtype=np.uint8)
-        self._g_block = np.zeros((3, L, L), dtype=np.float64)
-        self._g_scal = np.zeros(4, dtype=np.float64)
-        self._l_block = np.zeros((n, 2, L, L), dtype=np.float64)
-        self._l_strip = np.zeros((n, self._ltab.shape[1] - kernels.L_GAIN0, S, S), dtype=np.float64)
-        self._l_scal = np.zeros((n, 3), dtype=np.float64)
-        self._received = np.full((n, n, R, R), 0.5, dtype=np.float32)
-        self._received_valid = np.zeros((n, n), dtype=np.float32)
-        self._comm_sum = np.zeros((R, R), dtype=np.float64)
-        self._comm_cnt = np.zeros((R, R), dtype=np.float64)
-        self._comm_area = geo.comm_cell_area.astype(np.float64)
+        G, L = cfg.grid, cfg.lattice
+        self._tables = kernels.Tables(
+            self._gstep, self._lstep, self._ltab, self._normals, self._increments, self._thresholds
+        )
+        self._kernel_geometry = geo.kernel_geometry()
+        self._comm_area = self._kernel_geometry.comm_area
+        self._global_maps = kernels.GlobalMaps.blank(G, L)
+        self._truth_u8, self._logodds, self._measured, self._g_block, self._g_scal = self._global_maps
+        self._local_maps = kernels.LocalMaps.blank(n, G, L, geo.n_strips)
+        self._local_logodds, self._l_block, self._l_strip, self._l_scal = self._local_maps
+        self._comm = kernels.CommState.blank(n, geo.max_footprint, cfg.comm_grid)
+        self._readings, self._received, self._received_valid, self._comm_sum, self._comm_cnt, self._slots = self._comm
+        links, bound = np.zeros((n, n), dtype=np.bool_), np.ones((n, n), dtype=np.float64)
+        self._channel = kernels.Channel(links, bound, float(self._sigma), cfg.decoder == "soft")
         self._masks = np.zeros((n, layout.N_ACTIONS), dtype=np.int8)
         self._gains = np.zeros((n, len(layout.GAIN_WEIGHTINGS), layout.N_ACTIONS), dtype=np.float64)
         self._visits = np.zeros((n, L, L), dtype=np.float32)
@@ -157,8 +167,13 @@ class UavIppEnv(ParallelEnv):
         )
 
     def _set_truth(self, truth: GroundTruth) -> None:
+        if truth.valuable.shape != self._truth_u8.shape:
+            raise ValueError(
+                f"map {truth.name!r} is {truth.valuable.shape[0]} x {truth.valuable.shape[1]} cells; "
+                f"this env's belief grid is {self.config.grid} x {self.config.grid}"
+            )
         self._truth = truth
-        self._truth_u8 = np.ascontiguousarray(truth.valuable, dtype=np.uint8)
+        np.copyto(self._truth_u8, truth.valuable, casting="unsafe")
         self._n_valuable = int(self._truth_u8.sum())
         if self._n_valuable < MIN_VALUABLE_CELLS:
             warnings.warn(
@@ -258,8 +273,11 @@ class UavIppEnv(ParallelEnv):
         cfg, geo = self.config, self.geometry
         if self._redraw_map:
             self._set_truth(self._load_truth(int(self._rng.integers(0, 2**31 - 1))))
-        self._flip_state[0] = np.uint64(int(self._rng.integers(1, 2**63 - 1)))
-        self._comm_state[0] = np.uint64(int(self._rng.integers(1, 2**63 - 1)))
+        # Two draws as in the sequential-stream world, so maps and start positions of every seed are
+        # unchanged; the first seeds the noise of a reset without seed (unseeded runs still vary).
+        derived = int(self._rng.integers(1, 2**63 - 1))
+        self._rng.integers(1, 2**63 - 1)
+        self._seed = kernels.mission_seed(seed if seed is not None else derived)
         self.agents = list(self.possible_agents)
         self._budget_left = cfg.budget
         self._steps = 0
@@ -351,7 +369,10 @@ class UavIppEnv(ParallelEnv):
         dist = np.linalg.norm(pos_m[:, None, :] - pos_m[None, :, :], axis=-1)
         links = dist <= cfg.comm_range
         if cfg.drop_probability > 0:
-            links &= self._rng.random((n, n)) >= cfg.drop_probability
+            # keyed on (seed, step, sender, receiver): a message's fate does not depend on the plan
+            draws = np.empty((n, n), dtype=np.float64)
+            kernels.link_uniforms(self._seed, self._steps, draws)
+            links &= draws >= cfg.drop_probability
         np.fill_diagonal(links, True)
         if cfg.attenuation == "distance" and 0.0 < cfg.comm_range < math.inf:
             frac = np.minimum(dist / cfg.comm_range, 1.0)
@@ -362,50 +383,22 @@ class UavIppEnv(ParallelEnv):
 
     def _measure_all(self) -> None:
         """Every UAV measures; every message in range is delivered and decoded (one kernel call)."""
-        cfg, geo = self.config, self.geometry
         pos_m = self.positions_m()
         self._trajectory.append(pos_m)  # one position read per measurement serves both
         links, bound = self._links(pos_m)
         self._links_now = links  # links[r, s]: r received s's message this step
+        np.copyto(self._channel.links, links)
+        np.copyto(self._channel.bound, bound)
         kernels.measure_and_communicate(
+            self._seed,
+            self._steps,
             self._pos,
-            geo.footprint_ranges,
-            self._increments,
-            self._thresholds,
-            links,
-            bound,
-            self._sigma,
-            cfg.decoder == "soft",
-            self._slots,
-            self._truth_u8,
-            self._logodds,
-            self._measured,
-            self._local_logodds,
-            self._readings,
-            self._gstep,
-            self._lstep,
-            self._ltab,
-            self._normals,
-            geo.seg_start,
-            geo.seg_of_cell,
-            geo.seg_block,
-            geo.seg_comm,
-            geo.seg_strip,
-            geo.block_of_cell,
-            geo.comm_of_cell,
-            geo.strip_of_cell,
-            self._comm_area,
-            self._flip_state,
-            self._comm_state,
-            self._g_block,
-            self._g_scal,
-            self._l_block,
-            self._l_strip,
-            self._l_scal,
-            self._received,
-            self._received_valid,
-            self._comm_sum,
-            self._comm_cnt,
+            self._channel,
+            self._tables,
+            self._kernel_geometry,
+            self._global_maps,
+            self._local_maps,
+            self._comm,
         )
 
     def _mark_visits(self) -> None:
@@ -489,6 +482,14 @@ class UavIppEnv(ParallelEnv):
     def sensor_maps(self) -> np.ndarray:
         """(N, R, R) each UAV's own clean sensor map on the comm grid (0.5 where never observed)."""
         return self._received[:, 0].copy()
+
+    def footprint_readings(self, uav: int) -> np.ndarray:
+        """(rows, cols) uint8 0/1 readings of UAV ``uav``'s latest measurement, over the footprint of
+        its current position (``geometry.footprint``): what it measured and sent this step. Tests
+        use it to check that a measurement's noise depends on the measurement only (CRN)."""
+        ix, iy, level = (int(v) for v in self._pos[uav])
+        fp = self.geometry.footprint(ix, iy, level)
+        return self._readings[uav, : fp.r1 - fp.r0, : fp.c1 - fp.c0].copy()
 
     def gain_strip_sums(self) -> np.ndarray:
         """(N, W, A, S, S) per UAV, weighting (``envs.gain.WEIGHTINGS``), altitude level and gain strip

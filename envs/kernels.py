@@ -11,18 +11,31 @@ Why it looks like this (measured, ``benchmarks/env_throughput.py``, docs/environ
   segment, so no store-to-load chain serialises the loop;
 * the sender's pass updates the global map and its own M_i from the same readings in one go;
   each receiver's pass decodes the sender's noisy image into its M_i;
-* sensor flips come from an xorshift64* stream; channel noise from a counter-based hash of
-  (message key, cell index) with a 4096-level normal quantile table, so the noise of a cell does
-  not depend on the order cells are visited and no transcendental function runs per cell.
+* every random draw is counter-based (common random numbers): a splitmix64 hash of a stream key
+  and the cell index, the key chaining (mission seed, domain, step, ids) through the same mixer
+  (:func:`stream_key`). Sensor flips: (seed, step, UAV, cell), 16 bits against a threshold;
+  channel noise: (seed, step, sender, receiver, cell), 16 bits for ``a`` and 12 bits picking ``n``
+  from a 4096-level normal quantile table; message drops: (seed, step, sender, receiver). A draw
+  never depends on how many draws came before it, so two plans that take the same measurement get
+  the same reading and the same channel noise on the same link, the visiting order of cells does
+  not matter, and no transcendental function runs per cell.
 
-Streams are seeded from the env's ``numpy.random.Generator`` at every reset: same seed, same
-mission, bit for bit.
+* the kernels take the env's state as a few named tuples of arrays (:class:`Tables`,
+  :class:`Geometry`, :class:`GlobalMaps`, :class:`LocalMaps`, :class:`CommState`,
+  :class:`Channel`), built once per env: numba passes them like their arrays (no copy), and a
+  kernel's signature says which state it reads and writes. The per-cell work sits in small
+  ``inline="always"`` helpers that carry their running sums as tuples, so the inlined loop is the
+  same as a hand-written one (bit-identical results, same speed, measured).
+
+The mission seed is the reset seed (``UavIppEnv.reset``): same seed and actions, same mission,
+bit for bit.
 """
 
 from __future__ import annotations
 
 import math
 from statistics import NormalDist
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -120,38 +133,133 @@ def step_table(table: np.ndarray, increments: np.ndarray) -> np.ndarray:
 
 def fixed_point_increment(flip_probability: float) -> int:
     """Log-odds increment log((1-q)/q) of a reading, in fixed-point units."""
-    return int(round(math.log((1.0 - flip_probability) / flip_probability) * SCALE))
+    return round(math.log((1.0 - flip_probability) / flip_probability) * SCALE)
 
 
 def flip_threshold(flip_probability: float) -> int:
     """A reading flips when a uniform 16-bit integer is below this threshold."""
-    return int(round(flip_probability * 65536.0))
+    return round(flip_probability * 65536.0)
 
 
 def normal_table() -> np.ndarray:
-    """(NORMAL_LEVELS,) float32 standard-normal quantiles at (k + 0.5) / NORMAL_LEVELS (|z| <= 3.5)."""
+    """(NORMAL_LEVELS,) float32 standard-normal quantiles at (k + 0.5) / NORMAL_LEVELS (|z| <= 3.67)."""
     dist = NormalDist()
     return np.array([dist.inv_cdf((k + 0.5) / NORMAL_LEVELS) for k in range(NORMAL_LEVELS)], dtype=np.float32)
 
 
+#: Golden-ratio increment of splitmix64: consecutive counters land far apart before mixing.
+GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+#: Domains of the counter-based draws: the same (seed, step, ids, cell) gives independent bits
+#: to sensor flips, channel noise and message drops.
+DOMAIN_FLIP = 1
+DOMAIN_CHANNEL = 2
+DOMAIN_DROP = 3
+#: A footprint (or any cell rectangle) as half-open ranges: (r0, r1, c0, c1), rows first.
+Rect = tuple[int, int, int, int]
+
+
 @numba.njit(cache=True, inline="always")
-def _next(state: np.ndarray) -> np.uint64:
-    """xorshift64* step; returns the scrambled output and advances ``state[0]``."""
-    x = state[0]
-    x ^= x >> np.uint64(12)
-    x ^= x << np.uint64(25)
-    x ^= x >> np.uint64(27)
-    state[0] = x
-    return x * np.uint64(0x2545F4914F6CDD1D)
+def _mix(z: np.uint64) -> np.uint64:
+    """splitmix64's finaliser (Stafford's mix 13): a bijection of 64 bits with full avalanche."""
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
 
 
 @numba.njit(cache=True, inline="always")
 def _hash(key: np.uint64, counter: np.uint64) -> np.uint64:
-    """splitmix64 finaliser of ``key + counter``: independent 64 random bits per counter."""
-    z = key + counter * np.uint64(0x9E3779B97F4A7C15)
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return z ^ (z >> np.uint64(31))
+    """Output ``counter`` of the splitmix64 stream seeded at ``key``: 64 random-looking bits per
+    (key, counter), so a draw never depends on which other draws were made before it."""
+    return _mix(np.uint64(key) + np.uint64(counter) * GOLDEN)  # casts: a key may arrive as a Python int
+
+
+@numba.njit(cache=True)
+def stream_key(seed: np.uint64, domain: int, step: int, a: int, b: int) -> np.uint64:
+    """Key of one stream of counter-based draws: ``(mission seed, domain, step, a, b)`` chained
+    through the mixer (``a, b``: the UAV and 0 for flips; sender and receiver for messages).
+
+    Every random draw of the env is ``_hash(stream_key(...), counter)`` with the cell index (or 0)
+    as counter: a pure function of *what* is drawn, never of how many draws came before, so two
+    plans that take the same measurement see the same noise (common random numbers).
+    """
+    k = _hash(_mix(np.uint64(seed)), np.uint64(domain))  # mixed first: nearby seeds share no stream
+    k = _hash(k, np.uint64(step))
+    k = _hash(k, np.uint64(a))
+    return _hash(k, np.uint64(b))
+
+
+def mission_seed(seed: int) -> np.uint64:
+    """The 64-bit mission seed of a reset seed (an integer >= 0; larger ones are folded mod 2**64)."""
+    return np.uint64(int(seed) % 2**64)
+
+
+@numba.njit(cache=True, inline="always")
+def _flip_draw(key: np.uint64, cell: np.uint64) -> np.int32:
+    """Uniform 16-bit draw of one cell's sensor reading (the top 16 bits of its hash)."""
+    return np.int32(_hash(key, cell) >> np.uint64(48))
+
+
+@numba.njit(cache=True, inline="always")
+def _channel_draw(key: np.uint64, cell: np.uint64, alpha_low: float, spread: float, sigma: float, normals):
+    """``(a, n)`` of one received cell: 16 bits give ``a ~ U(alpha_low, 1)``, 12 more pick ``n``
+    from the normal quantile table (no transcendental function per cell)."""
+    h = _hash(key, cell)
+    a = alpha_low + spread * (float(np.int32(h & np.uint64(0xFFFF))) * (1.0 / 65536.0))
+    noise = sigma * normals[np.int32(h >> np.uint64(16)) & np.int32(NORMAL_LEVELS - 1)]
+    return a, noise
+
+
+@numba.njit(cache=True)
+def flip_draws(seed: np.uint64, step: int, uav: int, fp: Rect, grid: int) -> np.ndarray:
+    """(r1 - r0, c1 - c0) int32 16-bit draws of UAV ``uav``'s sensor at ``step`` over the cell
+    rectangle ``fp = (r0, r1, c0, c1)``, exactly as :func:`sense` draws them (a reading is flipped
+    where the draw is below :func:`flip_threshold`): the keying contract, for tests and replays."""
+    r0, r1, c0, c1 = fp
+    key = stream_key(seed, DOMAIN_FLIP, step, uav, 0)
+    out = np.empty((r1 - r0, c1 - c0), dtype=np.int32)
+    for i in range(r0, r1):
+        for j in range(c0, c1):
+            out[i - r0, j - c0] = _flip_draw(key, np.uint64(i * grid + j))
+    return out
+
+
+@numba.njit(cache=True)
+def channel_draws(
+    seed: np.uint64,
+    step: int,
+    sender: int,
+    receiver: int,
+    fp: Rect,
+    grid: int,
+    alpha_low: float,
+    sigma: float,
+    normals: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(a, n)``, each (r1 - r0, c1 - c0) float64: the attenuation and additive noise of every cell
+    of the rectangle ``fp = (r0, r1, c0, c1)`` in the message ``sender -> receiver`` at ``step``,
+    exactly as :func:`receive` draws them."""
+    r0, r1, c0, c1 = fp
+    key = stream_key(seed, DOMAIN_CHANNEL, step, sender, receiver)
+    a = np.empty((r1 - r0, c1 - c0), dtype=np.float64)
+    n = np.empty((r1 - r0, c1 - c0), dtype=np.float64)
+    for i in range(r0, r1):
+        for j in range(c0, c1):
+            a[i - r0, j - c0], n[i - r0, j - c0] = _channel_draw(
+                key, np.uint64(i * grid + j), alpha_low, 1.0 - alpha_low, sigma, normals
+            )
+    return a, n
+
+
+@numba.njit(cache=True)
+def link_uniforms(seed: np.uint64, step: int, out: np.ndarray) -> None:
+    """Fill ``out[r, s]`` with the uniform [0, 1) draw that decides whether the message from
+    sender ``s`` to receiver ``r`` at ``step`` is lost (it is when the draw is below
+    ``drop_probability``), keyed on (seed, step, sender, receiver) only."""
+    n = out.shape[0]
+    for r in range(n):
+        for s in range(n):
+            h = _hash(stream_key(seed, DOMAIN_DROP, step, s, r), np.uint64(0))
+            out[r, s] = float(h >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
 @numba.njit(cache=True, inline="always")
@@ -195,404 +303,421 @@ def _flush_gains(l_strip, gi, gj, acc):
         l_strip[k, gi, gj] += acc[k]
 
 
+# --------------------------------------------------------------------------- kernel state bundles
+# The kernels see the env's state as a few named tuples of arrays, built once per env (numba
+# passes a tuple of arrays like its arrays: no copy, the kernels write into the env's own arrays).
+
+
+class Tables(NamedTuple):
+    """Read-only lookup tables: why a footprint pass needs no logarithm (decision 1)."""
+
+    #: (2 A TABLE_SIZE, 4) float32 change of every global-table column per clean reading (:func:`step_table`).
+    gstep: np.ndarray
+    #: (2 A TABLE_SIZE, 2 + GAIN_SLOTS) float32, the same for the local table.
+    lstep: np.ndarray
+    #: (TABLE_SIZE, 2 + GAIN_SLOTS) float32 local table: probability, entropy, gains (``envs.gain``).
+    ltab: np.ndarray
+    #: (NORMAL_LEVELS,) float32 standard-normal quantiles of the channel noise (:func:`normal_table`).
+    normals: np.ndarray
+    #: (A,) int64 log-odds increment of one reading per altitude level (:func:`fixed_point_increment`).
+    increments: np.ndarray
+    #: (A,) int64 16-bit flip threshold per altitude level (:func:`flip_threshold`).
+    thresholds: np.ndarray
+
+
+class Geometry(NamedTuple):
+    """Static index arrays of the field (``envs.geometry.FieldGeometry.kernel_geometry``)."""
+
+    #: (lattice, A, 2) int64 half-open belief-cell range of a footprint along one axis.
+    ranges: np.ndarray
+    #: (S + 1,) first cell of every segment along one axis, then ``grid``.
+    seg_start: np.ndarray
+    #: (grid,) segment of every cell; (S,) lattice block, comm cell and gain strip of every segment.
+    seg_of_cell: np.ndarray
+    seg_block: np.ndarray
+    seg_comm: np.ndarray
+    seg_strip: np.ndarray
+    #: (grid,) lattice block, comm cell and gain strip of every cell along one axis.
+    block_of_cell: np.ndarray
+    comm_of_cell: np.ndarray
+    strip_of_cell: np.ndarray
+    #: (R, R) float64 belief cells per comm cell (a comm cell counts once half covered).
+    comm_area: np.ndarray
+
+
+class GlobalMaps(NamedTuple):
+    """The global map (all true readings) and its running sums (decision 2)."""
+
+    #: (G, G) uint8 ground truth: read for the readings and the metrics, never written.
+    truth: np.ndarray
+    #: (G, G) int16 fixed-point log-odds.
+    logodds: np.ndarray
+    #: (G, G) uint8 1 where a cell was measured at least once (coverage).
+    measured: np.ndarray
+    #: (3, L, L) float64 block sums of probability, entropy and coverage.
+    block: np.ndarray
+    #: (4,) float64 reward-entropy total, entropy over valuable cells, true and predicted positives.
+    scal: np.ndarray
+
+    @classmethod
+    def blank(cls, grid: int, lattice: int) -> GlobalMaps:
+        """Zeroed maps and sums: the owner copies a truth in and sets the prior sums at a reset."""
+        cells = (grid, grid)
+        return cls(
+            truth=np.zeros(cells, dtype=np.uint8),
+            logodds=np.zeros(cells, dtype=np.int16),
+            measured=np.zeros(cells, dtype=np.uint8),
+            block=np.zeros((3, lattice, lattice), dtype=np.float64),
+            scal=np.zeros(4, dtype=np.float64),
+        )
+
+
+class LocalMaps(NamedTuple):
+    """Every UAV's local map M_i and its running sums (first axis: the UAV)."""
+
+    #: (N, G, G) int16 fixed-point log-odds.
+    logodds: np.ndarray
+    #: (N, 2, L, L) float64 block sums of probability and entropy.
+    block: np.ndarray
+    #: (N, GAIN_SLOTS, S, S) float64 gain of one reading per gain-strip cell (decision 14).
+    strip: np.ndarray
+    #: (N, 3) float64 entropy over valuable cells, true and predicted positives.
+    scal: np.ndarray
+
+    @classmethod
+    def blank(cls, n: int, grid: int, lattice: int, n_strips: int) -> LocalMaps:
+        """Zeroed maps and sums for ``n`` UAVs: the owner sets the prior sums at a reset."""
+        return cls(
+            logodds=np.zeros((n, grid, grid), dtype=np.int16),
+            block=np.zeros((n, 2, lattice, lattice), dtype=np.float64),
+            strip=np.zeros((n, GAIN_SLOTS, n_strips, n_strips), dtype=np.float64),
+            scal=np.zeros((n, 3), dtype=np.float64),
+        )
+
+
+class CommState(NamedTuple):
+    """Messages: this step's readings, what every UAV keeps of every sender, and scratch sums."""
+
+    #: (N, F, F) uint8 each UAV's readings of this step, footprint-relative (its message).
+    readings: np.ndarray
+    #: (N, N, R, R) float32 ``received[r, slot]``: comm-grid average of what r got from a sender.
+    received: np.ndarray
+    #: (N, N) float32 1 where the slot ever received a message.
+    received_valid: np.ndarray
+    #: (R, R) float64 per-message scratch sums (zero between messages).
+    comm_sum: np.ndarray
+    comm_cnt: np.ndarray
+    #: (N, N) int64 ``slots[r, s]``: where receiver r keeps sender s (0: itself, then the others in id order).
+    slots: np.ndarray
+
+    @classmethod
+    def blank(cls, n: int, max_footprint: int, comm_grid: int) -> CommState:
+        """Nothing received yet (0.5 everywhere, no valid slot), zero scratch sums, the slot layout."""
+        slots = np.array([[s + 1 if s < r else s for s in range(n)] for r in range(n)], dtype=np.int64)
+        slots[np.arange(n), np.arange(n)] = 0
+        return cls(
+            readings=np.zeros((n, max_footprint, max_footprint), dtype=np.uint8),
+            received=np.full((n, n, comm_grid, comm_grid), 0.5, dtype=np.float32),
+            received_valid=np.zeros((n, n), dtype=np.float32),
+            comm_sum=np.zeros((comm_grid, comm_grid), dtype=np.float64),
+            comm_cnt=np.zeros((comm_grid, comm_grid), dtype=np.float64),
+            slots=slots,
+        )
+
+
+class Channel(NamedTuple):
+    """This step's links and the channel model (buffers refilled every step)."""
+
+    #: (N, N) bool ``links[r, s]``: r receives s's message this step.
+    links: np.ndarray
+    #: (N, N) float64 lower bound ``alpha_low`` of the attenuation on each link.
+    bound: np.ndarray
+    #: Standard deviation of the additive noise.
+    sigma: float
+    #: True: soft decoder; False: threshold decoder (decision 7).
+    soft: bool
+
+
+# --------------------------------------------------------------------------- footprint kernels
+@numba.njit(cache=True, inline="always")
+def _footprint(geo: Geometry, pos: np.ndarray, u: int) -> tuple[Rect, int]:
+    """((r0, r1, c0, c1), altitude level) of UAV ``u``'s footprint: half-open cell ranges."""
+    lev = pos[u, 2]
+    rows = geo.ranges[pos[u, 1], lev]
+    cols = geo.ranges[pos[u, 0], lev]
+    return (rows[0], rows[1], cols[0], cols[1]), lev
+
+
+@numba.njit(cache=True, inline="always")
+def _fold(logodds: np.ndarray, i: int, j: int, d: int) -> tuple[int, int, int]:
+    """Move cell (i, j) of a log-odds map by ``d``, clamped. Returns the old and new values and the
+    change of "believed valuable" (-1, 0 or 1: the F1 counts move by it)."""
+    old = np.int32(logodds[i, j])
+    new = _clamp(old + d)
+    logodds[i, j] = new
+    return old, new, np.int32(new > 0) - np.int32(old > 0)
+
+
 @numba.njit(cache=True)
-def _flush_comm(received, slot_map, comm_sum, comm_cnt, comm_area, ca, cb, cc, cd):
+def _flush_comm(comm: CommState, geo: Geometry, slot_map: np.ndarray, fp: Rect) -> None:
     """Write the comm-grid averages of this message into ``slot_map`` where at least half of a comm
     cell was covered (the rest keeps what it had), then zero the scratch sums for the next message."""
-    for ci in range(ca, cb):
-        for cj in range(cc, cd):
-            cnt = comm_cnt[ci, cj]
-            if 2.0 * cnt >= comm_area[ci, cj]:
-                slot_map[ci, cj] = min(max(comm_sum[ci, cj] / cnt, -0.5), 1.5)
-            comm_sum[ci, cj] = 0.0
-            comm_cnt[ci, cj] = 0.0
+    r0, r1, c0, c1 = fp
+    for ci in range(geo.comm_of_cell[r0], geo.comm_of_cell[r1 - 1] + 1):
+        for cj in range(geo.comm_of_cell[c0], geo.comm_of_cell[c1 - 1] + 1):
+            cnt = comm.comm_cnt[ci, cj]
+            if 2.0 * cnt >= geo.comm_area[ci, cj]:
+                slot_map[ci, cj] = min(max(comm.comm_sum[ci, cj] / cnt, -0.5), 1.5)
+            comm.comm_sum[ci, cj] = 0.0
+            comm.comm_cnt[ci, cj] = 0.0
+
+
+@numba.njit(cache=True, inline="always")
+def _sense_run(
+    i: int,
+    j0: int,
+    j1: int,
+    ctx: tuple,
+    tables: Tables,
+    glob: GlobalMaps,
+    local: np.ndarray,
+    readings: np.ndarray,
+    tot: tuple,
+) -> tuple[tuple, tuple]:
+    """Read cells ``j0..j1`` of row ``i`` (one segment) and fold every reading into the global map
+    and the UAV's M_i. ``ctx``: (r0, c0, increment, flip threshold, table base of the level, flip
+    key). ``tot``: the footprint's running scalars, carried cell by cell so the summation order
+    (and so every float) does not depend on how the footprint is cut. Returns the segment's sums
+    (global prob / entropy / coverage, local prob / entropy, readings, gains) and ``tot``."""
+    r0, c0, inc, thr, level_base, key = ctx
+    g_went, g_ent_true, g_tp, g_pp, l_ent_true, l_tp, l_pp = tot
+    gstep, lstep = tables.gstep, tables.lstep
+    gs_prob = gs_ent = ls_prob = ls_ent = 0.0
+    gs_cov = s_read = 0
+    acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    cell_row = np.uint64(i * glob.truth.shape[1])
+    for j in range(j0, j1):
+        t = np.int32(glob.truth[i, j])
+        reading = t ^ ((_flip_draw(key, cell_row + np.uint64(j)) - thr) >> 31 & 1)  # flip when draw < thr
+        readings[i - r0, j - c0] = reading
+        d = inc * (2 * reading - 1)
+        base = level_base + reading * TABLE_SIZE
+        old, _, ch = _fold(glob.logodds, i, j, d)
+        row = base + old + OFFSET
+        g_went += gstep[row, G_REWARD]
+        de = gstep[row, G_ENTROPY]
+        gs_ent += de
+        gs_prob += gstep[row, G_PROB]
+        g_pp += ch
+        g_tp += ch * t
+        g_ent_true += de * t
+        gs_cov += 1 - np.int32(glob.measured[i, j])
+        glob.measured[i, j] = 1
+        old, _, ch = _fold(local, i, j, d)
+        row = base + old + OFFSET
+        de = lstep[row, L_ENTROPY]
+        ls_ent += de
+        ls_prob += lstep[row, L_PROB]
+        l_pp += ch
+        l_tp += ch * t
+        l_ent_true += de * t
+        acc = _gain_step(acc, lstep, row)
+        s_read += reading
+    seg = (gs_prob, gs_ent, gs_cov, ls_prob, ls_ent, s_read, acc)
+    return seg, (g_went, g_ent_true, g_tp, g_pp, l_ent_true, l_tp, l_pp)
 
 
 @numba.njit(cache=True, fastmath=True)
 def sense(
-    r0,
-    r1,
-    c0,
-    c1,
-    level,
-    increment,
-    threshold,
-    truth,
-    glob,
-    measured,
-    local,
-    readings,
-    gstep,
-    lstep,
-    seg_start,
-    seg_of_cell,
-    seg_block,
-    seg_comm,
-    seg_strip,
-    block_of_cell,
-    comm_of_cell,
-    strip_of_cell,
-    flip_state,
-    g_block,
-    g_scal,
-    l_block,
-    l_strip,
-    l_scal,
-    comm_sum,
-    comm_cnt,
-):
-    """One UAV's measurement over a footprint: fold the readings into the global map and into the
-    UAV's own local map M_i (the same readings, the same increments), store them in ``readings``
-    (footprint-relative) for the messages, and keep every derived sum up to date.
+    u: int,
+    fp: Rect,
+    level: int,
+    key: np.uint64,
+    tables: Tables,
+    geo: Geometry,
+    glob: GlobalMaps,
+    loc: LocalMaps,
+    comm: CommState,
+) -> None:
+    """UAV ``u``'s measurement over its footprint ``fp`` = (r0, r1, c0, c1) at altitude ``level``:
+    fold the readings into the global map and into the UAV's own M_i (the same readings, the same
+    increments, one pass), store them in ``comm.readings[u]`` (footprint-relative) for the
+    messages, and keep every derived sum up to date. ``key``: the UAV's flip stream this step
+    (:func:`stream_key`); a cell's reading depends on (key, cell) only.
 
-    Global sums: ``g_block[(prob, entropy, coverage), bi, bj]`` and ``g_scal`` (reward-entropy total,
-    entropy over valuable cells, true and predicted positives). Local sums: ``l_block[(prob,
-    entropy)]``, ``l_strip[k, gi, gj]`` (gain column k of ``ltab`` per strip cell) and ``l_scal``
-    (entropy over valuable cells, true and predicted positives). ``comm_sum/comm_cnt`` receive the
-    readings per comm cell (the UAV's own sensor map).
+    The footprint is walked segment by segment (cells sharing a lattice block, a comm cell and a
+    gain strip): the per-segment sums live in registers and are flushed once per segment into
+    ``glob.block``, ``loc.block[u]``, ``loc.strip[u]`` and ``comm.comm_sum/comm_cnt`` (the UAV's
+    own sensor map); the footprint's scalars go to ``glob.scal`` and ``loc.scal[u]`` at the end.
     """
-    inc = np.int32(increment)
-    thr = np.int32(threshold)
-    level_base = 2 * level * TABLE_SIZE
-    x = flip_state[0]
-    have = 0
-    bits = np.uint64(0)
-    g_went = 0.0
-    g_ent_true = 0.0
-    g_tp = 0
-    g_pp = 0
-    l_ent_true = 0.0
-    l_tp = 0
-    l_pp = 0
+    r0, r1, c0, c1 = fp
+    inc, thr = np.int32(tables.increments[level]), np.int32(tables.thresholds[level])
+    ctx = (r0, c0, inc, thr, 2 * level * TABLE_SIZE, key)
+    local, readings, l_block, l_strip = loc.logodds[u], comm.readings[u], loc.block[u], loc.strip[u]
+    tot = (0.0, 0.0, 0, 0, 0.0, 0, 0)
     for i in range(r0, r1):
-        bi = block_of_cell[i]
-        ci = comm_of_cell[i]
-        gi = strip_of_cell[i]
-        s = seg_of_cell[c0]
-        while seg_start[s] < c1:
-            j0 = seg_start[s]
-            j1 = seg_start[s + 1]
-            gs_prob = 0.0
-            gs_ent = 0.0
-            gs_cov = 0
-            ls_prob = 0.0
-            ls_ent = 0.0
-            s_read = 0
-            acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            for j in range(j0, j1):
-                if have == 0:
-                    x ^= x >> np.uint64(12)
-                    x ^= x << np.uint64(25)
-                    x ^= x >> np.uint64(27)
-                    bits = x * np.uint64(0x2545F4914F6CDD1D)
-                    have = 4
-                r = np.int32(bits & np.uint64(0xFFFF))
-                bits >>= np.uint64(16)
-                have -= 1
-                t = np.int32(truth[i, j])
-                reading = t ^ ((r - thr) >> 31 & 1)  # flip when r < thr
-                readings[i - r0, j - c0] = reading
-                d = inc * (2 * reading - 1)
-                base = level_base + reading * TABLE_SIZE
-                # global map
-                old = np.int32(glob[i, j])
-                new = _clamp(old + d)
-                glob[i, j] = new
-                row = base + old + OFFSET
-                g_went += gstep[row, G_REWARD]
-                de = gstep[row, G_ENTROPY]
-                gs_ent += de
-                gs_prob += gstep[row, G_PROB]
-                ch = np.int32(new > 0) - np.int32(old > 0)
-                g_pp += ch
-                g_tp += ch * t
-                g_ent_true += de * t
-                gs_cov += 1 - np.int32(measured[i, j])
-                measured[i, j] = 1
-                # own local map
-                old = np.int32(local[i, j])
-                new = _clamp(old + d)
-                local[i, j] = new
-                row = base + old + OFFSET
-                de = lstep[row, L_ENTROPY]
-                ls_ent += de
-                ls_prob += lstep[row, L_PROB]
-                ch = np.int32(new > 0) - np.int32(old > 0)
-                l_pp += ch
-                l_tp += ch * t
-                l_ent_true += de * t
-                acc = _gain_step(acc, lstep, row)
-                s_read += reading
-            bj = seg_block[s]
-            g_block[0, bi, bj] += gs_prob
-            g_block[1, bi, bj] += gs_ent
-            g_block[2, bi, bj] += gs_cov
+        bi, ci, gi = geo.block_of_cell[i], geo.comm_of_cell[i], geo.strip_of_cell[i]
+        s = geo.seg_of_cell[c0]
+        while geo.seg_start[s] < c1:
+            j0, j1 = geo.seg_start[s], geo.seg_start[s + 1]
+            seg, tot = _sense_run(i, j0, j1, ctx, tables, glob, local, readings, tot)
+            gs_prob, gs_ent, gs_cov, ls_prob, ls_ent, s_read, acc = seg
+            bj = geo.seg_block[s]
+            glob.block[0, bi, bj] += gs_prob
+            glob.block[1, bi, bj] += gs_ent
+            glob.block[2, bi, bj] += gs_cov
             l_block[0, bi, bj] += ls_prob
             l_block[1, bi, bj] += ls_ent
-            gj = seg_strip[s]
-            _flush_gains(l_strip, gi, gj, acc)
-            cj = seg_comm[s]
-            comm_sum[ci, cj] += s_read
-            comm_cnt[ci, cj] += j1 - j0
+            _flush_gains(l_strip, gi, geo.seg_strip[s], acc)
+            cj = geo.seg_comm[s]
+            comm.comm_sum[ci, cj] += s_read
+            comm.comm_cnt[ci, cj] += j1 - j0
             s += 1
-    flip_state[0] = x
-    g_scal[S_REWARD] += g_went
-    g_scal[S_ENT_TRUE] += g_ent_true
-    g_scal[S_TP] += g_tp
-    g_scal[S_PP] += g_pp
-    l_scal[0] += l_ent_true
-    l_scal[1] += l_tp
-    l_scal[2] += l_pp
+    g_went, g_ent_true, g_tp, g_pp, l_ent_true, l_tp, l_pp = tot
+    glob.scal[S_REWARD] += g_went
+    glob.scal[S_ENT_TRUE] += g_ent_true
+    glob.scal[S_TP] += g_tp
+    glob.scal[S_PP] += g_pp
+    loc.scal[u, 0] += l_ent_true
+    loc.scal[u, 1] += l_tp
+    loc.scal[u, 2] += l_pp
+
+
+@numba.njit(cache=True, inline="always")
+def _decode(value: float, inc: int, incf: float, soft: bool) -> int:
+    """Log-odds change of one received cell ``I_r = value`` (decision 7): ``soft`` folds the
+    evidence ``clip(I_r, 0, 1)`` as ``round(inc (2 e - 1))``; otherwise ``+-inc`` by ``I_r > 0.5``."""
+    if soft:
+        e = min(max(value, 0.0), 1.0)
+        return np.int32(incf * (2.0 * e - 1.0) + (CLAMP + 0.5)) - CLAMP  # round half up (truncation of a positive)
+    return inc * (2 * np.int32(value > 0.5) - 1)
+
+
+@numba.njit(cache=True, inline="always")
+def _receive_run(
+    i: int,
+    j0: int,
+    j1: int,
+    ctx: tuple,
+    tables: Tables,
+    truth: np.ndarray,
+    local: np.ndarray,
+    readings: np.ndarray,
+    tot: tuple,
+) -> tuple[tuple, tuple]:
+    """Decode cells ``j0..j1`` of row ``i`` (one segment) of a message into the receiver's M_r.
+    ``ctx``: (r0, c0, increment, alpha_low, 1 - alpha_low, sigma, soft, channel key); ``tot``:
+    the message's running scalars, carried cell by cell. Returns the segment's sums (local
+    prob / entropy, sum of ``I_r``, gains) and ``tot``."""
+    r0, c0, inc, alpha_low, spread, sigma, soft, key = ctx
+    l_ent_true, l_tp, l_pp = tot
+    ltab, normals = tables.ltab, tables.normals
+    incf = float(inc)
+    ls_prob = ls_ent = s_val = 0.0
+    acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    cell_row = np.uint64(i * truth.shape[1])
+    for j in range(j0, j1):
+        a, noise = _channel_draw(key, cell_row + np.uint64(j), alpha_low, spread, sigma, normals)
+        value = a * float(readings[i - r0, j - c0]) + noise
+        s_val += value
+        t = np.int32(truth[i, j])
+        old, new, ch = _fold(local, i, j, _decode(value, inc, incf, soft))
+        io, inw = old + OFFSET, new + OFFSET
+        de = ltab[inw, L_ENTROPY] - ltab[io, L_ENTROPY]
+        ls_ent += de
+        ls_prob += ltab[inw, L_PROB] - ltab[io, L_PROB]
+        l_pp += ch
+        l_tp += ch * t
+        l_ent_true += de * t
+        acc = _gain_delta(acc, ltab, io, inw)
+    return (ls_prob, ls_ent, s_val, acc), (l_ent_true, l_tp, l_pp)
 
 
 @numba.njit(cache=True, fastmath=True)
 def receive(
-    r0,
-    r1,
-    c0,
-    c1,
-    increment,
-    alpha_low,
-    sigma,
-    soft,
-    key,
-    truth,
-    local,
-    readings,
-    ltab,
-    normals,
-    seg_start,
-    seg_of_cell,
-    seg_block,
-    seg_comm,
-    seg_strip,
-    comm_of_cell,
-    strip_of_cell,
-    grid,
-    l_block,
-    l_strip,
-    l_scal,
-    comm_sum,
-    comm_cnt,
-):
-    """One receiver decodes one sender's message into its local map M_r.
+    r: int,
+    s: int,
+    fp: Rect,
+    level: int,
+    key: np.uint64,
+    channel: Channel,
+    tables: Tables,
+    geo: Geometry,
+    glob: GlobalMaps,
+    loc: LocalMaps,
+    comm: CommState,
+) -> None:
+    """Receiver ``r`` decodes sender ``s``'s message (footprint ``fp`` at the sender's altitude
+    ``level``) into its M_r.
 
-    The sender's 0/1 image ``readings`` arrives cell by cell as ``I_r = a I + n``, ``a ~ U(alpha_low,
-    1)``, ``n ~ N(0, sigma^2)`` (both from a hash of ``key`` and the cell index). ``soft`` decoding
-    folds the evidence ``clip(I_r, 0, 1)`` with the sender's altitude increment scaled by
-    ``2 e - 1``; otherwise the reading is ``I_r > 0.5``. ``comm_sum/comm_cnt`` receive ``I_r`` per
-    comm cell (the received sensor map). ``truth`` is read only for the team metrics.
+    The sender's 0/1 image ``comm.readings[s]`` arrives cell by cell as ``I_r = a I + n``,
+    ``a ~ U(channel.bound[r, s], 1)``, ``n ~ N(0, sigma^2)``, both from a hash of ``key`` (the
+    link's stream this step) and the cell index, and is folded with the sender's increment
+    (:func:`_decode`). ``comm.comm_sum/comm_cnt`` receive ``I_r`` per comm cell (the received
+    sensor map). ``glob.truth`` is read only for the team metrics.
     """
-    inc = np.int32(increment)
-    incf = float(increment)
-    spread = 1.0 - alpha_low
-    l_ent_true = 0.0
-    l_tp = 0
-    l_pp = 0
+    r0, r1, c0, c1 = fp
+    alpha_low = channel.bound[r, s]
+    inc = np.int32(tables.increments[level])
+    ctx = (r0, c0, inc, alpha_low, 1.0 - alpha_low, channel.sigma, channel.soft, key)
+    local, readings, l_block, l_strip = loc.logodds[r], comm.readings[s], loc.block[r], loc.strip[r]
+    tot = (0.0, 0, 0)
     for i in range(r0, r1):
-        gi = strip_of_cell[i]
-        ci = comm_of_cell[i]
-        row = np.uint64(i * grid)
-        bi = seg_block[seg_of_cell[i]]
-        s = seg_of_cell[c0]
-        while seg_start[s] < c1:
-            j0 = seg_start[s]
-            j1 = seg_start[s + 1]
-            ls_prob = 0.0
-            ls_ent = 0.0
-            s_val = 0.0
-            acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            for j in range(j0, j1):
-                h = _hash(key, row + np.uint64(j))
-                a = alpha_low + spread * (float(np.int32(h & np.uint64(0xFFFF))) * (1.0 / 65536.0))
-                noise = sigma * normals[np.int32(h >> np.uint64(16)) & np.int32(NORMAL_LEVELS - 1)]
-                value = a * float(readings[i - r0, j - c0]) + noise
-                if soft:
-                    e = min(max(value, 0.0), 1.0)
-                    d = (
-                        np.int32(incf * (2.0 * e - 1.0) + (CLAMP + 0.5)) - CLAMP
-                    )  # round half up (truncation of a positive)
-                else:
-                    d = inc * (2 * np.int32(value > 0.5) - 1)
-                s_val += value
-                t = np.int32(truth[i, j])
-                old = np.int32(local[i, j])
-                new = _clamp(old + d)
-                local[i, j] = new
-                io = old + OFFSET
-                inw = new + OFFSET
-                de = ltab[inw, L_ENTROPY] - ltab[io, L_ENTROPY]
-                ls_ent += de
-                ls_prob += ltab[inw, L_PROB] - ltab[io, L_PROB]
-                ch = np.int32(new > 0) - np.int32(old > 0)
-                l_pp += ch
-                l_tp += ch * t
-                l_ent_true += de * t
-                acc = _gain_delta(acc, ltab, io, inw)
-            bj = seg_block[s]
+        gi, ci = geo.strip_of_cell[i], geo.comm_of_cell[i]
+        bi = geo.seg_block[geo.seg_of_cell[i]]
+        seg = geo.seg_of_cell[c0]
+        while geo.seg_start[seg] < c1:
+            j0, j1 = geo.seg_start[seg], geo.seg_start[seg + 1]
+            sums, tot = _receive_run(i, j0, j1, ctx, tables, glob.truth, local, readings, tot)
+            ls_prob, ls_ent, s_val, acc = sums
+            bj = geo.seg_block[seg]
             l_block[0, bi, bj] += ls_prob
             l_block[1, bi, bj] += ls_ent
-            gj = seg_strip[s]
-            _flush_gains(l_strip, gi, gj, acc)
-            cj = seg_comm[s]
-            comm_sum[ci, cj] += s_val
-            comm_cnt[ci, cj] += j1 - j0
-            s += 1
-    l_scal[0] += l_ent_true
-    l_scal[1] += l_tp
-    l_scal[2] += l_pp
+            _flush_gains(l_strip, gi, geo.seg_strip[seg], acc)
+            cj = geo.seg_comm[seg]
+            comm.comm_sum[ci, cj] += s_val
+            comm.comm_cnt[ci, cj] += j1 - j0
+            seg += 1
+    l_ent_true, l_tp, l_pp = tot
+    loc.scal[r, 0] += l_ent_true
+    loc.scal[r, 1] += l_tp
+    loc.scal[r, 2] += l_pp
 
 
 @numba.njit(cache=True)
 def measure_and_communicate(
-    pos,
-    ranges,
-    increments,
-    thresholds,
-    links,
-    alpha_low,
-    sigma,
-    soft,
-    slots,
-    truth,
-    glob,
-    measured,
-    local,
-    readings,
-    gstep,
-    lstep,
-    ltab,
-    normals,
-    seg_start,
-    seg_of_cell,
-    seg_block,
-    seg_comm,
-    seg_strip,
-    block_of_cell,
-    comm_of_cell,
-    strip_of_cell,
-    comm_area,
-    flip_state,
-    comm_state,
-    g_block,
-    g_scal,
-    l_block,
-    l_strip,
-    l_scal,
-    received,
-    received_valid,
-    comm_sum,
-    comm_cnt,
-):
-    """A whole step of sensing and messaging, in one call (the per-call overhead of numba is paid
-    once per step): every UAV measures, then every message ``links[r, s]`` (r != s) is delivered.
+    seed: np.uint64,
+    step: int,
+    pos: np.ndarray,
+    channel: Channel,
+    tables: Tables,
+    geo: Geometry,
+    glob: GlobalMaps,
+    loc: LocalMaps,
+    comm: CommState,
+) -> None:
+    """A whole step of sensing and messaging in one call (numba's per-call overhead is paid once
+    per step): every UAV measures, then every message ``channel.links[r, s]`` (r != s) is
+    delivered. ``seed``, ``step``: the mission seed and step index that key every draw.
 
-    ``alpha_low[r, s]`` is the attenuation bound of the link (1 for none), ``slots[r, s]`` where
-    receiver r keeps sender s's map in ``received[r]``.
+    ``comm.slots[r, s]`` is where receiver r keeps sender s's map in ``comm.received[r]``; slot 0
+    is the UAV's own clean sensor map.
     """
     n = pos.shape[0]
-    grid = glob.shape[0]
     for u in range(n):
-        lev = pos[u, 2]
-        r0 = ranges[pos[u, 1], lev, 0]
-        r1 = ranges[pos[u, 1], lev, 1]
-        c0 = ranges[pos[u, 0], lev, 0]
-        c1 = ranges[pos[u, 0], lev, 1]
-        sense(
-            r0,
-            r1,
-            c0,
-            c1,
-            lev,
-            increments[lev],
-            thresholds[lev],
-            truth,
-            glob,
-            measured,
-            local[u],
-            readings[u],
-            gstep,
-            lstep,
-            seg_start,
-            seg_of_cell,
-            seg_block,
-            seg_comm,
-            seg_strip,
-            block_of_cell,
-            comm_of_cell,
-            strip_of_cell,
-            flip_state,
-            g_block,
-            g_scal,
-            l_block[u],
-            l_strip[u],
-            l_scal[u],
-            comm_sum,
-            comm_cnt,
-        )
-        _flush_comm(
-            received[u],
-            received[u, 0],
-            comm_sum,
-            comm_cnt,
-            comm_area,
-            comm_of_cell[r0],
-            comm_of_cell[r1 - 1] + 1,
-            comm_of_cell[c0],
-            comm_of_cell[c1 - 1] + 1,
-        )
+        fp, lev = _footprint(geo, pos, u)
+        sense(u, fp, lev, stream_key(seed, DOMAIN_FLIP, step, u, 0), tables, geo, glob, loc, comm)
+        _flush_comm(comm, geo, comm.received[u, 0], fp)
     for s in range(n):
-        lev = pos[s, 2]
-        r0 = ranges[pos[s, 1], lev, 0]
-        r1 = ranges[pos[s, 1], lev, 1]
-        c0 = ranges[pos[s, 0], lev, 0]
-        c1 = ranges[pos[s, 0], lev, 1]
+        fp, lev = _footprint(geo, pos, s)
         for r in range(n):
-            if r == s or not links[r, s]:
+            if r == s or not channel.links[r, s]:
                 continue
-            key = _next(comm_state)
-            receive(
-                r0,
-                r1,
-                c0,
-                c1,
-                increments[lev],
-                alpha_low[r, s],
-                sigma,
-                soft,
-                key,
-                truth,
-                local[r],
-                readings[s],
-                ltab,
-                normals,
-                seg_start,
-                seg_of_cell,
-                seg_block,
-                seg_comm,
-                seg_strip,
-                comm_of_cell,
-                strip_of_cell,
-                grid,
-                l_block[r],
-                l_strip[r],
-                l_scal[r],
-                comm_sum,
-                comm_cnt,
-            )
-            slot = slots[r, s]
-            received_valid[r, slot] = 1.0
-            _flush_comm(
-                received[r],
-                received[r, slot],
-                comm_sum,
-                comm_cnt,
-                comm_area,
-                comm_of_cell[r0],
-                comm_of_cell[r1 - 1] + 1,
-                comm_of_cell[c0],
-                comm_of_cell[c1 - 1] + 1,
-            )
+            key = stream_key(seed, DOMAIN_CHANNEL, step, s, r)
+            receive(r, s, fp, lev, key, channel, tables, geo, glob, loc, comm)
+            slot = comm.slots[r, s]
+            comm.received_valid[r, slot] = 1.0
+            _flush_comm(comm, geo, comm.received[r, slot], fp)
 
 
 @numba.njit(cache=True)

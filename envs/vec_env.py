@@ -68,7 +68,7 @@ class IppVecEnv(VecEnv):
             out_infos.append(info)
         return observations, np.asarray(rewards, dtype=np.float32), dones, out_infos
 
-    def seed(self, seed: int | None = None) -> Sequence[None | int]:
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
         """Seed the next reset: copy ``e`` gets ``seed + e`` (all its agents share it)."""
         if seed is None:
             seed = int(np.random.randint(0, 2**31 - 1))
@@ -79,7 +79,7 @@ class IppVecEnv(VecEnv):
         self.venv.close()
 
     # ------------------------------------------------------------------ attributes
-    def _copy_indices(self, indices: None | int | Iterable[int]) -> list[int]:
+    def _copy_indices(self, indices: int | Iterable[int] | None) -> list[int]:
         return [i // self.n_agents for i in self._get_indices(indices)]
 
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:

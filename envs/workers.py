@@ -558,7 +558,7 @@ class WorkerVecEnv(VecEnv):
         infos = [info for r in results for info in r[3]]
         return observations, rewards, dones, infos
 
-    def seed(self, seed: int | None = None) -> Sequence[None | int]:
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
         """Seed the next reset: copy ``e`` gets ``seed + e``, wherever it runs."""
         self._checked()
         if seed is None:

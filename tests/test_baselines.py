@@ -94,7 +94,7 @@ def test_registry_and_errors():
     assert set(PLANNERS) == {"random", "lawnmower", "ag", "oracle"}
     assert planner_class("NL").name == "lawnmower"
     venv = envs.make_vec_env("env1", n_envs=1, budget=2)
-    with pytest.raises(ValueError, match="unknown baseline 'greedy'.*ag.*lawnmower.*random"):
+    with pytest.raises(ValueError, match=r"unknown baseline 'greedy'.*ag.*lawnmower.*random"):
         make_planner("greedy", venv)
     with pytest.raises(ValueError, match="altitude"):
         make_planner("lawnmower", venv, altitude=7.0)
@@ -275,7 +275,7 @@ def test_lookahead_one_is_ag_and_deeper_search_sees_further(geometry, flips):
 
 
 def test_lookahead_planner_flies_valid_and_reports_bad_options():
-    planner, pairs, infos = _fly("ag", n_envs=1, budget=3)
+    planner, _pairs, _infos = _fly("ag", n_envs=1, budget=3)
     assert planner.lookahead == 1
     venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, budget=3)
     deep = make_planner("ag", venv, seed=0, lookahead=2, weighting="plain")
@@ -308,7 +308,7 @@ def _fly_final(planner_name, seed=3, **kwargs):
     for _ in range(15):
         act, _ = planner.predict(obs)
         actions.append(act.copy())
-        obs, _, dones, infos = venv.step(act)
+        obs, _, _dones, infos = venv.step(act)
     venv.close()
     return infos[0]["f1"], infos[0]["entropy"], np.stack(actions)
 

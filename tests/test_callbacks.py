@@ -142,7 +142,7 @@ def test_mission_metrics_equal_env_infos(tmp_path):
     # Evaluation: 2 missions at 12 joint steps, F1 / entropy from the eval env's infos
     eval_expected = eval_env.missions()
     assert len(eval_expected) == 2
-    eval_dump = [values for _, values in capture.dumps if "eval/mean_reward" in values][0]
+    eval_dump = next(values for _, values in capture.dumps if "eval/mean_reward" in values)
     assert eval_dump["eval/mean_f1"] == pytest.approx(np.mean([e["f1"] for e in eval_expected]))
     assert eval_dump["eval/mean_entropy"] == pytest.approx(np.mean([e["entropy"] for e in eval_expected]))
     assert eval_dump["eval/mean_reward"] == pytest.approx(np.mean([e["reward"] for e in eval_expected]))
@@ -196,7 +196,7 @@ def test_atomic_save_keeps_previous_file(tmp_path):
     dest.write_bytes(b"previous")
     with pytest.raises(OSError, match="disk full"):
         atomic_save(_Partial(b"PK\x03\x04half", fail=True), dest)
-    with pytest.raises(CheckpointError, match="model.zip is unusable"):
+    with pytest.raises(CheckpointError, match=r"model\.zip is unusable"):
         atomic_save(_Partial(b"junk", fail=False), dest)
     assert dest.read_bytes() == b"previous"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.zip"]
@@ -232,7 +232,7 @@ def test_seeded_evaluations_fly_the_same_missions(eval_seed, tmp_path):
 
 
 def test_eval_seed_must_be_an_integer():
-    with pytest.raises(ValueError, match="eval_seed must be an integer or None, got 1.5"):
+    with pytest.raises(ValueError, match=r"eval_seed must be an integer or None, got 1\.5"):
         MissionEvalCallback(make_env(n_envs=1), eval_freq=6, eval_seed=1.5, verbose=0)
 
 

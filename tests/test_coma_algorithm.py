@@ -237,7 +237,7 @@ class TestErrors:
             COMA("CBAMPolicy", FakeUavVecEnv(), **args)
 
     def test_unknown_policy_alias(self) -> None:
-        with pytest.raises(ValueError, match="unknown policy alias 'MlpPolicy'.*CBAMPolicy"):
+        with pytest.raises(ValueError, match=r"unknown policy alias 'MlpPolicy'.*CBAMPolicy"):
             COMA("MlpPolicy", FakeUavVecEnv())
         with pytest.raises(TypeError, match="COMAPolicy subclass"):
             COMA(dict, FakeUavVecEnv())

@@ -92,7 +92,7 @@ def test_baseline_matches_policy_over_valid_actions(model: COMA) -> None:
     with th.no_grad():
         q = model.policy.q_values(local, state, actions)
         probs = model.policy.action_probs(local.flatten(0, 1), mask.flatten(0, 1)).view(2, 3, 6)
-    adv, base, q_taken = counterfactual_advantage(q, actions, probs)
+    adv, base, _q_taken = counterfactual_advantage(q, actions, probs)
     for e in range(2):
         for i in range(3):
             valid = [u for u in range(6) if mask[e, i, u] > 0.5]

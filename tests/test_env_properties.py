@@ -30,7 +30,7 @@ def _run(opts: dict, seed: int, actions: list[int], map_name: str = "env3"):
     while env.agents:
         acts = {a: actions[(k + i) % len(actions)] for i, a in enumerate(env.agents)}
         k += len(env.agents)
-        obs, rewards, terms, truncs, infos = env.step(acts)
+        obs, rewards, _terms, _truncs, infos = env.step(acts)
         frames.append((obs, infos[env.possible_agents[0]], rewards))
         _check_state(env)
     return env, frames

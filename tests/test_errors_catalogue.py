@@ -1955,7 +1955,7 @@ def observe(case: Case | CliCase, files: Files) -> tuple[str, str]:
         return f"exit {rc}, stderr", err.strip()
     try:
         case.run(files)
-    except BaseException as exc:  # noqa: BLE001 - we report whatever comes out
+    except BaseException as exc:  # we report whatever comes out
         return type(exc).__name__, str(exc)
     return "no error", ""
 

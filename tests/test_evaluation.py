@@ -101,7 +101,7 @@ def test_table_numbers_equal_mean_and_std(results, tmp_path):
 
 
 def test_clear_errors():
-    with pytest.raises(ValueError, match="unknown method 'greedy'.*ag, lawnmower, oracle, random|neither a baseline"):
+    with pytest.raises(ValueError, match=r"unknown method 'greedy'.*ag, lawnmower, oracle, random|neither a baseline"):
         evaluate("greedy", n_trials=1, **SMALL)
     with pytest.raises(FileNotFoundError, match="model file not found"):
         evaluate("runs/missing.zip", n_trials=1, **SMALL)
@@ -246,5 +246,5 @@ def test_a_local_file_never_shadows_a_shipped_model_name(tmp_path, monkeypatch):
     (tmp_path / "env1.zip").write_bytes(b"not a model")
     result = evaluate("env1", env="env1", n_trials=1, budget=2)
     assert result.method == "env1" and result.f1.shape == (1, 3)
-    with pytest.raises(Exception, match="env1.zip"):
+    with pytest.raises(Exception, match=r"env1\.zip"):
         evaluate("./env1.zip", env="env1", n_trials=1, budget=2)

@@ -222,7 +222,7 @@ def test_crash_mid_write_keeps_the_previous_checkpoint(tmp_path, tiny_model, mon
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(type(tiny_model), "save", crash_half_way)
-    with pytest.raises(OSError, match="(?i)no space left"):
+    with pytest.raises(OSError, match=r"(?i)no space left"):
         atomic_save(tiny_model, target)
     assert _digest(target) == good and validate_checkpoint(target)
     assert sorted(p.name for p in target.parent.iterdir()) == [target.name]  # the partial temp file is gone

@@ -110,9 +110,15 @@ def test_gain_prior_starts_as_soft_greedy_planner():
     valid = mask.bool()
     # The network's own term starts near zero (output gain 0.01): the prior decides.
     assert th.allclose(logits[valid], expected[valid], atol=0.1)
-    greedy = th.where(valid, expected, th.tensor(-1e9)).argmax(-1).numpy()
+    scores = th.where(valid, expected, th.tensor(-1e9))
+    greedy = scores.argmax(-1).numpy()
     actions, _ = model.predict(obs, deterministic=True)
-    np.testing.assert_array_equal(actions, greedy)
+    # rows whose two best prior logits lie within the network's small term of each other are a
+    # near-tie that the network may break either way; every other row follows the prior exactly
+    top2 = scores.topk(2, dim=-1).values
+    clear = (top2[:, 0] - top2[:, 1] > 0.1).numpy()
+    assert clear.sum() >= len(clear) // 2
+    np.testing.assert_array_equal(actions[clear], greedy[clear])
     venv.close()
 
 

@@ -50,7 +50,9 @@ def test_dagger_is_deterministic_for_a_seed():
     weights = []
     for _ in range(2):
         model = _model(seed=3)
-        clone_teacher(model, make_planner("oracle", model.env, seed=0), missions_per_round=2, rounds=1, epochs=1, seed=5)
+        clone_teacher(
+            model, make_planner("oracle", model.env, seed=0), missions_per_round=2, rounds=1, epochs=1, seed=5
+        )
         weights.append(th.cat([p.flatten() for p in model.policy.actor.parameters()]))
     assert th.equal(weights[0], weights[1])
 

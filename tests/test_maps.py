@@ -298,7 +298,7 @@ def test_transparent_image_whose_opaque_part_is_flat_names_the_transparency(tmp_
     rgba = np.zeros((10, 10, 4), np.uint8)
     rgba[:, 5:] = 255  # opaque white right half, transparent left half
     Image.fromarray(rgba).save(tmp_path / "half.png")
-    with pytest.raises(MapError, match="no pixel .* 50 transparent grid cells"):
+    with pytest.raises(MapError, match=r"no pixel .* 50 transparent grid cells"):
         load_ground_truth(map_path=tmp_path / "half.png", grid=10, lattice=2)
 
 
@@ -343,11 +343,11 @@ def test_map_error_is_value_error():
 def test_bad_files(tmp_path, images):
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"not an image at all")
-    with pytest.raises(MapError, match="bad.png"):
+    with pytest.raises(MapError, match=r"bad\.png"):
         load_ground_truth(map_path=bad)
     empty = tmp_path / "empty.png"
     empty.write_bytes(b"")
-    with pytest.raises(MapError, match="empty.png.*empty"):
+    with pytest.raises(MapError, match=r"empty\.png.*empty"):
         load_ground_truth(map_path=empty)
     with pytest.raises(MapError, match="not a file"):
         load_ground_truth(map_path=tmp_path)
@@ -358,9 +358,9 @@ def test_bad_files(tmp_path, images):
 def test_degenerate_masks(tmp_path, images):
     flat = tmp_path / "flat.png"
     cv2.imwrite(str(flat), np.full((10, 10), 255, np.uint8))
-    with pytest.raises(MapError, match="threshold:0.1.*every pixel"):
+    with pytest.raises(MapError, match=r"threshold:0\.1.*every pixel"):
         load_ground_truth(map_path=flat, valuable="threshold:0.1", grid=10, lattice=2)
-    with pytest.raises(MapError, match="dark:0.5.*no pixel"):
+    with pytest.raises(MapError, match=r"dark:0\.5.*no pixel"):
         load_ground_truth(map_path=flat, valuable="dark:0.5", grid=10, lattice=2)
     with pytest.raises(MapError, match="no pixel"):
         load_ground_truth(map_path=flat, grid=10, lattice=2)  # Otsu on a constant image

@@ -116,7 +116,7 @@ def test_cr1_standard_error_by_hand():
 
 
 def test_one_scene_carrying_the_effect_wins_naively_but_ties_clustered():
-    a, b, d, scenes = _one_scene_effect()
+    a, b, d, _scenes = _one_scene_effect()
     naive = paired_difference(a, b, "f1", scenes=[str(k) for k in range(30)])  # missions as if independent
     clustered = paired_difference(a, b, "f1")
     assert naive.diff == clustered.diff == pytest.approx(d.mean())

@@ -85,5 +85,5 @@ def test_training_log_errors(tmp_path):
         plots.load_training_log(bad)
     empty = tmp_path / "empty"
     empty.mkdir()
-    with pytest.raises(ValueError, match="no metrics.csv"):
+    with pytest.raises(ValueError, match=r"no metrics\.csv"):
         plots.load_training_log(empty)

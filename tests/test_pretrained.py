@@ -103,7 +103,7 @@ def test_checksum_mismatch_refuses_to_load(tmp_path):
     data = bytearray(path.read_bytes())
     data[len(data) // 2] ^= 0xFF
     path.write_bytes(bytes(data))
-    with pytest.raises(PretrainedError, match="checksum mismatch.*NOT loaded"):
+    with pytest.raises(PretrainedError, match=r"checksum mismatch.*NOT loaded"):
         load_pretrained("env1", directory=tmp_path)
 
 
@@ -113,7 +113,7 @@ def test_missing_file_and_manifest(tmp_path):
     with pytest.raises(PretrainedError, match="is missing"):
         load_pretrained("env1", directory=tmp_path)
     (tmp_path / pt.MANIFEST).unlink()
-    with pytest.raises(PretrainedError, match="models.json is missing"):
+    with pytest.raises(PretrainedError, match=r"models\.json is missing"):
         load_pretrained("env1", directory=tmp_path)
     (tmp_path / pt.MANIFEST).write_text(json.dumps({"nothing": 1}))
     with pytest.raises(PretrainedError, match="no 'models' mapping"):

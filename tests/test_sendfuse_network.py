@@ -405,7 +405,7 @@ def test_missing_files_say_how_to_create_them(tmp_path: Path, monkeypatch: pytes
     with pytest.raises(SenDFuseWeightsError, match="sb3-coma pretrain-sendfuse"):
         load_weights(tmp_path / "nope.safetensors")
     monkeypatch.setattr(weights_mod, "default_weights_path", lambda grid_size=44: tmp_path / "absent.safetensors")
-    with pytest.raises(SenDFuseWeightsError, match="shipped pre-trained.*sb3-coma pretrain-sendfuse"):
+    with pytest.raises(SenDFuseWeightsError, match=r"shipped pre-trained.*sb3-coma pretrain-sendfuse"):
         load_weights()
     with pytest.raises(SenDFuseWeightsError, match="not a file"):
         load_weights(tmp_path)
@@ -470,7 +470,7 @@ def test_mismatched_tensors_and_configs_raise(tmp_path: Path) -> None:
         load_weights(_write_raw(tmp_path / "extra.safetensors", extra, resealed(extra)))
 
     reshaped = {**state, "head.bias": torch.zeros(2)}
-    with pytest.raises(SenDFuseWeightsError, match="head.bias.*shape"):
+    with pytest.raises(SenDFuseWeightsError, match=r"head\.bias.*shape"):
         load_weights(_write_raw(tmp_path / "shape.safetensors", reshaped, resealed(reshaped)))
 
     # The record says other widths than the tensors have.

@@ -159,5 +159,5 @@ def test_unknown_and_broken_fusions_name_the_choices(monkeypatch) -> None:
     with pytest.raises(ConfigError, match=r"fusion 'ghost' \(no_such_module:Wrapper\) cannot be loaded"):
         envs.make_vec_env("env3", fusion="ghost")
     monkeypatch.setattr(fusion, "_installed_fusions", dict)
-    with pytest.raises(ValueError, match="no package provides entry points 'uav_ipp.fusion'"):
+    with pytest.raises(ValueError, match=r"no package provides entry points 'uav_ipp\.fusion'"):
         envs.make_vec_env("env3", fusion="sendfuse")

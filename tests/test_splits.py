@@ -192,7 +192,7 @@ def test_env1_train_and_test_stars_differ_from_each_other_and_from_paper():
 
 
 # ------------------------------------------------------------------ determinism and variety
-@pytest.mark.parametrize("name,split", SPLIT_PAIRS + [("env1", "train"), ("env1", "test")])
+@pytest.mark.parametrize("name,split", [*SPLIT_PAIRS, ("env1", "train"), ("env1", "test")])
 def test_same_seed_same_map(name, split):
     for seed in (0, 5, 123_456_789, 2**31 - 2):
         a = load_ground_truth(name, seed=seed, split=split)

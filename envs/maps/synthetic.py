@@ -22,7 +22,7 @@ import math
 import cv2
 import numpy as np
 
-__all__ = ["MIN_FRACTION", "MAX_FRACTION", "draw_star", "star_map"]
+__all__ = ["MAX_FRACTION", "MIN_FRACTION", "draw_star", "star_map"]
 
 #: Accepted valuable fraction of a star; draws outside are redrawn from the same generator
 #: (deterministic per seed). The brief asks for roughly 20-45 %.
@@ -91,8 +91,8 @@ def _draw_once(rng: np.random.Generator, grid: int) -> np.ndarray:
 def _ellipse(canvas: np.ndarray, centre: np.ndarray, axes: np.ndarray, angle: float, value: int) -> None:
     cv2.ellipse(
         canvas,
-        (int(round(centre[0] * _ONE)), int(round(centre[1] * _ONE))),
-        (max(int(round(axes[0] * _ONE)), 1), max(int(round(axes[1] * _ONE)), 1)),
+        (round(float(centre[0] * _ONE)), round(float(centre[1] * _ONE))),
+        (max(round(float(axes[0] * _ONE)), 1), max(round(float(axes[1] * _ONE)), 1)),
         float(angle),
         0.0,
         360.0,
