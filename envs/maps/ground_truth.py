@@ -44,11 +44,11 @@ from .synthetic import star_map
 __all__ = [
     "BUILTIN_MAPS",
     "MAX_GRID",
-    "check_grid",
     "GroundTruth",
     "available_maps",
     "block_fraction",
     "block_index",
+    "check_grid",
     "load_ground_truth",
 ]
 
