@@ -1,16 +1,19 @@
-"""How fast does COMA train? Missions per second of ``learn()`` with a breakdown.
+"""How fast does COMA train? Missions per second of ``learn()`` for 1 and 2 workers, with a breakdown.
 
     python benchmarks/train_speed.py                          # the main config: env3 entry of coma.yml (SenDFuse)
     python benchmarks/train_speed.py --variant mean-cbam      # the same with mean fusion
-    python benchmarks/train_speed.py --env env1 --threads 2
+    python benchmarks/train_speed.py --workers 1,2,4 --threads 2
 
 The model and env are built exactly as ``sb3-coma train`` builds them from ``zoo_configs/coma.yml``
 (8 env copies, 4 UAVs, budget 15, CBAM actor and critic, gain inputs, the library defaults), without
-the validation missions. Prints joint steps/s and missions/s of ``learn()`` and where the time
-goes: env stepping (world, sensor, channel), fusion (SenDFuse or mean), the actor's forward passes
-while collecting, the critic's update (targets, forward, backward) and the actor's update
-(the rest of ``train``). The first rollout is a warm-up (imports, allocator, oneDNN kernel
-selection) and is not timed.
+the validation missions, once per ``--workers`` value (the env copies and their fusion in that many
+worker processes; 1 = in the learner's process). Prints joint steps/s and missions/s of ``learn()``
+and where the time goes: collection (env stepping and fusion; with one worker split into env and
+fusion), the actor's forward passes while collecting, the critic's update (targets, forward,
+backward) and the actor's update (the rest of ``train``). The first rollout is a warm-up (imports,
+allocator, oneDNN kernel selection, worker start-up) and is not timed. The same run times the raw
+ParallelEnv on one core (random valid actions), so the ratio learn / raw env compares across
+machines.
 """
 
 from __future__ import annotations
@@ -26,11 +29,13 @@ from typing import Any
 # steal the core the env (or another process) needs, and small batches run several times slower.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-import torch as th  # noqa: E402
-from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
+import numpy as np
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_coma.app.export import fusion_wrapper  # noqa: E402
-from sb3_coma.app.training import build_model, make_training_env, plan_run  # noqa: E402
+import envs
+from sb3_coma.app.export import fusion_wrapper
+from sb3_coma.app.training import build_model, make_training_env, plan_run
 
 PAPER_MISSIONS = 1200
 
@@ -73,22 +78,34 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--env", default="env3")
     parser.add_argument("--variant", default=None, help="a variant of zoo_configs/coma.yml, e.g. mean-cbam")
     parser.add_argument("--rollouts", type=int, default=6, help="timed rollouts after the warm-up one")
-    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    parser.add_argument("--workers", default="1,2", help="comma-separated worker counts to time")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads of the learner")
+    parser.add_argument("--raw-missions", type=int, default=40, help="missions of the raw env timing")
     parser.add_argument("--seed", type=int, default=0)
     return parser.parse_args()
 
 
-def main() -> None:
-    """Warm up, time ``--rollouts`` rollouts + updates with every part instrumented, print the split."""
-    args = parse_args()
-    th.set_num_threads(args.threads)
+def raw_env_missions_per_s(env: str, missions: int, seed: int) -> float:
+    """Missions/s of the raw ParallelEnv in this process (one core), random valid actions."""
+    world = envs.make_env(env, split="train", reward="metrics", action_gain=True)
+    rng = np.random.default_rng(seed)
+    world.reset(seed=seed)  # warm-up: numba kernels compiled or loaded from cache
+    start = time.perf_counter()
+    for k in range(missions):
+        obs, _ = world.reset(seed=seed + k)
+        while world.agents:
+            actions = {a: int(rng.choice(np.flatnonzero(obs[a]["action_mask"]))) for a in world.agents}
+            obs, *_ = world.step(actions)
+    return missions / (time.perf_counter() - start)
+
+
+def time_learn(args: argparse.Namespace, workers: int) -> tuple[int, float, dict[str, float], str]:
+    """(missions, wall seconds, breakdown, setting line) of ``--rollouts`` timed rollouts with ``workers``."""
     plan = plan_run(env=args.env, variant=args.variant, seed=args.seed, device="cpu")
-    venv = make_training_env(plan.cfg, seed=plan.seed)
+    venv = make_training_env(plan.cfg, seed=plan.seed, workers=workers)
     model = build_model(plan, venv, device="cpu")
-    budget = int(plan.cfg.env_kwargs.get("budget", 15))
     per_rollout = model.n_steps * model.n_copies  # joint steps
     model.learn(per_rollout)  # warm-up rollout + update, not timed
-
     seconds: dict[str, float] = defaultdict(float)
     timed(model.env, "step_wait", seconds, "env + fusion")
     fusion = fusion_wrapper(model.env)
@@ -99,34 +116,50 @@ def main() -> None:
         timed(model, name, seconds, "critic update")
     timed(model.policy, "q_values", seconds, "critic forward")
     timed(model, "train", seconds, "train")
-    timer = PhaseTimer()
-    joint_steps = args.rollouts * per_rollout
     start = time.perf_counter()
-    model.learn(joint_steps, callback=timer, reset_num_timesteps=False)
+    model.learn(args.rollouts * per_rollout, callback=PhaseTimer(), reset_num_timesteps=False)
     wall = time.perf_counter() - start
-
-    steps_per_s = joint_steps / wall
+    venv.close()
     critic = seconds["critic update"] + seconds["critic forward"]
+    where = "in the learner" if workers == 1 else f"in {workers} worker processes"
     parts = {
-        "env (world, sensor, channel)": seconds["env + fusion"] - seconds["fusion"],
-        f"fusion ({fusion.name if fusion is not None else 'none'})": seconds["fusion"],
+        f"collection: env ({where})": seconds["env + fusion"] - seconds["fusion"],
+        f"collection: fusion ({fusion.name if fusion is not None else 'with the env'})": seconds["fusion"],
         "actor forward (collect)": seconds["actor (collect)"],
         "critic update": critic,
         "actor update": seconds["train"] - critic,
     }
     parts["other (buffer, callbacks, logging)"] = wall - sum(parts.values())
-    print(
-        f"setting    : {plan.cfg.env_id} (variant {args.variant or 'none'}), {model.n_copies} env copies x "
-        f"n_steps {model.n_steps}, {model.n_agents} UAVs, budget {budget}, {type(model.policy).__name__}, "
-        f"batch {model.batch_size}, {args.threads} torch thread(s)"
+    setting = (
+        f"{plan.cfg.env_id} (variant {args.variant or 'none'}), {model.n_copies} env copies x n_steps "
+        f"{model.n_steps}, {model.n_agents} UAVs, {type(model.policy).__name__}, batch {model.batch_size}, "
+        f"{args.threads} torch thread(s) in the learner"
     )
-    print(f"timed      : {joint_steps} joint steps ({args.rollouts} rollouts + updates) in {wall:.1f} s")
-    print(
-        f"throughput : {steps_per_s:.0f} joint steps/s = {steps_per_s / budget:.2f} missions/s "
-        f"(target 20 with SenDFuse)"
-    )
-    for name, value in parts.items():
-        print(f"  {name:36s} {value:6.2f} s  {100 * value / wall:5.1f} %")
+    return args.rollouts * per_rollout // int(plan.cfg.env_kwargs.get("budget", 15)), wall, parts, setting
+
+
+def main() -> None:
+    """Time ``learn()`` per worker count and the raw env; print missions/s, ratios and the split."""
+    args = parse_args()
+    th.set_num_threads(args.threads)
+    raw = raw_env_missions_per_s(args.env, args.raw_missions, args.seed)
+    print(f"device     : cpu ({os.cpu_count()} cores), torch {th.__version__}")
+    print(f"raw env    : {raw:.1f} missions/s ({args.env}, one process, random valid actions)")
+    speeds: dict[int, float] = {}
+    for workers in (int(w) for w in args.workers.split(",")):
+        missions, wall, parts, setting = time_learn(args, workers)
+        speeds[workers] = missions / wall
+        print(f"\nworkers {workers}  : {setting}")
+        print(
+            f"  learn()  : {speeds[workers]:.2f} missions/s ({missions} missions in {wall:.1f} s); "
+            f"learn / raw env = {speeds[workers] / raw:.2f} (target >= 0.30; 20 missions/s)"
+        )
+        for name, value in parts.items():
+            print(f"  {name:44s} {value:6.2f} s  {100 * value / wall:5.1f} %")
+    if 1 in speeds and len(speeds) > 1:
+        for workers, speed in speeds.items():
+            if workers != 1:
+                print(f"\nscaling    : {workers} workers at {speed / speeds[1]:.2f}x the speed of 1")
 
 
 if __name__ == "__main__":
