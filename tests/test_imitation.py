@@ -92,3 +92,17 @@ def test_bad_arguments_name_the_value():
         clone_teacher(model, teacher, rounds=0)
     with pytest.raises(ValueError, match="kl_coef"):
         _model(kl_coef=-1.0)
+
+
+def test_dagger_experiment_command_writes_a_model_and_a_paired_report(tmp_path):
+    import json
+
+    from sb3_coma.experiments import dagger
+
+    out = tmp_path / "d"
+    argv = ["--env", "env1", "--rounds", "1", "--missions", "8", "--missions-eval", "2", "--out", str(out)]
+    assert dagger.main(argv) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert (out / "clone.zip").is_file() and report["dagger_rounds"][0]["states"] == 8 * 15 * 4
+    assert {"f1", "entropy"} == {d["metric"] for d in report["comparison"]["vs_ag"]}
+    assert set(report["comparison"]["finals"]) == {str(out / "clone.zip"), "ag", "oracle"}

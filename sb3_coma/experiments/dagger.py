@@ -1,0 +1,99 @@
+"""DAgger from the clairvoyant oracle, optional COMA fine-tuning, and a paired unseen comparison.
+
+    python -m sb3_coma.experiments.dagger --env env3 --rounds 8 --missions 128 --out runs/dagger_env3
+    python -m sb3_coma.experiments.dagger --env env3 --from runs/dagger_env3/clone.zip \\
+        --finetune 18000 --kl 1.0 --out runs/dagger_env3_ft
+
+Builds the model of the map's config entry (``zoo_configs/coma.yml``: the same networks, inputs
+and settings as ``sb3-coma train``), clones the oracle into its actor with
+:func:`sb3_coma.coma.imitation.clone_teacher` (or loads a clone with ``--from``), optionally
+fine-tunes it with COMA for ``--finetune`` joint steps under a KL pull toward the clone that
+decays to zero over the first half (``kl_coef=--kl``), then flies the model, AG and the oracle on
+the same ``--missions-eval`` unseen missions (``split="test"``, random starts) and prints the
+paired verdicts (scene-clustered t test, Holm over the table). Writes ``clone.zip`` or
+``finetuned.zip`` and ``report.json`` into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import torch as th
+
+from sb3_coma.app.evaluation import evaluate
+from sb3_coma.app.training import build_model, make_training_env, plan_run, record_env_options
+from sb3_coma.baselines import make_planner
+from sb3_coma.coma import COMA
+from sb3_coma.coma.imitation import clone_teacher
+from sb3_coma.common.paired import holm_adjust, paired_difference
+
+__all__ = ["main"]
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The command-line options (module docstring)."""
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--env", default="env3")
+    parser.add_argument("--rounds", type=int, default=8, help="DAgger rounds")
+    parser.add_argument("--missions", type=int, default=128, help="missions per DAgger round")
+    parser.add_argument("--from", dest="source", default=None, help="a clone to fine-tune instead of cloning")
+    parser.add_argument("--finetune", type=int, default=0, help="COMA joint steps after cloning (0: none)")
+    parser.add_argument("--kl", type=float, default=1.0, help="starting weight of the KL pull while fine-tuning")
+    parser.add_argument("--missions-eval", type=int, default=32, help="unseen missions of the comparison")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", required=True, help="output folder")
+    return parser.parse_args(argv)
+
+
+def _clone(args: argparse.Namespace, plan: Any, venv: Any) -> tuple[COMA, dict[str, Any]]:
+    if args.source:
+        return COMA.load(args.source, env=venv, device="cpu", kl_coef=args.kl, kl_fraction=0.5), {}
+    model = build_model(plan, venv, device="cpu")
+    model.kl_coef, model.kl_fraction = args.kl, 0.5
+    tic = time.perf_counter()
+    report = clone_teacher(model, make_planner("oracle", venv, seed=args.seed), args.missions, args.rounds)
+    return model, {"dagger_rounds": report.rounds, "dagger_s": round(time.perf_counter() - tic, 1)}
+
+
+def _compare(path: Path, env: str, missions: int) -> dict[str, Any]:
+    """The model, AG and the oracle on the same unseen missions; paired verdicts against AG."""
+    results = {
+        name: evaluate(name, env=env, protocol="unseen", n_trials=missions, record=0)
+        for name in (str(path), "ag", "oracle")
+    }
+    finals = {name: {m: float(getattr(r, m)[:, -1].mean()) for m in ("f1", "entropy")} for name, r in results.items()}
+    diffs = holm_adjust([paired_difference(results[str(path)], results["ag"], m) for m in ("f1", "entropy")])
+    return {"finals": finals, "vs_ag": [{k: v for k, v in d.as_dict().items() if k != "per_scene"} for d in diffs]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Clone (or load), fine-tune if asked, compare, write the report."""
+    args = parse_args(argv)
+    th.set_num_threads(1)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    plan = plan_run(env=args.env, seed=args.seed, device="cpu")
+    venv = make_training_env(plan.cfg, seed=args.seed, workers=1)  # the oracle reads the env's state
+    model, record = _clone(args, plan, venv)
+    record_env_options(model, plan.cfg.map_name, plan.cfg.env_kwargs)
+    name = "clone.zip"
+    if args.finetune > 0:
+        model.set_reference_actor()
+        tic = time.perf_counter()
+        model.learn(args.finetune)
+        record["finetune_s"], name = round(time.perf_counter() - tic, 1), "finetuned.zip"
+    model.save(out / name)
+    venv.close()
+    record.update(vars(args), comparison=_compare(out / name, args.env, args.missions_eval))
+    (out / "report.json").write_text(json.dumps(record, indent=2) + "\n")
+    print(json.dumps(record["comparison"], indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
