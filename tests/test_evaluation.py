@@ -248,3 +248,16 @@ def test_a_local_file_never_shadows_a_shipped_model_name(tmp_path, monkeypatch):
     assert result.method == "env1" and result.f1.shape == (1, 3)
     with pytest.raises(Exception, match=r"env1\.zip"):
         evaluate("./env1.zip", env="env1", n_trials=1, budget=2)
+
+
+def test_warm_up_decision_changes_no_mission(monkeypatch):
+    """The untimed warm-up decision restores every random stream: the missions are the same."""
+    from sb3_coma.common import evaluation as library
+
+    kwargs = {"env": "env1", "n_trials": 2, "seed": 4, "record": 0, "split": "test", "start": "random"}
+    warm = [evaluate(name, **kwargs) for name in ("ag", "random")]
+    monkeypatch.setattr(library, "warm_up", lambda *args: None)
+    cold = [evaluate(name, **kwargs) for name in ("ag", "random")]
+    for a, b in zip(warm, cold):
+        np.testing.assert_array_equal(a.f1, b.f1)
+        np.testing.assert_array_equal(a.trajectories, b.trajectories)

@@ -30,7 +30,8 @@ AG's entropy weighting defaults to the one chosen per map family on validation m
 unless ``planner_kwargs`` names one.
 
 Planning time is the wall time of the ``predict`` call of each joint step divided by the
-number of UAV decisions it produced (all trials of a batch decide in one call).
+number of UAV decisions it produced (all trials of a batch decide in one call), measured after one
+untimed warm-up decision (:func:`warm_up`: JIT compilation and first-call set-up excluded).
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import torch as th
 
 from envs.maps import TRANSFORMS
 from sb3_coma.baselines import Planner
@@ -153,7 +155,7 @@ class EvaluationResult:
         """Step index at a fraction of the budget (0 = the reset measurement)."""
         if not 0.0 <= fraction <= 1.0:
             raise ValueError(f"fraction must be in [0, 1], got {fraction}")
-        return int(round(fraction * self.budget))
+        return round(float(fraction) * self.budget)
 
     def metric(self, name: str) -> np.ndarray:
         if name not in ALL_METRICS:
@@ -244,6 +246,20 @@ def _env_copies(venv: Any) -> list[Any] | None:
     return list(copies) if copies is not None else None
 
 
+def warm_up(predictor: Any, obs: Any, deterministic: bool) -> None:
+    """One untimed decision on the first observation, so that planning times exclude JIT
+    compilation (numba kernels compiled on first call), oneDNN kernel selection and first-call
+    set-up. The predictor's random streams (a planner's ``rng``, torch's generator) are restored
+    afterwards, so the missions flown are exactly those flown without the warm-up."""
+    rng = getattr(predictor, "rng", None)
+    rng_state = rng.bit_generator.state if isinstance(rng, np.random.Generator) else None
+    torch_state = th.get_rng_state()
+    predictor.predict(obs, episode_start=np.ones(len(obs["action_mask"]), dtype=bool), deterministic=deterministic)
+    th.set_rng_state(torch_state)
+    if rng_state is not None:
+        rng.bit_generator.state = rng_state
+
+
 def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int, frames: bool) -> dict[str, Any]:
     """Fly one mission in every copy of ``venv`` (already seeded) and collect the metrics."""
     n_agents = int(venv.n_agents)
@@ -253,6 +269,7 @@ def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int
     # After the reset: split missions (and env1 without a map seed) draw their map there.
     truths = venv.get_attr("ground_truth", indices=rows)
     truth = truths[0]
+    warm_up(predictor, obs, deterministic)
     if isinstance(predictor, Planner):
         predictor.reset()
     start = venv.env_method("metrics", indices=rows)
@@ -292,8 +309,9 @@ def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int
     finally:
         if snaps is not None:
             snaps.remove()
-    if snaps is not None and all(tr is not None for tr in snaps.trajectory):
-        trajectories = np.stack(snaps.trajectory)
+    seen = [] if snaps is None else [tr for tr in snaps.trajectory if tr is not None]
+    if snaps is not None and len(seen) == len(snaps.trajectory):
+        trajectories = np.stack(seen)
         final_beliefs = [b for b in snaps.belief[:keep_beliefs]]
     else:  # an env without our copies: the last positions are unknown, keep what was seen
         trajectories = np.full((copies, budget + 1, n_agents, 3), np.nan)
