@@ -22,10 +22,10 @@ import time
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # also for the workers, which inherit the environment
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-import envs  # noqa: E402
-from envs import layout  # noqa: E402
+import envs
+from envs import layout
 
 BUDGET, N_UAVS = 15, 4
 #: ``--parts`` name -> (workers, backend) of ``envs.make_vec_env``.

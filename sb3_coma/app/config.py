@@ -23,7 +23,7 @@ import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import torch as th
 import yaml
@@ -40,12 +40,12 @@ from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 __all__ = [
     "ALLOW_TEST_SPLIT",
     "DEFAULT_ENV_ID",
+    "LAYOUT_KEYS",
     "RESERVED_KEYS",
     "RUN_KEY",
     "UNSUPPORTED_KEYS",
     "VARIANTS_KEY",
     "ZOO_KEYS",
-    "LAYOUT_KEYS",
     "TrainConfig",
     "TrainingError",
     "coma_kwargs",
@@ -57,7 +57,6 @@ __all__ = [
     "load_config",
     "make_training_env",
     "make_vec_env_from_kwargs",
-    "resolve_workers",
     "map_key",
     "named_objects",
     "output_file_problem",
@@ -70,6 +69,7 @@ __all__ = [
     "repeated",
     "resolve_env_id",
     "resolve_policy_kwargs",
+    "resolve_workers",
     "split_env_kwargs",
     "validate_entry",
     "whole_number",
@@ -207,7 +207,7 @@ def _fail(where: str, message: str) -> None:
     raise TrainingError(f"{where}: {message}")
 
 
-def is_int(value: Any) -> bool:
+def is_int(value: Any) -> TypeGuard[int]:
     """An ``int`` that is not a ``bool``."""
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -610,7 +610,7 @@ def resolve_policy_kwargs(value: Any) -> dict[str, Any]:
         return {}
     if isinstance(value, str):
         try:
-            value = eval(value, dict(_POLICY_KWARGS_NAMES))  # noqa: S307 - rl-zoo3's documented format
+            value = eval(value, dict(_POLICY_KWARGS_NAMES))  # rl-zoo3's documented format
         except Exception as exc:  # any error in the user's expression
             raise TrainingError(f"policy_kwargs {value!r} is not a valid Python expression: {exc}") from exc
     if not isinstance(value, dict):

@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import pickle
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -411,26 +411,9 @@ def evaluate(
     if deterministic is None:
         deterministic = bool(shipped.get("deterministic", True))
     flown_kwargs: dict[str, Any] = {}
-    first_batch = [True]
-
-    def make_env(n: int) -> Any:
-        try:
-            return envs.make_vec_env(env, n_envs=n, fusion=flown_fusion, seed=None, **env_options)
-        except ValueError as exc:
-            if flown_fusion == "sendfuse" and own_fusion != "sendfuse" and "sendfuse" in str(exc):
-                raise ValueError(f"{exc}; evaluate a model trained without SenDFuse with fusion='mean'") from exc
-            raise
-
-    def predictor_for(venv: Any, batch_seed: int) -> Any:
-        config = venv.get_attr("config", indices=[0])[0]
-        if first_batch.pop() if first_batch else False:
-            flown_kwargs.update(planner_options(policy_or_name, config, planner_kwargs))
-            _warn_if_flown_differently(policy_or_name, trained, shipped, fusion, config)
-        return resolve_policy(policy_or_name, venv, batch_seed, flown_kwargs)[0]
-
     result = evaluate_policy(
-        predictor_for,
-        make_env,
+        _predictor_maker(policy_or_name, trained, shipped, fusion, planner_kwargs, flown_kwargs),
+        _env_maker(env, flown_fusion, own_fusion, env_options),
         n_trials,
         seed,
         deterministic=bool(deterministic),
@@ -447,6 +430,45 @@ def evaluate(
         protocol=protocol,
         planner_kwargs=dict(flown_kwargs) if is_baseline else {},
     )
+
+
+def _env_maker(
+    env: str, flown_fusion: str, own_fusion: str | None, env_options: dict[str, Any]
+) -> Callable[[int], Any]:
+    """``make_env(n)`` of :func:`evaluate_policy`: ``n`` copies of the world the policy flies in."""
+
+    def make_env(n: int) -> Any:
+        try:
+            return envs.make_vec_env(env, n_envs=n, fusion=flown_fusion, seed=None, **env_options)
+        except ValueError as exc:
+            if flown_fusion == "sendfuse" and own_fusion != "sendfuse" and "sendfuse" in str(exc):
+                raise ValueError(f"{exc}; evaluate a model trained without SenDFuse with fusion='mean'") from exc
+            raise
+
+    return make_env
+
+
+def _predictor_maker(
+    policy_or_name: Any,
+    trained: dict[str, Any],
+    shipped: dict[str, Any],
+    fusion: str | None,
+    planner_kwargs: Mapping[str, Any] | None,
+    flown_kwargs: dict[str, Any],
+) -> Callable[[Any, int], Any]:
+    """``predictor_for(venv, batch_seed)`` of :func:`evaluate_policy`. At the first batch it fills
+    ``flown_kwargs`` with the baseline's options for the flown map and warns once if the model
+    flies otherwise than it trained; every batch gets its own predictor."""
+    first_batch = [True]
+
+    def predictor_for(venv: Any, batch_seed: int) -> Any:
+        config = venv.get_attr("config", indices=[0])[0]
+        if first_batch.pop() if first_batch else False:
+            flown_kwargs.update(planner_options(policy_or_name, config, planner_kwargs))
+            _warn_if_flown_differently(policy_or_name, trained, shipped, fusion, config)
+        return resolve_policy(policy_or_name, venv, batch_seed, flown_kwargs)[0]
+
+    return predictor_for
 
 
 def policy_label(policy_or_name: Any) -> str:

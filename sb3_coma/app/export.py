@@ -66,7 +66,7 @@ from sb3_coma.app.runs import read_run_config, run_folder_of
 from sb3_coma.baselines import planner_class
 from sb3_coma.coma.masking import MASKED_LOGIT, mask_logits
 from sb3_coma.common.checkpoints import training_options
-from sb3_coma.sendfuse.network import UNKNOWN
+from sb3_coma.sendfuse.network import UNKNOWN, SenDFuseNet
 from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 
 __all__ = [
@@ -147,8 +147,10 @@ class FusionGraph(nn.Module):
     ``network=None`` is the naive mean; otherwise the SenDFuse network, fused at ``alpha``.
     """
 
+    to_lattice: th.Tensor  # a registered buffer
+
     def __init__(
-        self, network: nn.Module | None, n_sources: int, to_lattice: np.ndarray, alpha: float | None = None
+        self, network: SenDFuseNet | None, n_sources: int, to_lattice: np.ndarray, alpha: float | None = None
     ) -> None:
         super().__init__()
         self.network = network
@@ -294,11 +296,12 @@ def check_fusion_matches(fusion: str | None, settings: Mapping[str, Any] | None,
     """Refuse exporting a fusion the model was not trained with: ``export.json`` would claim it,
     and an on-board actor fed another fusion's channel acts on maps it never saw. ``fusion`` is the
     caller's (``None``: the recorded one is used); ``label`` is how the caller named it."""
-    recorded = (settings or {}).get("fusion")
+    known = settings or {}
+    recorded = known.get("fusion")
     if fusion is None or recorded not in FUSIONS or fusion == recorded:
         return
     raise ExportError(
-        f"{label}: the model was trained with fusion {recorded!r} ({settings.get('from', 'its record')}); "
+        f"{label}: the model was trained with fusion {recorded!r} ({known.get('from', 'its record')}); "
         f"export.json must not claim a fusion it was not trained with: drop the fusion or pass {recorded!r}"
     )
 
@@ -619,20 +622,7 @@ def export_onnx(
     """
     check_opset(opset, f"opset={opset!r}")
     out = check_out_dir(out_dir)
-    settings = dict(settings) if settings is not None else settings_of_model(model)
-    check_fusion_matches(fusion, settings, f"fusion={fusion!r}")
-    if fusion is None:
-        fusion = (settings or {}).get("fusion")
-    if fusion not in FUSIONS:
-        if fusion is None or fusion == "unknown":
-            raise ExportError(
-                "cannot tell which fusion this model was trained with (no shipped-model entry, "
-                "run config or env with a fusion wrapper): pass fusion='sendfuse' or 'mean'"
-            )
-        raise ExportError(f"fusion={fusion!r}: choose one of {', '.join(FUSIONS)}")
-    if settings is None:
-        settings = _settings_from_spaces(model, fusion)
-    settings = {**settings, "fusion": fusion}
+    fusion, settings = _resolve_fusion(model, fusion, settings)
     out.mkdir(parents=True, exist_ok=True)
 
     feeds = _sample_inputs(model, settings, batch=3)
@@ -656,24 +646,49 @@ def export_onnx(
         ["fused", "fused_channel"],
         opset,
     )
-    checked: dict[str, Any] = {"done": False}
-    if verify:
-        try:
-            checked = {
-                "done": True,
-                "inputs": "3 random valid rows",
-                "actor_max_abs_diff": _verify(paths["actor"], feeds, _torch_reference(actor), "actor"),
-                "fusion_max_abs_diff": _verify(paths["fusion"], feeds, fusion_reference(fusion_graph), "fusion"),
-            }
-        except RuntimeError:
-            for path in (paths["actor"], paths["fusion"]):
-                path.unlink(missing_ok=True)
-            raise
+    checked = _verify_exports(paths, feeds, actor, fusion_graph) if verify else {"done": False}
     metadata = _metadata(model, actor, actor_inputs, fusion_info, settings, source, opset, checked)
     tmp = paths["metadata"].with_name(METADATA_FILE + ".tmp")
     tmp.write_text(json.dumps(_jsonable(metadata), indent=2, allow_nan=False) + "\n")
     os.replace(tmp, paths["metadata"])
     return paths
+
+
+def _resolve_fusion(model: Any, fusion: str | None, given: Mapping[str, Any] | None) -> tuple[str, dict[str, Any]]:
+    """The fusion to export and the training settings with it: ``fusion`` if given (it must agree
+    with the settings), else the one the settings record; settings from the model when none are
+    given, from its observation space when it recorded none."""
+    settings = dict(given) if given is not None else settings_of_model(model)
+    check_fusion_matches(fusion, settings, f"fusion={fusion!r}")
+    if fusion is None:
+        fusion = (settings or {}).get("fusion")
+    if fusion not in FUSIONS:
+        if fusion is None or fusion == "unknown":
+            raise ExportError(
+                "cannot tell which fusion this model was trained with (no shipped-model entry, "
+                "run config or env with a fusion wrapper): pass fusion='sendfuse' or 'mean'"
+            )
+        raise ExportError(f"fusion={fusion!r}: choose one of {', '.join(FUSIONS)}")
+    if settings is None:
+        settings = _settings_from_spaces(model, fusion)
+    return fusion, {**settings, "fusion": fusion}
+
+
+def _verify_exports(
+    paths: dict[str, Path], feeds: dict[str, np.ndarray], actor: ActorGraph, fusion_graph: FusionGraph
+) -> dict[str, Any]:
+    """Both files against PyTorch on the sample inputs; on a failed comparison both are deleted."""
+    try:
+        return {
+            "done": True,
+            "inputs": "3 random valid rows",
+            "actor_max_abs_diff": _verify(paths["actor"], feeds, _torch_reference(actor), "actor"),
+            "fusion_max_abs_diff": _verify(paths["fusion"], feeds, fusion_reference(fusion_graph), "fusion"),
+        }
+    except RuntimeError:
+        for path in (paths["actor"], paths["fusion"]):
+            path.unlink(missing_ok=True)
+        raise
 
 
 def _settings_from_spaces(model: Any, fusion: str) -> dict[str, Any]:
@@ -701,7 +716,7 @@ def _settings_from_spaces(model: Any, fusion: str) -> dict[str, Any]:
 
 def _policy_info(model: Any, actor: ActorGraph) -> dict[str, Any]:
     policy = model.policy
-    prior = actor.actor.prior_weights
+    prior = policy.actor.prior_weights  # the exported actor is a copy of this one
     return {
         "class": type(policy).__name__,
         "features_extractor": policy.features_extractor_class.__name__,
@@ -725,56 +740,8 @@ def _metadata(
     checked: Mapping[str, Any],
 ) -> dict[str, Any]:
     """The JSON: every input/output, the env options the observations must be built with, provenance."""
-    space = model.policy.observation_space
-    local_shape = tuple(space[layout.KEY_LOCAL].shape)
-    config = settings["config"]
-    n, r, lattice = int(config["n_uavs"]), int(config["comm_grid"]), int(config["lattice"])
-
-    def dtype(key: str) -> str:
-        return str(np.dtype(space[key].dtype))
-
-    actor_in = [
-        _io(
-            "local",
-            local_shape,
-            dtype(layout.KEY_LOCAL),
-            "the UAV's local maps in [0, 1]; channel 8 (fused) is fusion.onnx's fused_channel",
-            channels=_local_channel_names(),
-        ),
-        _io("action_mask", (layout.N_ACTIONS,), dtype(layout.KEY_MASK), "1 valid, 0 invalid action"),
-    ]
-    if "action_gain" in actor_inputs:
-        actor_in.append(
-            _io(
-                "action_gain",
-                tuple(space[layout.KEY_GAIN].shape),
-                dtype(layout.KEY_GAIN),
-                "each action's normalised expected information gain (rows: "
-                f"{', '.join(layout.GAIN_WEIGHTINGS)}), the env's action_gain observation",
-            )
-        )
-    fusion_block = {
-        "file": FUSION_FILE,
-        **fusion_info,
-        "inputs": [
-            _io(
-                "received",
-                (n, r, r),
-                "float32",
-                "slot 0: the UAV's own map; slots 1..: maps received from the other UAVs (0.5 where nothing arrived)",
-            ),
-            _io("received_valid", (n,), "float32", "1 where a slot holds a map (slot 0 always)"),
-        ],
-        "outputs": [
-            _io("fused", (r, r), "float32", "the fused map on the communication grid"),
-            _io(
-                "fused_channel",
-                (lattice, lattice),
-                "float32",
-                "the actor's 8th local channel: fused averaged onto the lattice, clipped to [0, 1]",
-            ),
-        ],
-    }
+    actor_in = _actor_inputs(model, actor_inputs)
+    fusion_block = _fusion_block(fusion_info, settings)
     return {
         "format": METADATA_FORMAT,
         "exported_by": f"sb3-coma {__version__}, torch {th.__version__}",
@@ -803,13 +770,77 @@ def _metadata(
         },
         "fusion": fusion_block,
         "env": dict(settings),
-        "source": None
-        if source is None
-        else {
-            "given": source.given,
-            "path": str(source.path),
-            "sha256": sha256_file(source.path) if source.path.is_file() else None,
-            "shipped": source.shipped is not None,
-        },
+        "source": _source_info(source),
         "check": dict(checked),
+    }
+
+
+def _actor_inputs(model: Any, actor_inputs: list[str]) -> list[dict[str, Any]]:
+    """The actor's inputs in the JSON: ``local``, ``action_mask`` and, when it reads them, ``action_gain``."""
+    space = model.policy.observation_space
+    local_shape = tuple(space[layout.KEY_LOCAL].shape)
+
+    def dtype(key: str) -> str:
+        return str(np.dtype(space[key].dtype))
+
+    actor_in = [
+        _io(
+            "local",
+            local_shape,
+            dtype(layout.KEY_LOCAL),
+            "the UAV's local maps in [0, 1]; channel 8 (fused) is fusion.onnx's fused_channel",
+            channels=_local_channel_names(),
+        ),
+        _io("action_mask", (layout.N_ACTIONS,), dtype(layout.KEY_MASK), "1 valid, 0 invalid action"),
+    ]
+    if "action_gain" in actor_inputs:
+        actor_in.append(
+            _io(
+                "action_gain",
+                tuple(space[layout.KEY_GAIN].shape),
+                dtype(layout.KEY_GAIN),
+                "each action's normalised expected information gain (rows: "
+                f"{', '.join(layout.GAIN_WEIGHTINGS)}), the env's action_gain observation",
+            )
+        )
+    return actor_in
+
+
+def _fusion_block(fusion_info: dict[str, Any], settings: Mapping[str, Any]) -> dict[str, Any]:
+    """``fusion.onnx`` in the JSON: what the graph holds, its inputs and outputs."""
+    config = settings["config"]
+    n, r, lattice = int(config["n_uavs"]), int(config["comm_grid"]), int(config["lattice"])
+    return {
+        "file": FUSION_FILE,
+        **fusion_info,
+        "inputs": [
+            _io(
+                "received",
+                (n, r, r),
+                "float32",
+                "slot 0: the UAV's own map; slots 1..: maps received from the other UAVs (0.5 where nothing arrived)",
+            ),
+            _io("received_valid", (n,), "float32", "1 where a slot holds a map (slot 0 always)"),
+        ],
+        "outputs": [
+            _io("fused", (r, r), "float32", "the fused map on the communication grid"),
+            _io(
+                "fused_channel",
+                (lattice, lattice),
+                "float32",
+                "the actor's 8th local channel: fused averaged onto the lattice, clipped to [0, 1]",
+            ),
+        ],
+    }
+
+
+def _source_info(source: ModelSource | None) -> dict[str, Any] | None:
+    """Where the model came from: what was given, the file, its SHA-256, whether it is shipped."""
+    if source is None:
+        return None
+    return {
+        "given": source.given,
+        "path": str(source.path),
+        "sha256": sha256_file(source.path) if source.path.is_file() else None,
+        "shipped": source.shipped is not None,
     }

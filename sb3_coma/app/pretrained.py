@@ -33,20 +33,20 @@ from sb3_coma.app.config import TrainingError, env_options_of, load_config
 from sb3_coma.coma import COMA
 
 __all__ = [
+    "MANIFEST",
+    "PretrainedError",
+    "available",
     "is_shipped",
+    "load_pretrained",
+    "model_info",
+    "model_path",
+    "pretrained_dir",
+    "read_manifest",
+    "sha256_file",
+    "shipped_env_options",
     "shipped_name_of",
     "verify_shipped_file",
-    "shipped_env_options",
-    "PretrainedError",
-    "load_pretrained",
-    "available",
-    "model_info",
-    "pretrained_dir",
-    "model_path",
-    "sha256_file",
-    "read_manifest",
     "write_manifest",
-    "MANIFEST",
 ]
 
 #: File name of the manifest inside the pretrained folder.

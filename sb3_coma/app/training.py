@@ -86,12 +86,12 @@ from sb3_coma.common.checkpoints import atomic_save, load_checkpoint, training_o
 from sb3_coma.common.memory import release_freed_memory
 from sb3_coma.common.outputs import FolderLock
 
+# the trainer
 __all__ = [
-    # the trainer
+    "RESUME_APPLIED_KEYS",
     "TB_LOG_NAME",
     "VALIDATION_SEED",
     "MissionCallbacks",
-    "RESUME_APPLIED_KEYS",
     "RunPlan",
     "TrainingInterrupted",
     "attach_callbacks",
@@ -106,7 +106,9 @@ __all__ = [
     "run_settings",
     "save_final",
     "train",
-    # kept importable from here: the config format (sb3_coma.app.config) and run folders (sb3_coma.app.runs)
+]
+# kept importable from here: the config format (sb3_coma.app.config) and run folders (sb3_coma.app.runs)
+__all__ += [
     "CHECKPOINT_DIR",
     "CONFIG_FILE",
     "METRICS_FILE",
@@ -468,7 +470,7 @@ def _run_record(plan: RunPlan) -> dict[str, Any]:
         resumes = [*list(plan.cfg.run.get("resumes") or []), resume]
         # the settings copy follows an allowed change, so the next resume compares with what runs now
         return {**plan.cfg.run, "settings": run_settings(plan.cfg.entry), "resumes": resumes}
-    run = {
+    run: dict[str, Any] = {
         "env": plan.cfg.env_id,
         "variant": plan.cfg.variant,
         "seed": plan.seed,
@@ -724,7 +726,7 @@ def _set_up(
     runs_root: str | os.PathLike[str],
     device: str,
     verbose: int,
-    callback_args: tuple[Any, ...],
+    callback_args: tuple[int | None, int, int, list[BaseCallback] | None, bool],
 ) -> tuple[COMA, Path, MissionCallbacks, list[BaseCallback]]:
     """Steps 2-5 of :func:`train`: envs, model, run folder, callbacks (``callback_args``: the
     arguments of :func:`attach_callbacks` after the run folder). Nothing is written before the

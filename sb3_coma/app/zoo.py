@@ -31,9 +31,10 @@ import os
 import sys
 import uuid
 from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path
 from pprint import pprint
-from typing import Any
+from typing import Any, cast
 
 import gymnasium
 import numpy as np
@@ -228,8 +229,8 @@ class _StoreDict(StoreDict):
         for argument in values:
             key, _, text = argument.partition(":")
             try:
-                parsed[key] = eval(text)  # noqa: S307 - rl-zoo3's format: values are Python expressions
-            except Exception as exc:  # noqa: BLE001 - NameError, SyntaxError, ...: whatever eval raises
+                parsed[key] = eval(text)  # rl-zoo3's format: values are Python expressions
+            except Exception as exc:  # NameError, SyntaxError, ...: whatever eval raises
                 raise TrainingError(
                     f"{option_string} {argument}: the value {text!r} of {key!r} cannot be read as Python "
                     f"({exc}); as in rl-zoo3, write numbers as they are and quote text ({key}:\"'text'\")"
@@ -425,7 +426,8 @@ def enjoy(args: argparse.Namespace) -> None:
     env = make_vec_env_from_kwargs(
         args.env, _enjoy_env_kwargs(log_path, env_name, hyperparams, args.env_kwargs), args.n_envs, args.seed
     )
-    wrapper = get_wrapper_class(hyperparams, "vec_env_wrapper")
+    # rl-zoo3 annotates get_wrapper_class for gym.Env wrappers; for "vec_env_wrapper" it returns VecEnv wrappers.
+    wrapper = cast("Callable[[VecEnv], VecEnv] | None", get_wrapper_class(hyperparams, "vec_env_wrapper"))
     if wrapper is not None:
         env = wrapper(env)
     if not args.no_render:
@@ -449,6 +451,7 @@ def _fly(model: COMA, env: VecEnv, steps: int, deterministic: bool, verbose: int
     episode_start = np.ones(env.num_envs, dtype=bool)
     try:
         for _ in range(steps):
+            assert isinstance(obs, dict)  # the vec envs of envs.make_vec_env have Dict observations
             actions, _ = model.predict(obs, episode_start=episode_start, deterministic=deterministic)
             obs, _, dones, infos = env.step(actions)
             episode_start = dones

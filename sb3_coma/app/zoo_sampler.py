@@ -20,7 +20,7 @@ from typing import Any
 import optuna
 from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER
 
-__all__ = ["sample_coma_params", "convert_coma_params", "register"]
+__all__ = ["convert_coma_params", "register", "sample_coma_params"]
 
 
 def convert_coma_params(sampled_params: dict[str, Any]) -> dict[str, Any]:

@@ -55,10 +55,10 @@ def make_planner(name: str, venv: VecEnv, seed: int | None = None, **kwargs: Any
 
 __all__ = [
     "ALIASES",
+    "PLANNERS",
     "AdaptiveGainPlanner",
     "LawnmowerPlanner",
     "OraclePlanner",
-    "PLANNERS",
     "Planner",
     "RandomPlanner",
     "make_planner",

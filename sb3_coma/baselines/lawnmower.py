@@ -18,7 +18,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from envs.geometry import FieldGeometry
 
 from .base import Planner
-from .navigation import DistanceCache, best_move
+from .navigation import DistanceCache, best_move, lattice_cell
 
 Waypoint = tuple[int, int, int]  # (ix, iy, iz) lattice indices, iz = altitude level
 
@@ -185,7 +185,7 @@ class LawnmowerPlanner(Planner):
         side = 2.0 * float(self.geometry.half_side[self.level])
         width = config.field_size / self.n_agents
         if lanes_per_uav is None:
-            lanes_per_uav = max(1, int(round(width / side)))
+            lanes_per_uav = max(1, round(width / side))
         if isinstance(lanes_per_uav, bool) or int(lanes_per_uav) != lanes_per_uav or lanes_per_uav < 1:
             raise ValueError(f"lawnmower lanes_per_uav={lanes_per_uav!r}: must be an integer >= 1")
         self.lanes_per_uav = int(lanes_per_uav)
@@ -214,7 +214,7 @@ class LawnmowerPlanner(Planner):
         return np.column_stack([xy, z])
 
     def _make_plan(self, copy: int, positions: np.ndarray, no_fly: np.ndarray) -> None:
-        starts = [tuple(int(v) for v in p) for p in positions]
+        starts = [lattice_cell(p) for p in positions]
         routes = assign_strips(starts, self._strip_routes)
         self._routes[copy] = [_free_route(r, no_fly) or [s] for r, s in zip(routes, starts)]
         self._progress[copy] = [0] * self.n_agents
@@ -232,7 +232,7 @@ class LawnmowerPlanner(Planner):
         actions = np.zeros((copies, self.n_agents), dtype=np.int64)
         for c in range(copies):
             for u in range(self.n_agents):
-                target = self._next_waypoint(c, u, tuple(int(v) for v in positions[c][u]))
+                target = self._next_waypoint(c, u, lattice_cell(positions[c][u]))
                 field = self._distances.get(self._no_fly[c], n_levels, target)
                 actions[c, u] = best_move(positions[c][u], field, mask[c, u], target, self.rng)
         return actions

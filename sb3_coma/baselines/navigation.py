@@ -8,6 +8,9 @@ and is cached because routes revisit the same waypoints every episode.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import Any
+
 import numpy as np
 
 from envs.ipp_env import ACTION_DELTAS
@@ -16,6 +19,12 @@ from envs.ipp_env import ACTION_DELTAS
 ALTITUDE_MOVES = (5, 0)  # down first: reach the sweep altitude from the 15 m start early
 X_MOVES = (1, 4)
 Y_MOVES = (2, 3)
+
+
+def lattice_cell(values: Iterable[Any]) -> tuple[int, int, int]:
+    """``(ix, iy, iz)`` as plain ints, from any three numbers (a row of a positions array)."""
+    ix, iy, iz = (int(v) for v in values)
+    return ix, iy, iz
 
 
 def distance_field(no_fly: np.ndarray, n_levels: int, target: tuple[int, int, int]) -> np.ndarray:
@@ -53,7 +62,7 @@ class DistanceCache:
         self._fields: dict[tuple[bytes, int, tuple[int, int, int]], np.ndarray] = {}
 
     def get(self, no_fly: np.ndarray, n_levels: int, target: tuple[int, int, int]) -> np.ndarray:
-        key = (np.asarray(no_fly, dtype=bool).tobytes(), int(n_levels), tuple(int(t) for t in target))
+        key = (np.asarray(no_fly, dtype=bool).tobytes(), int(n_levels), lattice_cell(target))
         field = self._fields.get(key)
         if field is None:
             field = self._fields[key] = distance_field(no_fly, n_levels, key[2])

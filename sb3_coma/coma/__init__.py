@@ -7,13 +7,13 @@ from sb3_coma.coma.targets import counterfactual_advantage, counterfactual_basel
 
 __all__ = [
     "COMA",
-    "COMAPolicy",
     "CBAMPolicy",
+    "COMAPolicy",
     "CnnPolicy",
     "JointRolloutBuffer",
-    "td_lambda_targets",
     "counterfactual_advantage",
     "counterfactual_baseline",
     "critic_input",
     "other_actions_map",
+    "td_lambda_targets",
 ]

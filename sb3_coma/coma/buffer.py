@@ -17,7 +17,7 @@ from gymnasium import spaces
 
 from envs import layout
 
-__all__ = ["JointRolloutBuffer", "JointBatch"]
+__all__ = ["JointBatch", "JointRolloutBuffer"]
 
 JointBatch = dict[str, th.Tensor]
 
@@ -77,7 +77,7 @@ class JointRolloutBuffer:
 
     def _grouped(self, flat: np.ndarray) -> np.ndarray:
         """``(E * N, ...) -> (E, N, ...)`` (a view)."""
-        return np.asarray(flat).reshape((self.n_copies, self.n_agents) + np.shape(flat)[1:])
+        return np.asarray(flat).reshape((self.n_copies, self.n_agents, *np.shape(flat)[1:]))
 
     def add(
         self,

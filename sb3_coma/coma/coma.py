@@ -122,6 +122,8 @@ class COMA(OnPolicyAlgorithm):
     }
     policy: COMAPolicy  # type: ignore[assignment]  # SB3 types it as ActorCriticPolicy
     rollout_buffer: JointRolloutBuffer  # type: ignore[assignment]
+    #: The manifest entry of a shipped model, set by ``sb3_coma.load_pretrained`` (absent otherwise).
+    pretrained_info: dict[str, Any]
 
     def __init__(
         self,
@@ -156,10 +158,7 @@ class COMA(OnPolicyAlgorithm):
     ) -> None:
         check_device(device)
         policy_class = self._resolve_policy(policy)
-        n_agents: int | None = None
-        if env is not None:
-            n_agents = resolve_n_agents(env)  # type: ignore[arg-type]
-            check_spaces(env.observation_space, env.action_space)
+        n_agents = self._agents_of(env)
         check_coma_arguments(locals())
         if env is not None and n_steps is not None:
             assert n_agents is not None
@@ -203,16 +202,29 @@ class COMA(OnPolicyAlgorithm):
         self.exploration_rate = exploration_initial_eps
         self.kl_coef = kl_coef
         self.kl_fraction = kl_fraction
+        self._init_run_state()
+        if _init_setup_model:
+            self._setup_model()
+
+    # ------------------------------------------------------------ set-up
+    @staticmethod
+    def _agents_of(env: GymEnv | None) -> int | None:
+        """UAVs per env copy (``None`` without an env), after checking the env's spaces."""
+        if env is None:
+            return None
+        n_agents = resolve_n_agents(env)  # type: ignore[arg-type]
+        check_spaces(env.observation_space, env.action_space)
+        return n_agents
+
+    def _init_run_state(self) -> None:
+        """What a model holds besides its hyperparameters: KL reference, env options, counters."""
         #: A frozen copy of the actor that the KL term pulls toward (``set_reference_actor``);
         #: not saved: the pull decays to zero within the run that set it.
         self.reference_actor: th.nn.Module | None = None
         self.env_options: dict[str, Any] | None = None
         self._n_critic_updates = 0
         self._n_target_updates = 0
-        if _init_setup_model:
-            self._setup_model()
 
-    # ------------------------------------------------------------ set-up
     @classmethod
     def _resolve_policy(cls, policy: str | type[COMAPolicy]) -> type[COMAPolicy]:
         """Map an alias to its class here (SB3's base refuses "CnnPolicy" on Dict spaces)."""

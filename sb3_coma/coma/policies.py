@@ -29,7 +29,7 @@ from envs import layout
 from sb3_coma.coma.masking import behaviour_probs, mask_logits, sample_actions
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 
-__all__ = ["other_actions_map", "critic_input", "COMAPolicy", "CBAMPolicy", "CnnPolicy"]
+__all__ = ["CBAMPolicy", "COMAPolicy", "CnnPolicy", "critic_input", "other_actions_map"]
 
 #: Width of the actor's gain encoder (``gain_inputs=True``): the per-action gains are mapped to
 #: this many features before they join the trunk's features in the head.
@@ -54,7 +54,7 @@ def other_actions_map(footprint: th.Tensor, actions: th.Tensor, n_actions: int =
     :param actions: ``(B, N)`` integer actions
     :return: ``(B, N, H, W)``; if two UAVs ever shared a column the larger value wins
     """
-    batch, n_agents = actions.shape
+    _batch, n_agents = actions.shape
     here = (footprint > _HERE_THRESHOLD).to(footprint.dtype)
     contrib = here * ((actions.to(footprint.dtype) + 1.0) / n_actions)[:, :, None, None]  # (B, N, H, W)
     others = 1.0 - th.eye(n_agents, dtype=footprint.dtype, device=footprint.device)  # [i, j] = j != i

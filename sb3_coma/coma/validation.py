@@ -18,13 +18,13 @@ from stable_baselines3.common.vec_env import VecEnv
 from envs import layout
 
 __all__ = [
-    "resolve_n_agents",
-    "check_spaces",
-    "check_positive_rate",
-    "check_unit_interval",
-    "check_positive_int",
     "check_batch_fits_rollout",
     "check_device",
+    "check_positive_int",
+    "check_positive_rate",
+    "check_spaces",
+    "check_unit_interval",
+    "resolve_n_agents",
 ]
 
 
@@ -43,7 +43,7 @@ def resolve_n_agents(env: VecEnv) -> int:
         try:
             values = env.get_attr("n_agents")
             n_agents = values[0] if values else None
-        except Exception:  # noqa: BLE001 -- any failure means "the env does not say"
+        except Exception:  # any failure means "the env does not say"
             n_agents = None
     if n_agents is None:
         raise ValueError(

@@ -28,7 +28,7 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
@@ -205,7 +205,7 @@ class EpisodeMetricsCallback(BaseCallback):
         self.history: list[dict[str, Any]] = []
         self._recent: dict[str, deque] = {k: deque(maxlen=self.window) for k in ("reward", "f1", "entropy")}
         self._tracker = _MissionTracker()
-        self._handle = None
+        self._handle: TextIO | None = None
         self._writer: csv.DictWriter | None = None
         self._episode = 0
 

@@ -31,9 +31,9 @@ from typing import Any
 from sb3_coma.coma import COMA
 
 __all__ = [
+    "CHECKPOINT_PREFIX",
     "CheckpointError",
     "CheckpointInfo",
-    "CHECKPOINT_PREFIX",
     "DiskFullError",
     "atomic_save",
     "atomic_write_text",

@@ -256,7 +256,7 @@ def warm_up(predictor: Any, obs: Any, deterministic: bool) -> None:
     torch_state = th.get_rng_state()
     predictor.predict(obs, episode_start=np.ones(len(obs["action_mask"]), dtype=bool), deterministic=deterministic)
     th.set_rng_state(torch_state)
-    if rng_state is not None:
+    if isinstance(rng, np.random.Generator) and rng_state is not None:
         rng.bit_generator.state = rng_state
 
 

@@ -37,7 +37,7 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-__all__ = ["ChannelGate", "SpatialGate", "CBAM", "CBAMExtractor", "CnnExtractor"]
+__all__ = ["CBAM", "CBAMExtractor", "ChannelGate", "CnnExtractor", "SpatialGate"]
 
 
 class ChannelGate(nn.Module):
@@ -173,8 +173,10 @@ class _Trunk(BaseFeaturesExtractor):
         self.linear = nn.Sequential(nn.Linear(n_flat, features_dim), nn.ReLU())
 
     def forward(self, observations: th.Tensor | dict[str, th.Tensor]) -> th.Tensor:
-        x = observations[self.key] if isinstance(observations, dict) else observations
-        return self.linear(self.cnn(x))
+        if isinstance(observations, dict):
+            assert self.key is not None  # a Dict observation space always names its key (_map_space)
+            observations = observations[self.key]
+        return self.linear(self.cnn(observations))
 
     @property
     def cbams(self) -> list[CBAM]:

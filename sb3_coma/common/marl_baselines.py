@@ -106,9 +106,10 @@ class MapsExtractor(BaseFeaturesExtractor):
         missing = [k for k in keys if k not in observation_space.spaces]
         if missing:
             raise ValueError(f"MapsExtractor: observation has no {missing}; it has {list(observation_space.spaces)}")
-        boxes = [observation_space[k] for k in keys]
-        if not all(isinstance(b, spaces.Box) and len(b.shape) == 3 for b in boxes):
-            raise ValueError(f"MapsExtractor: every key must be a (C, H, W) Box, got {[b for b in boxes]}")
+        entries = [observation_space[k] for k in keys]
+        boxes = [b for b in entries if isinstance(b, spaces.Box) and len(b.shape) == 3]
+        if len(boxes) != len(entries):
+            raise ValueError(f"MapsExtractor: every key must be a (C, H, W) Box, got {entries}")
         if len({b.shape[1:] for b in boxes}) != 1:
             raise ValueError(f"MapsExtractor: maps of different sizes {[b.shape for b in boxes]}")
         if trunk not in TRUNKS:
@@ -239,7 +240,7 @@ class MaskedActorCriticPolicy(ActorCriticPolicy):
         distribution = self.masked_distribution(latent_pi, obs)
         actions = distribution.get_actions(deterministic=deterministic)
         log_prob = distribution.log_prob(actions)
-        return actions.reshape((-1, *self.action_space.shape)), values, log_prob
+        return actions.reshape((-1, *(self.action_space.shape or ()))), values, log_prob
 
     def evaluate_actions(self, obs: PyTorchObs, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor | None]:
         latent_pi, latent_vf = self._latents(obs)
@@ -252,7 +253,9 @@ class MaskedActorCriticPolicy(ActorCriticPolicy):
 
     def action_probs(self, obs: PyTorchObs) -> th.Tensor:
         """``(B, A)`` action probabilities (0 for invalid actions) of a batch of tensor observations."""
-        return self.get_distribution(obs).distribution.probs
+        distribution = self.get_distribution(obs).distribution
+        assert isinstance(distribution, th.distributions.Categorical)  # masked logits of a Discrete space
+        return distribution.probs
 
 
 class IPPOPolicy(MaskedActorCriticPolicy):
@@ -293,7 +296,7 @@ def _budget(venv: VecEnv) -> int:
 
 def timesteps_for_missions(missions: float, venv: VecEnv) -> int:
     """SB3 timesteps (agent-steps) of ``missions`` whole missions: ``missions * n_agents * budget``."""
-    return int(round(float(missions) * _n_agents(venv) * _budget(venv)))
+    return round(float(missions) * _n_agents(venv) * _budget(venv))
 
 
 def missions_of(timesteps: int, venv: VecEnv) -> float:
@@ -309,9 +312,11 @@ def _check_venv(venv: VecEnv) -> None:
             f"needs an envs.make_vec_env vec env with fusion 'mean' or 'sendfuse' (observation entries "
             f"{list(need)}), got observation space {space}"
         )
-    if space[layout.KEY_LOCAL].shape[0] != layout.LOCAL_CHANNELS:
+    local_shape = space[layout.KEY_LOCAL].shape
+    assert local_shape is not None  # a Box in every vec env of envs.make_vec_env
+    if local_shape[0] != layout.LOCAL_CHANNELS:
         raise ValueError(
-            f"observation['local'] has {space[layout.KEY_LOCAL].shape[0]} channels, expected "
+            f"observation['local'] has {local_shape[0]} channels, expected "
             f"{layout.LOCAL_CHANNELS}: build the vec env with fusion='mean' or 'sendfuse', not 'none'"
         )
 

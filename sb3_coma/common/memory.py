@@ -13,12 +13,13 @@ import ctypes
 import ctypes.util
 import functools
 import gc
+from collections.abc import Callable
 
 __all__ = ["release_freed_memory"]
 
 
 @functools.cache
-def _malloc_trim() -> ctypes._CFuncPtr | None:
+def _malloc_trim() -> Callable[[int], int] | None:
     """glibc's ``malloc_trim``, or ``None`` where the C library has none."""
     name = ctypes.util.find_library("c")
     try:

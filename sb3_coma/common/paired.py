@@ -80,12 +80,18 @@ MAY_DIFFER: dict[str, str] = {
     "alpha": "the return paid to a learner (reward scale); no paired metric reads it",
     "beta": "the return paid to a learner (reward offset); no paired metric reads it",
 }
+
+
+def _field_default(f: dataclasses.Field[Any]) -> Any:
+    """The default of a dataclass field, from its ``default`` or its ``default_factory``."""
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    assert f.default_factory is not dataclasses.MISSING, f"{f.name} has no default"
+    return f.default_factory()
+
+
 #: ``envs.IppConfig``'s options and defaults: an option a result does not name was flown at its default.
-_DEFAULTS: dict[str, Any] = {
-    f.name: (f.default if f.default is not dataclasses.MISSING else f.default_factory())  # type: ignore[misc]
-    for f in dataclasses.fields(IppConfig)
-    if f.name != "map_name"
-}
+_DEFAULTS: dict[str, Any] = {f.name: _field_default(f) for f in dataclasses.fields(IppConfig) if f.name != "map_name"}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -244,10 +250,11 @@ class PairedDifference:
     per_scene: tuple[SceneStat, ...] = field(default=(), repr=False)
 
     def __post_init__(self) -> None:
+        n_clusters = self.n if self.n_clusters is None else self.n_clusters
         if self.n_clusters is None:
-            object.__setattr__(self, "n_clusters", self.n)
+            object.__setattr__(self, "n_clusters", n_clusters)
         if self.se_clustered is None:
-            object.__setattr__(self, "se_clustered", self.se if self.n_clusters >= 2 else float("nan"))
+            object.__setattr__(self, "se_clustered", self.se if n_clusters >= 2 else float("nan"))
 
     @property
     def lower_is_better(self) -> bool:

@@ -93,7 +93,7 @@ def table_markdown(
             cells.append(f"**{m}** ± {std:.{digits}f}" if b else f"{m} ± {std:.{digits}f}")
         group = row.group if row.group != previous else ""
         previous = row.group
-        lines.append("| " + " | ".join([group, row.method] + cells) + " |")
+        lines.append("| " + " | ".join([group, row.method, *cells]) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -110,8 +110,8 @@ def table_text(
             f"{'*' if b else ' '}{mean:.{digits}f}±{std:.{digits}f}"
             for (mean, std), b in zip(_cell_values(row.result, metrics), bold)
         ]
-        body.append([row.group, row.method] + cells)
-    widths = [max(len(str(r[i])) for r in [head] + body) for i in range(len(head))]
+        body.append([row.group, row.method, *cells])
+    widths = [max(len(str(r[i])) for r in [head, *body]) for i in range(len(head))]
 
     def fmt(r: list[str]) -> str:
         return "  ".join(str(c).ljust(w) if i < 2 else str(c).rjust(w) for i, (c, w) in enumerate(zip(r, widths)))
@@ -139,9 +139,16 @@ def write_table_csv(
     with path.open("w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(
-            [group_title, "method", "n_trials", "budget"]
-            + columns
-            + ["return_mean", "return_std", "planning_ms_per_decision"]
+            [
+                group_title,
+                "method",
+                "n_trials",
+                "budget",
+                *columns,
+                "return_mean",
+                "return_std",
+                "planning_ms_per_decision",
+            ]
         )
         for row in rows:
             s = row.result.summary()

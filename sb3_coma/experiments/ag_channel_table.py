@@ -18,11 +18,13 @@ import argparse
 import sys
 import time
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 import envs
 from sb3_coma.baselines import make_planner
+from sb3_coma.coma.validation import resolve_n_agents
 
 __all__ = ["KEYS", "fly", "main"]
 
@@ -30,14 +32,15 @@ __all__ = ["KEYS", "fly", "main"]
 KEYS = ("f1", "entropy", "team_f1", "team_entropy")
 
 
-def fly(name: str, trials: int, **options: object) -> np.ndarray:
+def fly(name: str, trials: int, **options: Any) -> np.ndarray:
     """(trials, 4) final metrics of AG on ``trials`` seeded paper missions (one env copy per trial)."""
     venv = envs.make_vec_env(name, n_envs=trials, fusion="mean", seed=0, monitor=False, **options)
     planner = make_planner("ag", venv, seed=0)
     obs = venv.reset()
-    n = venv.n_agents
+    n = resolve_n_agents(venv)
     final = np.zeros((trials, len(KEYS)))
     for _ in range(venv.get_attr("config", indices=[0])[0].budget):
+        assert isinstance(obs, dict)  # the vec envs of envs.make_vec_env have Dict observations
         actions, _ = planner.predict(obs)
         obs, _, dones, infos = venv.step(actions)
         for c in range(trials):

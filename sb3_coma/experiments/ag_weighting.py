@@ -28,7 +28,7 @@ from envs.gain import WEIGHTINGS
 from sb3_coma.app.evaluation import evaluate as evaluate_method
 from sb3_coma.common.paired import paired_difference
 
-__all__ = ["VALIDATION_SEED", "VALIDATION_MISSIONS", "WeightingChoice", "pick_ag_weighting", "validation_options"]
+__all__ = ["VALIDATION_MISSIONS", "VALIDATION_SEED", "WeightingChoice", "pick_ag_weighting", "validation_options"]
 
 #: First env seed of the validation missions (seeds VALIDATION_SEED .. + n - 1 on split "train").
 VALIDATION_SEED = 2000

@@ -80,19 +80,23 @@ def one_thread() -> Iterator[None]:
         torch.set_num_threads(before)
 
 
-def _observation(env: str, fusion: str, seed: int = 0, moves: int = 3, **env_options: Any) -> tuple[Any, dict]:
+def _observation(
+    env: str, fusion: str, seed: int = 0, moves: int = 3, **env_options: Any
+) -> tuple[Any, dict[str, np.ndarray]]:
     """A vec env of one mission after a few random moves (every link up), and UAV 0's observation."""
 
     venv = envs.make_vec_env(env, n_envs=1, fusion=fusion, seed=seed, comm_range=float("inf"), **env_options)
     obs = venv.reset()
     rng = np.random.default_rng(seed)
     for _ in range(moves):
+        assert isinstance(obs, dict)  # the vec envs of envs.make_vec_env have Dict observations
         actions = np.array([rng.choice(np.flatnonzero(m > 0.5)) for m in obs[layout.KEY_MASK]])
         obs, *_ = venv.step(actions)
+    assert isinstance(obs, dict)
     return venv, obs
 
 
-def _torch_fusion(fusion: str, n_agents: int, comm: int, lattice: int) -> Callable[[], Any] | None:
+def _torch_fusion(fusion: str, n_agents: int, comm: int, lattice: int) -> Callable[[], Any]:
     """One UAV's fusion of ``n_agents`` maps (all valid) + the projection to the lattice, in PyTorch."""
 
     rng = np.random.default_rng(0)
@@ -173,7 +177,7 @@ def model_costs(
             CostRow(f"{label}: actor", env, "ONNX Runtime", *time_call(lambda: actor.run(None, actor_feeds), repeats)),
             CostRow(f"{label}: fusion + actor", env, "ONNX Runtime", *time_call(ort_both, repeats)),
         ]
-    except Exception as exc:  # noqa: BLE001 - onnx / onnxruntime missing or an export failure: say so, keep the table
+    except Exception as exc:  # onnx / onnxruntime missing or an export failure: say so, keep the table
         rows.append(
             CostRow(
                 f"{label}: fusion + actor",

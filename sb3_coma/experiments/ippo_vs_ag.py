@@ -70,7 +70,7 @@ class Curve(BaseCallback):
 
     def _on_rollout_end(self) -> None:
         """Append one row (and print every ``every``-th)."""
-        buf = list(self.model.ep_info_buffer)
+        buf = list(self.model.ep_info_buffer or ())  # set by learn() before the first rollout
         row = {
             "missions": self.num_timesteps / self.per_mission,
             "seconds": time.perf_counter() - self.tic,
@@ -139,8 +139,8 @@ def _build(args: argparse.Namespace, venv: Any) -> tuple[BaseAlgorithm, int]:
         return model, args.missions * args.budget  # COMA counts joint steps
     factory = {"ippo": make_ippo, "mappo": make_mappo}[args.algo]
     extractor = dict(trunk=args.trunk, gain_inputs=bool(args.gain_inputs))
-    model = factory(venv, seed=args.seed, policy_kwargs=dict(features_extractor_kwargs=extractor))
-    return model, timesteps_for_missions(args.missions, venv)
+    learner = factory(venv, seed=args.seed, policy_kwargs=dict(features_extractor_kwargs=extractor))
+    return learner, timesteps_for_missions(args.missions, venv)
 
 
 def _train(args: argparse.Namespace, out: Path) -> tuple[BaseAlgorithm, float, float]:

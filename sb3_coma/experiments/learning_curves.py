@@ -454,13 +454,13 @@ def table_markdown(groups: Sequence[GroupCurve], digits: int = 3) -> str:
     notes = [f"- {g.name}: {g.validation.describe()}" for g in groups]
     return (
         "\n".join(
-            lines
-            + [
+            [
+                *lines,
                 "",
                 "Validation F1 / entropy at the final step, mean over the validation missions; ± std over seeds.",
                 "",
+                *notes,
             ]
-            + notes
         )
         + "\n"
     )

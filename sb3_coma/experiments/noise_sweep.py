@@ -124,8 +124,10 @@ def sweep_points(
                 if float(v) == float(centre[axis]):
                     continue
                 points.append(SweepPoint(**{**centre, axis: float(v)}, decoder=decoder, axis=axis))
-    seen: set[tuple[float, float, float, str]] = set()
-    return [p for p in points if not (p.key() in seen or seen.add(p.key()))]
+    first: dict[tuple[float, float, float, str], SweepPoint] = {}  # the first point of each setting, in order
+    for p in points:
+        first.setdefault(p.key(), p)
+    return list(first.values())
 
 
 @dataclass

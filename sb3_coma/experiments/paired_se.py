@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         for metric in ("f1", "entropy"):
             d = paired_difference(other, ag, metric)
-            row = {"a": label, "b": "ag", "metric": metric, "diff": d.diff, "se_missions": d.se}
+            row: dict[str, Any] = {"a": label, "b": "ag", "metric": metric, "diff": d.diff, "se_missions": d.se}
             row["se_scenes"] = getattr(d, "se_clustered", None)
             print(json.dumps(row))
     return 0

@@ -35,17 +35,19 @@ from typing import TYPE_CHECKING
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib import cm, colors  # noqa: E402
-from matplotlib.collections import LineCollection  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib import cm, colors
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
+from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
 from sb3_coma.experiments.noise_sweep import AXIS_TITLES
 
 if TYPE_CHECKING:  # pragma: no cover
     from sb3_coma.common.evaluation import EvaluationResult
+    from sb3_coma.experiments.noise_sweep import NoiseSweepResult
 
 PathLike = str | os.PathLike
 #: Preferred TensorBoard reward tags, in order.
@@ -280,7 +282,7 @@ def _trail_2d(ax: plt.Axes, traj: np.ndarray, norm: colors.Normalize, upto: int 
         pts = traj[:upto, u]
         if len(pts) > 1:
             segs = np.stack([pts[:-1, :2], pts[1:, :2]], axis=1)
-            ax.add_collection(LineCollection(segs, colors=cmap(norm(pts[1:, 2])), lw=2.5))
+            ax.add_collection(LineCollection(list(segs), colors=cmap(norm(pts[1:, 2])), lw=2.5))
         ax.plot(pts[0, 0], pts[0, 1], "o", ms=5, mfc="none", mec=UAV_COLOURS[u % len(UAV_COLOURS)])
         ax.plot(pts[-1, 0], pts[-1, 1], "^", ms=8, color=UAV_COLOURS[u % len(UAV_COLOURS)], mec="k")
 
@@ -297,13 +299,16 @@ def plot_mission(result: EvaluationResult, path: PathLike, trial: int = 0) -> Pa
     _check_recorded(result, trial)
     if result.final_beliefs is None or trial >= len(result.final_beliefs):
         raise ValueError(f"trial {trial} has no recorded final belief: evaluate(..., record={trial + 1})")
+    truth = result.ground_truth
+    if truth is None:
+        raise ValueError("this result records no ground truth map (evaluate_policy records one)")
     size = result.field_size
     traj = result.trajectories[trial]
     norm = colors.Normalize(min(result.altitudes), max(result.altitudes))
     extent = (0, size, 0, size)
     fig = plt.figure(figsize=(15, 4.8))
     ax1 = fig.add_subplot(1, 3, 1)
-    ax1.imshow(result.ground_truth, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=1)
+    ax1.imshow(truth, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=1)
     _no_fly_overlay(ax1, result.no_fly, size)
     ax1.set_title("ground truth (black: valuable, red: no-fly)")
     ax2 = fig.add_subplot(1, 3, 2)
@@ -318,7 +323,7 @@ def plot_mission(result: EvaluationResult, path: PathLike, trial: int = 0) -> Pa
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
     ax3 = fig.add_subplot(1, 3, 3, projection="3d")
-    small = _block_mean(result.ground_truth, 32)  # a coarse floor keeps the 3-D draw fast
+    small = _block_mean(truth, 32)  # a coarse floor keeps the 3-D draw fast
     gy, gx = np.mgrid[0 : small.shape[0], 0 : small.shape[1]] * (size / small.shape[0])
     ax3.plot_surface(
         gx,
@@ -360,8 +365,10 @@ def _block_mean(image: np.ndarray, side: int) -> np.ndarray:
 
 
 def _figure_rgb(fig: plt.Figure) -> np.ndarray:
-    fig.canvas.draw()
-    return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    canvas = fig.canvas
+    assert isinstance(canvas, FigureCanvasAgg)  # this module selects the Agg backend
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
 def animate_mission(result: EvaluationResult, path: PathLike, fps: float = 2.0, max_side: int = 247) -> Path:
@@ -404,7 +411,7 @@ def animate_mission(result: EvaluationResult, path: PathLike, fps: float = 2.0, 
     plt.close(fig)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    duration = int(round(1000.0 / fps))
+    duration = round(1000.0 / fps)
     images[0].save(
         path,
         save_all=True,
@@ -459,7 +466,7 @@ def plot_ablation(
 # ---------------------------------------------------------------------------------------------
 # noise sweep
 # ---------------------------------------------------------------------------------------------
-def plot_noise_sweep(result: object, path: PathLike, title: str | None = None) -> Path:
+def plot_noise_sweep(result: NoiseSweepResult, path: PathLike, title: str | None = None) -> Path:
     """Entropy at 100 % vs each swept channel axis, one line per arm (solid: soft decoder, dashed:
     threshold), error bars = standard error over the shared missions; top row the global map's
     entropy (the paper's), bottom row the team entropy on the UAVs' own maps.

@@ -140,7 +140,7 @@ def shipped_methods(
     for name in order:
         info = models[name]
         algo = str(info.get("algo", "coma")).lower()
-        if algo not in ("coma",) + LEARNED_BASELINES:
+        if algo not in ("coma", *LEARNED_BASELINES):
             continue
         model = (loaded or {}).get(name)
         if model is None:
@@ -203,8 +203,8 @@ def default_pairs(methods: Sequence[Method]) -> list[tuple[str, str]]:
         if a in labels and b in labels and a != b and (a, b) not in pairs and (b, a) not in pairs:
             pairs.append((a, b))
 
-    for m in learned:
-        add(m, "ag")
+    for label in learned:
+        add(label, "ag")
     competitors = [m.label for m in methods if m.kind != "reference"]
     if learned:
         for other in competitors:
@@ -286,9 +286,7 @@ class ProtocolResult:
             lines.append(
                 "| "
                 + " | ".join(
-                    [row.group if row.group != previous else "", row.method]
-                    + cells
-                    + [f"{r.planning_time_ms.mean():.3f}"]
+                    [row.group if row.group != previous else "", row.method, *cells, f"{r.planning_time_ms.mean():.3f}"]
                 )
                 + " |"
             )
@@ -354,15 +352,46 @@ class ProtocolResult:
         with path.open("w", newline="") as fh:
             writer = csv.writer(fh)
             writer.writerow(
-                ["env", "a", "b", "metric", "missions", "mean_a", "mean_b", "diff", "se", "verdict"]
-                + ["unit", "scenes", "se_clustered", "df", "p_value", "p_holm"]
+                [
+                    "env",
+                    "a",
+                    "b",
+                    "metric",
+                    "missions",
+                    "mean_a",
+                    "mean_b",
+                    "diff",
+                    "se",
+                    "verdict",
+                    "unit",
+                    "scenes",
+                    "se_clustered",
+                    "df",
+                    "p_value",
+                    "p_holm",
+                ]
             )
             for c in comparisons:
                 for m, d in c.diffs.items():
                     writer.writerow(
-                        [c.env, c.a, c.b, m, d.n, f"{d.mean_a:.6f}", f"{d.mean_b:.6f}", f"{d.diff:.6f}"]
-                        + [f"{d.se:.6f}", d.verdict, d.unit, d.n_clusters, f"{d.se_clustered:.6f}", d.df]
-                        + [f"{d.p_value:.6g}", f"{d.p_adjusted:.6g}"]
+                        [
+                            c.env,
+                            c.a,
+                            c.b,
+                            m,
+                            d.n,
+                            f"{d.mean_a:.6f}",
+                            f"{d.mean_b:.6f}",
+                            f"{d.diff:.6f}",
+                            f"{d.se:.6f}",
+                            d.verdict,
+                            d.unit,
+                            d.n_clusters,
+                            f"{d.se_clustered:.6f}",
+                            d.df,
+                            f"{d.p_value:.6g}",
+                            f"{d.p_adjusted:.6g}",
+                        ]
                     )
         written.append(path)
         return written

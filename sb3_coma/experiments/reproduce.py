@@ -376,7 +376,7 @@ def sendfuse_available() -> bool:
     try:
         envs.make_vec_env("env1", fusion="sendfuse").close()
         return True
-    except Exception:  # noqa: BLE001 - any failure means: not usable here
+    except Exception:  # any failure means: not usable here
         return False
 
 
@@ -782,7 +782,7 @@ def generalisation_step(run: Run) -> None:
     gen: list[dict[str, Any]] = []
     if o.generalisation:
         # quick: only the fresh env1 layout (the cross-map runs are the same code path)
-        targets = ([] if o.quick else [(e, {}) for e in o.env_names]) + [
+        targets: list[tuple[str, dict[str, Any]]] = ([] if o.quick else [(e, {}) for e in o.env_names]) + [
             (f"env1 (map_seed={FRESH_ENV1_SEED})", {"map_seed": FRESH_ENV1_SEED})
         ]
         fresh_label = targets[-1][0]
@@ -936,7 +936,7 @@ def _time_fusion(fusion: str, n_agents: int, reps: int = 200) -> float | None:
 
     try:
         fn = _torch_fusion(fusion, n_agents, 44, 11)
-    except Exception:  # noqa: BLE001 - weights missing or unreadable: report n/a, not a crash
+    except Exception:  # weights missing or unreadable: report n/a, not a crash
         return None
     with one_thread():
         return time_call(fn, reps, warmup=1)[0]

@@ -82,6 +82,8 @@ def ship(name: str, runs: list[Path]) -> dict[str, Any]:
     command, info = run_command(chosen)
     model = COMA.load(chosen / "best_model.zip", device="cpu")
     env_options = training_options(model)
+    if env_options is None:
+        raise ValueError(f"{chosen / 'best_model.zip'} records no env options: not a model of a training run")
     fusion = env_options["fusion"]
     extractor = "cnn" if model.policy.features_extractor_class.__name__.startswith("Cnn") else "cbam"
     wall = (chosen / "model.zip").stat().st_mtime - (chosen / "config.yml").stat().st_mtime

@@ -48,10 +48,10 @@ __all__ = [
     "MAP_KINDS",
     "NOISE_PRESETS",
     "STAR_SEED_OFFSET",
+    "FusionSet",
     "LockstepPair",
     "LockstepStep",
     "PairConfig",
-    "FusionSet",
     "PairDataset",
     "collect_fusions",
     "generate_pairs",
@@ -112,7 +112,7 @@ def _field(rng: np.random.Generator, grid: int) -> np.ndarray:
     *mixed*, so the received values sit between the two class levels. A denoiser that has only
     seen large blobs treats such maps as noise and smooths them.
     """
-    coarse = int(round(math.exp(rng.uniform(math.log(4), math.log(120)))))
+    coarse = round(math.exp(rng.uniform(math.log(4), math.log(120))))
     noise = rng.standard_normal((coarse, coarse)).astype(np.float32)
     smooth = cv2.resize(noise, (grid, grid), interpolation=cv2.INTER_CUBIC)
     fine = min(coarse * 4, grid)

@@ -123,7 +123,7 @@ class SenDFuseConfig:
     """
 
     grid_size: int = DEFAULT_GRID_SIZE
-    channels: tuple[int, int, int] = DEFAULT_CHANNELS
+    channels: tuple[int, ...] = DEFAULT_CHANNELS  # N_SCALES widths, checked in __post_init__
 
     def __post_init__(self) -> None:
         _check_grid_size(self.grid_size)
@@ -368,8 +368,10 @@ class SenDFuseNet(nn.Module):
         # training starts from the baseline it has to beat rather than from a random map.
         self.head = nn.Conv2d(c1, 1, 1)
         nn.init.zeros_(self.head.weight)
+        assert self.head.bias is not None  # Conv2d's default bias=True
         nn.init.zeros_(self.head.bias)
-        self.to(memory_format=torch.channels_last)
+        # Module.to accepts memory_format at runtime; torch's overloads of Module.to do not list it.
+        self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
 
     # ------------------------------------------------------------------ properties
     @property
@@ -511,14 +513,14 @@ class SenDFuseNet(nn.Module):
                 # Put the encoded valid maps back in their slots; empty slots stay 0 (finite, as
                 # _fuse_scale requires) and get weight exactly 0.
                 full = torch.empty(
-                    (rb * m,) + tuple(feat.shape[1:]),
+                    (rb * m, *feat.shape[1:]),
                     dtype=feat.dtype,
                     device=feat.device,
                     memory_format=torch.channels_last,
                 ).zero_()
                 full[flat_mask] = feat
                 feat = full
-            per_source = feat.reshape((rb, m) + tuple(feat.shape[1:]))
+            per_source = feat.reshape((rb, m, *feat.shape[1:]))
             # Encoder outputs are post-ReLU, hence >= 0: the L1 norm needs no abs().
             fused.append(_fuse_scale(per_source, None if all_received else sub_mask, alpha, nonnegative=True))
         correction = self.decode(fused)[:, 0]

@@ -32,6 +32,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -234,7 +235,7 @@ def pretrain(
         bar.close()
     log(f"data: {data.summary()} ({time.perf_counter() - start:.0f}s)")
 
-    n_val = int(round(len(data) * config.val_fraction))
+    n_val = round(len(data) * float(config.val_fraction))
     perm = rng.permutation(len(data))
     val_idx, train_idx = np.sort(perm[:n_val]), np.sort(perm[n_val:])
     x = torch.from_numpy(data.noisy[:, None])
@@ -260,52 +261,74 @@ def pretrain(
     for epoch in range(1, config.epochs + 1):
         model.train()
         epoch_start = time.perf_counter()
-        sums = np.zeros(4)
-        seen = 0
-        for idx in _batches(len(train_idx), config.batch, rng):
-            xb, yb = x_train[idx], y_train[idx]
-            if config.augment:
-                k = int(rng.integers(8))
-                xb, yb = dihedral(xb, k), dihedral(yb, k)
-            terms = loss_fn(model(xb), yb)
-            optimizer.zero_grad(set_to_none=True)
-            terms.total.backward()
-            optimizer.step()
-            schedule.step()
-            n = len(idx)
-            values = np.array([float(t.detach()) for t in terms])
-            sums += n * values
-            seen += n
-            bar.update(1)
-            bar.set_postfix_str(f"loss {values[0]:.4f}", refresh=False)
+        total, mse, mae, ssim = _train_epoch(model, loss_fn, optimizer, schedule, x_train, y_train, config, rng, bar)
         model.eval()
         val_total, val_mse, per = float("nan"), float("nan"), np.zeros(0)
         if n_val:
             val_total, val_mse, per = _evaluate(model, loss_fn, x_val, y_val)
-        mean = sums / max(seen, 1)
-        history.append(
-            EpochLog(epoch, *(float(v) for v in mean), val_total, val_mse, time.perf_counter() - epoch_start)
-        )
+        history.append(EpochLog(epoch, total, mse, mae, ssim, val_total, val_mse, time.perf_counter() - epoch_start))
         report(history[-1].line())
     bar.close()
 
     by_preset: dict[str, float] = {}
     if n_val:  # ``per``: per-pair validation MSE of the final epoch
-        presets = data.preset[val_idx]
-        for i, name in enumerate(NOISE_PRESETS):
-            if (presets == i).any():
-                by_preset[name] = float(per[presets == i].mean())
+        by_preset = _mse_by_preset(data.preset[val_idx], per)
         log(
             f"validation MSE: identity (noisy input) {identity_val:.4g}, SenDFuse {float(per.mean()):.4g}; "
             + ", ".join(f"{k} {v:.3g}" for k, v in by_preset.items())
         )
-    scale, calibration = 1.0, {}
+    scale = 1.0
+    calibration: dict[float, float] = {}
     if config.calibrate:
         scale, calibration = _calibrate(model, config, log)
     model.eval()
     return PretrainResult(
         model, history, data.summary(), identity_val, by_preset, scale, calibration, time.perf_counter() - start
     )
+
+
+def _train_epoch(
+    model: SenDFuseNet,
+    loss_fn: SenDFuseLoss,
+    optimizer: torch.optim.Optimizer,
+    schedule: torch.optim.lr_scheduler.LRScheduler,
+    x_train: torch.Tensor,
+    y_train: torch.Tensor,
+    config: PretrainConfig,
+    rng: np.random.Generator,
+    bar: Any,
+) -> tuple[float, float, float, float]:
+    """One pass over the training pairs in shuffled batches (a random dihedral element per batch
+    with ``augment``); the mean raw loss terms (total, MSE, MAE, 1 - SSIM) over the pairs."""
+    sums = np.zeros(4)
+    seen = 0
+    for idx in _batches(len(x_train), config.batch, rng):
+        xb, yb = x_train[idx], y_train[idx]
+        if config.augment:
+            k = int(rng.integers(8))
+            xb, yb = dihedral(xb, k), dihedral(yb, k)
+        terms = loss_fn(model(xb), yb)
+        optimizer.zero_grad(set_to_none=True)
+        terms.total.backward()
+        optimizer.step()
+        schedule.step()
+        n = len(idx)
+        values = np.array([float(t.detach()) for t in terms])
+        sums += n * values
+        seen += n
+        bar.update(1)
+        bar.set_postfix_str(f"loss {values[0]:.4f}", refresh=False)
+    total, mse, mae, ssim = (float(v) for v in sums / max(seen, 1))
+    return total, mse, mae, ssim
+
+
+def _mse_by_preset(presets: np.ndarray, per: np.ndarray) -> dict[str, float]:
+    """Mean per-pair MSE of each noise preset present (``presets``: the pairs' preset indices)."""
+    by_preset: dict[str, float] = {}
+    for i, name in enumerate(NOISE_PRESETS):
+        if (presets == i).any():
+            by_preset[name] = float(per[presets == i].mean())
+    return by_preset
 
 
 def bar_write(line: str) -> None:

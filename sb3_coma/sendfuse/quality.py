@@ -154,7 +154,10 @@ def evaluate_quality(
             if progress is not None:
                 progress(1)
         count, per, own_mse, own_count = acc.finish()
-        rows.append(QualityRow(preset, count, *(float(v) for v in per), own_mse, own_count))
+        mean_mse, sendfuse_mse, mean_lattice, sendfuse_lattice = (float(v) for v in per)
+        rows.append(
+            QualityRow(preset, count, mean_mse, sendfuse_mse, mean_lattice, sendfuse_lattice, own_mse, own_count)
+        )
     return rows
 
 

@@ -19,7 +19,7 @@ from envs.fusion import FusionWrapper
 from sb3_coma.sendfuse.network import SenDFuseNet
 from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 
-__all__ = ["SenDFuseFusionWrapper", "FUSE_CHUNK"]
+__all__ = ["FUSE_CHUNK", "SenDFuseFusionWrapper"]
 
 #: Agents fused per forward pass. Training batches (8 copies x 4 UAVs) fit in one; an evaluation
 #: flying 50 missions at once would otherwise hold ~230 MB of activations for its 200 agents.
@@ -56,7 +56,9 @@ class SenDFuseFusionWrapper(FusionWrapper):
                 "(weight of channel vs spatial attention), or None for the network's own"
             )
         super().__init__(env)
-        grid = self.raw_observation_space["received"].shape[-1]
+        received_shape = self.raw_observation_space["received"].shape
+        assert received_shape is not None  # a Box: FusionWrapper checked the raw observation space
+        grid = received_shape[-1]
         if network is None:
             network = load_weights(weights if weights is not None else default_weights_path(grid))
         if network.grid_size != grid:

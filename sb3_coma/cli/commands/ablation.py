@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--trials must be >= 1 and --seed >= 0")
     if args.models and args.model:
         raise UserError("give either --models DIR or --model FUSION_EXTRACTOR=PATH, not both")
-    source: object
+    source: dict[str, str] | str
     if args.model:
         pairs = [spec.split("=", 1) for spec in args.model]
         bad = [spec for spec, p in zip(args.model, pairs) if len(p) != 2 or not p[1].strip()]

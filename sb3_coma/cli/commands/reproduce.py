@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from sb3_coma.app.config import map_key, output_file_problem, output_folder_problem, repeated
 from sb3_coma.cli import UserError, set_threads
@@ -43,6 +44,13 @@ def _repo_docs() -> Path | None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    _add_protocol_arguments(parser)
+    _add_model_arguments(parser)
+    _add_section_arguments(parser)
+
+
+def _add_protocol_arguments(parser: argparse.ArgumentParser) -> None:
+    """Threads, output folder, maps, mission counts, seed and noise."""
     parser.add_argument(
         "--threads",
         type=int,
@@ -75,6 +83,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="base evaluation seed: trial k uses SEED+k (default 0)")
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud (default moderate)")
+
+
+def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    """Which models fly and how: --train and its options, --quick, --ship, --record, sampled or argmax."""
     parser.add_argument("--train", action="store_true", help="retrain each env's model through the zoo config first")
     parser.add_argument("--timesteps", type=int, default=None, help="with --train: joint steps (default: the config's)")
     parser.add_argument(
@@ -109,6 +121,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--argmax", dest="deterministic", action="store_const", const=True, help="evaluate COMA with argmax actions"
     )
+
+
+def _add_section_arguments(parser: argparse.ArgumentParser) -> None:
+    """RESULTS.md, the sections that can be skipped, --baselines-only and the paired check's missions."""
     parser.add_argument(
         "--docs",
         default=None,
@@ -165,16 +181,19 @@ def _check_outputs(args: argparse.Namespace) -> None:
         raise UserError(f"--docs {args.docs!r} cannot be written: {problem}")
 
 
-def run(args: argparse.Namespace) -> int:
-
-    set_threads(args.threads)
-
+def _env_names(args: argparse.Namespace) -> list[str]:
+    """The maps of --env, each once."""
     envs = [e.strip() for e in args.env.split(",") if e.strip()]
     if not envs:
         raise UserError("--env is empty")
     twice = repeated(envs, map_key)
     if twice:
         raise UserError(f"--env {args.env!r} lists the map {twice[0]!r} twice: give each map once")
+    return envs
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """--trials, the paired counts, the outputs, --seed and the combinations of flags."""
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
     _check_paired_counts(args)
@@ -185,6 +204,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--ship needs --train (and not --quick)")
     if args.baselines_only and (args.train or args.record):
         raise UserError("--baselines-only flies no model: not with --train or --record")
+
+
+def _check_counts(args: argparse.Namespace) -> None:
+    """--wide-trials, --unseen-missions, --sweep-missions and --timesteps."""
     if args.wide_trials is not None and (args.wide_trials < 0 or args.wide_trials == 1):
         raise UserError(f"--wide-trials must be 0 (skip) or >= 2, got {args.wide_trials}")
     for flag, value in (("--unseen-missions", args.unseen_missions), ("--sweep-missions", args.sweep_missions)):
@@ -192,13 +215,22 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"{flag} must be >= 0, got {value}")
     if args.timesteps is not None and args.timesteps < 1:
         raise UserError(f"--timesteps must be >= 1, got {args.timesteps}")
-    docs = None
-    if not args.no_docs:
-        if args.docs is not None:
-            docs = Path(args.docs)
-        elif not args.quick:
-            docs = _repo_docs()
-    counts = {
+
+
+def _docs_path(args: argparse.Namespace) -> Path | None:
+    """Where RESULTS.md goes: --docs, else the checkout's docs/RESULTS.md (not with --quick), or nowhere."""
+    if args.no_docs:
+        return None
+    if args.docs is not None:
+        return Path(args.docs)
+    if not args.quick:
+        return _repo_docs()
+    return None
+
+
+def _given_counts(args: argparse.Namespace) -> dict[str, Any]:
+    """The mission counts given on the command line (the others keep reproduce's defaults)."""
+    return {
         name: value
         for name, value in (
             ("wide_trials", args.wide_trials),
@@ -207,6 +239,15 @@ def run(args: argparse.Namespace) -> int:
         )
         if value is not None
     }
+
+
+def run(args: argparse.Namespace) -> int:
+    set_threads(args.threads)
+    envs = _env_names(args)
+    _check_options(args)
+    _check_counts(args)
+    docs = _docs_path(args)
+    counts = _given_counts(args)
     try:
         reproduce(
             out=args.out,

@@ -69,6 +69,12 @@ def _add_change_option(parser: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    _add_run_arguments(parser)
+    _add_schedule_arguments(parser)
+
+
+def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """What to train: threads, map, config and variant, length, seed, resume, run folder, copies, overrides."""
     parser.add_argument(
         "--threads",
         type=int,
@@ -120,6 +126,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="override a config key (YAML value), dots reach into mappings: "
         "--set batch_size=256 --set env_kwargs.noise=loud (repeatable)",
     )
+
+
+def _add_schedule_arguments(parser: argparse.ArgumentParser) -> None:
+    """Checkpoints, validations, the test split, device, progress bar and verbosity."""
     parser.add_argument(
         "--save-freq",
         type=_joint_steps,
