@@ -484,3 +484,12 @@ def test_resume_of_a_run_without_a_settings_copy_compares_with_the_checkpoint(tm
     err = capsys.readouterr().err.strip()
     assert "env_kwargs.noise from 'moderate' to 'loud' (the checkpoint recorded another env)" in err
     assert cli.main(["train", "--resume", str(run), "--allow-change", "--no-progress", "-v", "0"]) == 0
+
+
+def test_save_freq_zero_means_no_checkpoints_by_one_rule(tmp_path):
+    """``save_freq`` has one rule everywhere: an integer >= 0, 0 = no checkpoints."""
+    run = tmp_path / "run0"
+    train(ENV, config=write_config(tmp_path), run_dir=run, save_freq=0, seed=0, **quiet())
+    assert (run / "model.zip").is_file() and not find_checkpoints(run / "checkpoints")
+    with pytest.raises(TrainingError, match="save_freq must be an integer >= 0"):
+        train(ENV, config=write_config(tmp_path), run_dir=tmp_path / "run1", save_freq=-1, **quiet())

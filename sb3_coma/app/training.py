@@ -528,7 +528,8 @@ def attach_callbacks(
 ) -> tuple[MissionCallbacks, list[BaseCallback]]:
     """The run's callbacks: :func:`mission_callbacks`, the config's ``callback`` entries, ``extra``,
     and the signal stop last. Returns the standard set and the list to pass to ``learn``."""
-    every = max(plan.cfg.n_timesteps // 10, 1) if save_freq is None else positive_int("train()", "save_freq", save_freq)
+    # one rule for save_freq, checked once in _check_counts: an integer >= 0, 0 = no checkpoints
+    every = max(plan.cfg.n_timesteps // 10, 1) if save_freq is None else int(save_freq)
     eval_env = None
     if eval_freq and eval_freq > 0:
         eval_missions = positive_int("train()", "eval_missions", eval_missions)
