@@ -149,3 +149,29 @@ def test_shipped_form_is_compact_and_flies_like_the_full_model(tmp_path):
         obs, *_ = venv.step(expected)
     shipped.set_env(venv)
     shipped.learn(16)  # a shipped model still trains
+
+
+def test_coma_load_checks_a_shipped_zip_whatever_path_reaches_it(tmp_path, monkeypatch):
+    """COMA.load itself refuses a replaced shipped zip (by path, through a symlink or '..');
+    a copy elsewhere is the user's own and loads."""
+    import shutil
+
+    from sb3_coma.common import shipped
+
+    folder = tmp_path / "pretrained"
+    shutil.copytree(shipped.SHIPPED_DIR, folder, ignore=shutil.ignore_patterns("*.safetensors"))
+    monkeypatch.setattr(shipped, "SHIPPED_DIR", folder)
+    target = folder / "coma_env1.zip"
+    COMA.load(target, device="cpu")  # intact: loads
+    own = tmp_path / "mine.zip"
+    shutil.copy(target, own)
+    with open(target, "ab") as fh:
+        fh.write(b"tampered")
+    for path in (target, str(target)[: -len(".zip")], folder / ".." / "pretrained" / "coma_env1.zip"):
+        with pytest.raises(shipped.ShippedFileError, match="coma_env1.zip"):
+            COMA.load(path, device="cpu")
+    link = tmp_path / "link.zip"
+    link.symlink_to(target)
+    with pytest.raises(shipped.ShippedFileError, match="checksum mismatch"):
+        COMA.load(link, device="cpu")
+    COMA.load(own, device="cpu")  # the user's own copy elsewhere is not checked against the manifest

@@ -21,6 +21,7 @@ from envs import ConfigError, MapError
 from sb3_coma.app.config import TrainingError
 from sb3_coma.cli import commands
 from sb3_coma.common.checkpoints import CheckpointError, DiskFullError
+from sb3_coma.common.shipped import ShippedFileError
 from sb3_coma.sendfuse import SenDFuseWeightsError
 
 
@@ -49,6 +50,7 @@ USER_ERRORS: tuple[type[BaseException], ...] = (
     TrainingError,
     CheckpointError,
     SenDFuseWeightsError,
+    ShippedFileError,
 )
 
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 from collections import deque
 from typing import Any, ClassVar, TypeVar
 
@@ -62,6 +63,7 @@ from sb3_coma.coma.validation import (
     check_spaces,
     resolve_n_agents,
 )
+from sb3_coma.common.shipped import check_shipped_file
 
 SelfCOMA = TypeVar("SelfCOMA", bound="COMA")
 
@@ -595,6 +597,16 @@ class COMA(OnPolicyAlgorithm):
             callback = CallbackList([callback, JointStepProgressBar()])
             callback.init_callback(self)
         return callback
+
+    @classmethod
+    def load(
+        cls: type[SelfCOMA], path: Any, env: GymEnv | None = None, device: th.device | str = "auto", **kwargs: Any
+    ) -> SelfCOMA:  # type: ignore[override]
+        """SB3's ``load``, after checking a shipped model's file against its recorded SHA-256
+        (:mod:`sb3_coma.common.shipped`): no path reaches a replaced shipped zip unchecked."""
+        if isinstance(path, (str, os.PathLike)):
+            check_shipped_file(path)
+        return super().load(path, env=env, device=device, **kwargs)
 
     def predict(
         self,
