@@ -328,3 +328,15 @@ def test_ag_weighting_command(tmp_path, capsys):
     assert entry["env_options"]["split"] == "train" and entry["choice"] in ("class", "plain")
     assert main(["ag-weighting", "--env", "env1", "--missions", "2", "--seed", "5"]) == 2
     assert "validation seeds start at 2000" in capsys.readouterr().err
+
+
+def test_budget_sweep_flies_every_budget_on_shared_missions():
+    from sb3_coma.experiments import budget_sweep
+
+    results = budget_sweep.sweep("env1", [4, 6], missions=2, seed=0)
+    assert set(results) == {4, 6}
+    for budget, flown in results.items():
+        assert set(flown) == {"coma", "ag", "ag-k3"}
+        assert all(r.budget == budget and r.f1.shape == (2, budget + 1) for r in flown.values())
+    text = budget_sweep.table(results)
+    assert text.count("\n| 4 |") == 2 and "COMA - AG-k3" in text
