@@ -250,3 +250,23 @@ def test_sigkill_mid_reproduce_leaves_the_previous_results_untouched(tmp_path):
     assert lines == [f"removed {staging}: the unfinished output of an interrupted run (pid {proc.pid}); starting clean"]
     assert (out / "table.md").read_text() == "the next run" and (out / "noise_sweep" / "noise_sweep.md").exists()
     assert not (out / "summary.json").exists() and siblings(out) == ["reproduce.log"]
+
+
+def test_full_disk_inside_a_staged_output_is_one_line_and_leaves_nothing(tmp_path):
+    """ENOSPC while writing: DiskFullError (one line, exit 1 in the CLI), the staging folder is
+    gone and the previous output untouched."""
+    import errno
+
+    from sb3_coma.common.checkpoints import DiskFullError
+    from sb3_coma.common.outputs import staged_output
+
+    target = tmp_path / "out"
+    target.mkdir()
+    (target / "old.txt").write_text("old")
+    with pytest.raises(DiskFullError, match="disk is full") as info:
+        with staged_output(target, command="evaluate", say=lambda _: None) as staging:
+            (staging / "table.csv").write_text("partial")
+            raise OSError(errno.ENOSPC, "No space left on device")
+    assert "\n" not in str(info.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert (target / "old.txt").read_text() == "old" and not (target / "table.csv").exists()

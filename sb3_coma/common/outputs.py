@@ -52,6 +52,8 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from sb3_coma.common.checkpoints import DiskFullError
+
 try:  # POSIX only; without it folders are not locked (documented above)
     import fcntl
 except ImportError:  # pragma: no cover - Windows
@@ -509,8 +511,14 @@ def staged_output(
             _write_manifest(staging, command, complete=False)
             yield staging
             _commit(staging, final, command, own, guard)
-    except BaseException:
+    except BaseException as exc:
         lock.release()
         shutil.rmtree(staging, ignore_errors=True)  # the new output, or after a swap the old one
+        if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
+            raise DiskFullError(
+                errno.ENOSPC,
+                f"the disk is full: --out {target} was not written and its previous content is untouched "
+                "(nothing of this run was left behind); free some space and run it again",
+            ) from None
         raise
     lock.release()
