@@ -263,10 +263,12 @@ def test_full_disk_inside_a_staged_output_is_one_line_and_leaves_nothing(tmp_pat
     target = tmp_path / "out"
     target.mkdir()
     (target / "old.txt").write_text("old")
-    with pytest.raises(DiskFullError, match="disk is full") as info:
-        with staged_output(target, command="evaluate", say=lambda _: None) as staging:
-            (staging / "table.csv").write_text("partial")
-            raise OSError(errno.ENOSPC, "No space left on device")
+    with (
+        pytest.raises(DiskFullError, match="disk is full") as info,
+        staged_output(target, command="evaluate", say=lambda _: None) as staging,
+    ):
+        (staging / "table.csv").write_text("partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
     assert "\n" not in str(info.value)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
     assert (target / "old.txt").read_text() == "old" and not (target / "table.csv").exists()
