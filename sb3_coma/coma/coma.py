@@ -26,8 +26,10 @@ Choices the paper leaves open, as implemented here:
 from __future__ import annotations
 
 import copy
+import io
 import math
 import os
+import pathlib
 from collections import deque
 from typing import Any, ClassVar, TypeVar
 
@@ -600,13 +602,20 @@ class COMA(OnPolicyAlgorithm):
 
     @classmethod
     def load(
-        cls: type[SelfCOMA], path: Any, env: GymEnv | None = None, device: th.device | str = "auto", **kwargs: Any
-    ) -> SelfCOMA:  # type: ignore[override]
+        cls: type[SelfCOMA],
+        path: str | pathlib.Path | io.BufferedIOBase,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ) -> SelfCOMA:
         """SB3's ``load``, after checking a shipped model's file against its recorded SHA-256
         (:mod:`sb3_coma.common.shipped`): no path reaches a replaced shipped zip unchecked."""
         if isinstance(path, (str, os.PathLike)):
             check_shipped_file(path)
-        return super().load(path, env=env, device=device, **kwargs)
+        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
 
     def predict(
         self,
