@@ -40,6 +40,7 @@ import torch
 from .data import NOISE_PRESETS, PairConfig, PairDataset, collect_fusions, generate_pairs
 from .loss import SenDFuseLoss
 from .network import SenDFuseNet
+from .quality import fusion_set_errors
 
 __all__ = [
     "EpochLog",
@@ -194,8 +195,6 @@ def _calibrate(
     pairs' missions) with 4 UAVs, an equal share per noise preset; the criterion is the SenDFuse
     fused-map MSE summed over the presets. Evaluation maps (env2, env3) are never touched.
     """
-    from .quality import fusion_set_errors
-
     fusions = collect_fusions(config.calibration_fusions, seed=config.seed + 7919, config=config.data)
     results: dict[float, float] = {}
     base = {k: v.detach().clone() for k, v in model.state_dict().items()}
