@@ -210,3 +210,27 @@ def test_readme_block_is_written_between_its_markers_only(tmp_path):
     plain = tmp_path / "PLAIN.md"
     plain.write_text("no markers here\n")
     assert not write_readme_block(plain, "x") and plain.read_text() == "no markers here\n"
+
+
+def test_acceptance_takes_the_verdict_tables_decisions():
+    """With the protocol's Holm-adjusted verdicts the acceptance says exactly what that table says."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from sb3_coma.experiments.reproduce import acceptance
+
+    def result(method, f1, entropy):
+        return SimpleNamespace(env="env1", method=method, f1=np.full((3, 2), f1), entropy=np.full((3, 2), entropy))
+
+    def diff(winner):
+        return SimpleNamespace(winner=winner, as_dict=lambda: {"winner": winner})
+
+    results = [result("coma", 0.9, 0.2), result("ag", 0.8, 0.3), result("random", 0.5, 0.7)]
+    verdicts = {
+        ("env1", "ag"): {"f1": diff(None), "entropy": diff("coma")},
+        ("env1", "random"): {"f1": diff("coma"), "entropy": diff("coma")},
+    }
+    row = acceptance(results, baselines=["ag", "random"], verdicts=verdicts)["env1"]
+    assert row["beats_f1"] is False and row["beats_entropy"] is True and row["beats_all"] is False
+    assert row["paired"]["ag"]["f1"] == {"winner": None}

@@ -543,13 +543,19 @@ def _competitors(run: Run) -> list[str]:
 
 
 def acceptance(
-    results: Sequence[Any], model_label: str = "coma", baselines: Sequence[str] | None = None
+    results: Sequence[Any],
+    model_label: str = "coma",
+    baselines: Sequence[str] | None = None,
+    verdicts: Mapping[tuple[str, str], Mapping[str, Any]] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Per env: does ``model_label`` beat every baseline on F1 and on entropy at 100 %, each by a
     paired test on the shared missions (``sb3_coma.common.paired``: a tie is not a win)?
 
     :param baselines: the methods to beat (default: every other method whose label does not start
         with ``model_label``, i.e. not another COMA model)
+    :param verdicts: ``{(env, baseline): {metric: difference}}`` already Holm-adjusted in the
+        protocol's verdict table, so that the acceptance and that table say the same; without it
+        each env's row is its own Holm family
     """
 
     out: dict[str, dict[str, Any]] = {}
@@ -563,9 +569,12 @@ def acceptance(
             for k, v in group.items()
             if k != model_label and (k in baselines if baselines is not None else not k.startswith(model_label))
         }
-        diffs = _holm_nested(
-            {k: {m: paired_difference(mine, v, m) for m in ("f1", "entropy")} for k, v in others.items()}
-        )
+        if verdicts is not None and all((env, k) in verdicts for k in others):
+            diffs = {k: {m: verdicts[(env, k)][m] for m in ("f1", "entropy")} for k in others}
+        else:
+            diffs = _holm_nested(
+                {k: {m: paired_difference(mine, v, m) for m in ("f1", "entropy")} for k, v in others.items()}
+            )
         finals = {k: _final(v) for k, v in others.items()}
         best_f1 = max(finals.items(), key=lambda kv: kv[1]["f1"]) if finals else None
         best_en = min(finals.items(), key=lambda kv: kv[1]["entropy"]) if finals else None
@@ -767,7 +776,8 @@ def unseen_protocol(run: Run) -> None:
     run.skipped.update({f"unseen protocol: {k}": v for k, v in run.unseen.skipped.items()})
     run.summary["unseen"] = run.unseen.summary()
     unseen_results = [row.result for row in run.unseen.rows()]
-    accept = acceptance(unseen_results, baselines=_competitors(run))
+    table = {(c.env, c.b): c.diffs for c in run.unseen.comparisons() if c.a == "coma"}
+    accept = acceptance(unseen_results, baselines=_competitors(run), verdicts=table)
     (run.out / "acceptance.md").write_text(_report().acceptance_markdown(accept))
     run.summary["acceptance"] = accept
 
