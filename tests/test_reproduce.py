@@ -221,7 +221,9 @@ def test_acceptance_takes_the_verdict_tables_decisions():
     from sb3_coma.experiments.reproduce import acceptance
 
     def result(method, f1, entropy):
-        return SimpleNamespace(env="env1", method=method, f1=np.full((3, 2), f1), entropy=np.full((3, 2), entropy))
+        return SimpleNamespace(
+            env="env1", method=method, n_trials=3, f1=np.full((3, 2), f1), entropy=np.full((3, 2), entropy)
+        )
 
     def diff(winner):
         return SimpleNamespace(winner=winner, as_dict=lambda: {"winner": winner})
