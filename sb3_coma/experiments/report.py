@@ -531,17 +531,18 @@ def results_markdown(run: Any, figures: Sequence[Path], base: Path) -> str:
     ]
     if run.paper is not None:
         lines += _paper_section(run)
-    lines += [
-        "## What training adds: the untrained gain prior vs the trained model (100 % budget)",
-        "",
-        "The shipped actor adds a learned mix of each action's expected information gain to its logits "
-        '(docs/training.md, "Gain prior"). "untrained prior" flies the same model with that mix at its '
-        "starting weights and the network's own term removed, argmax actions: the greedy planner the "
-        "training starts from.",
-        "",
-        prior_markdown(s.get("untrained_prior", [])),
-        "",
-    ]
+    if s.get("untrained_prior"):  # only models with a gain prior in their logits have this row
+        lines += [
+            "## What training adds: the untrained gain prior vs the trained model (100 % budget)",
+            "",
+            "This actor adds a learned mix of each action's expected information gain to its logits "
+            '(docs/training.md, "Gain prior"). "untrained prior" flies the same model with that mix at its '
+            "starting weights and the network's own term removed, argmax actions: the greedy planner the "
+            "training starts from.",
+            "",
+            prior_markdown(s["untrained_prior"]),
+            "",
+        ]
     if s.get("ablation"):
         lines += _ablation_section(run)
     if run.sections.get("paired"):
