@@ -460,7 +460,7 @@ def _ablation_section(run: Any) -> list[str]:
         "",
         "The paper's Table II / Fig. 4. SenDFuse+CBAM is the env3 model above; the other three arms are the "
         "shipped models `env3-sendfuse-cnn`, `env3-mean-cbam`, `env3-mean-cnn`; each flown with the fusion "
-        "it was trained with, the Table I missions, argmax actions, at every noise level. Best of each "
+        "it was trained with, the unseen protocol's missions, argmax actions, at every noise level. Best of each "
         "noise level in bold. More in docs/ABLATION.md.",
         "",
         run.sections.get("ablation", ""),
