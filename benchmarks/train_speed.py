@@ -89,10 +89,11 @@ def raw_env_missions_per_s(env: str, missions: int, seed: int) -> float:
     """Missions/s of the raw ParallelEnv in this process (one core), random valid actions."""
     world = envs.make_env(env, split="train", reward="metrics", action_gain=True)
     rng = np.random.default_rng(seed)
-    world.reset(seed=seed)  # warm-up: numba kernels compiled or loaded from cache
-    start = time.perf_counter()
-    for k in range(missions):
-        obs, _ = world.reset(seed=seed + k)
+    start = 0.0
+    for k in range(-1, missions):  # mission -1 is a warm-up: numba kernels compiled or loaded from cache
+        if k == 0:
+            start = time.perf_counter()
+        obs, _ = world.reset(seed=seed + k + 1)
         while world.agents:
             actions = {a: int(rng.choice(np.flatnonzero(obs[a]["action_mask"]))) for a in world.agents}
             obs, *_ = world.step(actions)
