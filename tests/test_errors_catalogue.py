@@ -1199,7 +1199,7 @@ CASES: list[Case | CliCase] = [
         "yaml-policy-not-importable",
         Y,
         "policy: mypkg.MyPolicy",
-        lambda f: __import__("sb3_coma.app.training", fromlist=["coma_kwargs"]).coma_kwargs(
+        lambda f: __import__("sb3_coma.app.config", fromlist=["coma_kwargs"]).coma_kwargs(
             _load_config(f, {"policy": "mypkg.MyPolicy"}).entry
         ),
         TrainingError,
@@ -1210,7 +1210,7 @@ CASES: list[Case | CliCase] = [
         "yaml-policy_kwargs-syntax",
         Y,
         'policy_kwargs: "dict(net_arch=)"',
-        lambda f: __import__("sb3_coma.app.training", fromlist=["resolve_policy_kwargs"]).resolve_policy_kwargs(
+        lambda f: __import__("sb3_coma.app.config", fromlist=["resolve_policy_kwargs"]).resolve_policy_kwargs(
             "dict(net_arch=)"
         ),
         TrainingError,

@@ -17,14 +17,8 @@ from tiny_runs import ENV, tiny_entry
 
 import envs  # noqa: F401  (registers the gymnasium ids)
 from sb3_coma import cli, training_options
-from sb3_coma.app.training import (
-    TrainingError,
-    TrainingInterrupted,
-    default_config_path,
-    list_variants,
-    load_config,
-    train,
-)
+from sb3_coma.app.config import TrainingError, default_config_path, list_variants, load_config
+from sb3_coma.app.training import TrainingInterrupted, train
 from sb3_coma.common.checkpoints import CheckpointError, find_checkpoints, validate_checkpoint
 
 # 2 UAVs, 4-step missions, 8 joint steps per rollout (= 2 missions): every run is a few rollouts.

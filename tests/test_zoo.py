@@ -14,7 +14,7 @@ import yaml
 import envs  # noqa: F401  (registers the gymnasium ids)
 from sb3_coma import training_options
 from sb3_coma.app import zoo, zoo_sampler
-from sb3_coma.app.training import coma_parameter_names
+from sb3_coma.app.config import coma_parameter_names
 from sb3_coma.common.checkpoints import validate_checkpoint
 
 ENV = "UavIpp-Env1-v0"
