@@ -58,6 +58,7 @@ __all__ = [
     "make_training_env",
     "make_vec_env_from_kwargs",
     "map_key",
+    "map_list",
     "named_objects",
     "output_file_problem",
     "output_folder_problem",
@@ -453,6 +454,18 @@ def repeated(names: Sequence[str], key: Callable[[str], str]) -> list[str]:
             out.append(name)
         seen.add(meaning)
     return out
+
+
+def map_list(text: str, flag: str = "--env") -> list[str]:
+    """The maps of a comma-separated option, each once: one line naming the option when it is
+    empty or names one map twice (``env1`` and ``UavIpp-Env1-v0`` are one map)."""
+    names = [e.strip() for e in text.split(",") if e.strip()]
+    if not names:
+        raise TrainingError(f"{flag} is empty")
+    twice = repeated(names, map_key)
+    if twice:
+        raise TrainingError(f"{flag} {text!r} lists the map {twice[0]!r} twice: give each map once")
+    return names
 
 
 # =========================================================================== entries and variants

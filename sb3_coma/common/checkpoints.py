@@ -40,6 +40,7 @@ __all__ = [
     "checkpoint_name",
     "find_checkpoints",
     "folder_write_problem",
+    "fsync_path",
     "last_checkpoint",
     "load_checkpoint",
     "training_options",
@@ -93,10 +94,11 @@ def checkpoint_name(num_timesteps: int, prefix: str = CHECKPOINT_PREFIX) -> str:
 
 
 # --------------------------------------------------------------------------- atomic writes
-def _fsync_dir(folder: Path) -> None:
-    """Make a rename durable (best effort: not every platform can open a folder)."""
+def fsync_path(path: str | os.PathLike[str]) -> None:
+    """fsync one file or folder, e.g. to make a rename durable (best effort: not every platform
+    can open a folder)."""
     try:
-        fd = os.open(folder, os.O_RDONLY)
+        fd = os.open(path, os.O_RDONLY)
     except OSError:
         return
     try:
@@ -141,7 +143,7 @@ def atomic_save(model: Any, path: str | os.PathLike[str], validate: bool = True)
         if full is not None:
             raise full from exc
         raise
-    _fsync_dir(final.parent)
+    fsync_path(final.parent)
     return final
 
 

@@ -52,7 +52,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from sb3_coma.common.checkpoints import DiskFullError
+from sb3_coma.common.checkpoints import DiskFullError, fsync_path
 
 try:  # POSIX only; without it folders are not locked (documented above)
     import fcntl
@@ -439,26 +439,12 @@ def _sigterm_raises(guard: _TermGuard) -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
-def _fsync(path: str | os.PathLike[str]) -> None:
-    """fsync one file or folder, best effort (not every platform can open a folder)."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def _sync_tree(root: Path) -> None:
     """fsync every file and folder under ``root``, so that what the swap puts in place is on
     disk, not only in the page cache, should the machine go down right after."""
     for folder, _, files in os.walk(root):
         for name in [*files, "."]:
-            _fsync(os.path.join(folder, name))
+            fsync_path(os.path.join(folder, name))
 
 
 def _commit(staging: Path, target: Path, command: str, own: Iterable[str], guard: _TermGuard) -> None:
@@ -470,7 +456,7 @@ def _commit(staging: Path, target: Path, command: str, own: Iterable[str], guard
     _write_manifest(staging, command, complete=True, entries=written)
     guard.swapping = True
     _swap_in(staging, target)
-    _fsync(target.parent)  # the renames themselves
+    fsync_path(target.parent)  # the renames themselves
     (target / STAGING_LOCK).unlink(missing_ok=True)
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_coma.app import evaluation as ev
-from sb3_coma.app.config import map_key, path_name_problem, repeated
+from sb3_coma.app.config import map_list, path_name_problem
 from sb3_coma.cli import UserError, set_threads
 from sb3_coma.common import tables
 from sb3_coma.common.checkpoints import folder_write_problem
@@ -154,13 +154,7 @@ def _env_names(args: argparse.Namespace) -> list[str]:
 
     if args.env is None:
         return [Path(args.map_path).stem if args.map_path else "env3"]
-    names = [e.strip() for e in args.env.split(",") if e.strip()]
-    if not names:
-        raise UserError("--env is empty")
-    twice = repeated(names, map_key)
-    if twice:
-        raise UserError(f"--env {args.env!r} lists the map {twice[0]!r} twice: give each map once")
-    return names
+    return map_list(args.env)
 
 
 def _check_args(args: argparse.Namespace) -> None:

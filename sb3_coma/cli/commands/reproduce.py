@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sb3_coma.app.config import map_key, output_file_problem, output_folder_problem, repeated
+from sb3_coma.app.config import map_list, output_file_problem, output_folder_problem
 from sb3_coma.cli import UserError, set_threads
 from sb3_coma.common.outputs import OutputInterrupted
 from sb3_coma.experiments.reproduce import reproduce
@@ -183,13 +183,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
 
 def _env_names(args: argparse.Namespace) -> list[str]:
     """The maps of --env, each once."""
-    envs = [e.strip() for e in args.env.split(",") if e.strip()]
-    if not envs:
-        raise UserError("--env is empty")
-    twice = repeated(envs, map_key)
-    if twice:
-        raise UserError(f"--env {args.env!r} lists the map {twice[0]!r} twice: give each map once")
-    return envs
+    return map_list(args.env)
 
 
 def _check_options(args: argparse.Namespace) -> None:
