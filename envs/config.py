@@ -40,6 +40,10 @@ MAX_REWARD_SCALE = 1e30
 
 #: ``reward`` options: the paper's relative entropy drop, or the change of the two Table I metrics.
 REWARDS = ("entropy", "metrics")
+#: ``observation``: "v2" (8 actor channels, 3 critic state channels) or "v3" (adds the fine
+#: whole-field view of M_i and teammates' intent on board, ground-truth channels for the critic;
+#: docs/environment.md, "Observation v3").
+OBSERVATIONS = ("v2", "v3")
 
 DEFAULT_FLIP_PROBABILITY: dict[float, float] = {5.0: 0.01, 10.0: 0.265, 15.0: 0.375}
 DEFAULT_STARTS: tuple[tuple[float, float, float], ...] = (
@@ -99,6 +103,7 @@ class IppConfig:
     reward_entropy: str = "plain"
     reward: str = "entropy"
     action_gain: bool = True
+    observation: str = "v2"
     render_mode: str | None = None
 
     # ------------------------------------------------------------------ derived values
@@ -300,9 +305,13 @@ class IppConfig:
         self._validate_reward_pair()
 
     def _validate_outputs(self) -> None:
-        """``action_gain``, ``render_mode`` and ``map_seed``."""
+        """``action_gain``, ``observation``, ``render_mode`` and ``map_seed``."""
         if not isinstance(self.action_gain, bool):
             _fail("action_gain", self.action_gain, "True (observe each action's expected information gain) or False")
+        if self.observation not in OBSERVATIONS:
+            _fail("observation", self.observation, f"one of {list(OBSERVATIONS)}")
+        if self.observation == "v3" and self.comm_grid % self.lattice:
+            _fail("comm_grid", self.comm_grid, f"a multiple of lattice ({self.lattice}) with observation='v3' (its fine view)")
         if self.render_mode not in (None, "rgb_array", "ansi"):
             _fail("render_mode", self.render_mode, "None, 'rgb_array' or 'ansi'")
         if self.map_seed is not None and (not _is_int(self.map_seed) or self.map_seed < 0):

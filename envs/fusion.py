@@ -25,7 +25,7 @@ from . import layout
 from .config import ConfigError
 from .geometry import overlap_matrix
 
-#: Keys a fusion wrapper replaces by the 8th ``local`` channel.
+#: Keys a fusion wrapper replaces by the 8th ``local`` channel (``layout.FUSED``).
 _CONSUMED = (layout.KEY_LOCAL, layout.KEY_RECEIVED, layout.KEY_RECEIVED_VALID)
 
 
@@ -87,7 +87,9 @@ class FusionWrapper(VectorWrapper):
         fused = self.fuse(observations[layout.KEY_RECEIVED], observations[layout.KEY_RECEIVED_VALID])
         a = self._to_lattice
         small = np.clip(np.matmul(np.matmul(a, fused), a.T), 0.0, 1.0).astype(np.float32)
-        local = np.concatenate([observations[layout.KEY_LOCAL], small[:, None]], axis=1)
+        raw = observations[layout.KEY_LOCAL]
+        cut = layout.RAW_LOCAL_CHANNELS  # FUSED sits after the raw 7; observation v3's channels follow it
+        local = np.concatenate([raw[:, :cut], small[:, None], raw[:, cut:]], axis=1)
         out = {layout.KEY_LOCAL: local}
         out.update((key, value) for key, value in observations.items() if key not in _CONSUMED)
         return out

@@ -184,6 +184,12 @@ class FieldGeometry:
         r0, r1 = self._ranges[centre, alt_level]
         return int(r1 - r0)
 
+    def block_sums(self, grid_map: np.ndarray) -> np.ndarray:
+        """(L, L) float64 sums of a (G, G) map over every lattice block (once per map, not per step)."""
+        starts = np.flatnonzero(np.diff(self.block_of_cell, prepend=-1))
+        rows = np.add.reduceat(grid_map.astype(np.float64), starts, axis=0)
+        return np.add.reduceat(rows, starts, axis=1)
+
     def to_lattice(self, comm_map: np.ndarray) -> np.ndarray:
         """Area-weighted 11 x 11 block means of one or many comm-grid maps (..., R, R)."""
         a = self.comm_to_lattice

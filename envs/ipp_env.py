@@ -114,8 +114,8 @@ class UavIppEnv(ParallelEnv):
         self._comm_area = self._kernel_geometry.comm_area
         self._global_maps = kernels.GlobalMaps.blank(G, L)
         self._truth_u8, self._logodds, self._measured, self._g_block, self._g_scal = self._global_maps
-        self._local_maps = kernels.LocalMaps.blank(n, G, L, geo.n_strips)
-        self._local_logodds, self._l_block, self._l_strip, self._l_scal = self._local_maps
+        self._local_maps = kernels.LocalMaps.blank(n, G, L, geo.n_strips, cfg.comm_grid)
+        self._local_logodds, self._l_block, self._l_fine, self._l_strip, self._l_scal = self._local_maps
         self._comm = kernels.CommState.blank(n, geo.max_footprint, cfg.comm_grid)
         self._readings, self._received, self._received_valid, self._comm_sum, self._comm_cnt, self._slots = self._comm
         links, bound = np.zeros((n, n), dtype=np.bool_), np.ones((n, n), dtype=np.float64)
@@ -123,6 +123,7 @@ class UavIppEnv(ParallelEnv):
         self._masks = np.zeros((n, layout.N_ACTIONS), dtype=np.int8)
         self._gains = np.zeros((n, len(layout.GAIN_WEIGHTINGS), layout.N_ACTIONS), dtype=np.float64)
         self._visits = np.zeros((n, L, L), dtype=np.float32)
+        self._moves = np.zeros(n, dtype=np.int64)  # each UAV's executed move this step (intent, v3)
         self._uav_index = np.arange(n)
         self._id_ratio = ((np.arange(n) + 1) / n).astype(np.float32)[:, None, None]
         self._alt_ratio = (np.asarray(cfg.altitudes) / max(cfg.altitudes)).astype(np.float32)
@@ -132,11 +133,14 @@ class UavIppEnv(ParallelEnv):
     # ------------------------------------------------------------------ spaces
     def _build_spaces(self, n: int, r: int) -> None:
         L = self.config.lattice
+        v3 = self.config.observation == "v3"
+        local_channels = layout.RAW_LOCAL_CHANNELS + (layout.V3_LOCAL_EXTRA if v3 else 0)
+        state_channels = layout.STATE_CHANNELS + (layout.V3_STATE_EXTRA if v3 else 0)
         entries: dict[str, spaces.Space] = {
-            layout.KEY_LOCAL: spaces.Box(0.0, 1.0, (layout.RAW_LOCAL_CHANNELS, L, L), np.float32),
+            layout.KEY_LOCAL: spaces.Box(0.0, 1.0, (local_channels, L, L), np.float32),
             layout.KEY_RECEIVED: spaces.Box(*RECEIVED_RANGE, (n, r, r), np.float32),
             layout.KEY_RECEIVED_VALID: spaces.Box(0.0, 1.0, (n,), np.float32),
-            layout.KEY_STATE: spaces.Box(0.0, 1.0, (layout.STATE_CHANNELS, L, L), np.float32),
+            layout.KEY_STATE: spaces.Box(0.0, 1.0, (state_channels, L, L), np.float32),
             layout.KEY_MASK: spaces.Box(0, 1, (layout.N_ACTIONS,), np.int8),
         }
         if self.config.action_gain:
@@ -175,6 +179,7 @@ class UavIppEnv(ParallelEnv):
         self._truth = truth
         np.copyto(self._truth_u8, truth.valuable, casting="unsafe")
         self._n_valuable = int(self._truth_u8.sum())
+        self._truth_blocks = self.geometry.block_sums(self._truth_u8)  # valuable cells per block
         if self._n_valuable < MIN_VALUABLE_CELLS:
             warnings.warn(
                 f"map {truth.name!r} has only {self._n_valuable} valuable cell(s): F1 and the entropy over "
@@ -262,6 +267,7 @@ class UavIppEnv(ParallelEnv):
         """Move the UAVs in id order; an invalid move hovers. Returns which moves were executed."""
         executed = np.zeros(self.n_uavs, dtype=np.bool_)
         kernels.apply_actions(self._pos, actions, self._no_fly, self._alt_levels, ACTION_DELTAS, executed)
+        np.copyto(self._moves, np.where(executed, actions, 0))  # a hover counts as "up": no heading
         return executed
 
     # ------------------------------------------------------------------ reset / step
@@ -288,10 +294,14 @@ class UavIppEnv(ParallelEnv):
         self._g_block[0] = 0.5 * geo.block_area
         self._g_block[1] = geo.block_area
         self._g_block[2] = 0.0
+        self._g_block[3] = 0.5 * self._truth_blocks
         g0 = self._gtab[kernels.OFFSET]
         self._g_scal[:] = (float(g0[kernels.G_REWARD]) * cfg.grid**2, float(self._n_valuable), 0.0, 0.0)
         self._l_block[:, 0] = 0.5 * geo.block_area
         self._l_block[:, 1] = geo.block_area
+        self._l_fine[:, 0] = 0.5 * self._comm_area
+        self._l_fine[:, 1] = self._comm_area
+        self._moves.fill(0)  # "up" at a reset: intent marks where each teammate is
         self._l_strip[:] = self._strip_prior
         self._l_scal[:] = (float(self._n_valuable), 0.0, 0.0)
         self._received.fill(0.5)
@@ -421,7 +431,10 @@ class UavIppEnv(ParallelEnv):
         local[:, layout.SENSOR] = geo.to_lattice(self._received[:, 0])
         local[:, layout.BELIEF : layout.BELIEF_ENTROPY + 1] = self._l_block / area
         np.clip(local[:, layout.SENSOR :], 0.0, 1.0, out=local[:, layout.SENSOR :])
-        state = (self._g_block / area).astype(np.float32)
+        state = (self._g_block[: layout.STATE_CHANNELS] / area).astype(np.float32)
+        if cfg.observation == "v3":
+            local = np.concatenate([local, self._intent(), self._fine_view()], axis=1)
+            state = np.concatenate([state, self._privileged_state()], axis=0)
         np.clip(state, 0.0, 1.0, out=state)
         masks = self._masks
         kernels.action_masks(self._pos, self._no_fly, self._alt_levels, ACTION_DELTAS, masks)
@@ -445,6 +458,39 @@ class UavIppEnv(ParallelEnv):
             for i, agent in enumerate(self.possible_agents):
                 observations[agent][layout.KEY_GAIN] = gains[i]
         return observations
+
+    def _intent(self) -> np.ndarray:
+        """(N, 1, L, L) observation v3's intent channel: each message carries the move its sender
+        made this step; a receiver marks the column that sender reaches if it repeats the move
+        (its own column for a vertical move or a hover). Moves are simultaneous, so the move a
+        teammate will choose next is not known when it sends: its heading is the intent it can share."""
+        L = self.config.lattice
+        heading = ACTION_DELTAS[self._moves, :2]
+        target = np.clip(self._pos[:, :2] + heading, 0, L - 1)
+        intent = np.zeros((self.n_uavs, 1, L, L), dtype=np.float32)
+        r_idx, s_idx = np.nonzero(self._links_now)
+        teammate = r_idx != s_idx
+        r_idx, s_idx = r_idx[teammate], s_idx[teammate]
+        intent[r_idx, 0, target[s_idx, 1], target[s_idx, 0]] = 1.0
+        return intent
+
+    def _fine_view(self) -> np.ndarray:
+        """(N, 32, L, L) observation v3's fine view of each M_i: mean belief and entropy on the comm
+        grid (R = 4 L), space-to-depth onto the lattice so the actor's first convolution sees
+        every sub-cell of a column in that column's channels."""
+        n, L, f = self.n_uavs, self.config.lattice, layout.FINE_FACTOR
+        fine = (self._l_fine / self._comm_area).astype(np.float32)  # (N, 2, R, R)
+        blocks = fine.reshape(n, 2, L, f, L, f).transpose(0, 1, 3, 5, 2, 4)
+        return blocks.reshape(n, layout.FINE_CHANNELS, L, L)
+
+    def _privileged_state(self) -> np.ndarray:
+        """(2, L, L) observation v3's ground-truth critic channels: the fraction of truly valuable
+        cells per block and the global belief's mean per-cell error |p - truth| per block
+        (sum p + sum truth - 2 sum p on valuable cells, all kept by the kernels)."""
+        area = self.geometry.block_area
+        g = self._g_block
+        error = (g[0] + self._truth_blocks - 2.0 * g[3]) / area
+        return np.stack([self._truth_blocks / area, error]).astype(np.float32)
 
     def _global_metrics(self) -> dict[str, float]:
         tp, pp = self._g_scal[kernels.S_TP], self._g_scal[kernels.S_PP]

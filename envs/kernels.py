@@ -354,7 +354,8 @@ class GlobalMaps(NamedTuple):
     logodds: np.ndarray
     #: (G, G) uint8 1 where a cell was measured at least once (coverage).
     measured: np.ndarray
-    #: (3, L, L) float64 block sums of probability, entropy and coverage.
+    #: (4, L, L) float64 block sums of probability, entropy, coverage and probability over the truly
+    #: valuable cells (the last one feeds the critic's privileged error channel, observation v3).
     block: np.ndarray
     #: (4,) float64 reward-entropy total, entropy over valuable cells, true and predicted positives.
     scal: np.ndarray
@@ -367,7 +368,7 @@ class GlobalMaps(NamedTuple):
             truth=np.zeros(cells, dtype=np.uint8),
             logodds=np.zeros(cells, dtype=np.int16),
             measured=np.zeros(cells, dtype=np.uint8),
-            block=np.zeros((3, lattice, lattice), dtype=np.float64),
+            block=np.zeros((4, lattice, lattice), dtype=np.float64),
             scal=np.zeros(4, dtype=np.float64),
         )
 
@@ -379,17 +380,20 @@ class LocalMaps(NamedTuple):
     logodds: np.ndarray
     #: (N, 2, L, L) float64 block sums of probability and entropy.
     block: np.ndarray
+    #: (N, 2, R, R) float64 the same sums per comm cell (the fine view of observation v3).
+    fine: np.ndarray
     #: (N, GAIN_SLOTS, S, S) float64 gain of one reading per gain-strip cell (decision 14).
     strip: np.ndarray
     #: (N, 3) float64 entropy over valuable cells, true and predicted positives.
     scal: np.ndarray
 
     @classmethod
-    def blank(cls, n: int, grid: int, lattice: int, n_strips: int) -> LocalMaps:
+    def blank(cls, n: int, grid: int, lattice: int, n_strips: int, comm_grid: int) -> LocalMaps:
         """Zeroed maps and sums for ``n`` UAVs: the owner sets the prior sums at a reset."""
         return cls(
             logodds=np.zeros((n, grid, grid), dtype=np.int16),
             block=np.zeros((n, 2, lattice, lattice), dtype=np.float64),
+            fine=np.zeros((n, 2, comm_grid, comm_grid), dtype=np.float64),
             strip=np.zeros((n, GAIN_SLOTS, n_strips, n_strips), dtype=np.float64),
             scal=np.zeros((n, 3), dtype=np.float64),
         )
@@ -488,11 +492,12 @@ def _sense_run(
     and the UAV's M_i. ``ctx``: (r0, c0, increment, flip threshold, table base of the level, flip
     key). ``tot``: the footprint's running scalars, carried cell by cell so the summation order
     (and so every float) does not depend on how the footprint is cut. Returns the segment's sums
-    (global prob / entropy / coverage, local prob / entropy, readings, gains) and ``tot``."""
+    (global prob / entropy / coverage / prob over valuable cells, local prob / entropy, readings,
+    gains) and ``tot``."""
     r0, c0, inc, thr, level_base, key = ctx
     g_went, g_ent_true, g_tp, g_pp, l_ent_true, l_tp, l_pp = tot
     gstep, lstep = tables.gstep, tables.lstep
-    gs_prob = gs_ent = ls_prob = ls_ent = 0.0
+    gs_prob = gs_ent = gs_prob_true = ls_prob = ls_ent = 0.0
     gs_cov = s_read = 0
     acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     cell_row = np.uint64(i * glob.truth.shape[1])
@@ -507,7 +512,9 @@ def _sense_run(
         g_went += gstep[row, G_REWARD]
         de = gstep[row, G_ENTROPY]
         gs_ent += de
-        gs_prob += gstep[row, G_PROB]
+        dp = gstep[row, G_PROB]
+        gs_prob += dp
+        gs_prob_true += dp * t
         g_pp += ch
         g_tp += ch * t
         g_ent_true += de * t
@@ -523,7 +530,7 @@ def _sense_run(
         l_ent_true += de * t
         acc = _gain_step(acc, lstep, row)
         s_read += reading
-    seg = (gs_prob, gs_ent, gs_cov, ls_prob, ls_ent, s_read, acc)
+    seg = (gs_prob, gs_ent, gs_cov, gs_prob_true, ls_prob, ls_ent, s_read, acc)
     return seg, (g_went, g_ent_true, g_tp, g_pp, l_ent_true, l_tp, l_pp)
 
 
@@ -547,13 +554,14 @@ def sense(
 
     The footprint is walked segment by segment (cells sharing a lattice block, a comm cell and a
     gain strip): the per-segment sums live in registers and are flushed once per segment into
-    ``glob.block``, ``loc.block[u]``, ``loc.strip[u]`` and ``comm.comm_sum/comm_cnt`` (the UAV's
+    ``glob.block``, ``loc.block[u]``, ``loc.fine[u]``, ``loc.strip[u]`` and ``comm.comm_sum/comm_cnt`` (the UAV's
     own sensor map); the footprint's scalars go to ``glob.scal`` and ``loc.scal[u]`` at the end.
     """
     r0, r1, c0, c1 = fp
     inc, thr = np.int32(tables.increments[level]), np.int32(tables.thresholds[level])
     ctx = (r0, c0, inc, thr, 2 * level * TABLE_SIZE, key)
     local, readings, l_block, l_strip = loc.logodds[u], comm.readings[u], loc.block[u], loc.strip[u]
+    l_fine = loc.fine[u]
     tot = (0.0, 0.0, 0, 0, 0.0, 0, 0)
     for i in range(r0, r1):
         bi, ci, gi = geo.block_of_cell[i], geo.comm_of_cell[i], geo.strip_of_cell[i]
@@ -561,15 +569,18 @@ def sense(
         while geo.seg_start[s] < c1:
             j0, j1 = geo.seg_start[s], geo.seg_start[s + 1]
             seg, tot = _sense_run(i, j0, j1, ctx, tables, glob, local, readings, tot)
-            gs_prob, gs_ent, gs_cov, ls_prob, ls_ent, s_read, acc = seg
+            gs_prob, gs_ent, gs_cov, gs_prob_true, ls_prob, ls_ent, s_read, acc = seg
             bj = geo.seg_block[s]
             glob.block[0, bi, bj] += gs_prob
             glob.block[1, bi, bj] += gs_ent
             glob.block[2, bi, bj] += gs_cov
+            glob.block[3, bi, bj] += gs_prob_true
             l_block[0, bi, bj] += ls_prob
             l_block[1, bi, bj] += ls_ent
             _flush_gains(l_strip, gi, geo.seg_strip[s], acc)
             cj = geo.seg_comm[s]
+            l_fine[0, ci, cj] += ls_prob
+            l_fine[1, ci, cj] += ls_ent
             comm.comm_sum[ci, cj] += s_read
             comm.comm_cnt[ci, cj] += j1 - j0
             s += 1
@@ -661,6 +672,7 @@ def receive(
     inc = np.int32(tables.increments[level])
     ctx = (r0, c0, inc, alpha_low, 1.0 - alpha_low, channel.sigma, channel.soft, key)
     local, readings, l_block, l_strip = loc.logodds[r], comm.readings[s], loc.block[r], loc.strip[r]
+    l_fine = loc.fine[r]
     tot = (0.0, 0, 0)
     for i in range(r0, r1):
         gi, ci = geo.strip_of_cell[i], geo.comm_of_cell[i]
@@ -675,6 +687,8 @@ def receive(
             l_block[1, bi, bj] += ls_ent
             _flush_gains(l_strip, gi, geo.seg_strip[seg], acc)
             cj = geo.seg_comm[seg]
+            l_fine[0, ci, cj] += ls_prob
+            l_fine[1, ci, cj] += ls_ent
             comm.comm_sum[ci, cj] += s_val
             comm.comm_cnt[ci, cj] += j1 - j0
             seg += 1

@@ -19,9 +19,25 @@ BUDGET, AGENT_ID, ALTITUDE, FOOTPRINT, SENSOR, BELIEF, BELIEF_ENTROPY, FUSED = r
 RAW_LOCAL_CHANNELS = 7
 LOCAL_CHANNELS = 8
 
+# Observation v3 (env option ``observation="v3"``) appends to ``local``, after FUSED:
+#: INTENT: where teammates whose message arrived this step are heading (1 at the column each
+#: reaches if it repeats the move it made this step; the move travels in the message).
+INTENT = LOCAL_CHANNELS
+#: then the fine view of M_i: the comm grid's (2, R, R) mean belief and entropy, space-to-depth
+#: onto the lattice (R = FINE_FACTOR * LATTICE), belief sub-cells first, row-major.
+FINE_VIEW = INTENT + 1
+FINE_FACTOR = 4
+FINE_CHANNELS = 2 * FINE_FACTOR * FINE_FACTOR
+#: Channels v3 adds to ``local`` (raw env and after fusion alike).
+V3_LOCAL_EXTRA = 1 + FINE_CHANNELS
+
 # Channels of ``obs["state"]`` (critic only).
 GLOBAL_BELIEF, GLOBAL_ENTROPY, GLOBAL_COVERAGE = range(3)
 STATE_CHANNELS = 3
+#: Observation v3's privileged critic channels (ground truth; the critic never flies): the
+#: fraction of truly valuable cells per block and the global belief's mean per-cell error |p - truth|.
+VALUABLE_FRACTION, BELIEF_ERROR = range(STATE_CHANNELS, STATE_CHANNELS + 2)
+V3_STATE_EXTRA = 2
 
 #: The critic's input: 8 local + 3 state + 1 "other UAVs' actions" channel it builds itself.
 CRITIC_CHANNELS = LOCAL_CHANNELS + STATE_CHANNELS + 1

@@ -99,7 +99,7 @@ def _sense_once(env, local_logodds, truth, level, threshold, seed=7):
     r0, r1 = geo.footprint_ranges[5, level]
     tables = env._tables._replace(thresholds=np.full_like(env._thresholds, threshold))
     glob = kernels.GlobalMaps.blank(493, 11)._replace(truth=truth)
-    loc = kernels.LocalMaps.blank(1, 493, 11, geo.n_strips)._replace(logodds=local_logodds[None])
+    loc = kernels.LocalMaps.blank(1, 493, 11, geo.n_strips, 44)._replace(logodds=local_logodds[None])
     comm = kernels.CommState.blank(1, geo.max_footprint, geo.comm_grid)
     key = np.uint64(
         kernels.stream_key(kernels.mission_seed(seed), kernels.DOMAIN_FLIP, 0, 0, 0)
@@ -149,7 +149,7 @@ def _received_image(env, image, alpha_low, sigma, soft, increment):
     r0, r1 = geo.footprint_ranges[5, 2]
     comm = kernels.CommState.blank(2, geo.max_footprint, geo.comm_grid)
     comm.readings[1, : r1 - r0, : r1 - r0] = image  # sender 1 -> receiver 0
-    loc = kernels.LocalMaps.blank(2, 493, 11, geo.n_strips)
+    loc = kernels.LocalMaps.blank(2, 493, 11, geo.n_strips, 44)
     tables = env._tables._replace(increments=np.full_like(env._increments, increment))
     channel = kernels.Channel(np.ones((2, 2), bool), np.full((2, 2), alpha_low), sigma, soft)
     glob = kernels.GlobalMaps.blank(493, 11)

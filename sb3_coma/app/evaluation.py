@@ -165,7 +165,7 @@ def resolve_policy(
 #: options unless the caller sets them, and refuses a caller's value that differs
 #: (:func:`check_observation_options`). The mission (map, split, start, noise, team size) stays the
 #: caller's choice.
-OBSERVATION_OPTIONS = ("action_gain", "comm_grid", "lattice", "grid", "altitudes", "field_size", "fov_deg")
+OBSERVATION_OPTIONS = ("action_gain", "observation", "comm_grid", "lattice", "grid", "altitudes", "field_size", "fov_deg")
 #: Env options that change the world a model flies in, not its observation: flying a model with
 #: other values is legal but the results then describe another world than its own, so it is a
 #: :class:`WorldMismatchWarning` (team size and fusion have their own warnings).

@@ -16,6 +16,7 @@ communication grid, noise, fusion). Deployment, per UAV and step::
 
     fused = fusion.run(None, {"received": r, "received_valid": v})   # fused_channel (1, 11, 11)
     local = concat(raw_local (1, 7, 11, 11), fused_channel[:, None])  # (1, 8, 11, 11)
+    # observation v3: concat(raw_local[:, :7], fused_channel[:, None], raw_local[:, 7:])  (1, 41, 11, 11)
     logits, action = actor.run(None, {"local": local, "action_mask": m[, "action_gain": g]})
 
 **The argmax is inside the actor graph** (output ``action``, int64), next to the masked logits
@@ -747,7 +748,7 @@ def _metadata(
         "exported_by": f"sb3-coma {__version__}, torch {th.__version__}",
         "opset": opset,
         "pipeline": "fused_channel = fusion(received, received_valid); local = concat(raw local channels 0-6, "
-        "fused_channel); logits, action = actor(local, action_mask[, action_gain])",
+        "fused_channel, raw local channels 7.. (observation v3 only)); logits, action = actor(local, action_mask[, action_gain])",
         "actor": {
             "file": ACTOR_FILE,
             "inputs": actor_in,

@@ -89,14 +89,17 @@ def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) ->
             f"{layout.KEY_LOCAL!r}, {layout.KEY_STATE!r}, {layout.KEY_MASK!r}; got {observation_space}"
         )
     local = _check_box(observation_space, layout.KEY_LOCAL, None, f"{layout.LOCAL_CHANNELS} x H x W actor maps")
-    if len(local.shape) != 3 or local.shape[0] != layout.LOCAL_CHANNELS:
+    v2, v3 = layout.LOCAL_CHANNELS, layout.LOCAL_CHANNELS + layout.V3_LOCAL_EXTRA
+    if len(local.shape) != 3 or local.shape[0] not in (v2, v3):
+        raw = local.shape[:1] in ((layout.RAW_LOCAL_CHANNELS,), (v3 - 1,))
         raise ValueError(
-            f"observation[{layout.KEY_LOCAL!r}] must have shape ({layout.LOCAL_CHANNELS}, H, W), got "
-            f"{tuple(local.shape)}" + (" (a raw env: add a fusion wrapper)" if local.shape[:1] == (7,) else "")
+            f"observation[{layout.KEY_LOCAL!r}] must have shape ({v2}, H, W) or, observation v3, ({v3}, H, W); got "
+            f"{tuple(local.shape)}" + (" (a raw env: add a fusion wrapper)" if raw else "")
         )
     if local.shape[1] < 4 or local.shape[2] < 4:
         raise ValueError(f"observation[{layout.KEY_LOCAL!r}] maps must be at least 4 x 4, got {tuple(local.shape)}")
-    _check_box(observation_space, layout.KEY_STATE, (layout.STATE_CHANNELS, *local.shape[1:]), "critic's global maps")
+    state_channels = layout.STATE_CHANNELS + (layout.V3_STATE_EXTRA if local.shape[0] == v3 else 0)
+    _check_box(observation_space, layout.KEY_STATE, (state_channels, *local.shape[1:]), "critic's global maps")
     _check_box(observation_space, layout.KEY_MASK, (layout.N_ACTIONS,), "valid-action mask")
 
 

@@ -314,7 +314,7 @@ def _check_venv(venv: VecEnv) -> None:
         )
     local_shape = space[layout.KEY_LOCAL].shape
     assert local_shape is not None  # a Box in every vec env of envs.make_vec_env
-    if local_shape[0] != layout.LOCAL_CHANNELS:
+    if local_shape[0] not in (layout.LOCAL_CHANNELS, layout.LOCAL_CHANNELS + layout.V3_LOCAL_EXTRA):
         raise ValueError(
             f"observation['local'] has {local_shape[0]} channels, expected "
             f"{layout.LOCAL_CHANNELS}: build the vec env with fusion='mean' or 'sendfuse', not 'none'"
