@@ -311,7 +311,11 @@ class IppConfig:
         if self.observation not in OBSERVATIONS:
             _fail("observation", self.observation, f"one of {list(OBSERVATIONS)}")
         if self.observation == "v3" and self.comm_grid % self.lattice:
-            _fail("comm_grid", self.comm_grid, f"a multiple of lattice ({self.lattice}) with observation='v3' (its fine view)")
+            _fail(
+                "comm_grid",
+                self.comm_grid,
+                f"a multiple of lattice ({self.lattice}) with observation='v3' (its fine view)",
+            )
         if self.render_mode not in (None, "rgb_array", "ansi"):
             _fail("render_mode", self.render_mode, "None, 'rgb_array' or 'ansi'")
         if self.map_seed is not None and (not _is_int(self.map_seed) or self.map_seed < 0):

@@ -91,7 +91,7 @@ def test_intent_marks_where_received_teammates_head():
     for i, agent in enumerate(env.possible_agents):
         intent = obs[agent][layout.KEY_LOCAL][layout.INTENT - 1]  # raw env: INTENT sits one lower
         expect = np.zeros((11, 11), dtype=np.float32)
-        for j, other in enumerate(env.possible_agents):
+        for j in range(len(env.possible_agents)):
             if j != i:
                 dx, dy = ACTION_DELTAS[env._moves[j], :2]
                 expect[np.clip(pos[j, 1] + dy, 0, 10), np.clip(pos[j, 0] + dx, 0, 10)] = 1.0

@@ -14,10 +14,17 @@ unless ``planner_kwargs`` names one.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
+import itertools
+import multiprocessing
 import os
 import pickle
+import tempfile
 import warnings
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +46,7 @@ from sb3_coma.common.evaluation import (
     EvaluationResult,
     _check_int,
     evaluate_policy,
+    merge_results,
     protocol_of,
     relabel,
 )
@@ -52,6 +60,7 @@ __all__ = [
     "check_policy",
     "evaluate",
     "is_model",
+    "parallel_evaluation",
     "planner_options",
     "resolve_policy",
     "trained_options",
@@ -165,7 +174,16 @@ def resolve_policy(
 #: options unless the caller sets them, and refuses a caller's value that differs
 #: (:func:`check_observation_options`). The mission (map, split, start, noise, team size) stays the
 #: caller's choice.
-OBSERVATION_OPTIONS = ("action_gain", "observation", "comm_grid", "lattice", "grid", "altitudes", "field_size", "fov_deg")
+OBSERVATION_OPTIONS = (
+    "action_gain",
+    "observation",
+    "comm_grid",
+    "lattice",
+    "grid",
+    "altitudes",
+    "field_size",
+    "fov_deg",
+)
 #: Env options that change the world a model flies in, not its observation: flying a model with
 #: other values is legal but the results then describe another world than its own, so it is a
 #: :class:`WorldMismatchWarning` (team size and fusion have their own warnings).
@@ -373,6 +391,7 @@ def evaluate(
     label: str | None = None,
     planner_kwargs: Mapping[str, Any] | None = None,
     protocol: str | None = None,
+    workers: int | str | None = None,
     **env_options: Any,
 ) -> EvaluationResult:
     """Run a trained model or a baseline for ``n_trials`` seeded missions (see module docstring).
@@ -399,10 +418,24 @@ def evaluate(
         the default ``n_trials``; ``None``: the env options as given
     :param env_options: environment options (``noise``, ``n_uavs``, ``budget``, ``map_path``,
         ``valuable``, ...)
+    :param workers: processes that fly the batches of ``n_envs`` missions side by side (``"auto"``:
+        every core; ``None``: the value set by :func:`parallel_evaluation`, else 1). The result
+        is the one process's, planning times aside (measured on shared cores). Names, paths and
+        COMA models fly on workers; other objects (a planner, a bare policy) in this process
     """
+    given = dict(env_options)
     protocol, n_trials, env_options = _protocol_options(protocol, n_trials, dict(env_options))
     n_trials = _check_int("n_trials", n_trials, 1)
     check_policy(policy_or_name)
+    n_envs = EVAL_BATCH if n_envs is None else _check_int("n_envs", n_envs, 1)
+    n_workers = evaluation_workers(_DEFAULT_WORKERS[0] if workers is None else workers, n_trials, n_envs)
+    if n_workers > 1 and isinstance(policy_or_name, (str, os.PathLike, COMA)):
+        chunk = dict(
+            policy_or_name=policy_or_name, env=env, seed=seed, fusion=fusion, deterministic=deterministic,
+            n_envs=n_envs, record=record, label=label or policy_label(policy_or_name),
+            planner_kwargs=planner_kwargs, protocol=protocol, **given,
+        )  # fmt: skip
+        return _evaluate_on_workers(chunk, n_trials, n_workers)
     shipped = _shipped_info(policy_or_name)
     trained = trained_options(policy_or_name, shipped)
     _take_observation_options(policy_or_name, trained, env_options)
@@ -417,7 +450,7 @@ def evaluate(
         n_trials,
         seed,
         deterministic=bool(deterministic),
-        n_envs=EVAL_BATCH if n_envs is None else n_envs,
+        n_envs=n_envs,
         record=record,
         label=label or policy_label(policy_or_name),
     )
@@ -430,6 +463,92 @@ def evaluate(
         protocol=protocol,
         planner_kwargs=dict(flown_kwargs) if is_baseline else {},
     )
+
+
+def evaluation_workers(workers: Any, n_trials: int, n_envs: int) -> int:
+    """How many processes fly an evaluation: ``workers`` (``"auto"``: every core), at most one per
+    batch of ``n_envs`` missions."""
+    if workers == "auto":
+        workers = os.cpu_count() or 1
+    workers = _check_int("workers", workers, 1)
+    return min(workers, -(-n_trials // n_envs))
+
+
+#: The workers of ``evaluate(..., workers=None)``: set for a block of code by :func:`parallel_evaluation`.
+_DEFAULT_WORKERS: list[int | str] = [1]
+
+
+@contextlib.contextmanager
+def parallel_evaluation(workers: int | str) -> Iterator[None]:
+    """Within the block, every :func:`evaluate` that names no ``workers`` flies on ``workers``
+    processes: a protocol, a sweep or ``reproduce`` is made of many calls, and they all take
+    the command's ``--workers``."""
+    evaluation_workers(workers, 1, 1)  # validate now, not at the first call
+    before = _DEFAULT_WORKERS[0]
+    _DEFAULT_WORKERS[0] = workers
+    try:
+        yield
+    finally:
+        _DEFAULT_WORKERS[0] = before
+
+
+def _chunks(n_trials: int, n_envs: int, n_workers: int) -> list[tuple[int, int]]:
+    """(first trial, trials) of each worker: whole batches, as even as they split, in order."""
+    batches = -(-n_trials // n_envs)
+    edges = [round(k * batches / n_workers) * n_envs for k in range(n_workers + 1)]
+    return [(a, min(b, n_trials) - a) for a, b in itertools.pairwise(edges) if a < n_trials]
+
+
+def _evaluate_chunk(kwargs: dict[str, Any]) -> EvaluationResult:
+    """One worker's part of :func:`_evaluate_on_workers` (a spawned process: one torch thread)."""
+    import torch as th
+
+    th.set_num_threads(1)
+    return evaluate(**kwargs)
+
+
+def _evaluate_on_workers(chunk: dict[str, Any], n_trials: int, n_workers: int) -> EvaluationResult:
+    """Fly whole batches of missions in ``n_workers`` spawned processes and merge them in order.
+
+    Every batch is seeded by its first trial and gets its own planner, and models predict
+    deterministically, so the merged result equals one process's. A model object travels as a
+    saved file (a process cannot share it); names, paths and planners travel as they are.
+    """
+    policy = chunk["policy_or_name"]
+    with tempfile.TemporaryDirectory(prefix="sb3-coma-eval-") as tmp:
+        if isinstance(policy, COMA):
+            path = Path(tmp) / "model.zip"
+            policy.save(path)
+            chunk["policy_or_name"] = str(path)
+        jobs = [
+            {**chunk, "seed": chunk["seed"] + start, "n_trials": count, "record": max(chunk["record"] - start, 0)}
+            for start, count in _chunks(n_trials, chunk["n_envs"], n_workers)
+        ]
+        try:
+            parts = list(_pool(len(jobs)).map(_evaluate_chunk, jobs))
+        except BrokenProcessPool:
+            _close_pool()
+            raise RuntimeError("an evaluation worker process died (out of memory?); rerun with workers=1") from None
+    return merge_results(parts)
+
+
+#: The evaluation workers, kept between calls: starting a process and importing torch costs
+#: seconds, and a protocol makes dozens of calls. Closed at exit.
+_POOL: dict[int, ProcessPoolExecutor] = {}
+
+
+def _pool(n_workers: int) -> ProcessPoolExecutor:
+    if n_workers not in _POOL:
+        _close_pool()
+        context = multiprocessing.get_context("spawn")  # torch and numba are not fork-safe
+        _POOL[n_workers] = ProcessPoolExecutor(max_workers=n_workers, mp_context=context)
+    return _POOL[n_workers]
+
+
+@atexit.register
+def _close_pool() -> None:
+    while _POOL:
+        _POOL.popitem()[1].shutdown(cancel_futures=True)
 
 
 def _env_maker(

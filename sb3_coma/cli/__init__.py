@@ -19,6 +19,7 @@ import torch
 
 from envs import ConfigError, MapError
 from sb3_coma.app.config import TrainingError
+from sb3_coma.app.evaluation import parallel_evaluation
 from sb3_coma.cli import commands
 from sb3_coma.common.checkpoints import CheckpointError, DiskFullError
 from sb3_coma.common.shipped import ShippedFileError
@@ -79,7 +80,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(table[args.command].run(args) or 0)
+        with parallel_evaluation(getattr(args, "eval_workers", 1)):
+            return int(table[args.command].run(args) or 0)
     except USER_ERRORS as exc:
         print(f"sb3-coma {args.command}: error: {exc}", file=sys.stderr)
         return 2

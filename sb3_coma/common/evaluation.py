@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -260,8 +261,10 @@ def warm_up(predictor: Any, obs: Any, deterministic: bool) -> None:
         rng.bit_generator.state = rng_state
 
 
-def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int, frames: bool) -> dict[str, Any]:
-    """Fly one mission in every copy of ``venv`` (already seeded) and collect the metrics."""
+def _run_batch(
+    predictor: Any, venv: Any, seed: int, deterministic: bool, keep_beliefs: int, frames: bool
+) -> dict[str, Any]:
+    """Fly one mission in every copy of ``venv`` (already seeded with ``seed``) and collect the metrics."""
     n_agents = int(venv.n_agents)
     copies = venv.num_envs // n_agents
     rows = [c * n_agents for c in range(copies)]
@@ -270,6 +273,8 @@ def _run_batch(predictor: Any, venv: Any, deterministic: bool, keep_beliefs: int
     truths = venv.get_attr("ground_truth", indices=rows)
     truth = truths[0]
     warm_up(predictor, obs, deterministic)
+    if not deterministic:  # sampled actions: torch's stream starts at the batch's seed, as planners' do
+        th.manual_seed(seed)
     if isinstance(predictor, Planner):
         predictor.reset()
     start = venv.env_method("metrics", indices=rows)
@@ -342,8 +347,8 @@ def _check_int(name: str, value: Any, minimum: int) -> int:
 #: missions with SenDFuse stay within a few hundred MB (each env copy holds ~12 MB of maps).
 EVAL_BATCH = 10
 
-#: Builds the predictor for one evaluation env and that batch's first mission seed (planners that
-#: read their own env's state are rebuilt for every batch; models are built once).
+#: Builds the predictor for one evaluation env and that batch's first mission seed (planners are
+#: rebuilt for every batch; models are built once).
 PredictorFactory = Callable[[Any, int], Any]
 
 
@@ -411,17 +416,54 @@ def evaluate_policy(
         venv = make_env(min(n_envs, n_trials - start))
         try:
             config = venv.get_attr("config", indices=[0])[0]
-            if flying is None or (is_factory and getattr(flying, "uses_env_state", False)):
+            # Planners are rebuilt for every batch, seeded by its first trial, so a batch's missions do
+            # not depend on the batches before it (parallel workers fly the same missions); a model
+            # is built once (loading is the expensive part, and it predicts deterministically).
+            if flying is None or (is_factory and isinstance(flying, Planner)):
                 flying = predictor(venv, seed + start)
             # Seed after building the predictor: loading a model with env=venv re-seeds that env
             # with the model's training seed (SB3's set_random_seed).
             venv.seed(seed + start)
             keep = max(record - start, 0)
-            parts.append(_run_batch(flying, venv, deterministic, keep, record >= 1 and start == 0))
+            parts.append(_run_batch(flying, venv, seed + start, deterministic, keep, record >= 1 and start == 0))
         finally:
             venv.close()
     release_freed_memory()
     return _result_of(parts, config, label, seed, record)
+
+
+def _joined(parts: Sequence[np.ndarray | None]) -> np.ndarray | None:
+    return None if any(p is None for p in parts) else np.concatenate(parts)  # type: ignore[arg-type]
+
+
+def merge_results(parts: Sequence[EvaluationResult]) -> EvaluationResult:
+    """One result from consecutive chunks of one evaluation (same method and world; chunk ``k+1``
+    starts at the seed where chunk ``k`` ends), as flown by one call over all trials: per-trial
+    arrays concatenated, planning times averaged by trials, the recorded beliefs and the GIF
+    frames of the first chunks. Used to fly the chunks in parallel processes."""
+    if not parts:
+        raise ValueError("merge_results needs at least one result")
+    first = parts[0]
+    for prev, part in itertools.pairwise(parts):
+        if part.seed != prev.seed + prev.n_trials or part.method != first.method:
+            raise ValueError(f"chunks are not consecutive missions of one method: {prev!r} then {part!r}")
+    beliefs = [p.final_beliefs for p in parts if p.final_beliefs is not None and len(p.final_beliefs)]
+    scenes = [p.scenes for p in parts]
+    return dataclasses.replace(
+        first,
+        n_trials=sum(p.n_trials for p in parts),
+        f1=np.concatenate([p.f1 for p in parts]),
+        entropy=np.concatenate([p.entropy for p in parts]),
+        team_f1=_joined([p.team_f1 for p in parts]),
+        team_entropy=_joined([p.team_entropy for p in parts]),
+        returns=np.concatenate([p.returns for p in parts]),
+        planning_time_ms=np.average(
+            np.stack([p.planning_time_ms for p in parts]), axis=0, weights=[p.n_trials for p in parts]
+        ),
+        trajectories=np.concatenate([p.trajectories for p in parts]),
+        final_beliefs=np.concatenate(beliefs) if beliefs else None,
+        scenes=None if any(s is None for s in scenes) else tuple(x for s in scenes for x in s),  # type: ignore[union-attr]
+    )
 
 
 def relabel(result: EvaluationResult, **changes: Any) -> EvaluationResult:

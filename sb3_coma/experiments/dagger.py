@@ -46,6 +46,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--kl", type=float, default=1.0, help="starting weight of the KL pull while fine-tuning")
     parser.add_argument("--missions-eval", type=int, default=32, help="unseen missions of the comparison")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--observation", choices=("v2", "v3"), default=None, help="env option observation (default: the config's)"
+    )
     parser.add_argument("--out", required=True, help="output folder")
     return parser.parse_args(argv)
 
@@ -77,7 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     th.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    plan = plan_run(env=args.env, seed=args.seed, device="cpu")
+    overrides = {"env_kwargs.observation": args.observation} if args.observation else None
+    plan = plan_run(env=args.env, seed=args.seed, device="cpu", overrides=overrides)
     venv = make_training_env(plan.cfg, seed=args.seed, workers=1)  # the oracle reads the env's state
     model, record = _clone(args, plan, venv)
     record_env_options(model, plan.cfg.map_name, plan.cfg.env_kwargs)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from envs import DEFAULT_MAP
 from sb3_coma.cli import UserError, set_threads
+from sb3_coma.cli.commands import add_workers_argument
 from sb3_coma.common.tables import write_per_step_csv, write_table_csv
 from sb3_coma.experiments import ablation, plots
 
@@ -26,6 +27,7 @@ HELP = "evaluate the SenDFuse / CBAM ablation models at three noise levels"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_workers_argument(parser)
     parser.add_argument(
         "--threads",
         type=int,

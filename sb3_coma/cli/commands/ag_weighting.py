@@ -18,6 +18,7 @@ from pathlib import Path
 
 from sb3_coma.baselines.adaptive_gain import WEIGHTING_BY_MAP
 from sb3_coma.cli import UserError
+from sb3_coma.cli.commands import add_workers_argument
 from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, pick_ag_weighting
 
 NAME = "ag-weighting"
@@ -25,6 +26,7 @@ HELP = "choose AG's entropy weighting (class / plain) per map on validation miss
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_workers_argument(parser)
 
     parser.add_argument("--env", default="env1,env2,env3", help="comma-separated map families (default env1,env2,env3)")
     parser.add_argument(

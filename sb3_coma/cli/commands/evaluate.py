@@ -23,6 +23,7 @@ from typing import Any
 from sb3_coma.app import evaluation as ev
 from sb3_coma.app.config import map_list, path_name_problem
 from sb3_coma.cli import UserError, set_threads
+from sb3_coma.cli.commands import add_workers_argument
 from sb3_coma.common import tables
 from sb3_coma.common.checkpoints import folder_write_problem
 from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
@@ -38,6 +39,7 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_workers_argument(parser)
     parser.add_argument(
         "--threads",
         type=int,

@@ -24,6 +24,7 @@ from typing import Any
 from sb3_coma.app.config import output_folder_problem
 from sb3_coma.app.pretrained import load_pretrained, read_manifest
 from sb3_coma.cli import UserError, set_threads
+from sb3_coma.cli.commands import add_workers_argument
 from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
 from sb3_coma.experiments import ablation as ab
 from sb3_coma.experiments import plots
@@ -36,6 +37,7 @@ HELP = "AG and the trained ablation arms over sigma, a_low, drop probability and
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_workers_argument(parser)
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     parser.add_argument("--env", default="env3", help="map (default env3, the ablation's)")
     parser.add_argument(

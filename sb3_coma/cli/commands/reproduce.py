@@ -17,6 +17,7 @@ from typing import Any
 
 from sb3_coma.app.config import map_list, output_file_problem, output_folder_problem
 from sb3_coma.cli import UserError, set_threads
+from sb3_coma.cli.commands import add_workers_argument
 from sb3_coma.common.outputs import OutputInterrupted
 from sb3_coma.experiments.reproduce import reproduce
 
@@ -51,6 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _add_protocol_arguments(parser: argparse.ArgumentParser) -> None:
     """Threads, output folder, maps, mission counts, seed and noise."""
+    add_workers_argument(parser)
     parser.add_argument(
         "--threads",
         type=int,
