@@ -33,6 +33,7 @@ from torch import nn
 
 import envs
 from envs import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
+from sb3_coma.baselines import PLANNERS
 from sb3_coma.coma import COMA
 from sb3_coma.common.checkpoints import folder_write_problem
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
@@ -45,9 +46,11 @@ __all__ = [
     "RUN_KEY",
     "UNSUPPORTED_KEYS",
     "VARIANTS_KEY",
+    "WARM_START_KEY",
     "ZOO_KEYS",
     "TrainConfig",
     "TrainingError",
+    "check_warm_start",
     "coma_kwargs",
     "coma_parameter_names",
     "config_entry",
@@ -85,6 +88,8 @@ ZOO_KEYS = ("n_timesteps", "n_envs", "policy", "policy_kwargs", "env_kwargs", "c
 #: Keys that say where the env copies run (``envs.make_vec_env``'s ``workers`` / ``backend``), not
 #: what they are: ``workers`` is an integer >= 1 or ``"auto"`` (every core, at most one per copy).
 LAYOUT_KEYS = ("workers", "backend")
+#: ``warm_start``: DAgger from a teacher planner before COMA trains (``sb3_coma.app.warm_start``).
+WARM_START_KEY = "warm_start"
 #: Arguments set by the trainer, not by a config.
 RESERVED_KEYS = {
     "seed": "pass --seed (sb3-coma train / rl-zoo3) or seed= (Python)",
@@ -238,7 +243,7 @@ def _trainable_fusions() -> list[str]:
 
 
 def _check_keys(entry: Mapping[str, Any], where: str) -> None:
-    allowed = set(coma_parameter_names()) | set(ZOO_KEYS) | set(LAYOUT_KEYS)
+    allowed = set(coma_parameter_names()) | set(ZOO_KEYS) | set(LAYOUT_KEYS) | {WARM_START_KEY}
     for key in entry:
         if key in RESERVED_KEYS:
             _fail(where, f"{key!r} cannot be set in a config: {RESERVED_KEYS[key]}")
@@ -325,7 +330,33 @@ def validate_entry(entry: Mapping[str, Any], where: str, map_name: str | None = 
     """
     _check_keys(entry, where)
     _check_zoo_values(entry, where)
+    if WARM_START_KEY in entry:
+        check_warm_start(entry[WARM_START_KEY], where)
     _check_env_kwargs(entry, where, map_name)
+
+
+_WARM_START_DEFAULTS: dict[str, Any] = {"teacher": "oracle", "rounds": 8, "missions": 128, "critic_warmup": 0.2}
+
+
+def check_warm_start(spec: Any, where: str) -> dict[str, Any]:
+    """The ``warm_start`` mapping with its defaults, or a :class:`TrainingError` naming the bad value."""
+    if not isinstance(spec, Mapping):
+        raise TrainingError(f"{where}: warm_start must be a mapping (teacher, rounds, missions, critic_warmup)")
+    unknown = sorted(set(spec) - set(_WARM_START_DEFAULTS))
+    if unknown:
+        raise TrainingError(f"{where}: warm_start does not take {unknown}; keys: {sorted(_WARM_START_DEFAULTS)}")
+    out = {**_WARM_START_DEFAULTS, **spec}
+    teachers = sorted(name for name, cls in PLANNERS.items() if cls.uses_env_state)
+    if out["teacher"] not in teachers:
+        raise TrainingError(f"{where}: warm_start teacher={out['teacher']!r}: one of {teachers}")
+    for key in ("rounds", "missions"):
+        value = out[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise TrainingError(f"{where}: warm_start {key}={value!r}: an integer >= 1")
+    warmup = out["critic_warmup"]
+    if isinstance(warmup, bool) or not isinstance(warmup, (int, float)) or not 0.0 <= warmup < 1.0:
+        raise TrainingError(f"{where}: warm_start critic_warmup={warmup!r}: a number in [0, 1)")
+    return out
 
 
 # =========================================================================== numbers
@@ -657,7 +688,8 @@ def _number_or_value(value: Any) -> Any:
 
 def coma_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
     """COMA constructor arguments from a config entry (zoo keys removed, strings resolved)."""
-    kwargs = {k: _number_or_value(v) for k, v in entry.items() if k not in ZOO_KEYS and k not in LAYOUT_KEYS}
+    trainer_keys = (*ZOO_KEYS, *LAYOUT_KEYS, WARM_START_KEY)
+    kwargs = {k: _number_or_value(v) for k, v in entry.items() if k not in trainer_keys}
     for key in _SCHEDULE_KEYS:
         if key in kwargs:
             kwargs[key] = parse_schedule(kwargs[key])

@@ -34,6 +34,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_coma import __version__
 from sb3_coma.app.config import (
+    WARM_START_KEY,
     TrainConfig,
     TrainingError,
     coma_kwargs,
@@ -59,6 +60,7 @@ from sb3_coma.app.runs import (
     resolve_resume,
     write_run_config,
 )
+from sb3_coma.app.warm_start import warm_start
 from sb3_coma.coma import COMA
 from sb3_coma.coma.validation import check_device as validation_check_device
 from sb3_coma.common.callbacks import (
@@ -673,6 +675,8 @@ def train(
         say(f"Run folder: {run_path}")
         if plan.resume_model is not None:
             say(f"Resuming from {plan.resume_model} at {plan.done_steps} joint steps")
+        elif WARM_START_KEY in plan.cfg.entry:
+            warm_start(model, plan.cfg, plan.seed, run_path, say)
         learn(model, plan, standard, callback_list, progress_bar=progress_bar, say=say)
         save_final(model, plan, run_path, standard, say=say)
     finally:

@@ -74,6 +74,8 @@ MISSION_OPTIONS = ("split", "start", "map_seed", "map_path", "n_uavs", "budget")
 #: monitor, workers) are not the world and are not compared; the fusion is the method's own.
 MAY_DIFFER: dict[str, str] = {
     "action_gain": "adds an observation key (the expected gain of each move); the world is the same",
+    "observation": "v3 adds what a UAV observes (fine view, intent) and the critic's inputs; the missions, "
+    "readings, links and channel draws are the same",
     "render_mode": "display only",
     "reward": "the return paid to a learner; no paired metric reads it",
     "reward_entropy": "the return paid to a learner; no paired metric reads it",

@@ -27,6 +27,7 @@ import torch as th
 
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.app.training import build_model, make_training_env, plan_run, record_env_options
+from sb3_coma.app.warm_start import actor_frozen_then
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma import COMA
 from sb3_coma.coma.imitation import clone_teacher
@@ -44,6 +45,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--from", dest="source", default=None, help="a clone to fine-tune instead of cloning")
     parser.add_argument("--finetune", type=int, default=0, help="COMA joint steps after cloning (0: none)")
     parser.add_argument("--kl", type=float, default=1.0, help="starting weight of the KL pull while fine-tuning")
+    parser.add_argument(
+        "--critic-warmup",
+        type=float,
+        default=0.0,
+        help="fraction of the fine-tuning during which only the critic learns (actor learning rate 0)",
+    )
     parser.add_argument("--missions-eval", type=int, default=32, help="unseen missions of the comparison")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
@@ -88,6 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     name = "clone.zip"
     if args.finetune > 0:
         model.set_reference_actor()
+        if args.critic_warmup > 0:
+            model.lr_schedule = actor_frozen_then(model.lr_schedule, args.critic_warmup)
         tic = time.perf_counter()
         model.learn(args.finetune)
         record["finetune_s"], name = round(time.perf_counter() - tic, 1), "finetuned.zip"

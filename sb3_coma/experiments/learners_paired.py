@@ -1,17 +1,19 @@
 """Learned policies against each other (and AG) on the same unseen missions: paired differences.
 
 What it measures: whether one learner (e.g. COMA) beats another (IPPO, MAPPO) or AG on shared
-``split="test"`` missions, with the paired standard error that says when a gap is a tie.
+unseen missions (``protocol="unseen"``: ``split="test"``, random starts), with the scene-clustered
+paired test that says when a gap is a tie.
 
     python -m sb3_coma.experiments.learners_paired --env env1 --missions 50 --fusion mean \\
         coma=/tmp/coma_env1/coma_env1.zip ippo=/tmp/ippo_env1/ippo_env1.zip mappo=/tmp/mappo_env1/mappo_env1.zip
 
 Each ``label=path`` is a COMA zip or an SB3 PPO zip from ``python -m sb3_coma.experiments.ippo_vs_ag``
 (IPPO / MAPPO); the first one is compared with every other and with AG. Every method flies the
-same ``split="test"`` missions (trial k = env seed k); a model's observation options
-(``action_gain``) follow what it was trained with. Prints final F1 / entropy and team F1 / entropy,
-mean over the missions, and the paired difference first - other +- standard error
-(``sb3_coma.common.paired``; within 2 standard errors it is a tie).
+same unseen missions (trial k = env seed k); a model's observation options (``action_gain``,
+``observation``) follow what it was trained with. Prints final F1 / entropy and team F1 / entropy,
+mean over the missions, and the paired difference first - other +- standard error clustered by
+scene, with the t-test verdict of ``sb3_coma.common.paired`` (no Holm correction here: one
+question per cell).
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ def load(path: str) -> Any:
 
 def _print_tables(env: str, missions: int, results: dict[str, Any]) -> None:
     """The mean of every metric per method, then the first method minus every other, paired."""
-    print(f"{env}, {missions} shared split=test missions, moderate noise, 100 % budget")
+    print(f"{env}, {missions} shared unseen missions (split test, random starts), moderate noise, 100 % budget")
     print("| method | " + " | ".join(METRICS) + " |\n| --- | --- | --- | --- | --- |")
     for label, res in results.items():
         print(f"| {label} | " + " | ".join(f"{np.asarray(getattr(res, m))[:, -1].mean():.4f}" for m in METRICS) + " |")
@@ -68,7 +70,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--fusion", default="mean", choices=["mean", "sendfuse"])
     args = parser.parse_args(argv)
     th.set_num_threads(1)
-    options = dict(env=args.env, n_trials=args.missions, seed=0, fusion=args.fusion, split="test")
+    options = dict(env=args.env, n_trials=args.missions, seed=0, fusion=args.fusion, protocol="unseen")
     results = {}
     for spec in args.models:
         label, path = spec.split("=", 1)
