@@ -81,9 +81,11 @@ def test_default_config_has_the_settings_that_learn_and_the_paper_variant():
     for env_id in ("UavIpp-Env1-v0", "UavIpp-Env2-v0", "UavIpp-Env3-v0"):
         cfg = load_config(env_id, path)
         e = cfg.entry
-        assert e["n_timesteps"] == (24000 if env_id == "UavIpp-Env1-v0" else 36000)
+        assert e["n_timesteps"] == 18000  # COMA's fine-tuning after the warm start
         assert e["policy"] == "CBAMPolicy" and e["n_envs"] == 8
-        assert "learning_rate" not in e and "batch_size" not in e  # COMA's defaults: the measured settings
+        assert "batch_size" not in e  # COMA's defaults: the measured settings
+        assert e["learning_rate"] == 3e-5 and e["kl_coef"] == 1.0 and e["kl_fraction"] == 1.0
+        assert e["warm_start"] == {"teacher": "oracle", "rounds": 8, "missions": 128, "critic_warmup": 0.25}
         assert e["env_kwargs"] == {
             "fusion": "sendfuse",
             "n_uavs": 4,
@@ -99,6 +101,7 @@ def test_default_config_has_the_settings_that_learn_and_the_paper_variant():
     assert paper["n_timesteps"] == 18000 and paper["learning_rate"] == 1e-5 and paper["critic_learning_rate"] == 1e-4
     assert paper["batch_size"] == 512 and paper["advantage"] == "q" and paper["clip_range"] is None
     assert paper["n_epochs"] == 1 and paper["env_kwargs"]["split"] == "paper"
+    assert paper["warm_start"] is None and paper["kl_coef"] == 0.0  # the paper trains from scratch
     for name in ("paper", "paper-actor"):  # the paper's actor: 8 local channels, no gain inputs
         entry = load_config("env3", path, name).entry
         assert entry["policy_kwargs"] == {"gain_inputs": False} and entry["env_kwargs"]["action_gain"] is False

@@ -200,3 +200,16 @@ def test_python_dash_m_entry_point(tmp_path):
         timeout=60,
     )
     assert result.returncode == 0 and "python -m sb3_coma.zoo" in result.stdout
+
+
+def test_zoo_train_runs_the_warm_start(tmp_path):
+    config = {ENV: {**TINY[ENV], "kl_coef": 1.0, "warm_start": {"rounds": 1, "missions": 2}}}
+    path = tmp_path / "warm.yml"
+    path.write_text(yaml.safe_dump(config))
+    logs = tmp_path / "logs"
+    args = ["train", "--algo", "coma", "--env", ENV, "-conf", str(path), "-n", "8", "--seed", "1", "-f", str(logs)]
+    assert zoo.main([*args, "--verbose", "0"]) == 0
+    run = logs / "coma" / f"{ENV}_1"
+    record = yaml.safe_load((run / "warm_start.json").read_text())
+    assert record["teacher"] == "oracle" and record["rounds"] == 1 and (run / "warm_start.zip").is_file()
+    assert validate_checkpoint(run / f"{ENV}.zip").num_timesteps == 8

@@ -330,7 +330,7 @@ def validate_entry(entry: Mapping[str, Any], where: str, map_name: str | None = 
     """
     _check_keys(entry, where)
     _check_zoo_values(entry, where)
-    if WARM_START_KEY in entry:
+    if entry.get(WARM_START_KEY) is not None:  # null: none (a variant's way to drop the map entry's)
         check_warm_start(entry[WARM_START_KEY], where)
     _check_env_kwargs(entry, where, map_name)
 

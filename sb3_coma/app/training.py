@@ -60,7 +60,7 @@ from sb3_coma.app.runs import (
     resolve_resume,
     write_run_config,
 )
-from sb3_coma.app.warm_start import warm_start
+from sb3_coma.app.warm_start import warm_start_run
 from sb3_coma.coma import COMA
 from sb3_coma.coma.validation import check_device as validation_check_device
 from sb3_coma.common.callbacks import (
@@ -675,8 +675,8 @@ def train(
         say(f"Run folder: {run_path}")
         if plan.resume_model is not None:
             say(f"Resuming from {plan.resume_model} at {plan.done_steps} joint steps")
-        elif WARM_START_KEY in plan.cfg.entry:
-            warm_start(model, plan.cfg, plan.seed, run_path, say)
+        elif plan.cfg.entry.get(WARM_START_KEY) is not None:
+            warm_start_run(model, plan.cfg, plan.seed, run_path, say)
         learn(model, plan, standard, callback_list, progress_bar=progress_bar, say=say)
         save_final(model, plan, run_path, standard, say=say)
     finally:

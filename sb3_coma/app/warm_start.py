@@ -22,15 +22,18 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_coma.app.config import WARM_START_KEY, TrainConfig, check_warm_start, make_training_env
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma import COMA
 from sb3_coma.coma.imitation import clone_teacher
 
-__all__ = ["actor_frozen_then", "warm_start"]
+__all__ = ["actor_frozen_then", "warm_start", "warm_start_run"]
 
 
 def actor_frozen_then(schedule: Callable[[float], float], fraction: float) -> Callable[[float], float]:
@@ -42,11 +45,19 @@ def actor_frozen_then(schedule: Callable[[float], float], fraction: float) -> Ca
     return rate
 
 
-def warm_start(model: COMA, cfg: TrainConfig, seed: int, run_path: Path, say: Callable[[str], None]) -> None:
-    """Clone the config's teacher into ``model``'s actor (module docstring); writes the record."""
-    spec = check_warm_start(cfg.entry[WARM_START_KEY], cfg.where)
+def warm_start(
+    model: COMA,
+    spec: Mapping[str, Any],
+    make_clone_env: Callable[[], VecEnv],
+    seed: int,
+    out_dir: Path,
+    say: Callable[[str], None],
+) -> None:
+    """Clone ``spec``'s teacher (checked by :func:`~sb3_coma.app.config.check_warm_start`) into
+    ``model``'s actor on ``make_clone_env()`` (in-process copies of the training world), set the
+    KL reference and the critic's warm-up, and write the record into ``out_dir``."""
     training_env = model.get_env()
-    venv = make_training_env(cfg, seed=seed, workers=1)  # in-process copies: the teacher reads them
+    venv = make_clone_env()
     tic = time.perf_counter()
     try:
         model.set_env(venv)
@@ -60,10 +71,16 @@ def warm_start(model: COMA, cfg: TrainConfig, seed: int, run_path: Path, say: Ca
     model.set_reference_actor()
     if spec["critic_warmup"] > 0:
         model.lr_schedule = actor_frozen_then(model.lr_schedule, float(spec["critic_warmup"]))
-    model.save(run_path / "warm_start.zip")
+    model.save(out_dir / "warm_start.zip")
     record = {**spec, "seconds": round(time.perf_counter() - tic, 1), "agreement": report.agreement}
     record["rounds_record"] = report.rounds
-    (run_path / "warm_start.json").write_text(json.dumps(record, indent=2) + "\n")
+    (out_dir / "warm_start.json").write_text(json.dumps(record, indent=2) + "\n")
     say(
         f"Warm start done in {record['seconds']} s: the actor agrees with the teacher on {report.agreement:.0%} of states"
     )
+
+
+def warm_start_run(model: COMA, cfg: TrainConfig, seed: int, run_path: Path, say: Callable[[str], None]) -> None:
+    """:func:`warm_start` of ``sb3-coma train``: the config entry's spec, copies of its world."""
+    spec = check_warm_start(cfg.entry[WARM_START_KEY], cfg.where)
+    warm_start(model, spec, lambda: make_training_env(cfg, seed=seed, workers=1), seed, run_path, say)

@@ -51,7 +51,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 from envs import ENV_IDS, ConfigError, IppConfig
 from sb3_coma.app.config import (
     DEFAULT_ENV_ID,
+    WARM_START_KEY,
     TrainingError,
+    check_warm_start,
     config_entry,
     default_config_path,
     make_vec_env_from_kwargs,
@@ -63,6 +65,7 @@ from sb3_coma.app.config import (
     validate_entry,
 )
 from sb3_coma.app.training import check_device, mission_callbacks, record_env_options
+from sb3_coma.app.warm_start import warm_start
 from sb3_coma.app.zoo_sampler import register as register_sampler
 from sb3_coma.coma import COMA
 from sb3_coma.coma.progress import JointStepProgressBar
@@ -144,6 +147,8 @@ class ComaExperimentManager(ExperimentManager):
         # where the training copies run: ours to read, not COMA's arguments
         self.workers = resolve_workers(hyperparams.pop("workers", 1), int(hyperparams.get("n_envs", 1)))
         self.backend = str(hyperparams.pop("backend", "subprocess"))
+        spec = hyperparams.pop(WARM_START_KEY, None)
+        self.warm_start = None if spec is None else check_warm_start(spec, f"{self.env_name.gym_id} hyperparameters")
         if "policy_kwargs" in hyperparams:
             # Evaluate here, with COMA's names (CBAMExtractor, CnnExtractor, dotted *_class paths).
             hyperparams["policy_kwargs"] = resolve_policy_kwargs(hyperparams["policy_kwargs"])
@@ -190,7 +195,16 @@ class ComaExperimentManager(ExperimentManager):
     # ------------------------------------------------------------------ learning, saving, loading
     def learn(self, model: Any) -> None:
         record_env_options(model, self.map_name, self.env_kwargs)  # saved in checkpoints and the final zip
+        spec = getattr(self, "warm_start", None)
+        if spec is not None and not self.trained_agent:
+            Path(self.save_path).mkdir(parents=True, exist_ok=True)
+            warm_start(model, spec, self._clone_env, self.seed, Path(self.save_path), print)
         super().learn(model)
+
+    def _clone_env(self) -> VecEnv:
+        """In-process copies of the training world for the warm start's teacher."""
+        env = make_vec_env_from_kwargs(self.env_name.gym_id, self.env_kwargs, self.n_envs, self.seed, 1, "subprocess")
+        return self.vec_env_wrapper(env) if self.vec_env_wrapper is not None else env
 
     def save_trained_model(self, model: Any) -> None:
         print(f"Saving to {self.save_path}")

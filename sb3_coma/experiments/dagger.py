@@ -46,6 +46,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--finetune", type=int, default=0, help="COMA joint steps after cloning (0: none)")
     parser.add_argument("--kl", type=float, default=1.0, help="starting weight of the KL pull while fine-tuning")
     parser.add_argument(
+        "--kl-fraction", type=float, default=0.5, help="share of the fine-tuning over which the pull decays"
+    )
+    parser.add_argument(
+        "--lr", type=float, default=None, help="actor learning rate of the fine-tuning (default: the config's)"
+    )
+    parser.add_argument(
         "--critic-warmup",
         type=float,
         default=0.0,
@@ -62,9 +68,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def _clone(args: argparse.Namespace, plan: Any, venv: Any) -> tuple[COMA, dict[str, Any]]:
     if args.source:
-        return COMA.load(args.source, env=venv, device="cpu", kl_coef=args.kl, kl_fraction=0.5), {}
+        custom = {"learning_rate": args.lr} if args.lr else {}
+        return COMA.load(
+            args.source, env=venv, device="cpu", kl_coef=args.kl, kl_fraction=args.kl_fraction, **custom
+        ), {}
     model = build_model(plan, venv, device="cpu")
-    model.kl_coef, model.kl_fraction = args.kl, 0.5
+    model.kl_coef, model.kl_fraction = args.kl, args.kl_fraction
     tic = time.perf_counter()
     report = clone_teacher(model, make_planner("oracle", venv, seed=args.seed), args.missions, args.rounds)
     return model, {"dagger_rounds": report.rounds, "dagger_s": round(time.perf_counter() - tic, 1)}

@@ -82,7 +82,8 @@ BASELINES: tuple[str, ...] = report.PLANNER_NAMES
 FRESH_ENV1_SEED = 7
 #: tiny training used by ``quick=True`` together with ``train=True`` (joint steps and overrides)
 QUICK_TIMESTEPS = 32
-QUICK_OVERRIDES = {"n_envs": 2, "n_steps": 8, "batch_size": 16, "n_critic_epochs": 1}
+#: --quick trains a few steps without the warm start (sb3_coma.app.warm_start has its own tests)
+QUICK_OVERRIDES = {"n_envs": 2, "n_steps": 8, "batch_size": 16, "n_critic_epochs": 1, "warm_start": None}
 #: evaluation seed base; training seed of the shipped models
 TRAIN_SEED = 0
 #: the shipped SenDFuse models train on their map's default config entry (no variant); a mean-fusion
