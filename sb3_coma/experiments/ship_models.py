@@ -17,6 +17,7 @@ A name ``envN`` ships the model of that map; ``env3-{fusion}-{extractor}`` an ab
 
 from __future__ import annotations
 
+import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -103,14 +104,18 @@ def ship(name: str, runs: list[Path]) -> dict[str, Any]:
         "model_file_of_run": "best_model.zip",
         "selection": _selection(scored),
         "train_wall_s": round(wall, 1),
-        "train_wall_note": f"wall-clock of that command (whole run, {run_length(chosen)} joint steps) on 2 CPU cores "
-        "shared with another training, 1 torch thread each",
+        "train_wall_note": f"wall-clock of that command (whole run, warm start included, {run_length(chosen)} "
+        "joint steps of COMA) on 2 CPU cores shared with the other trainings of the round",
         "shipped_form": "compact: no Adam moments, no target critic, half-precision weights (pretrained.save_for_shipping)",
         "training_curve": curve_from_metrics(chosen / "metrics.csv"),
         "env_options": env_options,
     }
     if "-" in name:
         entry["ablation_arm"] = [fusion, extractor]
+    warm = chosen / "warm_start.json"
+    if warm.is_file():  # "COMA (oracle warm start)": the teacher and what the clone learnt
+        record = json.loads(warm.read_text())
+        entry["warm_start"] = {k: v for k, v in record.items() if k != "rounds_record"}
     return entry
 
 
