@@ -46,6 +46,17 @@ def test_dagger_moves_the_actor_toward_the_teacher():
     assert 0.0 <= report.agreement <= 1.0
 
 
+def test_dagger_clones_at_its_own_rate_and_restores_the_models():
+    """A model configured to fine-tune slowly (here not at all) still clones, and keeps its rate."""
+    model = _model()
+    for g in model.policy.optimizer.param_groups:
+        g["lr"] = 0.0
+    before = [p.detach().clone() for p in model.policy.actor.parameters()]
+    clone_teacher(model, make_planner("oracle", model.env, seed=0), missions_per_round=2, rounds=1, epochs=1)
+    assert any(not th.equal(a, b) for a, b in zip(before, model.policy.actor.parameters()))
+    assert all(g["lr"] == 0.0 for g in model.policy.optimizer.param_groups)
+
+
 def test_dagger_is_deterministic_for_a_seed():
     weights = []
     for _ in range(2):

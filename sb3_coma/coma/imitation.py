@@ -135,6 +135,7 @@ def clone_teacher(
     epochs: int = 3,
     batch_size: int = 256,
     seed: int = 0,
+    learning_rate: float = 3e-4,
 ) -> DaggerReport:
     """DAgger the actor of ``model`` (a :class:`~sb3_coma.COMA`) toward ``teacher`` (module docstring).
 
@@ -143,6 +144,8 @@ def clone_teacher(
     :param rounds: DAgger rounds; round ``k`` follows the teacher with probability ``beta_decay ** k``
     :param epochs: passes over the aggregated data after each round
     :param batch_size: agent decisions per gradient step
+    :param learning_rate: the actor optimiser's rate while fitting (restored afterwards): a model
+        configured to fine-tune slowly still clones at the rate cloning needs
     """
     for name, value in (("missions_per_round", missions_per_round), ("rounds", rounds), ("epochs", epochs)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -154,12 +157,20 @@ def clone_teacher(
     rng = np.random.default_rng(seed)
     model.env.seed(seed)
     data, report = _Dataset(), DaggerReport()
-    for k in range(rounds):
-        beta = beta_decay**k
-        flown = _fly_round(model, teacher, data, missions_per_round, beta, rng)
-        loss, agreement = _fit(model, data.tensors(), epochs, batch_size)
-        report.rounds.append(
-            {"round": k, "beta": beta, "missions": flown, "states": len(data), "loss": loss, "agreement": agreement}
-        )
+    groups = model.policy.optimizer.param_groups
+    rates = [g["lr"] for g in groups]
+    for g in groups:
+        g["lr"] = learning_rate
+    try:
+        for k in range(rounds):
+            beta = beta_decay**k
+            flown = _fly_round(model, teacher, data, missions_per_round, beta, rng)
+            loss, agreement = _fit(model, data.tensors(), epochs, batch_size)
+            report.rounds.append(
+                {"round": k, "beta": beta, "missions": flown, "states": len(data), "loss": loss, "agreement": agreement}
+            )
+    finally:
+        for g, rate in zip(groups, rates):
+            g["lr"] = rate
     model._last_obs = None  # the next learn() resets the env
     return report
