@@ -24,9 +24,9 @@ import numpy as np
 import torch as th
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from train_speed import raw_env_missions_per_s  # noqa: E402
+from train_speed import raw_env_missions_per_s
 
-from sb3_coma import evaluate  # noqa: E402
+from sb3_coma import evaluate
 
 
 def parse_args() -> argparse.Namespace:
@@ -50,7 +50,9 @@ def main() -> None:
         for workers in counts:
             evaluate(method, env=args.env, protocol="unseen", n_trials=20, record=0, workers=workers)  # warm-up
             tic = time.perf_counter()
-            result = evaluate(method, env=args.env, protocol="unseen", n_trials=args.missions, record=0, workers=workers)
+            result = evaluate(
+                method, env=args.env, protocol="unseen", n_trials=args.missions, record=0, workers=workers
+            )
             rate = args.missions / (time.perf_counter() - tic)
             base = base or rate
             finals[workers] = np.stack([result.f1[:, -1], result.entropy[:, -1]])

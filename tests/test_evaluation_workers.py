@@ -63,9 +63,8 @@ def test_chunks_are_whole_batches_in_order():
 def test_bad_workers_are_refused():
     with pytest.raises(ValueError, match="workers"):
         evaluation_workers(0, 10, 10)
-    with pytest.raises(ValueError, match="workers"):
-        with parallel_evaluation("many"):
-            pass
+    with pytest.raises(ValueError, match="workers"), parallel_evaluation("many"):
+        pass
 
 
 def test_merge_refuses_chunks_that_are_not_consecutive():
