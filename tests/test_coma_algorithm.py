@@ -199,7 +199,10 @@ class TestErrors:
         [
             (obs_space(drop_key="state"), "lacks the key 'state'"),
             (obs_space(drop_key="action_mask"), "lacks the key 'action_mask'"),
-            (obs_space(local_shape=(7, 11, 11)), r"shape \(8, H, W\), got \(7, 11, 11\).*fusion"),
+            (
+                obs_space(local_shape=(7, 11, 11)),
+                r"shape \(8, H, W\) or, observation v3, \(41, H, W\); got \(7, 11, 11\).*fusion",
+            ),
             (obs_space(state_shape=(3, 9, 9)), r"'state'.*\(3, 11, 11\), got \(3, 9, 9\)"),
             (spaces.Box(0.0, 1.0, (8, 11, 11)), "Dict observation space"),
         ],
