@@ -1,6 +1,7 @@
 """Budget sweep of the unseen protocol: where does learning pay?
 
     python -m sb3_coma.experiments.budget_sweep --env env3 --budgets 10,15,30 --missions 32
+    python -m sb3_coma.experiments.budget_sweep --env env1 --budgets 15 --missions 50 --noise loud
 
 Flies the map's shipped COMA model, AG and AG with look-ahead 3 on the same unseen missions
 (``split="test"``, random starts) at each budget, and prints one Markdown table: final F1 and
@@ -17,7 +18,7 @@ import sys
 import warnings
 from typing import Any
 
-from sb3_coma.app.evaluation import evaluate
+from sb3_coma.app.evaluation import evaluate, parallel_evaluation
 from sb3_coma.common.evaluation import EvaluationResult
 from sb3_coma.common.paired import PairedDifference, holm_adjust, paired_difference
 
@@ -27,10 +28,13 @@ __all__ = ["main", "sweep"]
 BASELINES: tuple[tuple[str, str, dict[str, Any]], ...] = (("ag", "ag", {}), ("ag-k3", "ag", {"lookahead": 3}))
 
 
-def sweep(env: str, budgets: list[int], missions: int, seed: int) -> dict[int, dict[str, EvaluationResult]]:
+def sweep(
+    env: str, budgets: list[int], missions: int, seed: int, noise: str = "moderate"
+) -> dict[int, dict[str, EvaluationResult]]:
     """Every method at every budget on the same unseen missions."""
     out: dict[int, dict[str, EvaluationResult]] = {}
     common: dict[str, Any] = {"env": env, "protocol": "unseen", "n_trials": missions, "seed": seed, "record": 0}
+    common["noise"] = noise
     for budget in budgets:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the model flies another budget than it trained with: the point
@@ -70,9 +74,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--budgets", default="10,15,30", help="comma-separated budgets (decisions per UAV)")
     parser.add_argument("--missions", type=int, default=32, help="unseen missions per method and budget")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--noise", default="moderate", help="channel noise of every mission (none, moderate, loud)")
+    parser.add_argument(
+        "--workers",
+        dest="eval_workers",
+        default="auto",
+        type=lambda text: text if text == "auto" else int(text),
+        help="evaluation processes: auto (one per core) or a number",
+    )
     args = parser.parse_args(argv)
     budgets = [int(b) for b in args.budgets.split(",")]
-    print(table(sweep(args.env, budgets, args.missions, args.seed)))
+    with parallel_evaluation(args.eval_workers):
+        print(table(sweep(args.env, budgets, args.missions, args.seed, args.noise)))
     return 0
 
 
