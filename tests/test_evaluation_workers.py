@@ -7,7 +7,8 @@ import pytest
 
 import envs
 from sb3_coma import COMA
-from sb3_coma.app.evaluation import _chunks, evaluate, evaluation_workers, parallel_evaluation
+from sb3_coma.app.evaluation import WorldMismatchWarning, _chunks, evaluate, evaluation_workers, parallel_evaluation
+from sb3_coma.app.training import record_env_options
 from sb3_coma.cli import main as cli_main
 from sb3_coma.common.evaluation import merge_results
 
@@ -79,3 +80,15 @@ def test_cli_workers_zero_is_one_line(capsys):
         cli_main(["evaluate", "--workers", "0"])
     assert exit_info.value.code == 2
     assert "--workers" in capsys.readouterr().err
+
+
+def test_worker_warnings_reach_the_caller_once():
+    """A model flown in another world than it trained in warns in the caller, as in one process."""
+    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=4)
+    kwargs = {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}}
+    model = COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=kwargs)
+    record_env_options(model, "env1", {"fusion": "mean", "n_uavs": 2, "budget": 4})
+    with pytest.warns(WorldMismatchWarning) as caught:
+        evaluate(model, fusion="mean", record=0, workers=2, **{**SMALL, "noise": "loud"})
+    assert len([w for w in caught if issubclass(w.category, WorldMismatchWarning)]) == 1
+    venv.close()

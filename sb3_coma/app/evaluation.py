@@ -499,12 +499,17 @@ def _chunks(n_trials: int, n_envs: int, n_workers: int) -> list[tuple[int, int]]
     return [(a, min(b, n_trials) - a) for a, b in itertools.pairwise(edges) if a < n_trials]
 
 
-def _evaluate_chunk(kwargs: dict[str, Any]) -> EvaluationResult:
-    """One worker's part of :func:`_evaluate_on_workers` (a spawned process: one torch thread)."""
+def _evaluate_chunk(kwargs: dict[str, Any]) -> tuple[EvaluationResult, list[tuple[str, type[Warning]]]]:
+    """One worker's part of :func:`_evaluate_on_workers` (a spawned process: one torch thread),
+    with the warnings it raised: the caller re-raises them, so its filters and ``pytest.warns``
+    see what one process would have shown."""
     import torch as th
 
     th.set_num_threads(1)
-    return evaluate(**kwargs)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = evaluate(**kwargs)
+    return result, [(str(w.message), w.category) for w in caught]
 
 
 def _evaluate_on_workers(chunk: dict[str, Any], n_trials: int, n_workers: int) -> EvaluationResult:
@@ -525,11 +530,13 @@ def _evaluate_on_workers(chunk: dict[str, Any], n_trials: int, n_workers: int) -
             for start, count in _chunks(n_trials, chunk["n_envs"], n_workers)
         ]
         try:
-            parts = list(_pool(len(jobs)).map(_evaluate_chunk, jobs))
+            done = list(_pool(len(jobs)).map(_evaluate_chunk, jobs))
         except BrokenProcessPool:
             _close_pool()
             raise RuntimeError("an evaluation worker process died (out of memory?); rerun with workers=1") from None
-    return merge_results(parts)
+    for message, category in dict.fromkeys(w for _, caught in done for w in caught):  # once each, in order
+        warnings.warn(message, category, stacklevel=3)
+    return merge_results([result for result, _ in done])
 
 
 #: The evaluation workers, kept between calls: starting a process and importing torch costs
