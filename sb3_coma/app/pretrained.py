@@ -17,7 +17,6 @@ the name: a path that leads to a shipped zip (``sb3-coma evaluate --model
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import os
@@ -31,6 +30,7 @@ import torch as th
 from envs import WORLD_VERSION
 from sb3_coma.app.config import TrainingError, env_options_of, load_config
 from sb3_coma.coma import COMA
+from sb3_coma.common.shipped import SHIPPED_DIR, sha256_of
 
 __all__ = [
     "MANIFEST",
@@ -59,16 +59,11 @@ class PretrainedError(ValueError):
 
 def pretrained_dir() -> Path:
     """The folder that holds the shipped models (``sb3_coma/pretrained``)."""
-    return Path(__file__).resolve().parents[1] / "pretrained"
+    return SHIPPED_DIR
 
 
-def sha256_file(path: str | os.PathLike[str]) -> str:
-    """Hex SHA-256 of a file, read in 1 MiB blocks."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+#: Hex SHA-256 of a file (the library's, re-exported for the application's callers).
+sha256_file = sha256_of
 
 
 def read_manifest(directory: str | os.PathLike[str] | None = None) -> dict[str, Any]:
