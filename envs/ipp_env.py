@@ -517,6 +517,11 @@ class UavIppEnv(ParallelEnv):
         """(grid, grid) probability that each cell is valuable (float32)."""
         return kernels.probability(self._logodds)
 
+    def global_logodds(self) -> np.ndarray:
+        """(grid, grid) the global belief as stored: int16 log-odds in 1/``kernels.SCALE`` units
+        (a quarter of ``global_belief``'s bytes; planners look their per-cell scores up by it)."""
+        return self._logodds.copy()
+
     def local_beliefs(self) -> np.ndarray:
         """(N, grid, grid) each UAV's own local belief M_i, per belief cell (float32)."""
         return kernels.probability(self._local_logodds)

@@ -364,6 +364,31 @@ def test_oracle_density_prefers_truly_valuable_cells():
     assert np.isclose(clairvoyant_density(belief, truth, 0.0)[0, 0], 1.0)
 
 
+@pytest.mark.parametrize("planner, kwargs", [("oracle", {}), ("ag", {"knowledge": "central"})])
+def test_central_scores_by_table_lookup_equal_the_per_cell_formula(planner, kwargs):
+    """The oracle and central AG look each cell's score up by its stored log-odds: the strip sums
+    they plan with equal those of the formula applied to ``global_belief`` cell by cell."""
+    venv = envs.make_vec_env("env1", n_envs=2, seed=3)
+    p = make_planner(planner, venv, seed=0, **kwargs)
+    obs = venv.reset()
+    p.reset()
+    for _ in range(3):
+        actions, _ = p.predict(obs, deterministic=True)
+        obs, *_ = venv.step(actions)
+    sums = p._team_sums(2)
+    for c in range(2):
+        belief = venv.env_method("global_belief", indices=[c * p.n_agents])[0]
+        truth = venv.get_attr("ground_truth", indices=[c * p.n_agents])[0].valuable
+        for level, q in enumerate(p._levels_flip()):
+            if planner == "oracle":
+                density = clairvoyant_density(belief, np.asarray(truth, dtype=bool), q)
+            else:
+                density = gain_density(belief, q, p.weighting)
+            np.testing.assert_array_equal(sums[c][0, level], strip_sums(density, p.geometry))
+            np.testing.assert_array_equal(sums[c][-1, level], sums[c][0, level])
+    venv.close()
+
+
 def test_oracle_and_central_ag_are_references_that_beat_ag_on_average():
     f1 = {name: [] for name in ("ag", "central", "oracle")}
     ent = {name: [] for name in f1}

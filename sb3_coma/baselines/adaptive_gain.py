@@ -21,6 +21,7 @@ import numba
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from envs import kernels
 from envs.gain import WEIGHTINGS, check_weighting, gain_density
 from envs.geometry import FieldGeometry
 from envs.ipp_env import ACTION_DELTAS
@@ -185,6 +186,12 @@ def strip_sums(density: np.ndarray, geometry: FieldGeometry) -> np.ndarray:
     return np.add.reduceat(np.add.reduceat(density, starts, axis=0), starts, axis=1)
 
 
+def stored_probabilities() -> np.ndarray:
+    """(TABLE_SIZE,) the probability ``global_belief`` reports for each stored log-odds value
+    (row ``value + kernels.OFFSET``): a per-cell score of the belief is then one table lookup."""
+    return kernels.probability(np.arange(kernels.TABLE_SIZE) - kernels.OFFSET)
+
+
 def heard_matrix(positions_m: np.ndarray, comm_range: float) -> np.ndarray:
     """(N, N) bool: which teammates each UAV is within communication range of (itself included)."""
     gaps = np.linalg.norm(positions_m[:, None, :] - positions_m[None, :, :], axis=-1)
@@ -233,6 +240,7 @@ class AdaptiveGainPlanner(Planner):
         self.geometry: FieldGeometry = venv.get_attr("geometry", indices=[0])[0]
         self.config = venv.get_attr("config", indices=[0])[0]
         self._weighting_index = WEIGHTINGS.index(self.weighting)
+        self._tables: np.ndarray | None = None
         #: Look-ahead scores of the last decision, (copies, N, 6), for inspection.
         self.last_scores: np.ndarray | None = None
 
@@ -245,11 +253,23 @@ class AdaptiveGainPlanner(Planner):
             return [
                 np.ascontiguousarray(s[:, self._weighting_index]) for s in self._per_copy("gain_strip_sums", copies)
             ]
+        if self._tables is None:
+            self._tables = self._density_tables()
         out = []
-        for belief in self._per_copy("global_belief", copies):
-            levels = [strip_sums(gain_density(belief, q, self.weighting), self.geometry) for q in self._levels_flip()]
-            out.append(np.ascontiguousarray(np.broadcast_to(np.stack(levels), (self.n_agents, *np.shape(levels)))))
+        for rows in self._table_rows(copies):
+            levels = np.stack([strip_sums(table[rows], self.geometry) for table in self._tables])
+            out.append(np.ascontiguousarray(np.broadcast_to(levels, (self.n_agents, *levels.shape))))
         return out
+
+    def _density_tables(self) -> np.ndarray:
+        """(A, TABLE_SIZE) the central planner's per-cell gain of each stored log-odds value, per
+        altitude: the belief's cells take their value by lookup, not by logarithms per cell."""
+        p = stored_probabilities()
+        return np.stack([gain_density(p, q, self.weighting) for q in self._levels_flip()])
+
+    def _table_rows(self, copies: int) -> list[np.ndarray]:
+        """Per copy, (grid, grid) the row of :meth:`_density_tables` each cell of the global belief reads."""
+        return [lo.astype(np.intp) + kernels.OFFSET for lo in self._per_copy("global_logodds", copies)]
 
     def _heard(self, copies: int) -> list[np.ndarray]:
         if self.knowledge != "comm":

@@ -16,7 +16,9 @@ from __future__ import annotations
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from .adaptive_gain import AdaptiveGainPlanner, strip_sums
+from envs import kernels
+
+from .adaptive_gain import AdaptiveGainPlanner, stored_probabilities
 
 #: Weight of the entropy drop on cells that are truly not valuable.
 OTHER_WEIGHT = 0.25
@@ -46,12 +48,18 @@ class OraclePlanner(AdaptiveGainPlanner):
     def __init__(self, venv: VecEnv, seed: int | None = None, discount: float = 0.5, lookahead: int = 1) -> None:
         super().__init__(venv, seed, discount=discount, weighting="plain", lookahead=lookahead, knowledge="central")
 
-    def _team_sums(self, copies: int) -> list[np.ndarray]:
-        beliefs = self._per_copy("global_belief", copies)
+    def _density_tables(self) -> np.ndarray:
+        """(A, 2 * TABLE_SIZE) :func:`clairvoyant_density` of every stored log-odds value, per
+        altitude: the first half for truly not-valuable cells, the second for valuable ones."""
+        p = stored_probabilities()
+        halves = (np.zeros(p.shape, dtype=bool), np.ones(p.shape, dtype=bool))
+        return np.stack(
+            [np.concatenate([clairvoyant_density(p, truth, q) for truth in halves]) for q in self._levels_flip()]
+        )
+
+    def _table_rows(self, copies: int) -> list[np.ndarray]:
         truths = self._attr_per_copy("ground_truth", copies)
-        out = []
-        for belief, truth in zip(beliefs, truths):
-            valuable = np.asarray(truth.valuable, dtype=bool)
-            levels = [strip_sums(clairvoyant_density(belief, valuable, q), self.geometry) for q in self._levels_flip()]
-            out.append(np.ascontiguousarray(np.broadcast_to(np.stack(levels), (self.n_agents, *np.shape(levels)))))
-        return out
+        return [
+            rows + kernels.TABLE_SIZE * np.asarray(truth.valuable, dtype=np.intp)
+            for rows, truth in zip(super()._table_rows(copies), truths)
+        ]
