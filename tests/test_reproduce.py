@@ -236,3 +236,35 @@ def test_acceptance_takes_the_verdict_tables_decisions():
     row = acceptance(results, baselines=["ag", "random"], verdicts=verdicts)["env1"]
     assert row["beats_f1"] is False and row["beats_entropy"] is True and row["beats_all"] is False
     assert row["paired"]["ag"]["f1"] == {"winner": None}
+
+
+def test_seed_spread_table_gives_the_shipped_seed_and_the_sample_std_over_seeds():
+    from sb3_coma.experiments.report import seeds_markdown
+
+    rows = [
+        {
+            "model": "env3",
+            "shipped": "seed 1",
+            "candidates": ["seed 0", "seed 1", "seed 2"],
+            "missions": 50,
+            "metrics": {
+                "seed 0": {"f1": 0.70, "entropy": 0.40},
+                "seed 1": {"f1": 0.80, "entropy": 0.30},
+                "seed 2": {"f1": 0.90, "entropy": 0.50},
+            },
+        },
+        {"model": "env1", "shipped": "seed 0", "candidates": ["seed 0"], "missions": None, "metrics": {}},
+    ]
+    table = seeds_markdown(rows).splitlines()
+    assert table[2] == "| env3 | 3 (0, 1, 2) | seed 1 | 0.8000 | 0.8000 ± 0.1000 | 0.3000 | 0.4000 ± 0.1000 |"
+    assert table[3] == "| env1 | 1 (0) | seed 0 | not recorded | not recorded | not recorded | not recorded |"
+
+
+def test_seed_spread_rows_list_every_shipped_model_with_its_candidates():
+    from sb3_coma.experiments.reproduce import seed_spread_rows
+
+    rows = {r["model"]: r for r in seed_spread_rows()}
+    assert set(rows) == set(pt.read_manifest()["models"])
+    for name, entry in pt.read_manifest()["models"].items():
+        assert rows[name]["shipped"] == f"seed {entry['seed']}"
+        assert rows[name]["shipped"] in rows[name]["candidates"]

@@ -10,7 +10,7 @@
 
 Before ``learn()``, a new run clones the teacher into the actor
 (:func:`sb3_coma.coma.imitation.clone_teacher`) on copies of its own training world kept in this
-process (the oracle reads each copy's ground truth, which workers cannot lend it), stores the
+process (the oracle reads each copy's ground truth and global belief at every step), stores the
 clone as the KL reference (``COMA.set_reference_actor``), and holds the actor's learning rate at
 0 for the first ``critic_warmup`` of training: the critic is new to this policy, and advantages
 from an untrained critic would undo the clone before the pull can hold it. The clone and the

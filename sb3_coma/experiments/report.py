@@ -365,6 +365,55 @@ def _models_section(run: Any) -> list[str]:
     return lines
 
 
+def _mean_std(values: Sequence[float]) -> str:
+    if len(values) < 2:
+        return "n/a (one seed)"
+    mean = sum(values) / len(values)
+    std = (sum((v - mean) ** 2 for v in values) / (len(values) - 1)) ** 0.5
+    return f"{mean:.4f} ± {std:.4f}"
+
+
+def seeds_markdown(rows: Sequence[dict[str, Any]]) -> str:
+    """The seed-spread table: per shipped learner, the shipped seed's unseen result next to the
+    mean ± sample std over every seed trained for it (rows from ``models.json``)."""
+    out = [
+        "| model | seeds trained | shipped | F1 (shipped) | F1 over seeds | entropy (shipped) | entropy over seeds |",
+        "| --- | --- | --- | ---: | ---: | ---: | ---: |",
+    ]
+    for r in rows:
+        metrics = r["metrics"]
+        shipped = metrics.get(r["shipped"], {})
+        cells = []
+        for key in ("f1", "entropy"):
+            cells.append(f"{shipped[key]:.4f}" if key in shipped else "not recorded")
+            cells.append(_mean_std([m[key] for m in metrics.values()]) if metrics else "not recorded")
+        out.append(
+            f"| {r['model']} | {len(r['candidates'])} ({', '.join(c.split()[-1] for c in r['candidates'])}) | "
+            f"{r['shipped']} | {cells[0]} | {cells[1]} | {cells[2]} | {cells[3]} |"
+        )
+    return "\n".join(out)
+
+
+def _seeds_section(run: Any) -> list[str]:
+    rows = run.summary.get("seed_spread")
+    if not rows:
+        return []
+    missions = max((r["missions"] or 0) for r in rows)
+    return [
+        "## Seed spread and selection (shipped models)",
+        "",
+        "Every shipped model is the best of its seeds on the validation missions (split train, env seeds 1000+; "
+        "the test split chose nothing). The unseen-protocol result of each seed's selected checkpoint "
+        f"({missions} test missions, final F1 / entropy of the global belief, argmax) is recorded when the model "
+        "ships (`python -m sb3_coma.experiments.ship_models`, models.json `seeds_unseen`); ± is the sample "
+        "standard deviation over seeds. A model trained with one seed has no spread: its verdicts carry no "
+        "seed-to-seed variance.",
+        "",
+        seeds_markdown(rows),
+        "",
+    ]
+
+
 def _ag_section(run: Any) -> list[str]:
 
     w = run.summary["ag_weighting"]
@@ -527,6 +576,7 @@ def results_markdown(run: Any, figures: Sequence[Path], base: Path) -> str:
         "> " + readme_paragraph(run),
         "",
         *_models_section(run),
+        *_seeds_section(run),
         *_ag_section(run),
     ]
     if run.paper is not None:

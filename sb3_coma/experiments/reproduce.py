@@ -1066,6 +1066,23 @@ def figures_step(run: Run) -> None:
         run.figures.append(pl.plot_noise_sweep(run.sweep, fig_dir / "noise_sweep.png"))
 
 
+def seed_spread_rows() -> list[dict[str, Any]]:
+    """Per shipped model: its seeds and their unseen results as ``ship_models`` recorded them."""
+    rows = []
+    for name, entry in pt.read_manifest()["models"].items():
+        spread = entry.get("seeds_unseen") or {}
+        rows.append(
+            {
+                "model": name,
+                "shipped": f"seed {entry['seed']}",
+                "candidates": sorted(entry["selection"]["candidates"], key=lambda c: int(c.split()[-1])),
+                "missions": spread.get("missions"),
+                "metrics": spread.get("metrics", {}),
+            }
+        )
+    return rows
+
+
 def write_results(run: Run) -> None:
     """summary.json, RESULTS.md (and the docs copy with its figures)."""
     o = run.opts
@@ -1086,6 +1103,7 @@ def write_results(run: Run) -> None:
         noise=o.noise,
         envs=list(o.env_names),
         ag_weighting=_ag_weightings(o.env_names),
+        seed_spread=[] if o.train else seed_spread_rows(),
         models={
             env: {
                 "source": s.source,

@@ -7,10 +7,17 @@ split). This tool reads each run's ``eval/evaluations.npz``, keeps the run whose
 return is highest, re-saves that ``best_model.zip`` into ``sb3_coma/pretrained/`` in compact form
 (no Adam moments, no target critic, half precision: ~1.4 MB) and writes its ``models.json``
 entry: checksum, the exact command, the validation scores of every candidate, training
-wall-clock and curve. Test metrics are added afterwards by ``sb3-coma reproduce --record``.
+wall-clock and curve, and the seed spread: every candidate's selected checkpoint flown on the
+unseen protocol (the same 50 test missions as ``sb3-coma reproduce``), so tables can give the
+shipped seed's result next to the mean +- std over seeds. Those test metrics are recorded after the
+choice and never enter it. Test metrics of the shipped model itself are added afterwards by
+``sb3-coma reproduce --record``.
 
     python -m sb3_coma.experiments.ship_models env1=runs/env1_s0,runs/env1_s1 \\
-        env3-mean-cnn=runs/meancnn_s0,runs/meancnn_s1 ...
+        env3-mean-cnn=shipped,runs/meancnn_s1,runs/meancnn_s2 ...
+
+``shipped`` stands for the model shipped today under that name (its run folder may be gone): it
+competes with the validation score its entry recorded and stays, file and entry, if it wins.
 
 A name ``envN`` ships the model of that map; ``env3-{fusion}-{extractor}`` an ablation arm.
 """
@@ -29,9 +36,10 @@ import yaml
 from envs import WORLD_VERSION
 from sb3_coma import COMA, training_options
 from sb3_coma.app import pretrained as pt
-from sb3_coma.experiments.reproduce import curve_from_metrics
+from sb3_coma.app.evaluation import evaluate
+from sb3_coma.experiments.reproduce import UNSEEN_MISSIONS, curve_from_metrics
 
-__all__ = ["main", "run_command", "run_length", "ship", "validation_best"]
+__all__ = ["main", "run_command", "run_length", "seed_spread", "ship", "validation_best"]
 
 
 def validation_best(run: Path) -> tuple[float, int]:
@@ -64,22 +72,45 @@ def run_command(run: Path) -> tuple[str, dict[str, Any]]:
     return "sb3-coma " + " ".join(kept), info
 
 
-def _selection(scored: dict[Path, tuple[float, int]]) -> dict[str, Any]:
-    """The ``selection`` entry: the rule and every candidate's validation score."""
+#: A candidate spelt ``shipped``: the model shipped today under that name, with the validation
+#: score its manifest entry recorded (its run folder may be long gone).
+SHIPPED = "shipped"
+
+
+def _selection(scores: dict[str, tuple[float, int]]) -> dict[str, Any]:
+    """The ``selection`` entry: the rule and every candidate's validation score, by seed label."""
     return {
         "rule": "highest mean return on the run's validation missions (split train, env seeds 1000+, "
         "argmax; never the test split), over every evaluation of every seed",
         "candidates": {
-            f"seed {run_command(r)[1]['seed']}": {"best_validation_return": round(v, 4), "at_joint_steps": t}
-            for r, (v, t) in scored.items()
+            label: {"best_validation_return": round(v, 4), "at_joint_steps": t} for label, (v, t) in scores.items()
         },
     }
 
 
-def ship(name: str, runs: list[Path]) -> dict[str, Any]:
-    """Ship the best of ``runs`` (by validation return) as model ``name``; returns its manifest entry."""
-    scored = {run: validation_best(run) for run in runs}
-    chosen = max(runs, key=lambda r: scored[r][0])
+def seed_spread(models: dict[str, Path], env: str, fusion: str, missions: int = UNSEEN_MISSIONS) -> dict[str, Any]:
+    """The ``seeds_unseen`` entry: each seed's selected model on the unseen protocol (final F1 and
+    entropy of the global belief, mean over ``missions`` test missions, argmax actions)."""
+    metrics = {}
+    for label, path in models.items():
+        result = evaluate(str(path), env=env, fusion=fusion, protocol="unseen", n_trials=missions, record=0)
+        metrics[label] = {
+            "f1": round(float(result.f1[:, -1].mean()), 4),
+            "entropy": round(float(result.entropy[:, -1].mean()), 4),
+        }
+    return {"protocol": "unseen", "missions": missions, "noise": "moderate", "metrics": metrics}
+
+
+def _shipped_candidate(name: str) -> tuple[str, tuple[float, int], Path, dict[str, Any]]:
+    """(seed label, recorded validation score, model file, manifest entry) of the shipped ``name``."""
+    entry = pt.read_manifest()["models"][name]
+    label = f"seed {entry['seed']}"
+    record = entry["selection"]["candidates"][label]
+    return label, (record["best_validation_return"], record["at_joint_steps"]), pt.model_path(name), entry
+
+
+def _entry_of_run(name: str, chosen: Path) -> dict[str, Any]:
+    """The manifest entry of a run's ``best_model.zip``, saved into the shipped folder."""
     command, info = run_command(chosen)
     model = COMA.load(chosen / "best_model.zip", device="cpu")
     env_options = training_options(model)
@@ -102,7 +133,6 @@ def ship(name: str, runs: list[Path]) -> dict[str, Any]:
         "command": command,
         "config": "zoo_configs/coma.yml",
         "model_file_of_run": "best_model.zip",
-        "selection": _selection(scored),
         "train_wall_s": round(wall, 1),
         "train_wall_note": f"wall-clock of that command (whole run, warm start included, {run_length(chosen)} "
         "joint steps of COMA) on 2 CPU cores shared with the other trainings of the round",
@@ -119,6 +149,34 @@ def ship(name: str, runs: list[Path]) -> dict[str, Any]:
     return entry
 
 
+def ship(name: str, runs: Sequence[Path | str]) -> dict[str, Any]:
+    """Ship the best of ``runs`` (by validation return) as model ``name``; returns its manifest
+    entry. A run spelt :data:`SHIPPED` is today's shipped model, kept (file and entry) if it wins."""
+    scores: dict[str, tuple[float, int]] = {}
+    files: dict[str, Path] = {}
+    folders: dict[str, Path] = {}
+    current: dict[str, Any] | None = None
+    for run in runs:
+        if str(run) == SHIPPED:
+            label, score, files[label], current = _shipped_candidate(name)
+        else:
+            folder = Path(run)
+            label, score = f"seed {run_command(folder)[1]['seed']}", validation_best(folder)
+            files[label], folders[label] = folder / "best_model.zip", folder
+        if label in scores:
+            raise ValueError(f"{name}: two candidates of {label}")
+        scores[label] = score
+    best = max(scores, key=lambda label: scores[label][0])
+    if best in folders:
+        entry = _entry_of_run(name, folders[best])
+    else:
+        assert current is not None
+        entry = dict(current)
+    entry["selection"] = _selection(scores)
+    entry["seeds_unseen"] = seed_spread(files, entry["env"], entry["fusion"])
+    return entry
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Ship every ``NAME=RUN[,RUN...]`` and rewrite ``models.json``; status 2 (and the usage) without any."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -128,7 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     manifest = pt.read_manifest()
     for spec in argv:
         name, runs = spec.split("=", 1)
-        entry = ship(name, [Path(r) for r in runs.split(",")])
+        entry = ship(name, runs.split(","))
         old = manifest["models"].get(name, {})
         manifest["models"][name] = entry
         print(

@@ -1,0 +1,85 @@
+"""ship_models: the shipped model is the best candidate on validation; every seed's unseen result
+is recorded next to it; today's shipped model can compete without its run folder."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from sb3_coma.app import pretrained as pt
+from sb3_coma.experiments import ship_models as sm
+
+
+def _fake_run(folder: Path, seed: int, returns: list[float]) -> Path:
+    """A run folder as ``sb3-coma train --eval-freq`` leaves it, as far as selection reads it."""
+    (folder / "eval").mkdir(parents=True)
+    np.savez(
+        folder / "eval" / "evaluations.npz",
+        timesteps=np.arange(1, len(returns) + 1) * 3000,
+        results=np.array(returns)[:, None].repeat(4, axis=1),
+    )
+    command = f"python sb3-coma train --env env3 --variant mean-cnn --seed {seed} --eval-freq 3000 --run-dir {folder}"
+    run = {"command": command, "seed": seed, "env": "UavIpp-Env3-v0", "variant": "mean-cnn"}
+    (folder / "config.yml").write_text(yaml.safe_dump({"run": run}))
+    return folder
+
+
+@pytest.fixture
+def shipped_folder(tmp_path, monkeypatch):
+    folder = tmp_path / "pretrained"
+    folder.mkdir()
+    entry = {
+        "file": "coma_env3_mean_cnn.zip",
+        "sha256": hashlib.sha256(b"zip").hexdigest(),
+        "env": "env3",
+        "fusion": "mean",
+        "seed": 0,
+        "selection": {"candidates": {"seed 0": {"best_validation_return": 8.0, "at_joint_steps": 30000}}},
+    }
+    (folder / pt.MANIFEST).write_text(json.dumps({"format": 1, "models": {"env3-mean-cnn": entry}}))
+    (folder / entry["file"]).write_bytes(b"zip")
+    monkeypatch.setattr(pt, "pretrained_dir", lambda: folder)
+    spread_calls = []
+
+    def fake_spread(models, env, fusion, missions=50):
+        spread_calls.append((dict(models), env, fusion))
+        return {"metrics": {label: {"f1": 0.7, "entropy": 0.4} for label in models}}
+
+    monkeypatch.setattr(sm, "seed_spread", fake_spread)
+    monkeypatch.setattr(sm, "_entry_of_run", lambda name, run: {"env": "env3", "fusion": "mean", "from": str(run)})
+    return folder, spread_calls
+
+
+def test_the_shipped_model_stays_when_its_recorded_validation_score_wins(tmp_path, shipped_folder):
+    folder, spread_calls = shipped_folder
+    runs = [_fake_run(tmp_path / "s1", 1, [7.0, 7.5]), _fake_run(tmp_path / "s2", 2, [6.0, 7.9])]
+    entry = sm.ship("env3-mean-cnn", ["shipped", *map(str, runs)])
+    assert entry["file"] == "coma_env3_mean_cnn.zip" and entry["seed"] == 0 and "from" not in entry
+    assert entry["selection"]["candidates"] == {
+        "seed 0": {"best_validation_return": 8.0, "at_joint_steps": 30000},
+        "seed 1": {"best_validation_return": 7.5, "at_joint_steps": 6000},
+        "seed 2": {"best_validation_return": 7.9, "at_joint_steps": 6000},
+    }
+    models, env, fusion = spread_calls[0]
+    assert models == {"seed 0": folder / "coma_env3_mean_cnn.zip", "seed 1": runs[0] / "best_model.zip",
+                      "seed 2": runs[1] / "best_model.zip"}  # fmt: skip
+    assert (env, fusion) == ("env3", "mean")
+    assert set(entry["seeds_unseen"]["metrics"]) == {"seed 0", "seed 1", "seed 2"}
+
+
+def test_a_run_that_validates_higher_replaces_the_shipped_model(tmp_path, shipped_folder):
+    runs = [_fake_run(tmp_path / "s1", 1, [8.5, 7.0]), _fake_run(tmp_path / "s2", 2, [6.0, 7.9])]
+    entry = sm.ship("env3-mean-cnn", ["shipped", *map(str, runs)])
+    assert entry["from"] == str(runs[0])
+    assert entry["selection"]["candidates"]["seed 1"]["best_validation_return"] == 8.5
+
+
+def test_two_candidates_of_one_seed_are_refused(tmp_path, shipped_folder):
+    runs = [_fake_run(tmp_path / "s0", 0, [7.0])]
+    with pytest.raises(ValueError, match="two candidates of seed 0"):
+        sm.ship("env3-mean-cnn", ["shipped", *map(str, runs)])
