@@ -60,12 +60,14 @@ def test_main_draws_the_curves_and_writes_the_table(runs, tmp_path, capsys):
     assert group.f1.shape == group.entropy.shape == (2, 2)
     assert list(group.missions) == [4.0, 8.0]
     assert group.validation.missions == MISSIONS and group.validation.seed == 1000
-    for name in ("ag", "random"):
+    assert set(group.levels) == {"ag", "ag-k3", "oracle", "random"}
+    for name in ("ag", "ag-k3", "oracle", "random"):
         f1, entropy = group.levels[name]
         assert math.isfinite(f1) and 0.0 <= f1 <= 1.0
         assert math.isfinite(entropy) and 0.0 <= entropy <= 1.0
         assert f"{f1:.3f} / {entropy:.3f}" in text
     assert group.levels["ag"][0] > group.levels["random"][0]
+    assert group.levels["oracle"][1] <= group.levels["ag"][1]  # the clairvoyant reference ends less unsure
 
 
 def test_levels_are_flown_on_the_validation_missions(runs):

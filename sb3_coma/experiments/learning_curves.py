@@ -1,5 +1,6 @@
 """Learning curves: validation F1 / entropy against missions trained, mean ± std over seeds, with
-AG's and random's levels on the same validation missions; one row per map family or ablation arm.
+the levels of AG, AG look-ahead 3, the oracle (upper reference) and random on the same validation
+missions; one row per map family or ablation arm.
 
     python -m sb3_coma.experiments.learning_curves --out docs/figures/learning_curves.png \\
         --table docs/figures/learning_curves.md \\
@@ -30,7 +31,7 @@ x = joint steps / budget (missions trained per env copy count: one mission is ``
 steps). A group's curve is the mean ± std (population, ``ddof=0``) over its runs at their shared
 evaluation steps (the common prefix when one run stopped earlier).
 
-AG's and random's levels (dashed lines) are flown on exactly the validation missions, through the
+The baselines' levels (dashed lines) are flown on exactly the validation missions, through the
 mechanism the callback uses, not with ``sb3_coma.evaluate``: training builds its eval env as
 ``make_training_env(cfg, n_envs=eval_copies(M), seed=eval_seed)`` (C = 5, 4, 3, 2 or 1 env copies,
 the largest that divides M) and every evaluation calls ``eval_env.seed(eval_seed)`` and then SB3's
@@ -98,8 +99,14 @@ __all__ = [
 
 #: The TensorBoard scalars ``MissionEvalCallback`` logs at each evaluation.
 TAGS: dict[str, str] = {"f1": "eval/mean_f1", "entropy": "eval/mean_entropy"}
-#: The baselines whose levels are drawn, and their line colours.
-BASELINES: dict[str, str] = {"ag": "tab:red", "random": "tab:gray"}
+#: The baselines whose levels are drawn: label -> (planner, its options, line colour). The oracle
+#: knows the ground truth: the headroom left, an upper reference, never a competitor.
+BASELINES: dict[str, tuple[str, dict[str, Any], str]] = {
+    "ag": ("ag", {}, "tab:red"),
+    "ag-k3": ("ag", {"lookahead": 3}, "tab:orange"),
+    "oracle": ("oracle", {}, "tab:green"),
+    "random": ("random", {}, "tab:gray"),
+}
 EVALUATIONS = Path("eval") / "evaluations.npz"
 
 
@@ -308,9 +315,11 @@ def fly_validation(
 def baseline_scores(validation: Validation, name: str) -> MissionScores:
     """Baseline ``name`` (built as ``evaluate`` builds it) flown on the validation missions."""
 
+    kind, options, _ = BASELINES[name]
+
     def planner(venv: VecEnv) -> Any:
         config = venv.get_attr("config", indices=[0])[0]
-        return make_planner(name, venv, seed=validation.seed, **planner_options(name, config, None))
+        return make_planner(kind, venv, seed=validation.seed, **planner_options(kind, config, options))
 
     scores = fly_validation(validation, planner)
     if len(scores.f1) != validation.missions:  # pragma: no cover - evaluate_policy counts missions exactly
@@ -377,7 +386,7 @@ def build_group(
 
 
 def baseline_levels_cache() -> Callable[[Validation], dict[str, tuple[float, float]]]:
-    """AG's and random's levels per set of validation missions, flown once for all groups sharing it
+    """The baselines' levels per set of validation missions, flown once for all groups sharing it
     (the ablation arms of one map: the fusion is not part of the missions)."""
     cache: dict[Validation, dict[str, tuple[float, float]]] = {}
 
@@ -408,14 +417,18 @@ def plot_groups(groups: Sequence[GroupCurve], path: str | Path) -> Path:
                 label=f"COMA ({len(group.runs)} seed{'s' if len(group.runs) > 1 else ''})",
             )
             ax.fill_between(group.missions, mean - std, mean + std, color="tab:blue", alpha=0.25, lw=0)
-            for k, (name, colour) in enumerate(BASELINES.items()):
+            for k, (name, (_, _, colour)) in enumerate(BASELINES.items()):
                 level = group.levels[name][0 if metric == "f1" else 1]
                 ax.axhline(level, color=colour, ls="--", lw=1.2, label=f"{name} {level:.3f}", zorder=1 + k)
             ax.set_title(f"{group.name}: {title} ({group.validation.missions} missions)", fontsize=10)
             ax.set_xlabel("missions trained")
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8, loc="best")
-    fig.suptitle("COMA: mean ± std over seeds; dashed: AG and random on the same validation missions", fontsize=9)
+    fig.suptitle(
+        "COMA: mean ± std over seeds; dashed: AG, AG look-ahead 3, the oracle (upper reference) and random "
+        "on the same validation missions",
+        fontsize=9,
+    )
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.25 / len(groups)))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
@@ -429,16 +442,15 @@ def _seeds(group: GroupCurve) -> str:
 
 
 def table_markdown(groups: Sequence[GroupCurve], digits: int = 3) -> str:
-    """One line per group: final and best validation F1 / entropy, AG's and random's levels."""
+    """One line per group: final and best validation F1 / entropy, the baselines' levels."""
     head = (
         "| group | seeds | missions at last eval | final F1 ↑ | final entropy ↓ | best mean F1 (missions) "
-        "| best mean entropy (missions) | AG F1 / entropy | random F1 / entropy |"
+        "| best mean entropy (missions) | " + " | ".join(f"{name} F1 / entropy" for name in BASELINES) + " |"
     )
-    lines = [head, "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [head, "| --- | --- | ---: | ---: | ---: | ---: | ---: |" + " ---: |" * len(BASELINES)]
     for g in groups:
         (f1, f1_sd), (ent, ent_sd) = g.mean_std("f1"), g.mean_std("entropy")
         bf, be = int(np.argmax(f1)), int(np.argmin(ent))
-        ag, rnd = g.levels["ag"], g.levels["random"]
         cells = [
             g.name,
             _seeds(g),
@@ -447,8 +459,7 @@ def table_markdown(groups: Sequence[GroupCurve], digits: int = 3) -> str:
             f"{ent[-1]:.{digits}f} ± {ent_sd[-1]:.{digits}f}",
             f"{f1[bf]:.{digits}f} ({g.missions[bf]:g})",
             f"{ent[be]:.{digits}f} ({g.missions[be]:g})",
-            f"{ag[0]:.{digits}f} / {ag[1]:.{digits}f}",
-            f"{rnd[0]:.{digits}f} / {rnd[1]:.{digits}f}",
+            *(f"{g.levels[name][0]:.{digits}f} / {g.levels[name][1]:.{digits}f}" for name in BASELINES),
         ]
         lines.append("| " + " | ".join(cells) + " |")
     notes = [f"- {g.name}: {g.validation.describe()}" for g in groups]
