@@ -507,10 +507,12 @@ def _ablation_section(run: Any) -> list[str]:
     return [
         "## Ablation: SenDFuse x CBAM under three noise levels (env3)",
         "",
-        "The paper's Table II / Fig. 4. SenDFuse+CBAM is the env3 model above; the other three arms are the "
-        "shipped models `env3-sendfuse-cnn`, `env3-mean-cbam`, `env3-mean-cnn`; each flown with the fusion "
-        "it was trained with, the unseen protocol's missions, argmax actions, at every noise level. Best of each "
-        "noise level in bold. More in docs/ABLATION.md.",
+        "The paper's Table II / Fig. 4. The four arms are the shipped models `env3-sendfuse-cbam`, "
+        "`env3-sendfuse-cnn`, `env3-mean-cbam` and `env3-mean-cnn`, all trained by COMA from scratch with one "
+        "recipe (the `scratch` variant of `zoo_configs/coma.yml`; the warm-started env3 model would compare the "
+        "warm start, not the fusion and the extractor); each flown with the fusion it was trained with, the "
+        "unseen protocol's missions, argmax actions, at every noise level. Best of each noise level in bold. "
+        "More in docs/ABLATION.md.",
         "",
         run.sections.get("ablation", ""),
         "",
