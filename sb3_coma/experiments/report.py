@@ -612,6 +612,19 @@ def results_markdown(run: Any, figures: Sequence[Path], base: Path) -> str:
         generalisation_markdown(s.get("generalisation", [])),
         "",
     ]
+    if run.sections.get("user_maps"):
+        lines += [
+            "## A user's own map",
+            "",
+            "Ten Landsat-8 colour crops that no model trained on (2.4 km at 30 m; env3 trains on Sentinel-2 "
+            "scenes, env2 on the Landsat thermal band), read as a user reads a photo: `map_path=` and the "
+            "`threshold` rule (`python -m sb3_coma.experiments.user_maps`, images and provenance in "
+            "`sb3_coma/experiments/user_map_images/`). Each image is one scene: mission k of image i is env "
+            "seed 5i + k, random starts; ± clustered by image, Holm over the four comparisons.",
+            "",
+            run.sections["user_maps"],
+            "",
+        ]
     if run.sections.get("latency"):
         lines += [
             "## Deployment latency and cost (per UAV decision, batch of one, one thread)",

@@ -63,6 +63,7 @@ from sb3_coma.common.paired import holm_adjust, paired_difference, paired_markdo
 from sb3_coma.experiments import ablation as ab
 from sb3_coma.experiments import plots as pl
 from sb3_coma.experiments import report
+from sb3_coma.experiments import user_maps as um
 from sb3_coma.experiments.ablation import LABELS
 from sb3_coma.experiments.costs import _torch_fusion, costs_markdown, decision_costs, one_thread, time_call
 from sb3_coma.experiments.noise_sweep import run_noise_sweep
@@ -78,6 +79,9 @@ from sb3_coma.experiments.protocols import (
 DEFAULT_ENVS: tuple[str, ...] = ("env1", "env2", "env3")
 #: The baselines of Table I (the protocols also fly AG's look-ahead variants: sb3_coma.experiments.protocols).
 BASELINES: tuple[str, ...] = report.PLANNER_NAMES
+#: the shipped model flown on the user-map images, and the missions per image
+USER_MAP_MODEL = "env3"
+USER_MAP_MISSIONS = 5
 #: map seed of the "fresh" env1 star layout used for generalisation (env1's default map_seed is 0)
 FRESH_ENV1_SEED = 7
 #: tiny training used by ``quick=True`` together with ``train=True`` (joint steps and overrides)
@@ -131,6 +135,7 @@ OUTPUT_PATTERNS: tuple[str, ...] = (
     "paper_*",
     "unseen_*",
     "generalisation.md",
+    "user_maps.md",
     "noise_sweep.*",
     "latency.md",
     "summary.json",
@@ -822,6 +827,23 @@ def generalisation_step(run: Run) -> None:
             gen.append({"model": r.env, "target": r.env, **_final(r)})
     (run.out / "generalisation.md").write_text(_report().generalisation_markdown(gen))
     run.summary["generalisation"] = gen
+    if o.generalisation and not o.quick and USER_MAP_MODEL in run.sources:
+        user_map_step(run, run.sources[USER_MAP_MODEL])
+
+
+def user_map_step(run: Run, src: ModelSource) -> None:
+    """A user's own map: the model on the user-map images (Landsat-8 colour crops no model trained
+    on, ``sb3_coma.experiments.user_maps``) against AG and AG-k3, clustered by image."""
+    run.say(f"user maps: {USER_MAP_MODEL} model, AG, AG-k3 and the oracle on {len(um.CROPS)} images ...")
+    results = um.fly(src.model, um.images(), USER_MAP_MISSIONS, run.opts.noise)
+    rows = um.verdicts(results)
+    text = um.table_markdown(results, f"COMA {USER_MAP_MODEL}", USER_MAP_MISSIONS, run.opts.noise)
+    (run.out / "user_maps.md").write_text(text + "\n")
+    run.sections["user_maps"] = text
+    run.summary["user_maps"] = {
+        "means": {label: _final(res) for label, res in results.items()},
+        "verdicts": [d.as_dict() for d in rows],
+    }
 
 
 def untrained_prior(model: Any) -> Any:

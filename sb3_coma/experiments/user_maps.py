@@ -37,7 +37,7 @@ from sb3_coma.app.evaluation import evaluate, parallel_evaluation
 from sb3_coma.common.evaluation import EvaluationResult, merge_results
 from sb3_coma.common.paired import PairedDifference, holm_adjust, paired_difference, paired_markdown
 
-__all__ = ["CROPS", "IMAGE_DIR", "RULE", "build", "fly", "images", "main", "verdicts"]
+__all__ = ["CROPS", "IMAGE_DIR", "RULE", "build", "fly", "images", "main", "table_markdown", "verdicts"]
 
 #: The shipped crops: name -> (top row, left column) in the 603 x 627 Landsat-8 scene; every crop is
 #: :data:`SIDE` px square, picked among the cloud-free windows (under 0.3 % bright pixels), disjoint.
@@ -130,7 +130,7 @@ def verdicts(results: dict[str, EvaluationResult]) -> list[PairedDifference]:
     return holm_adjust(rows)
 
 
-def _table(results: dict[str, EvaluationResult], model: str, missions: int, noise: str) -> str:
+def table_markdown(results: dict[str, EvaluationResult], model: str, missions: int, noise: str) -> str:
     lines = [
         f"{model} on {len(CROPS)} user-map images x {missions} missions (Landsat-8 colour crops, rule "
         f"`{RULE}`, random starts, noise {noise}, budget 15), final values:",
@@ -170,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     with parallel_evaluation(args.workers if args.workers == "auto" else int(args.workers)):
         results = fly(args.model, images(), args.missions, args.noise)
-    print(_table(results, str(args.model), args.missions, args.noise))
+    print(table_markdown(results, str(args.model), args.missions, args.noise))
     return 0
 
 
