@@ -279,3 +279,35 @@ def test_a_half_written_metrics_row_is_dropped_on_resume(tmp_path):
     assert truncate_metrics_csv(path, max_timesteps=10**9) == 2
     lines = path.read_text().splitlines()
     assert len(lines) == 3 and all(line.count(",") == len(METRIC_COLUMNS) - 1 for line in lines)
+
+
+def test_evaluations_up_to_select_after_are_logged_but_never_the_best_model(tmp_path):
+    """A warm-started run holds its actor still at first: its checkpoints of that phase are the
+    clone, not COMA's; they are evaluated (the curve) but cannot become best_model.zip."""
+    model = make_model(make_env())
+    evaluation = MissionEvalCallback(
+        make_env(n_envs=1, seed=5),
+        eval_freq=6,
+        n_eval_missions=2,
+        verbose=0,
+        eval_seed=7,
+        log_path=tmp_path,
+        best_model_save_path=tmp_path,
+        select_after=6,
+    )
+    model.learn(6, callback=evaluation)
+    assert len(evaluation.evaluations_results) == 1 and not (tmp_path / "best_model.zip").exists()
+    assert evaluation.best_mean_reward == -np.inf
+    model.learn(6, callback=evaluation, reset_num_timesteps=False)
+    assert len(evaluation.evaluations_results) == 2
+    assert evaluation.best_mean_reward == float(np.mean(evaluation.evaluations_results[1]))
+    assert validate_checkpoint(tmp_path / "best_model.zip").num_timesteps == 12
+
+
+def test_selection_ends_after_the_critic_warm_up_of_a_warm_started_entry():
+    from sb3_coma.app.training import selection_end
+
+    assert selection_end({"n_timesteps": 18000}, 18000) == 0
+    assert selection_end({"warm_start": None}, 18000) == 0
+    spec = {"teacher": "oracle", "rounds": 8, "missions": 128, "critic_warmup": 0.25}
+    assert selection_end({"warm_start": spec}, 18000) == 4500

@@ -15,7 +15,7 @@ from sb3_coma.app import pretrained as pt
 from sb3_coma.experiments import ship_models as sm
 
 
-def _fake_run(folder: Path, seed: int, returns: list[float]) -> Path:
+def _fake_run(folder: Path, seed: int, returns: list[float], warm_start: dict | None = None) -> Path:
     """A run folder as ``sb3-coma train --eval-freq`` leaves it, as far as selection reads it."""
     (folder / "eval").mkdir(parents=True)
     np.savez(
@@ -25,7 +25,8 @@ def _fake_run(folder: Path, seed: int, returns: list[float]) -> Path:
     )
     command = f"python sb3-coma train --env env3 --variant mean-cnn --seed {seed} --eval-freq 3000 --run-dir {folder}"
     run = {"command": command, "seed": seed, "env": "UavIpp-Env3-v0", "variant": "mean-cnn"}
-    (folder / "config.yml").write_text(yaml.safe_dump({"run": run}))
+    entry = {"n_timesteps": 3000 * len(returns), "warm_start": warm_start}
+    (folder / "config.yml").write_text(yaml.safe_dump({"UavIpp-Env3-v0": entry, "run": run}))
     return folder
 
 
@@ -83,3 +84,9 @@ def test_two_candidates_of_one_seed_are_refused(tmp_path, shipped_folder):
     runs = [_fake_run(tmp_path / "s0", 0, [7.0])]
     with pytest.raises(ValueError, match="two candidates of seed 0"):
         sm.ship("env3-mean-cnn", ["shipped", *map(str, runs)])
+
+
+def test_a_warm_started_run_is_selected_on_its_evaluations_after_the_warm_up(tmp_path):
+    spec = {"teacher": "oracle", "rounds": 8, "missions": 128, "critic_warmup": 0.25}
+    run = _fake_run(tmp_path / "s1", 1, [9.0, 7.0, 8.0, 7.5], warm_start=spec)  # 12000 steps: warm-up 3000
+    assert sm.validation_best(run) == (8.0, 9000)  # 9.0 at 3000 steps is the clone, held still

@@ -93,6 +93,7 @@ __all__ = [
     "record_env_options",
     "run_settings",
     "save_final",
+    "selection_end",
     "train",
 ]
 
@@ -140,6 +141,15 @@ class MissionCallbacks:
         return [cb for cb in (self.metrics, self.checkpoints, self.evaluation) if cb is not None]
 
 
+def selection_end(entry: Mapping[str, Any], n_timesteps: int) -> int:
+    """Joint steps up to which a run's checkpoints cannot be its best model: the critic warm-up of
+    a warm-started entry (the actor is the clone, held still), else 0."""
+    spec = entry.get(WARM_START_KEY)
+    if not spec:
+        return 0
+    return math.ceil(float(spec.get("critic_warmup", 0.0)) * int(n_timesteps))
+
+
 def mission_callbacks(
     folder: Path,
     save_freq: int,
@@ -153,11 +163,13 @@ def mission_callbacks(
     stop_on_signal: bool = True,
     verbose: int = 0,
     stop_verbose: int | None = None,
+    select_after: int = 0,
 ) -> MissionCallbacks:
     """Per-mission metrics (TensorBoard + ``folder/metrics.csv``), a checkpoint every ``save_freq``
     joint steps (none when ``save_freq <= 0``), with ``eval_env`` the validation missions every
     ``eval_freq`` joint steps (best model -> ``folder/best_model.zip``) and the clean stop on
-    SIGINT / SIGTERM (``stop_verbose``: its verbosity, default ``verbose``)."""
+    SIGINT / SIGTERM (``stop_verbose``: its verbosity, default ``verbose``); evaluations at or
+    before ``select_after`` joint steps never become the best model (:func:`selection_end`)."""
     evaluation = None
     if eval_env is not None and eval_freq > 0:
         evaluation = MissionEvalCallback(
@@ -169,6 +181,7 @@ def mission_callbacks(
             deterministic=deterministic,
             verbose=verbose,
             eval_seed=eval_seed,
+            select_after=select_after,
         )
     return MissionCallbacks(
         metrics=EpisodeMetricsCallback(csv_path=folder / METRICS_FILE),
@@ -507,6 +520,7 @@ def attach_callbacks(
         stop_on_signal=handle_signals,
         verbose=max(verbose - 1, 0),
         stop_verbose=verbose,
+        select_after=selection_end(plan.cfg.entry, plan.cfg.n_timesteps),
     )
     configured = [
         construct(cls, kwargs, "callback") if isinstance(cls, type) else cls

@@ -513,6 +513,10 @@ class MissionEvalCallback(EvalCallback):
     missions run on, so two evaluations see different noise). Use seeds the final evaluation does
     not use (``sb3_coma.app.training.VALIDATION_SEED``): choosing a checkpoint on the test missions
     would report a selected, optimistic number.
+
+    ``select_after`` (joint steps): evaluations at or before it are logged but never become the
+    best model. A warm-started run holds its actor still at first (the clone, not yet trained by
+    COMA): a checkpoint of that phase must not be shipped as "COMA".
     """
 
     def __init__(
@@ -526,12 +530,14 @@ class MissionEvalCallback(EvalCallback):
         callback_after_eval: BaseCallback | None = None,
         verbose: int = 1,
         eval_seed: int | None = None,
+        select_after: int = 0,
     ) -> None:
         if n_eval_missions < 1:
             raise ValueError(f"n_eval_missions must be >= 1, got {n_eval_missions!r}")
         if eval_seed is not None and (isinstance(eval_seed, bool) or not isinstance(eval_seed, (int, np.integer))):
             raise ValueError(f"eval_seed must be an integer or None, got {eval_seed!r}")
         self.eval_seed = None if eval_seed is None else int(eval_seed)
+        self.select_after = int(select_after)
         self.eval_n_agents = resolve_n_agents(eval_env)
         self.eval_freq_joint = int(eval_freq)
         self.n_eval_missions = int(n_eval_missions)
@@ -567,15 +573,27 @@ class MissionEvalCallback(EvalCallback):
             self.evaluations_timesteps = [int(t) for t in data["timesteps"]]
             self.evaluations_results = [list(r) for r in data["results"]]
             self.evaluations_length = [list(e) for e in data["ep_lengths"]]
-        if self.evaluations_results:
-            self.best_mean_reward = float(max(np.mean(r) for r in self.evaluations_results))
+        selectable = [
+            float(np.mean(r))
+            for t, r in zip(self.evaluations_timesteps, self.evaluations_results)
+            if t > self.select_after
+        ]
+        if selectable:
+            self.best_mean_reward = max(selectable)
 
     def _on_step(self) -> bool:
-        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+        evaluating = self.eval_freq > 0 and self.n_calls % self.eval_freq == 0
+        if evaluating:
             self._f1, self._entropy = [], []
             if self.eval_seed is not None:
                 self.eval_env.seed(self.eval_seed)  # applies to the reset evaluate_policy starts with
-        return super()._on_step()
+        if not (evaluating and self.num_timesteps <= self.select_after):
+            return super()._on_step()
+        best, self.best_mean_reward = self.best_mean_reward, float("inf")  # logged, never the best
+        try:
+            return super()._on_step()
+        finally:
+            self.best_mean_reward = best
 
     def _log_success_callback(self, locals_: dict[str, Any], globals_: dict[str, Any]) -> None:
         super()._log_success_callback(locals_, globals_)

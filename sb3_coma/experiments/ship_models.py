@@ -37,17 +37,37 @@ from envs import WORLD_VERSION
 from sb3_coma import COMA, training_options
 from sb3_coma.app import pretrained as pt
 from sb3_coma.app.evaluation import evaluate
+from sb3_coma.app.training import selection_end
 from sb3_coma.experiments.reproduce import UNSEEN_MISSIONS, curve_from_metrics
 
 __all__ = ["main", "run_command", "run_length", "seed_spread", "ship", "validation_best"]
 
 
 def validation_best(run: Path) -> tuple[float, int]:
-    """(best mean validation return, joint steps of that evaluation) of a run."""
+    """(best mean validation return, joint steps of that evaluation) of a run, over the
+    evaluations that may select its model (:func:`sb3_coma.app.training.selection_end`: not
+    while a warm-started actor is still the clone). Refuses a run whose ``best_model.zip`` is not
+    that evaluation's checkpoint (trained before the rule, its best was a warm-up checkpoint)."""
     data = np.load(run / "eval" / "evaluations.npz")
-    means = data["results"].mean(axis=1)
-    best = int(np.argmax(means))  # the first of equal bests, as EvalCallback keeps it
-    return float(means[best]), int(data["timesteps"][best])
+    steps, means = data["timesteps"], data["results"].mean(axis=1)
+    entry = _run_entry(run)
+    allowed = np.flatnonzero(steps > selection_end(entry, int(entry["n_timesteps"])))
+    if not len(allowed):
+        raise ValueError(f"{run}: no evaluation after the warm-up may select its model")
+    best = int(allowed[np.argmax(means[allowed])])  # the first of equal bests, as EvalCallback keeps it
+    saved = run / "best_model.zip"
+    if saved.is_file() and COMA.load(saved, device="cpu").num_timesteps < steps[best]:
+        raise ValueError(
+            f"{run}: best_model.zip is an earlier checkpoint than its best selectable evaluation "
+            f"({int(steps[best])} joint steps): retrain it with this version (same seed, same result)"
+        )
+    return float(means[best]), int(steps[best])
+
+
+def _run_entry(run: Path) -> dict[str, Any]:
+    """The config entry a run trained with (its ``config.yml``, without the ``run`` record)."""
+    data = yaml.safe_load((run / "config.yml").read_text())
+    return next(v for k, v in data.items() if k != "run")
 
 
 def run_length(run: Path) -> int:
