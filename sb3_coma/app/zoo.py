@@ -64,7 +64,7 @@ from sb3_coma.app.config import (
     split_env_kwargs,
     validate_entry,
 )
-from sb3_coma.app.training import check_device, mission_callbacks, record_env_options
+from sb3_coma.app.training import check_device, mission_callbacks, record_env_options, selection_end
 from sb3_coma.app.warm_start import warm_start
 from sb3_coma.app.zoo_sampler import register as register_sampler
 from sb3_coma.coma import COMA
@@ -188,6 +188,7 @@ class ComaExperimentManager(ExperimentManager):
             eval_missions=self.n_eval_episodes,
             deterministic=self.deterministic_eval,
             verbose=self.verbose,
+            select_after=selection_end({WARM_START_KEY: getattr(self, "warm_start", None)}, self.n_timesteps),
         )
         # SIGINT / SIGTERM stop training cleanly; rl-zoo3 then saves the model as on Ctrl-C.
         self.callbacks.extend([*standard.as_list(), *([standard.stopper] if standard.stopper else [])])
