@@ -51,8 +51,13 @@ def shipped_folder(tmp_path, monkeypatch):
         spread_calls.append((dict(models), env, fusion))
         return {"metrics": {label: {"f1": 0.7, "entropy": 0.4} for label in models}}
 
+    def fake_entry(name, run):
+        spread_calls.append("saved")  # after every candidate flew: saving replaces the shipped file
+        return {"env": "env3", "fusion": "mean", "from": str(run)}
+
     monkeypatch.setattr(sm, "seed_spread", fake_spread)
-    monkeypatch.setattr(sm, "_entry_of_run", lambda name, run: {"env": "env3", "fusion": "mean", "from": str(run)})
+    monkeypatch.setattr(sm, "_entry_of_run", fake_entry)
+    monkeypatch.setattr(sm, "_trained_world", lambda path: {"map": "env3", "fusion": "mean"})
     return folder, spread_calls
 
 
@@ -77,6 +82,7 @@ def test_a_run_that_validates_higher_replaces_the_shipped_model(tmp_path, shippe
     runs = [_fake_run(tmp_path / "s1", 1, [8.5, 7.0]), _fake_run(tmp_path / "s2", 2, [6.0, 7.9])]
     entry = sm.ship("env3-mean-cnn", ["shipped", *map(str, runs)])
     assert entry["from"] == str(runs[0])
+    assert shipped_folder[1][-1] == "saved" and len(shipped_folder[1]) == 2  # flown, then saved
     assert entry["selection"]["candidates"]["seed 1"]["best_validation_return"] == 8.5
 
 

@@ -64,6 +64,14 @@ def validation_best(run: Path) -> tuple[float, int]:
     return float(means[best]), int(steps[best])
 
 
+def _trained_world(model_file: Path) -> dict[str, Any]:
+    """The env options a model zip records (map, fusion, ...)."""
+    options = training_options(COMA.load(model_file, device="cpu"))
+    if options is None:
+        raise ValueError(f"{model_file} records no env options: not a model of a training run")
+    return options
+
+
 def _run_entry(run: Path) -> dict[str, Any]:
     """The config entry a run trained with (its ``config.yml``, without the ``run`` record)."""
     data = yaml.safe_load((run / "config.yml").read_text())
@@ -187,13 +195,15 @@ def ship(name: str, runs: Sequence[Path | str]) -> dict[str, Any]:
             raise ValueError(f"{name}: two candidates of {label}")
         scores[label] = score
     best = max(scores, key=lambda label: scores[label][0])
-    if best in folders:
+    options = _trained_world(next(iter(files.values())))  # the candidates are seeds of one setting
+    spread = seed_spread(files, options["map"], options["fusion"])
+    if best in folders:  # flown before: saving the winner replaces today's shipped file
         entry = _entry_of_run(name, folders[best])
     else:
         assert current is not None
         entry = dict(current)
     entry["selection"] = _selection(scores)
-    entry["seeds_unseen"] = seed_spread(files, entry["env"], entry["fusion"])
+    entry["seeds_unseen"] = spread
     return entry
 
 
