@@ -236,21 +236,27 @@ def test_eval_seed_must_be_an_integer():
         MissionEvalCallback(make_env(n_envs=1), eval_freq=6, eval_seed=1.5, verbose=0)
 
 
+def _seeded_validation(folder, select_after: int = 0) -> MissionEvalCallback:
+    """Two validation missions every 6 joint steps, re-seeded each time, best model into ``folder``."""
+    return MissionEvalCallback(
+        make_env(n_envs=1, seed=5),
+        eval_freq=6,
+        n_eval_missions=2,
+        verbose=0,
+        eval_seed=7,
+        log_path=folder,
+        best_model_save_path=folder,
+        select_after=select_after,
+    )
+
+
 def test_resumed_evaluation_keeps_the_earlier_record_and_best(tmp_path):
     """A resumed run continues evaluations.npz and its best score: the first evaluation after a
     resume must not replace a better best_model.zip (SB3's callback would start from -inf)."""
     model = make_model(make_env())
 
     def callback() -> MissionEvalCallback:  # the same validation set-up before and after the resume
-        return MissionEvalCallback(
-            make_env(n_envs=1, seed=5),
-            eval_freq=6,
-            n_eval_missions=2,
-            verbose=0,
-            eval_seed=7,
-            log_path=tmp_path,
-            best_model_save_path=tmp_path,
-        )
+        return _seeded_validation(tmp_path)
 
     first = callback()
     model.learn(12, callback=first)
@@ -285,16 +291,7 @@ def test_evaluations_up_to_select_after_are_logged_but_never_the_best_model(tmp_
     """A warm-started run holds its actor still at first: its checkpoints of that phase are the
     clone, not COMA's; they are evaluated (the curve) but cannot become best_model.zip."""
     model = make_model(make_env())
-    evaluation = MissionEvalCallback(
-        make_env(n_envs=1, seed=5),
-        eval_freq=6,
-        n_eval_missions=2,
-        verbose=0,
-        eval_seed=7,
-        log_path=tmp_path,
-        best_model_save_path=tmp_path,
-        select_after=6,
-    )
+    evaluation = _seeded_validation(tmp_path, select_after=6)
     model.learn(6, callback=evaluation)
     assert len(evaluation.evaluations_results) == 1 and not (tmp_path / "best_model.zip").exists()
     assert evaluation.best_mean_reward == -np.inf

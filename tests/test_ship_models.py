@@ -57,7 +57,7 @@ def shipped_folder(tmp_path, monkeypatch):
 
     monkeypatch.setattr(sm, "seed_spread", fake_spread)
     monkeypatch.setattr(sm, "_entry_of_run", fake_entry)
-    monkeypatch.setattr(sm, "_trained_world", lambda path: {"map": "env3", "fusion": "mean"})
+    monkeypatch.setattr(sm, "_load_trained", lambda path: (None, {"map": "env3", "fusion": "mean"}))
     return folder, spread_calls
 
 

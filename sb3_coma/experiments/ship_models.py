@@ -64,12 +64,13 @@ def validation_best(run: Path) -> tuple[float, int]:
     return float(means[best]), int(steps[best])
 
 
-def _trained_world(model_file: Path) -> dict[str, Any]:
-    """The env options a model zip records (map, fusion, ...)."""
-    options = training_options(COMA.load(model_file, device="cpu"))
+def _load_trained(model_file: Path) -> tuple[COMA, dict[str, Any]]:
+    """A model zip and the env options it records (map, fusion, ...)."""
+    model = COMA.load(model_file, device="cpu")
+    options = training_options(model)
     if options is None:
         raise ValueError(f"{model_file} records no env options: not a model of a training run")
-    return options
+    return model, options
 
 
 def _run_entry(run: Path) -> dict[str, Any]:
@@ -105,11 +106,18 @@ def run_command(run: Path) -> tuple[str, dict[str, Any]]:
 SHIPPED = "shipped"
 
 
+#: How a shipped model is chosen among its candidates (recorded with every ``selection`` entry).
+SELECTION_RULE = (
+    "highest mean return on the run's validation missions (split train, env seeds 1000+, argmax; never the "
+    "test split), over every evaluation of every seed except those while a warm-started actor is still the "
+    "clone (its critic warm-up)"
+)
+
+
 def _selection(scores: dict[str, tuple[float, int]]) -> dict[str, Any]:
     """The ``selection`` entry: the rule and every candidate's validation score, by seed label."""
     return {
-        "rule": "highest mean return on the run's validation missions (split train, env seeds 1000+, "
-        "argmax; never the test split), over every evaluation of every seed",
+        "rule": SELECTION_RULE,
         "candidates": {
             label: {"best_validation_return": round(v, 4), "at_joint_steps": t} for label, (v, t) in scores.items()
         },
@@ -140,10 +148,7 @@ def _shipped_candidate(name: str) -> tuple[str, tuple[float, int], Path, dict[st
 def _entry_of_run(name: str, chosen: Path) -> dict[str, Any]:
     """The manifest entry of a run's ``best_model.zip``, saved into the shipped folder."""
     command, info = run_command(chosen)
-    model = COMA.load(chosen / "best_model.zip", device="cpu")
-    env_options = training_options(model)
-    if env_options is None:
-        raise ValueError(f"{chosen / 'best_model.zip'} records no env options: not a model of a training run")
+    model, env_options = _load_trained(chosen / "best_model.zip")
     fusion = env_options["fusion"]
     extractor = "cnn" if model.policy.features_extractor_class.__name__.startswith("Cnn") else "cbam"
     wall = (chosen / "model.zip").stat().st_mtime - (chosen / "config.yml").stat().st_mtime
@@ -195,7 +200,7 @@ def ship(name: str, runs: Sequence[Path | str]) -> dict[str, Any]:
             raise ValueError(f"{name}: two candidates of {label}")
         scores[label] = score
     best = max(scores, key=lambda label: scores[label][0])
-    options = _trained_world(next(iter(files.values())))  # the candidates are seeds of one setting
+    _, options = _load_trained(next(iter(files.values())))  # the candidates are seeds of one setting
     spread = seed_spread(files, options["map"], options["fusion"])
     if best in folders:  # flown before: saving the winner replaces today's shipped file
         entry = _entry_of_run(name, folders[best])

@@ -131,6 +131,7 @@ def verdicts(results: dict[str, EvaluationResult]) -> list[PairedDifference]:
 
 
 def table_markdown(results: dict[str, EvaluationResult], model: str, missions: int, noise: str) -> str:
+    """Every method's mean final F1 / entropy over all images, then :func:`verdicts` as a table."""
     lines = [
         f"{model} on {len(CROPS)} user-map images x {missions} missions (Landsat-8 colour crops, rule "
         f"`{RULE}`, random starts, noise {noise}, budget 15), final values:",
