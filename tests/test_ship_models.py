@@ -12,7 +12,9 @@ import pytest
 import yaml
 
 from sb3_coma.app import pretrained as pt
+from sb3_coma.app.training import train
 from sb3_coma.experiments import ship_models as sm
+from tiny_runs import ENV, tiny_entry
 
 
 def _fake_run(folder: Path, seed: int, returns: list[float], warm_start: dict | None = None) -> Path:
@@ -40,7 +42,7 @@ def shipped_folder(tmp_path, monkeypatch):
         "env": "env3",
         "fusion": "mean",
         "seed": 0,
-        "selection": {"candidates": {"seed 0": {"best_validation_return": 8.0, "at_joint_steps": 30000}}},
+        "selection": {"candidates": {"seed 0": {"best_validation_return": 7.1, "at_joint_steps": 30000}}},
     }
     (folder / pt.MANIFEST).write_text(json.dumps({"format": 1, "models": {"env3-mean-cnn": entry}}))
     (folder / entry["file"]).write_bytes(b"zip")
@@ -58,10 +60,11 @@ def shipped_folder(tmp_path, monkeypatch):
     monkeypatch.setattr(sm, "seed_spread", fake_spread)
     monkeypatch.setattr(sm, "_entry_of_run", fake_entry)
     monkeypatch.setattr(sm, "_load_trained", lambda path: (None, {"map": "env3", "fusion": "mean"}))
+    monkeypatch.setattr(sm, "validation_return", lambda path: 8.0)  # flown today, not the recorded 7.1
     return folder, spread_calls
 
 
-def test_the_shipped_model_stays_when_its_recorded_validation_score_wins(tmp_path, shipped_folder):
+def test_the_shipped_model_stays_when_its_validation_score_flown_today_wins(tmp_path, shipped_folder):
     folder, spread_calls = shipped_folder
     runs = [_fake_run(tmp_path / "s1", 1, [7.0, 7.5]), _fake_run(tmp_path / "s2", 2, [6.0, 7.9])]
     entry = sm.ship("env3-mean-cnn", ["shipped", *map(str, runs)])
@@ -96,3 +99,29 @@ def test_a_warm_started_run_is_selected_on_its_evaluations_after_the_warm_up(tmp
     spec = {"teacher": "oracle", "rounds": 8, "missions": 128, "critic_warmup": 0.25}
     run = _fake_run(tmp_path / "s1", 1, [9.0, 7.0, 8.0, 7.5], warm_start=spec)  # 12000 steps: warm-up 3000
     assert sm.validation_best(run) == (8.0, 9000)  # 9.0 at 3000 steps is the clone, held still
+
+
+def test_a_checkpoint_flown_today_scores_what_its_run_recorded(tmp_path):
+    """validation_return is MissionEvalCallback's score: a run's best_model.zip re-flown on the
+    validation missions gives the run's best recorded evaluation, to the last digit."""
+    config = tmp_path / "tiny.yml"
+    config.write_text(yaml.safe_dump({ENV: tiny_entry()}))
+    _, run = train(env="env1", config=config, seed=3, run_dir=tmp_path / "run", eval_freq=16, eval_missions=4,
+                   progress_bar=False, verbose=0)  # fmt: skip
+    recorded = np.load(run / "eval" / "evaluations.npz")["results"].mean(axis=1).max()
+    assert sm.validation_return(run / "best_model.zip", missions=4) == pytest.approx(float(recorded), abs=1e-6)
+
+
+def test_a_bare_zip_competes_but_cannot_be_shipped(tmp_path, shipped_folder, monkeypatch):
+    class Model:
+        seed, num_timesteps = 5, 21000
+
+    monkeypatch.setattr(sm, "_load_trained", lambda path: (Model(), {"map": "env3", "fusion": "mean"}))
+    monkeypatch.setattr(sm, "validation_return", lambda path: 9.0 if str(path).endswith("old.zip") else 8.0)
+    old = tmp_path / "old.zip"
+    with pytest.raises(ValueError, match="old.zip, has no run folder"):
+        sm.ship("env3-mean-cnn", ["shipped", str(old)])
+    monkeypatch.setattr(sm, "validation_return", lambda path: 6.0 if str(path).endswith("old.zip") else 8.0)
+    entry = sm.ship("env3-mean-cnn", ["shipped", str(old)])
+    assert entry["seed"] == 0 and entry["selection"]["candidates"]["seed 5"] == {
+        "best_validation_return": 6.0, "at_joint_steps": 21000}  # fmt: skip

@@ -21,6 +21,14 @@ paired differences model - AG and model - random +- standard error (``sb3_coma.c
 Missions are counted honestly: SB3 counts agent-steps, so ``total_timesteps = missions * n_uavs *
 budget``. The model zip, a metrics JSON and the learning curve CSV go to ``--out`` (keep them out
 of the repository).
+
+Selection is the one every shipped COMA model gets (``sb3-coma train --eval-freq 3000
+--eval-missions 10``): every ``--val-freq`` joint steps the model flies ``--val-missions``
+validation missions (split train, env seeds 1000+, the same missions each time), the best becomes
+``best_model.zip`` (with ``eval/evaluations.npz``) and is the model compared; several seeds are
+then compared with ``python -m sb3_coma.experiments.learners_paired``, which keeps each learner's
+best seed by the same score. ``--workers`` steps the env copies in worker processes (same
+trajectories as one process).
 """
 
 from __future__ import annotations
@@ -41,6 +49,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import envs
 from sb3_coma import COMA, evaluate
+from sb3_coma.app.training import VALIDATION_SEED, eval_copies
+from sb3_coma.common.callbacks import MissionEvalCallback
 from sb3_coma.common.marl_baselines import make_ippo, make_mappo, missions_of, timesteps_for_missions
 from sb3_coma.common.paired import paired_difference
 
@@ -113,11 +123,29 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="the actor also reads the on-board action_gain as inputs (COMA, IPPO and MAPPO alike)",
     )
     p.add_argument("--seed", type=int, default=0, help="training seed (PPO and the training env)")
-    p.add_argument("--eval-missions", type=int, default=20)
+    p.add_argument("--eval-missions", type=int, default=20, help="test missions of the comparison (0: none)")
+    p.add_argument(
+        "--val-freq",
+        type=int,
+        default=3000,
+        help="joint steps between validations (split train, env seeds 1000+, as `sb3-coma train --eval-freq`); "
+        "the best one is best_model.zip and is the model compared (0: none, the last model)",
+    )
+    p.add_argument("--val-missions", type=int, default=10, help="missions per validation")
+    p.add_argument("--workers", type=int, default=1, help="worker processes stepping the env copies")
     p.add_argument("--eval-seed", type=int, default=0, help="trial k of every method flies env seed eval_seed + k")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--out", default="/tmp/marl_baselines")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    for name in ("missions", "n_envs", "uavs", "budget", "val_missions", "workers", "threads"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 1")
+    for name in ("eval_missions", "val_freq"):
+        if getattr(args, name) < 0:
+            p.error(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 0")
+    if args.workers > args.n_envs:
+        p.error(f"--workers {args.workers}: more worker processes than env copies ({args.n_envs})")
+    return args
 
 
 def fmt(values: np.ndarray) -> str:
@@ -146,12 +174,25 @@ def _build(args: argparse.Namespace, venv: Any) -> tuple[BaseAlgorithm, int]:
 def _train(args: argparse.Namespace, out: Path) -> tuple[BaseAlgorithm, float, float]:
     """Train on ``split="train"``; returns the model, its training seconds and missions flown."""
     options = _env_options(args)
-    venv = envs.make_vec_env(
-        args.env, n_envs=args.n_envs, fusion=args.fusion, seed=args.seed, split="train", reward=args.reward, **options
-    )
+    train_options = dict(fusion=args.fusion, split="train", reward=args.reward, **options)
+    venv = envs.make_vec_env(args.env, n_envs=args.n_envs, seed=args.seed, workers=args.workers, **train_options)
     model, timesteps = _build(args, venv)
     per_mission = args.budget if args.algo == "coma" else args.uavs * args.budget  # COMA: joint steps
-    curve = Curve(per_mission, out / "curve.csv")
+    callbacks: list[BaseCallback] = [Curve(per_mission, out / "curve.csv")]
+    if args.val_freq > 0:
+        copies = eval_copies(args.val_missions)
+        val_env = envs.make_vec_env(args.env, n_envs=copies, seed=VALIDATION_SEED, **train_options)
+        callbacks.append(
+            MissionEvalCallback(
+                val_env,
+                eval_freq=args.val_freq,
+                n_eval_missions=args.val_missions,
+                best_model_save_path=out,
+                log_path=out / "eval",
+                eval_seed=VALIDATION_SEED,
+                verbose=0,
+            )
+        )
     print(
         f"{args.algo}: {args.missions} missions = {timesteps} agent-steps on {args.env} split=train, "
         f"{args.n_envs} copies x {args.uavs} UAVs, budget {args.budget}, noise {args.noise}, fusion {args.fusion}, "
@@ -159,12 +200,16 @@ def _train(args: argparse.Namespace, out: Path) -> tuple[BaseAlgorithm, float, f
         flush=True,
     )
     tic = time.perf_counter()
-    model.learn(total_timesteps=timesteps, callback=curve)
+    model.learn(total_timesteps=timesteps, callback=callbacks)
     train_s = time.perf_counter() - tic
     flown = model.num_timesteps / args.budget if args.algo == "coma" else missions_of(model.num_timesteps, venv)
     model.save(out / f"{args.algo}_{args.env}")
     venv.close()
     print(f"trained {flown:.0f} missions ({model.num_timesteps} agent-steps) in {train_s:.0f} s", flush=True)
+    if args.val_freq > 0:
+        callbacks[-1].eval_env.close()
+        model = type(model).load(out / "best_model.zip", device="cpu")  # the validation's choice
+        print(f"compared: best_model.zip (best validation return {callbacks[-1].best_mean_reward:+.3f})", flush=True)
     return model, train_s, flown
 
 
@@ -215,6 +260,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         "methods": {},
         "paired": [],
     }
+    if args.eval_missions < 1:
+        (out / "report.json").write_text(json.dumps(report, indent=2))
+        return report
     table = _compare(args, model, report)
     print(
         f"\nfinal step ({args.budget}) on {args.eval_missions} missions of split=test, mean ± std over missions; "

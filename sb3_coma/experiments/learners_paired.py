@@ -1,26 +1,37 @@
-"""Learned policies against each other (and AG) on the same unseen missions: paired differences.
+"""Learned planners against each other (and AG, AG-k3) on the same unseen missions, each the
+validation's choice among its seeds: scene-clustered paired verdicts, Holm-corrected.
 
-What it measures: whether one learner (e.g. COMA) beats another (IPPO, MAPPO) or AG on shared
-unseen missions (``protocol="unseen"``: ``split="test"``, random starts), with the scene-clustered
-paired test that says when a gap is a tie.
+What it measures: whether one learner (e.g. COMA) beats another (IPPO, MAPPO) or the greedy
+planners on shared unseen missions (``protocol="unseen"``: ``split="test"``, random starts), with
+every learner selected by the same rule, and how much its seeds spread.
 
-    python -m sb3_coma.experiments.learners_paired --env env1 --missions 50 --fusion mean \\
-        coma=/tmp/coma_env1/coma_env1.zip ippo=/tmp/ippo_env1/ippo_env1.zip mappo=/tmp/mappo_env1/mappo_env1.zip
+    python -m sb3_coma.experiments.learners_paired --env env3 --missions 50 --fusion sendfuse \\
+        --out docs/LEARNERS.md \\
+        coma=shipped:env3-sendfuse-cbam,runs/coma_s0,runs/coma_s2 \\
+        ippo=runs/ippo_env3_s0,runs/ippo_env3_s1,runs/ippo_env3_s2 mappo=runs/mappo_env3_s0,...
 
-Each ``label=path`` is a COMA zip or an SB3 PPO zip from ``python -m sb3_coma.experiments.ippo_vs_ag``
-(IPPO / MAPPO); the first one is compared with every other and with AG. Every method flies the
-same unseen missions (trial k = env seed k); a model's observation options (``action_gain``,
-``observation``) follow what it was trained with. Prints final F1 / entropy and team F1 / entropy,
-mean over the missions, and the paired difference first - other +- standard error clustered by
-scene, with the t-test verdict of ``sb3_coma.common.paired`` (no Holm correction here: one
-question per cell).
+Each ``label=CANDIDATES`` names one learner's seeds, comma-separated; a candidate is
+* a run folder of ``sb3-coma train --eval-freq`` or of ``python -m sb3_coma.experiments.ippo_vs_ag``
+  (its ``best_model.zip`` and ``eval/evaluations.npz``: the best validation return of the run),
+* ``shipped:NAME``, a shipped model with the validation score its ``models.json`` entry records,
+* or a model zip (only as a learner's single candidate: it has no validation score).
+The learner's row is the candidate with the highest validation return (split train, env seeds
+1000+, never the test split): ``sb3_coma.experiments.ship_models``'s rule for every learner alike.
+Every candidate is flown on the same unseen missions (trial k = env seed k) for the seed spread;
+the selected one enters the paired table: the first learner minus every other learner, AG and
+AG-k3, per metric, the standard error clustered by scene and the t verdict Holm-corrected over
+the whole table (``sb3_coma.common.paired``). A model's observation options (``action_gain``)
+follow what it was trained with. ``--out`` writes the tables as Markdown (atomically).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,15 +40,20 @@ from stable_baselines3 import PPO
 
 import sb3_coma.common.marl_baselines  # noqa: F401  (the IPPO / MAPPO policy classes PPO.load needs)
 from sb3_coma import COMA, evaluate
-from sb3_coma.common.paired import paired_difference
+from sb3_coma.app import pretrained as pt
+from sb3_coma.common.paired import PairedDifference, paired_difference, paired_markdown
 
-__all__ = ["METRICS", "load", "main"]
+__all__ = ["METRICS", "Candidate", "Learner", "load", "main", "parse_learner", "select", "validation_score"]
 
-#: Final metrics compared, in table order.
+#: Final metrics compared, in table order (global belief, then the UAVs' own beliefs).
 METRICS = ("f1", "entropy", "team_f1", "team_entropy")
+#: The greedy planners every learner is compared with (label, AG's options).
+GREEDY = (("ag", {}), ("ag-k3", {"lookahead": 3}))
+#: Prefix of a shipped-model candidate.
+SHIPPED_PREFIX = "shipped:"
 
 
-def load(path: str) -> Any:
+def load(path: str | os.PathLike[str]) -> Any:
     """A COMA zip, else an SB3 PPO zip (IPPO / MAPPO): the zip does not say which it holds."""
     try:
         return COMA.load(path, device="cpu")
@@ -45,40 +61,177 @@ def load(path: str) -> Any:
         return PPO.load(path, device="cpu")
 
 
-def _print_tables(env: str, missions: int, results: dict[str, Any]) -> None:
-    """The mean of every metric per method, then the first method minus every other, paired."""
-    print(f"{env}, {missions} shared unseen missions (split test, random starts), moderate noise, 100 % budget")
-    print("| method | " + " | ".join(METRICS) + " |\n| --- | --- | --- | --- | --- |")
-    for label, res in results.items():
-        print(f"| {label} | " + " | ".join(f"{np.asarray(getattr(res, m))[:, -1].mean():.4f}" for m in METRICS) + " |")
-    first = next(iter(results))
-    print("\n| paired | " + " | ".join(METRICS) + " |\n| --- | --- | --- | --- | --- |")
-    for other in list(results)[1:]:
-        cells = []
-        for m in METRICS:
-            d = paired_difference(results[first], results[other], m)
-            cells.append(f"{d.diff:+.4f} ± {d.se:.4f} ({d.winner or 'tie'})")
-        print(f"| {first} - {other} | " + " | ".join(cells) + " |")
+@dataclass
+class Candidate:
+    """One seed of a learner: its model file, a seed label and its best validation return."""
+
+    label: str
+    path: Path
+    validation: float | None
+
+
+@dataclass
+class Learner:
+    """A learner's row: its candidates and, once flown, each one's unseen result."""
+
+    label: str
+    candidates: list[Candidate]
+    results: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def selected(self) -> Candidate:
+        """The candidate with the highest validation return (the first of equals)."""
+        return select(self.candidates)
+
+
+def validation_score(run: Path) -> float:
+    """Best mean validation return of a run folder (its ``eval/evaluations.npz``). A COMA run uses
+    ``ship_models``' rule (no warm-up evaluation); an IPPO / MAPPO run has no warm-up."""
+    if (run / "config.yml").is_file():
+        from sb3_coma.experiments.ship_models import validation_best
+
+        return validation_best(run)[0]
+    with np.load(run / "eval" / "evaluations.npz") as data:
+        return float(data["results"].mean(axis=1).max())
+
+
+def _seed_label(run: Path, index: int) -> str:
+    """``seed N`` from the folder name's ``_sN`` suffix, else the candidate's position."""
+    tail = run.name.rsplit("_s", 1)
+    return f"seed {tail[1]}" if len(tail) == 2 and tail[1].isdigit() else f"#{index}"
+
+
+def _candidate(spec: str, index: int) -> Candidate:
+    if spec.startswith(SHIPPED_PREFIX):
+        name = spec[len(SHIPPED_PREFIX) :]
+        entry = pt.read_manifest()["models"].get(name)
+        if entry is None:
+            raise ValueError(f"{spec!r}: no shipped model {name!r}")
+        label = f"seed {entry['seed']}"
+        return Candidate(label, pt.model_path(name), entry["selection"]["candidates"][label]["best_validation_return"])
+    path = Path(spec)
+    if path.is_dir():
+        if not (path / "best_model.zip").is_file():
+            raise ValueError(f"{spec!r}: a run folder without best_model.zip (train it with validation)")
+        return Candidate(_seed_label(path, index), path / "best_model.zip", validation_score(path))
+    if path.is_file():
+        return Candidate(path.stem, path, None)
+    raise ValueError(f"{spec!r}: neither a run folder, a model zip nor shipped:NAME")
+
+
+def parse_learner(spec: str) -> Learner:
+    """``label=CANDIDATE[,CANDIDATE...]`` (module docstring) -> a :class:`Learner`."""
+    label, sep, rest = spec.partition("=")
+    if not sep or not label or not rest:
+        raise ValueError(f"{spec!r}: expected label=CANDIDATE[,CANDIDATE...]")
+    candidates = [_candidate(part, i) for i, part in enumerate(rest.split(","))]
+    if len(candidates) > 1 and any(c.validation is None for c in candidates):
+        raise ValueError(f"{spec!r}: a plain zip has no validation score: give it alone or as a run folder")
+    if len({c.label for c in candidates}) != len(candidates):
+        raise ValueError(f"{spec!r}: two candidates with the same seed label")
+    return Learner(label, candidates)
+
+
+def select(candidates: Sequence[Candidate]) -> Candidate:
+    """The highest validation return wins; a single candidate is its own choice."""
+    if len(candidates) == 1:
+        return candidates[0]
+    return max(candidates, key=lambda c: float(c.validation))  # type: ignore[arg-type]
+
+
+def _fly(learner: Learner, options: dict[str, Any]) -> None:
+    for cand in learner.candidates:
+        model = load(cand.path)
+        gain = model.observation_space.spaces.get("action_gain") is not None  # flown as it was trained
+        learner.results[cand.label] = evaluate(
+            model, label=learner.label, deterministic=True, action_gain=gain, **options
+        )
+
+
+def _final(result: Any, metric: str) -> float:
+    return float(np.asarray(getattr(result, metric))[:, -1].mean())
+
+
+def _learner_rows(learners: Sequence[Learner]) -> str:
+    head = ["learner", "selected", "validation", *(f"{m} (selected)" for m in METRICS[:2]), "seeds"]
+    head += [f"{m} over seeds" for m in METRICS[:2]]
+    lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * len(head)) + " |"]
+    for lrn in learners:
+        sel = lrn.selected
+        val = "—" if sel.validation is None else f"{sel.validation:+.3f}"
+        cells = [lrn.label, sel.label, val, *(f"{_final(lrn.results[sel.label], m):.4f}" for m in METRICS[:2])]
+        cells.append(str(len(lrn.candidates)))
+        for m in METRICS[:2]:
+            per_seed = np.array([_final(r, m) for r in lrn.results.values()])
+            cells.append(f"{per_seed.mean():.4f} ± {per_seed.std(ddof=1):.4f}" if len(per_seed) > 1 else "—")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _seed_rows(learners: Sequence[Learner]) -> str:
+    lines = ["| learner | seed | validation | " + " | ".join(METRICS) + " |", "| --- " * (3 + len(METRICS)) + "|"]
+    for lrn in learners:
+        for cand in lrn.candidates:
+            val = "—" if cand.validation is None else f"{cand.validation:+.3f}"
+            mark = " (selected)" if cand is lrn.selected else ""
+            finals = " | ".join(f"{_final(lrn.results[cand.label], m):.4f}" for m in METRICS)
+            lines.append(f"| {lrn.label} | {cand.label}{mark} | {val} | {finals} |")
+    return "\n".join(lines) + "\n"
+
+
+def comparisons(learners: Sequence[Learner], greedy: dict[str, Any]) -> list[PairedDifference]:
+    """The first learner's selected model minus every other selected learner and every greedy
+    planner, per metric (not yet Holm-adjusted: the table is one family)."""
+    first = learners[0].results[learners[0].selected.label]
+    others = [lrn.results[lrn.selected.label] for lrn in learners[1:]] + list(greedy.values())
+    return [paired_difference(first, other, m) for other in others for m in METRICS]
+
+
+def report_markdown(env: str, missions: int, fusion: str, learners: Sequence[Learner], greedy: dict[str, Any]) -> str:
+    """The three tables: learners (selected + seed spread), every seed, the paired verdicts."""
+    return (
+        f"{env}, {missions} shared unseen missions (split test, random starts), moderate noise, fusion {fusion}, "
+        "final step of the budget, argmax actions. Each learner's row is its best seed on the validation "
+        "missions (split train, env seeds 1000+); the test missions chose nothing.\n\n"
+        + _learner_rows(learners)
+        + "\nEvery seed:\n\n"
+        + _seed_rows(learners)
+        + f"\nPaired ({learners[0].label}, selected, minus each): standard errors clustered by scene, "
+        "t verdicts Holm-corrected over this table.\n\n"
+        + paired_markdown(comparisons(learners, greedy))
+    )
+
+
+def _write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Fly every model and AG on the same missions and print both tables."""
+    """Select, fly every candidate and AG / AG-k3 on the same missions, print (and write) the tables."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("models", nargs="+", help="label=path.zip; the first is compared with the others")
+    parser.add_argument("learners", nargs="+", help="label=CANDIDATE[,CANDIDATE...]; the first is compared with the rest")
     parser.add_argument("--env", default="env1")
     parser.add_argument("--missions", type=int, default=50)
     parser.add_argument("--fusion", default="mean", choices=["mean", "sendfuse"])
+    parser.add_argument("--out", help="also write the tables to this Markdown file")
     args = parser.parse_args(argv)
+    try:
+        learners = [parse_learner(spec) for spec in args.learners]
+    except (ValueError, OSError, KeyError) as exc:
+        print(f"learners_paired: {exc}", file=sys.stderr)
+        return 2
     th.set_num_threads(1)
     options = dict(env=args.env, n_trials=args.missions, seed=0, fusion=args.fusion, protocol="unseen")
-    results = {}
-    for spec in args.models:
-        label, path = spec.split("=", 1)
-        model = load(path)
-        gain = model.observation_space.spaces.get("action_gain") is not None  # flown as it was trained
-        results[label] = evaluate(model, label=label, deterministic=True, action_gain=gain, **options)
-    results["ag"] = evaluate("ag", **options)
-    _print_tables(args.env, args.missions, results)
+    for lrn in learners:
+        _fly(lrn, options)
+    greedy = {label: evaluate("ag", label=label, planner_kwargs=kw, **options) for label, kw in GREEDY}
+    text = report_markdown(args.env, args.missions, args.fusion, learners, greedy)
+    print(text)
+    if args.out:
+        command = "python -m sb3_coma.experiments.learners_paired " + " ".join(argv if argv is not None else sys.argv[1:])
+        _write(Path(args.out), f"<!-- generated by: {command} -->\n\n{text}")
     return 0
 
 

@@ -355,7 +355,9 @@ def _models_section(run: Any) -> list[str]:
         "",
         "Hyperparameters: `zoo_configs/coma.yml`; how they were chosen: `docs/training.md` (history: `docs/tuning_log.md`)."
         + (
-            f" No {' / '.join(missing)} models are shipped yet, so they have no rows (they get rows as soon as "
+            f" No {' / '.join(missing)} models are shipped (they would take the shipped models past their 15 MB "
+            "budget), so they have no rows here: COMA against IPPO and MAPPO with the same inputs, three seeds "
+            "each, selected by the same validation rule, is in `docs/LEARNERS.md` (rows here as soon as "
             'models.json lists them with `"algo": "ippo"` / `"mappo"`).'
             if missing
             else ""

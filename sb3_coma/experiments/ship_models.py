@@ -16,8 +16,12 @@ choice and never enter it. Test metrics of the shipped model itself are added af
     python -m sb3_coma.experiments.ship_models env1=runs/env1_s0,runs/env1_s1 \\
         env3-mean-cnn=shipped,runs/meancnn_s1,runs/meancnn_s2 ...
 
-``shipped`` stands for the model shipped today under that name (its run folder may be gone): it
-competes with the validation score its entry recorded and stays, file and entry, if it wins.
+``shipped`` stands for the model shipped today under that name (its run folder may be gone), and
+a ``.zip`` path for a model whose run folder is gone (e.g. an earlier shipped file out of git):
+such a candidate is scored by flying it on today's validation missions, never by the score
+recorded when it was trained (the env's random streams may have changed since; scores measured
+under different streams do not compare). The shipped one stays, file and entry, if it wins; a
+bare zip cannot be shipped (no run folder records how it was trained).
 
 A name ``envN`` ships the model of that map; ``env3-{fusion}-{extractor}`` an ablation arm.
 """
@@ -32,12 +36,14 @@ from typing import Any
 
 import numpy as np
 import yaml
+from stable_baselines3.common.evaluation import evaluate_policy
 
+import envs
 from envs import WORLD_VERSION
 from sb3_coma import COMA, training_options
 from sb3_coma.app import pretrained as pt
 from sb3_coma.app.evaluation import evaluate
-from sb3_coma.app.training import selection_end
+from sb3_coma.app.training import VALIDATION_SEED, eval_copies, selection_end
 from sb3_coma.experiments.reproduce import UNSEEN_MISSIONS, curve_from_metrics
 
 __all__ = ["main", "run_command", "run_length", "seed_spread", "ship", "validation_best"]
@@ -101,9 +107,11 @@ def run_command(run: Path) -> tuple[str, dict[str, Any]]:
     return "sb3-coma " + " ".join(kept), info
 
 
-#: A candidate spelt ``shipped``: the model shipped today under that name, with the validation
-#: score its manifest entry recorded (its run folder may be long gone).
+#: A candidate spelt ``shipped``: the model shipped today under that name (its run folder may be
+#: long gone), scored by flying it on today's validation missions (:func:`validation_return`).
 SHIPPED = "shipped"
+#: Missions per validation of the shipped models' commands (``--eval-missions 10``).
+VALIDATION_MISSIONS = 10
 
 
 #: How a shipped model is chosen among its candidates (recorded with every ``selection`` entry).
@@ -137,12 +145,36 @@ def seed_spread(models: dict[str, Path], env: str, fusion: str, missions: int = 
     return {"protocol": "unseen", "missions": missions, "noise": "moderate", "metrics": metrics}
 
 
-def _shipped_candidate(name: str) -> tuple[str, tuple[float, int], Path, dict[str, Any]]:
-    """(seed label, recorded validation score, model file, manifest entry) of the shipped ``name``."""
-    entry = pt.read_manifest()["models"][name]
-    label = f"seed {entry['seed']}"
-    record = entry["selection"]["candidates"][label]
-    return label, (record["best_validation_return"], record["at_joint_steps"]), pt.model_path(name), entry
+def validation_return(model_file: Path, missions: int = VALIDATION_MISSIONS) -> float:
+    """Mean validation return of a model flown today, as ``MissionEvalCallback`` scores a checkpoint
+    (split train, env seeds from ``VALIDATION_SEED``, ``missions`` missions on
+    ``eval_copies(missions)`` copies, argmax): the score of a candidate without its run folder. A
+    recorded score can be stale (the env's random streams changed since), a re-flown one cannot."""
+    model, options = _load_trained(model_file)
+    options = dict(options)
+    env = envs.make_vec_env(options.pop("map"), n_envs=eval_copies(missions), seed=VALIDATION_SEED, **options)
+    try:
+        env.seed(VALIDATION_SEED)
+        returns, _ = evaluate_policy(
+            model, env, n_eval_episodes=missions * model.n_agents, deterministic=True, return_episode_rewards=True
+        )
+    finally:
+        env.close()
+    return float(np.mean(returns))
+
+
+def _file_candidate(name: str, spec: str) -> tuple[str, tuple[float, int], Path, dict[str, Any] | None]:
+    """(seed label, validation score flown today, model file, manifest entry or ``None``) of a
+    candidate without a run folder: ``shipped`` (today's shipped ``name``) or a model zip."""
+    if spec == SHIPPED:
+        entry = pt.read_manifest()["models"][name]
+        path, seed = pt.model_path(name), int(entry["seed"])
+        steps = int(entry["selection"]["candidates"][f"seed {seed}"]["at_joint_steps"])
+    else:
+        path, entry = Path(spec), None
+        model, _ = _load_trained(path)
+        seed, steps = int(model.seed), int(model.num_timesteps)
+    return f"seed {seed}", (validation_return(path), steps), path, entry
 
 
 def _entry_of_run(name: str, chosen: Path) -> dict[str, Any]:
@@ -190,8 +222,9 @@ def ship(name: str, runs: Sequence[Path | str]) -> dict[str, Any]:
     folders: dict[str, Path] = {}
     current: dict[str, Any] | None = None
     for run in runs:
-        if str(run) == SHIPPED:
-            label, score, files[label], current = _shipped_candidate(name)
+        if str(run) == SHIPPED or str(run).endswith(".zip"):
+            label, score, files[label], entry = _file_candidate(name, str(run))
+            current = entry if entry is not None else current
         else:
             folder = Path(run)
             label, score = f"seed {run_command(folder)[1]['seed']}", validation_best(folder)
@@ -204,9 +237,10 @@ def ship(name: str, runs: Sequence[Path | str]) -> dict[str, Any]:
     spread = seed_spread(files, options["map"], options["fusion"])
     if best in folders:  # flown before: saving the winner replaces today's shipped file
         entry = _entry_of_run(name, folders[best])
-    else:
-        assert current is not None
+    elif current is not None and files[best] == pt.model_path(name):
         entry = dict(current)
+    else:
+        raise ValueError(f"{name}: the best candidate, {files[best]}, has no run folder to ship it from")
     entry["selection"] = _selection(scores)
     entry["seeds_unseen"] = spread
     return entry
