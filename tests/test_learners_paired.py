@@ -13,9 +13,11 @@ from sb3_coma.experiments import ippo_vs_ag
 from sb3_coma.experiments import learners_paired as lp
 
 
-def _fake_run(folder: Path, returns: list[list[float]]) -> Path:
-    """A run folder as ippo_vs_ag leaves it: best_model.zip and eval/evaluations.npz."""
+def _fake_run(folder: Path, returns: list[list[float]], seed: int | None = None) -> Path:
+    """A run folder as ippo_vs_ag leaves it: best_model.zip, eval/evaluations.npz, report.json."""
     (folder / "eval").mkdir(parents=True)
+    seed = int(folder.name.rsplit("_s", 1)[1]) if seed is None else seed
+    (folder / "report.json").write_text(json.dumps({"args": {"seed": seed}}))
     (folder / "best_model.zip").write_bytes(b"not read by the parser")
     steps = np.arange(1, len(returns) + 1) * 100
     np.savez(folder / "eval" / "evaluations.npz", timesteps=steps, results=np.array(returns), ep_lengths=np.ones((len(returns), 2)))
@@ -23,7 +25,7 @@ def _fake_run(folder: Path, returns: list[list[float]]) -> Path:
 
 
 def test_validation_score_is_the_best_mean_evaluation(tmp_path):
-    run = _fake_run(tmp_path / "ippo_env1_s3", [[1.0, 3.0], [4.0, 4.0], [2.0, 2.0]])
+    run = _fake_run(tmp_path / "ippo_env1", [[1.0, 3.0], [4.0, 4.0], [2.0, 2.0]], seed=3)
     assert lp.validation_score(run) == pytest.approx(4.0)
     cand = lp.parse_learner(f"ippo={run}").candidates[0]
     assert cand.label == "seed 3" and cand.path == run / "best_model.zip"
@@ -38,12 +40,13 @@ def test_selection_takes_the_highest_validation_never_the_order(tmp_path):
     assert lp.select(learner.candidates[:1]).label == "seed 0"
 
 
-def test_shipped_candidate_uses_the_recorded_validation():
-    learner = lp.parse_learner("coma=shipped:env3-sendfuse-cbam")
-    cand = learner.selected
+def test_shipped_candidate_is_flown_on_todays_validation(monkeypatch):
+    flown = []
+    monkeypatch.setattr(lp, "validation_return", lambda path: flown.append(path) or 6.5)
+    cand = lp.parse_learner("coma=shipped:env3-sendfuse-cbam").selected
     assert cand.path.name == "coma_env3_sendfuse_cbam.zip" and cand.path.is_file()
     manifest = json.loads((cand.path.parent / "models.json").read_text())["models"]["env3-sendfuse-cbam"]
-    assert cand.validation == manifest["selection"]["candidates"][cand.label]["best_validation_return"]
+    assert cand.label == f"seed {manifest['seed']}" and cand.validation == 6.5 and flown == [cand.path]
 
 
 @pytest.mark.parametrize(
@@ -85,6 +88,9 @@ def test_ippo_run_with_validation_then_paired_report(tmp_path):
     assert report["missions_trained"] >= 8
     with np.load(out / "eval" / "evaluations.npz") as data:
         assert len(data["timesteps"]) >= 2  # validated during training
+        assert report["best_validation_return"] == pytest.approx(float(data["results"].mean(axis=1).max()))
+    assert report["agent_steps"] == 64 * 2 * 4  # one whole rollout: 64 steps x (2 copies x 4 UAVs) rows
+    assert json.loads((out / "report.json").read_text())["best_validation_return"] == report["best_validation_return"]
     assert (out / "best_model.zip").is_file()
     md = tmp_path / "learners.md"
     assert lp.main(["--env", "env1", "--missions", "2", "--out", str(md), f"ippo={out}", f"plain={out / 'ippo_env1.zip'}"]) == 0

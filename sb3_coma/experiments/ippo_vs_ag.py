@@ -171,28 +171,33 @@ def _build(args: argparse.Namespace, venv: Any) -> tuple[BaseAlgorithm, int]:
     return learner, timesteps_for_missions(args.missions, venv)
 
 
-def _train(args: argparse.Namespace, out: Path) -> tuple[BaseAlgorithm, float, float]:
-    """Train on ``split="train"``; returns the model, its training seconds and missions flown."""
+def _validation(args: argparse.Namespace, out: Path, train_options: dict[str, Any]) -> MissionEvalCallback:
+    """The validation every shipped COMA run gets: ``--val-missions`` missions of the train scenes
+    from env seed ``VALIDATION_SEED`` (the same each time) every ``--val-freq`` joint steps; the
+    best checkpoint becomes ``out/best_model.zip``."""
+    val_env = envs.make_vec_env(args.env, n_envs=eval_copies(args.val_missions), seed=VALIDATION_SEED, **train_options)
+    return MissionEvalCallback(
+        val_env,
+        eval_freq=args.val_freq,
+        n_eval_missions=args.val_missions,
+        best_model_save_path=out,
+        log_path=out / "eval",
+        eval_seed=VALIDATION_SEED,
+        verbose=0,
+    )
+
+
+def _train(args: argparse.Namespace, out: Path) -> tuple[BaseAlgorithm, dict[str, Any]]:
+    """Train on ``split="train"``; returns the model compared (the validation's choice, else the
+    last) and the record: training seconds, missions and agent-steps flown, best validation return
+    (``None`` without validation)."""
     options = _env_options(args)
     train_options = dict(fusion=args.fusion, split="train", reward=args.reward, **options)
     venv = envs.make_vec_env(args.env, n_envs=args.n_envs, seed=args.seed, workers=args.workers, **train_options)
     model, timesteps = _build(args, venv)
     per_mission = args.budget if args.algo == "coma" else args.uavs * args.budget  # COMA: joint steps
-    callbacks: list[BaseCallback] = [Curve(per_mission, out / "curve.csv")]
-    if args.val_freq > 0:
-        copies = eval_copies(args.val_missions)
-        val_env = envs.make_vec_env(args.env, n_envs=copies, seed=VALIDATION_SEED, **train_options)
-        callbacks.append(
-            MissionEvalCallback(
-                val_env,
-                eval_freq=args.val_freq,
-                n_eval_missions=args.val_missions,
-                best_model_save_path=out,
-                log_path=out / "eval",
-                eval_seed=VALIDATION_SEED,
-                verbose=0,
-            )
-        )
+    validation = _validation(args, out, train_options) if args.val_freq > 0 else None
+    callbacks: list[BaseCallback] = [Curve(per_mission, out / "curve.csv"), *([validation] if validation else [])]
     print(
         f"{args.algo}: {args.missions} missions = {timesteps} agent-steps on {args.env} split=train, "
         f"{args.n_envs} copies x {args.uavs} UAVs, budget {args.budget}, noise {args.noise}, fusion {args.fusion}, "
@@ -206,11 +211,13 @@ def _train(args: argparse.Namespace, out: Path) -> tuple[BaseAlgorithm, float, f
     model.save(out / f"{args.algo}_{args.env}")
     venv.close()
     print(f"trained {flown:.0f} missions ({model.num_timesteps} agent-steps) in {train_s:.0f} s", flush=True)
-    if args.val_freq > 0:
-        callbacks[-1].eval_env.close()
-        model = type(model).load(out / "best_model.zip", device="cpu")  # the validation's choice
-        print(f"compared: best_model.zip (best validation return {callbacks[-1].best_mean_reward:+.3f})", flush=True)
-    return model, train_s, flown
+    record = {"train_seconds": train_s, "missions_trained": flown, "agent_steps": int(model.num_timesteps)}
+    if validation is None:
+        return model, {**record, "best_validation_return": None}
+    validation.eval_env.close()
+    best = float(validation.best_mean_reward)
+    print(f"compared: best_model.zip (best validation return {best:+.3f})", flush=True)
+    return type(model).load(out / "best_model.zip", device="cpu"), {**record, "best_validation_return": best}
 
 
 def _compare(args: argparse.Namespace, model: BaseAlgorithm, report: dict[str, Any]) -> str:
@@ -250,13 +257,11 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     th.set_num_threads(args.threads)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    model, train_s, flown = _train(args, out)
+    model, record = _train(args, out)
     report: dict[str, Any] = {
         "command": " ".join([COMMAND, *(argv if argv is not None else sys.argv[1:])]),
         "args": vars(args),
-        "train_seconds": train_s,
-        "missions_trained": flown,
-        "agent_steps": int(model.num_timesteps),
+        **record,
         "methods": {},
         "paired": [],
     }

@@ -13,7 +13,8 @@ every learner selected by the same rule, and how much its seeds spread.
 Each ``label=CANDIDATES`` names one learner's seeds, comma-separated; a candidate is
 * a run folder of ``sb3-coma train --eval-freq`` or of ``python -m sb3_coma.experiments.ippo_vs_ag``
   (its ``best_model.zip`` and ``eval/evaluations.npz``: the best validation return of the run),
-* ``shipped:NAME``, a shipped model with the validation score its ``models.json`` entry records,
+* ``shipped:NAME``, a shipped model, scored by flying it on today's validation missions
+  (``ship_models.validation_return``, the rule ``ship_models`` applies to it),
 * or a model zip (only as a learner's single candidate: it has no validation score).
 The learner's row is the candidate with the highest validation return (split train, env seeds
 1000+, never the test split): ``sb3_coma.experiments.ship_models``'s rule for every learner alike.
@@ -27,6 +28,7 @@ follow what it was trained with. ``--out`` writes the tables as Markdown (atomic
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 from collections.abc import Sequence
@@ -36,12 +38,14 @@ from typing import Any
 
 import numpy as np
 import torch as th
+import yaml
 from stable_baselines3 import PPO
 
 import sb3_coma.common.marl_baselines  # noqa: F401  (the IPPO / MAPPO policy classes PPO.load needs)
 from sb3_coma import COMA, evaluate
 from sb3_coma.app import pretrained as pt
 from sb3_coma.common.paired import PairedDifference, paired_difference, paired_markdown
+from sb3_coma.experiments.ship_models import validation_best, validation_return
 
 __all__ = ["METRICS", "Candidate", "Learner", "load", "main", "parse_learner", "select", "validation_score"]
 
@@ -88,17 +92,21 @@ def validation_score(run: Path) -> float:
     """Best mean validation return of a run folder (its ``eval/evaluations.npz``). A COMA run uses
     ``ship_models``' rule (no warm-up evaluation); an IPPO / MAPPO run has no warm-up."""
     if (run / "config.yml").is_file():
-        from sb3_coma.experiments.ship_models import validation_best
-
         return validation_best(run)[0]
     with np.load(run / "eval" / "evaluations.npz") as data:
         return float(data["results"].mean(axis=1).max())
 
 
 def _seed_label(run: Path, index: int) -> str:
-    """``seed N`` from the folder name's ``_sN`` suffix, else the candidate's position."""
-    tail = run.name.rsplit("_s", 1)
-    return f"seed {tail[1]}" if len(tail) == 2 and tail[1].isdigit() else f"#{index}"
+    """``seed N`` as the run records it (``config.yml`` of ``sb3-coma train``, ``report.json`` of
+    ``ippo_vs_ag``), else the candidate's position."""
+    if (run / "config.yml").is_file():
+        seed = yaml.safe_load((run / "config.yml").read_text()).get("run", {}).get("seed")
+    elif (run / "report.json").is_file():
+        seed = json.loads((run / "report.json").read_text()).get("args", {}).get("seed")
+    else:
+        seed = None
+    return f"#{index}" if seed is None else f"seed {seed}"
 
 
 def _candidate(spec: str, index: int) -> Candidate:
@@ -107,8 +115,8 @@ def _candidate(spec: str, index: int) -> Candidate:
         entry = pt.read_manifest()["models"].get(name)
         if entry is None:
             raise ValueError(f"{spec!r}: no shipped model {name!r}")
-        label = f"seed {entry['seed']}"
-        return Candidate(label, pt.model_path(name), entry["selection"]["candidates"][label]["best_validation_return"])
+        path = pt.model_path(name)
+        return Candidate(f"seed {entry['seed']}", path, validation_return(path))
     path = Path(spec)
     if path.is_dir():
         if not (path / "best_model.zip").is_file():

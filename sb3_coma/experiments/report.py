@@ -357,7 +357,7 @@ def _models_section(run: Any) -> list[str]:
         + (
             f" No {' / '.join(missing)} models are shipped (they would take the shipped models past their 15 MB "
             "budget), so they have no rows here: COMA against IPPO and MAPPO with the same inputs, three seeds "
-            "each, selected by the same validation rule, is in `docs/LEARNERS.md` (rows here as soon as "
+            "each, selected by the same validation rule, is in `docs/learners/` (rows here as soon as "
             'models.json lists them with `"algo": "ippo"` / `"mappo"`).'
             if missing
             else ""
