@@ -268,3 +268,12 @@ def test_seed_spread_rows_list_every_shipped_model_with_its_candidates():
     for name, entry in pt.read_manifest()["models"].items():
         assert rows[name]["shipped"] == f"seed {entry['seed']}"
         assert rows[name]["shipped"] in rows[name]["candidates"]
+
+
+def test_recorded_metrics_go_to_the_model_a_row_flew():
+    from sb3_coma.experiments.reproduce import _manifest_name
+
+    assert _manifest_name("env3", "coma") == "env3"
+    assert _manifest_name("env1", "coma[paper-actor]") == "env1-paper-actor"
+    assert _manifest_name("env3", "coma[sendfuse-cnn]") == "env3-sendfuse-cnn"
+    assert _manifest_name("env3", "ag-k3") is None

@@ -125,3 +125,12 @@ def test_a_bare_zip_competes_but_cannot_be_shipped(tmp_path, shipped_folder, mon
     entry = sm.ship("env3-mean-cnn", ["shipped", str(old)])
     assert entry["seed"] == 0 and entry["selection"]["candidates"]["seed 5"] == {
         "best_validation_return": 6.0, "at_joint_steps": 21000}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "command, value",
+    [("sb3-coma train --env env1 --timesteps 24000", "24000"), ("sb3-coma train --timesteps=48000 --seed 1", "48000"),
+     ("sb3-coma train --env env2", None)],
+)  # fmt: skip
+def test_flag_value_reads_both_spellings(command, value):
+    assert sm._flag_value(command, "--timesteps") == value

@@ -1002,13 +1002,24 @@ def _metrics_entry(res: Any) -> dict[str, Any]:
     }
 
 
+def _manifest_name(env: str, method: str) -> str | None:
+    """The shipped model a result row flew: ``coma`` -> ``env``, ``coma[paper-actor]`` ->
+    ``env-paper-actor`` (``protocols.shipped_label`` the other way); ``None`` for a baseline."""
+    if method == "coma":
+        return env
+    if method.startswith("coma[") and method.endswith("]"):
+        return f"{env}-{method[5:-1]}"
+    return None
+
+
 def record_metrics(results: Sequence[Any], say: Callable[[str], None] = print) -> None:
     """Store the measured metrics of the shipped models in ``models.json``."""
 
     manifest = pt.read_manifest()
     for res in results:
-        if res.method == "coma" and res.env in manifest["models"]:
-            manifest["models"][res.env].update(_metrics_entry(res))
+        name = _manifest_name(res.env, res.method)
+        if name in manifest["models"]:
+            manifest["models"][name].update(_metrics_entry(res))
     say(f"recorded metrics in {pt.write_manifest(manifest)}")
 
 

@@ -177,6 +177,17 @@ def _file_candidate(name: str, spec: str) -> tuple[str, tuple[float, int], Path,
     return f"seed {seed}", (validation_return(path), steps), path, entry
 
 
+def _flag_value(command: str, flag: str) -> str | None:
+    """The value of ``flag`` in a command line, spelt ``--flag V`` or ``--flag=V``; ``None`` without it."""
+    words = command.split()
+    for i, word in enumerate(words):
+        if word == flag and i + 1 < len(words):
+            return words[i + 1]
+        if word.startswith(flag + "="):
+            return word.split("=", 1)[1]
+    return None
+
+
 def _entry_of_run(name: str, chosen: Path) -> dict[str, Any]:
     """The manifest entry of a run's ``best_model.zip``, saved into the shipped folder."""
     command, info = run_command(chosen)
@@ -205,7 +216,10 @@ def _entry_of_run(name: str, chosen: Path) -> dict[str, Any]:
         "training_curve": curve_from_metrics(chosen / "metrics.csv"),
         "env_options": env_options,
     }
-    if "-" in name:
+    steps = _flag_value(command, "--timesteps")
+    if steps is not None:  # reproduce --train retrains as long (reproduce.shipped_timesteps)
+        entry["train_timesteps"] = int(steps)
+    if name == f"{entry['env']}-{fusion}-{extractor}":  # an arm of the ablation, not another actor of the map
         entry["ablation_arm"] = [fusion, extractor]
     warm = chosen / "warm_start.json"
     if warm.is_file():  # "COMA (oracle warm start)": the teacher and what the clone learnt
