@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from tiny_runs import ENV, tiny_entry
 
 from sb3_coma.app import pretrained as pt
 from sb3_coma.app.training import train
 from sb3_coma.experiments import ship_models as sm
-from tiny_runs import ENV, tiny_entry
 
 
 def _fake_run(folder: Path, seed: int, returns: list[float], warm_start: dict | None = None) -> Path:
@@ -119,7 +119,7 @@ def test_a_bare_zip_competes_but_cannot_be_shipped(tmp_path, shipped_folder, mon
     monkeypatch.setattr(sm, "_load_trained", lambda path: (Model(), {"map": "env3", "fusion": "mean"}))
     monkeypatch.setattr(sm, "validation_return", lambda path: 9.0 if str(path).endswith("old.zip") else 8.0)
     old = tmp_path / "old.zip"
-    with pytest.raises(ValueError, match="old.zip, has no run folder"):
+    with pytest.raises(ValueError, match=r"old\.zip, has no run folder"):
         sm.ship("env3-mean-cnn", ["shipped", str(old)])
     monkeypatch.setattr(sm, "validation_return", lambda path: 6.0 if str(path).endswith("old.zip") else 8.0)
     entry = sm.ship("env3-mean-cnn", ["shipped", str(old)])

@@ -156,7 +156,11 @@ def validation_return(model_file: Path, missions: int = VALIDATION_MISSIONS) -> 
     try:
         env.seed(VALIDATION_SEED)
         returns, _ = evaluate_policy(
-            model, env, n_eval_episodes=missions * model.n_agents, deterministic=True, return_episode_rewards=True
+            model,
+            env,
+            n_eval_episodes=missions * int(model.n_agents or 1),
+            deterministic=True,
+            return_episode_rewards=True,
         )
     finally:
         env.close()
@@ -173,7 +177,7 @@ def _file_candidate(name: str, spec: str) -> tuple[str, tuple[float, int], Path,
     else:
         path, entry = Path(spec), None
         model, _ = _load_trained(path)
-        seed, steps = int(model.seed), int(model.num_timesteps)
+        seed, steps = int(model.seed or 0), int(model.num_timesteps)
     return f"seed {seed}", (validation_return(path), steps), path, entry
 
 
