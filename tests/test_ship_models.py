@@ -59,8 +59,9 @@ def shipped_folder(tmp_path, monkeypatch):
 
     monkeypatch.setattr(sm, "seed_spread", fake_spread)
     monkeypatch.setattr(sm, "_entry_of_run", fake_entry)
-    monkeypatch.setattr(sm, "_load_trained", lambda path: (None, {"map": "env3", "fusion": "mean"}))
-    monkeypatch.setattr(sm, "validation_return", lambda path: 8.0)  # flown today, not the recorded 7.1
+    monkeypatch.setattr(sm, "_load_trained", lambda path: (path, {"map": "env3", "fusion": "mean"}))
+    # flown today, not the recorded 7.1 (the fake "model" is its file)
+    monkeypatch.setattr(sm, "_validation_return", lambda model, options: 8.0)
     return folder, spread_calls
 
 
@@ -116,12 +117,15 @@ def test_a_bare_zip_competes_but_cannot_be_shipped(tmp_path, shipped_folder, mon
     class Model:
         seed, num_timesteps = 5, 21000
 
-    monkeypatch.setattr(sm, "_load_trained", lambda path: (Model(), {"map": "env3", "fusion": "mean"}))
-    monkeypatch.setattr(sm, "validation_return", lambda path: 9.0 if str(path).endswith("old.zip") else 8.0)
+        def __init__(self, path):
+            self.path = path
+
+    monkeypatch.setattr(sm, "_load_trained", lambda path: (Model(path), {"map": "env3", "fusion": "mean"}))
+    monkeypatch.setattr(sm, "_validation_return", lambda m, o: 9.0 if str(m.path).endswith("old.zip") else 8.0)
     old = tmp_path / "old.zip"
     with pytest.raises(ValueError, match=r"old\.zip, has no run folder"):
         sm.ship("env3-mean-cnn", ["shipped", str(old)])
-    monkeypatch.setattr(sm, "validation_return", lambda path: 6.0 if str(path).endswith("old.zip") else 8.0)
+    monkeypatch.setattr(sm, "_validation_return", lambda m, o: 6.0 if str(m.path).endswith("old.zip") else 8.0)
     entry = sm.ship("env3-mean-cnn", ["shipped", str(old)])
     assert entry["seed"] == 0 and entry["selection"]["candidates"]["seed 5"] == {
         "best_validation_return": 6.0, "at_joint_steps": 21000}  # fmt: skip
@@ -134,3 +138,36 @@ def test_a_bare_zip_competes_but_cannot_be_shipped(tmp_path, shipped_folder, mon
 )  # fmt: skip
 def test_flag_value_reads_both_spellings(command, value):
     assert sm._flag_value(command, "--timesteps") == value
+
+
+def _sb3_zip(policy_class: str, weights: bytes) -> bytes:
+    import io
+    import zipfile
+
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr("data", json.dumps({"policy_class": {"__init__": policy_class}, "num_timesteps": 9}))
+        archive.writestr("policy.pth", weights)
+    return buffer.getvalue()
+
+
+def test_a_reselection_that_keeps_the_model_keeps_its_bytes(tmp_path, monkeypatch):
+    """SB3 writes memory addresses into ``data``: a second save of the same model must not add a
+    new file to git history; a different model replaces the file."""
+    monkeypatch.setattr(pt, "pretrained_dir", lambda: tmp_path)
+    target = tmp_path / sm.shipped_file_name("env3-mean-cnn")
+    old = _sb3_zip("<function at 0x1>", b"weights")
+    target.write_bytes(old)
+
+    def save(weights: bytes):
+        def write():
+            target.write_bytes(_sb3_zip("<function at 0x2>", weights))
+            return {"file": target.name, "sha256": "new", "size_bytes": 0}
+
+        return write
+
+    entry = sm._keep_same_file("env3-mean-cnn", save(b"weights"))
+    assert target.read_bytes() == old and entry["sha256"] == hashlib.sha256(old).hexdigest()
+    assert entry["size_bytes"] == len(old)
+    entry = sm._keep_same_file("env3-mean-cnn", save(b"other weights"))
+    assert target.read_bytes() != old and entry["sha256"] == "new"

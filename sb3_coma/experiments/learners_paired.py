@@ -38,14 +38,13 @@ from typing import Any
 
 import numpy as np
 import torch as th
-import yaml
 from stable_baselines3 import PPO
 
 import sb3_coma.common.marl_baselines  # noqa: F401  (the IPPO / MAPPO policy classes PPO.load needs)
 from sb3_coma import COMA, evaluate
 from sb3_coma.app import pretrained as pt
 from sb3_coma.common.paired import PairedDifference, paired_difference, paired_markdown
-from sb3_coma.experiments.ship_models import validation_best, validation_return
+from sb3_coma.experiments.ship_models import run_command, validation_best, validation_return
 
 __all__ = ["METRICS", "Candidate", "Learner", "load", "main", "parse_learner", "select", "validation_score"]
 
@@ -101,7 +100,7 @@ def _seed_label(run: Path, index: int) -> str:
     """``seed N`` as the run records it (``config.yml`` of ``sb3-coma train``, ``report.json`` of
     ``ippo_vs_ag``), else the candidate's position."""
     if (run / "config.yml").is_file():
-        seed = yaml.safe_load((run / "config.yml").read_text()).get("run", {}).get("seed")
+        seed = run_command(run)[1].get("seed")
     elif (run / "report.json").is_file():
         seed = json.loads((run / "report.json").read_text()).get("args", {}).get("seed")
     else:

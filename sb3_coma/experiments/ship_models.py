@@ -28,22 +28,24 @@ A name ``envN`` ships the model of that map; ``env3-{fusion}-{extractor}`` an ab
 
 from __future__ import annotations
 
+import io
 import json
 import sys
-from collections.abc import Sequence
+import zipfile
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
-from stable_baselines3.common.evaluation import evaluate_policy
 
-import envs
 from envs import WORLD_VERSION
 from sb3_coma import COMA, training_options
 from sb3_coma.app import pretrained as pt
+from sb3_coma.app.config import resolve_env_id
 from sb3_coma.app.evaluation import evaluate
-from sb3_coma.app.training import VALIDATION_SEED, eval_copies, selection_end
+from sb3_coma.app.training import VALIDATION_SEED, selection_end
+from sb3_coma.experiments.learning_curves import Validation, fly_validation
 from sb3_coma.experiments.reproduce import UNSEEN_MISSIONS, curve_from_metrics
 
 __all__ = ["main", "run_command", "run_length", "seed_spread", "ship", "validation_best"]
@@ -147,38 +149,37 @@ def seed_spread(models: dict[str, Path], env: str, fusion: str, missions: int = 
 
 def validation_return(model_file: Path, missions: int = VALIDATION_MISSIONS) -> float:
     """Mean validation return of a model flown today, as ``MissionEvalCallback`` scores a checkpoint
-    (split train, env seeds from ``VALIDATION_SEED``, ``missions`` missions on
-    ``eval_copies(missions)`` copies, argmax): the score of a candidate without its run folder. A
-    recorded score can be stale (the env's random streams changed since), a re-flown one cannot."""
-    model, options = _load_trained(model_file)
-    options = dict(options)
-    env = envs.make_vec_env(options.pop("map"), n_envs=eval_copies(missions), seed=VALIDATION_SEED, **options)
-    try:
-        env.seed(VALIDATION_SEED)
-        returns, _ = evaluate_policy(
-            model,
-            env,
-            n_eval_episodes=missions * int(model.n_agents or 1),
-            deterministic=True,
-            return_episode_rewards=True,
-        )
-    finally:
-        env.close()
-    return float(np.mean(returns))
+    (``learning_curves.fly_validation``: split train, env seeds from ``VALIDATION_SEED``, argmax):
+    the score of a candidate without its run folder. A recorded score can be stale (the env's
+    random streams changed since), a re-flown one cannot."""
+    return _validation_return(*_load_trained(model_file), missions)
+
+
+def _validation_return(model: COMA, options: dict[str, Any], missions: int = VALIDATION_MISSIONS) -> float:
+    world = {k: v for k, v in options.items() if k not in ("map", "fusion", "fusion_kwargs")}
+    validation = Validation(
+        resolve_env_id(options["map"]),
+        json.dumps(world, sort_keys=True),
+        missions,
+        VALIDATION_SEED,
+        int(model.n_agents or 1),
+    )
+    scores = fly_validation(validation, lambda _venv: model, options["fusion"], options.get("fusion_kwargs") or None)
+    return float(scores.returns.mean())
 
 
 def _file_candidate(name: str, spec: str) -> tuple[str, tuple[float, int], Path, dict[str, Any] | None]:
     """(seed label, validation score flown today, model file, manifest entry or ``None``) of a
     candidate without a run folder: ``shipped`` (today's shipped ``name``) or a model zip."""
-    if spec == SHIPPED:
-        entry = pt.read_manifest()["models"][name]
-        path, seed = pt.model_path(name), int(entry["seed"])
+    entry = pt.read_manifest()["models"][name] if spec == SHIPPED else None
+    path = pt.model_path(name) if spec == SHIPPED else Path(spec)
+    model, options = _load_trained(path)
+    if entry is not None:
+        seed = int(entry["seed"])
         steps = int(entry["selection"]["candidates"][f"seed {seed}"]["at_joint_steps"])
     else:
-        path, entry = Path(spec), None
-        model, _ = _load_trained(path)
         seed, steps = int(model.seed or 0), int(model.num_timesteps)
-    return f"seed {seed}", (validation_return(path), steps), path, entry
+    return f"seed {seed}", (_validation_return(model, options), steps), path, entry
 
 
 def _flag_value(command: str, flag: str) -> str | None:
@@ -192,6 +193,11 @@ def _flag_value(command: str, flag: str) -> str | None:
     return None
 
 
+def shipped_file_name(name: str) -> str:
+    """The file a shipped model ``name`` is saved as (``env3-mean-cnn`` -> ``coma_env3_mean_cnn.zip``)."""
+    return f"coma_{name.replace('-', '_')}.zip"
+
+
 def _entry_of_run(name: str, chosen: Path) -> dict[str, Any]:
     """The manifest entry of a run's ``best_model.zip``, saved into the shipped folder."""
     command, info = run_command(chosen)
@@ -200,7 +206,7 @@ def _entry_of_run(name: str, chosen: Path) -> dict[str, Any]:
     extractor = "cnn" if model.policy.features_extractor_class.__name__.startswith("Cnn") else "cbam"
     wall = (chosen / "model.zip").stat().st_mtime - (chosen / "config.yml").stat().st_mtime
     entry = {
-        **pt.save_for_shipping(model, f"coma_{name.replace('-', '_')}.zip"),
+        **pt.save_for_shipping(model, shipped_file_name(name)),
         "env": info["env"].split("-")[1].lower(),
         "fusion": fusion,
         "extractor": extractor,
@@ -232,6 +238,37 @@ def _entry_of_run(name: str, chosen: Path) -> dict[str, Any]:
     return entry
 
 
+def _members(data: bytes) -> dict[str, Any]:
+    """An SB3 zip's members, ``data`` parsed without ``policy_class`` (SB3 writes reprs with memory
+    addresses there, so two saves of one model differ in it and nowhere else)."""
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        members: dict[str, Any] = {n: archive.read(n) for n in archive.namelist()}
+    record = json.loads(members.pop("data"))
+    record.pop("policy_class", None)
+    return {**members, "data": record}
+
+
+def _same_model(a: bytes, b: bytes) -> bool:
+    """Whether two files are saves of one model (:func:`_members` equal); ``False`` for a non-zip."""
+    try:
+        return _members(a) == _members(b)
+    except (zipfile.BadZipFile, KeyError, ValueError):
+        return False
+
+
+def _keep_same_file(name: str, save: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """Run ``save`` (which writes the shipped file of ``name`` and returns its entry); when it wrote
+    the same model as the file it replaced, put the old bytes back: git history keeps every
+    shipped file for ever, and a re-selection that keeps a model must not add a copy of it."""
+    target = pt.pretrained_dir() / shipped_file_name(name)
+    before = target.read_bytes() if target.is_file() else None
+    entry = save()
+    if before is not None and _same_model(before, target.read_bytes()):
+        target.write_bytes(before)
+        entry.update(sha256=pt.sha256_file(target), size_bytes=len(before))
+    return entry
+
+
 def ship(name: str, runs: Sequence[Path | str]) -> dict[str, Any]:
     """Ship the best of ``runs`` (by validation return) as model ``name``; returns its manifest
     entry. A run spelt :data:`SHIPPED` is today's shipped model, kept (file and entry) if it wins."""
@@ -254,7 +291,7 @@ def ship(name: str, runs: Sequence[Path | str]) -> dict[str, Any]:
     _, options = _load_trained(next(iter(files.values())))  # the candidates are seeds of one setting
     spread = seed_spread(files, options["map"], options["fusion"])
     if best in folders:  # flown before: saving the winner replaces today's shipped file
-        entry = _entry_of_run(name, folders[best])
+        entry = _keep_same_file(name, lambda: _entry_of_run(name, folders[best]))
     elif current is not None and files[best] == pt.model_path(name):
         entry = dict(current)
     else:
