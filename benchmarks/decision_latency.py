@@ -39,12 +39,12 @@ import numpy as np
 import onnxruntime
 import torch
 
-import envs
-from envs import layout
-from envs.geometry import overlap_matrix
+import uav_ipp
 from sb3_coma import COMA, load_pretrained
 from sb3_coma.app.export import ActorGraph, export_onnx, fusion_wrapper, onnx_feeds, onnx_session
 from sb3_coma.sendfuse.network import tune_cpu_allocator
+from uav_ipp import layout
+from uav_ipp.geometry import overlap_matrix
 
 
 def _model(name: str) -> tuple[Any, str]:
@@ -52,20 +52,20 @@ def _model(name: str) -> tuple[Any, str]:
     try:
         return load_pretrained(name), f"shipped model {name!r}"
     except Exception as exc:  # any failure: the cost does not depend on the weights
-        venv = envs.make_vec_env("env3", n_envs=1, fusion="sendfuse", seed=0)
+        venv = uav_ipp.make_vec_env("env3", n_envs=1, fusion="sendfuse", seed=0)
         return COMA("CBAMPolicy", venv, seed=0, device="cpu"), f"fresh CBAM model ({type(exc).__name__}: {exc})"
 
 
 def _one_decision(env: str, seed: int = 0) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], Any]:
     """UAV 0's raw and fused observation after a few random steps with every link up (comm_range inf)."""
-    raw_env = envs.make_vec_env(env, n_envs=1, fusion="none", seed=seed, comm_range=float("inf"))
+    raw_env = uav_ipp.make_vec_env(env, n_envs=1, fusion="none", seed=seed, comm_range=float("inf"))
     rng = np.random.default_rng(seed)
     obs = raw_env.reset()
     for _ in range(5):
         obs, *_ = raw_env.step(np.array([rng.choice(np.flatnonzero(m > 0.5)) for m in obs[layout.KEY_MASK]]))
     raw_env.close()
     raw = {k: np.ascontiguousarray(v[:1]) for k, v in obs.items()}
-    fused_env = envs.make_vec_env(env, n_envs=1, fusion="sendfuse", seed=seed, comm_range=float("inf"))
+    fused_env = uav_ipp.make_vec_env(env, n_envs=1, fusion="sendfuse", seed=seed, comm_range=float("inf"))
     wrapper = fusion_wrapper(fused_env)
     return raw, wrapper.observations(dict(raw)), wrapper
 
@@ -94,7 +94,7 @@ def _ag_in_process(env: str, repeats: int) -> None:
         # imported here, inside the guard: a planner mid-change costs this row, not the benchmark
         from sb3_coma.baselines import make_planner
 
-        venv = envs.make_vec_env(env, n_envs=1, fusion="mean", seed=0)
+        venv = uav_ipp.make_vec_env(env, n_envs=1, fusion="mean", seed=0)
         planner = make_planner("ag", venv, seed=0)
         obs = venv.reset()
         n = int(venv.get_attr("n_agents", indices=[0])[0])

@@ -23,8 +23,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-import envs
-from envs import layout
+import uav_ipp
+from uav_ipp import layout
 
 
 def pick_valid(masks: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -36,7 +36,7 @@ def pick_valid(masks: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 def bench_raw(name: str, missions: int, seed: int) -> tuple[float, float]:
-    env = envs.make_env(name, n_uavs=4, budget=15)
+    env = uav_ipp.make_env(name, n_uavs=4, budget=15)
     rng = np.random.default_rng(seed)
     env.reset(seed=seed)
     steps = 0
@@ -53,7 +53,7 @@ def bench_raw(name: str, missions: int, seed: int) -> tuple[float, float]:
 
 
 def bench_vec(name: str, missions: int, seed: int, fusion: str) -> tuple[float, float]:
-    venv = envs.make_vec_env(name, n_envs=1, fusion=fusion, seed=seed, n_uavs=4, budget=15)
+    venv = uav_ipp.make_vec_env(name, n_envs=1, fusion=fusion, seed=seed, n_uavs=4, budget=15)
     rng = np.random.default_rng(seed)
     obs = venv.reset()
     steps = 0
@@ -68,7 +68,7 @@ def bench_vec(name: str, missions: int, seed: int, fusion: str) -> tuple[float, 
 
 def env_state_mib(name: str) -> float:
     """MiB of numpy arrays one env copy holds after a reset (beliefs, tables, sums, scratch)."""
-    env = envs.make_env(name, n_uavs=4, budget=15)
+    env = uav_ipp.make_env(name, n_uavs=4, budget=15)
     env.reset(seed=0)
     arrays = [v for v in vars(env).values() if isinstance(v, np.ndarray)]
     arrays += [v for v in vars(env.geometry).values() if isinstance(v, np.ndarray)]

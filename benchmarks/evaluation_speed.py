@@ -21,13 +21,13 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np
 import torch as th
 
-import envs
+import uav_ipp
 from sb3_coma import evaluate
 
 
 def raw_env_rate(env: str, missions: int) -> float:
     """Missions/s of the raw ParallelEnv in this process (one core), masked random actions."""
-    world = envs.make_env(env, split="train", start="random")
+    world = uav_ipp.make_env(env, split="train", start="random")
     world.reset(seed=0)  # numba kernels compiled or loaded from cache before the clock starts
     tic = time.perf_counter()
     for seed in range(1, missions + 1):

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-import envs
+import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.baselines import make_planner
 
@@ -32,7 +32,7 @@ def _coma(venv: Any) -> COMA:
 
 def time_method(method: str, env: str, copies: int, missions: int, seed: int) -> np.ndarray:
     """Wall time (ms) of every ``predict`` call over ``missions`` batches of ``copies`` missions."""
-    venv = envs.make_vec_env(env, n_envs=copies, fusion="mean", seed=seed)
+    venv = uav_ipp.make_vec_env(env, n_envs=copies, fusion="mean", seed=seed)
     policy = _coma(venv) if method == "coma" else make_planner(method, venv, seed=seed)
     budget = venv.get_attr("config", indices=[0])[0].budget
     times = []
@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--methods", default="random,lawnmower,ag,coma")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    n_agents = envs.make_env(args.env).n_uavs
+    n_agents = uav_ipp.make_env(args.env).n_uavs
     print(f"{args.env}: predict wall time, {args.missions} missions per row, {n_agents} UAVs per mission")
     print(f"{'method':<10} {'copies':>6} {'ms/step (mean)':>15} {'ms/step (p95)':>14} {'ms/UAV decision':>16}")
     for copies in [int(c) for c in args.copies.split(",")]:

@@ -7,7 +7,7 @@ Two figures (docs/design.md §4; target <= 2 ms per UAV-step on one core):
    realistic inputs come from a lockstep mission on env3 so invalid slots are skipped as in use.
    Reported as the median over repeats, in ms per step and per UAV-step, wall and thread-CPU time
    (on a shared machine other processes inflate wall time, not the thread's CPU time).
-2. Joint steps per second of ``envs.make_vec_env("env3", fusion=...)`` for "mean" vs "sendfuse"
+2. Joint steps per second of ``uav_ipp.make_vec_env("env3", fusion=...)`` for "mean" vs "sendfuse"
    (4 UAVs, budget 15, one copy, random valid actions), one thread.
 
 Run: ``python benchmarks/sendfuse_speed.py [--repeats 300] [--steps 600]``.
@@ -22,10 +22,10 @@ import time
 import numpy as np
 import torch
 
-import envs
-from envs import layout
+import uav_ipp
 from sb3_coma.sendfuse.network import SenDFuseNet, tune_cpu_allocator
 from sb3_coma.sendfuse.weights import SenDFuseWeightsError, default_weights_path, load_weights
+from uav_ipp import layout
 
 
 def _network() -> tuple[SenDFuseNet, str]:
@@ -39,7 +39,7 @@ def _network() -> tuple[SenDFuseNet, str]:
 
 def _realistic_inputs(uavs: int, sources: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Received maps after a few steps of a random env3 mission, all slots valid (worst case)."""
-    env = envs.make_env("env3", n_uavs=max(uavs, sources), noise="moderate", comm_range=float("inf"))
+    env = uav_ipp.make_env("env3", n_uavs=max(uavs, sources), noise="moderate", comm_range=float("inf"))
     obs, _ = env.reset(seed=0)
     rng = np.random.default_rng(0)
     for _ in range(5):
@@ -74,7 +74,7 @@ def time_fusion(uavs: int = 4, sources: int = 4, repeats: int = 300) -> dict[str
 
 def env_rate(fusion: str, steps: int = 600, seed: int = 0) -> float:
     """Joint steps per second of the SB3 vec env with the given fusion wrapper (one copy)."""
-    venv = envs.make_vec_env("env3", n_envs=1, fusion=fusion, seed=seed, n_uavs=4, budget=15)
+    venv = uav_ipp.make_vec_env("env3", n_envs=1, fusion=fusion, seed=seed, n_uavs=4, budget=15)
     rng = np.random.default_rng(seed)
     obs = venv.reset()
 

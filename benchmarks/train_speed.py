@@ -33,7 +33,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
-import envs
+import uav_ipp
 from sb3_coma.app.export import fusion_wrapper
 from sb3_coma.app.training import build_model, make_training_env, plan_run
 
@@ -87,7 +87,7 @@ def parse_args() -> argparse.Namespace:
 
 def raw_env_missions_per_s(env: str, missions: int, seed: int) -> float:
     """Missions/s of the raw ParallelEnv in this process (one core), random valid actions."""
-    world = envs.make_env(env, split="train", reward="metrics", action_gain=True)
+    world = uav_ipp.make_env(env, split="train", reward="metrics", action_gain=True)
     rng = np.random.default_rng(seed)
     start = 0.0
     for k in range(-1, missions):  # mission -1 is a warm-up: numba kernels compiled or loaded from cache

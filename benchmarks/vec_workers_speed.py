@@ -2,7 +2,7 @@
 
 Setting of ``env_throughput.py`` (env3, 4 UAVs, budget 15, moderate noise, uniformly random
 *valid* actions, one thread per process) with ``n_envs`` copies: the raw PettingZoo env (one copy,
-this process), then ``envs.make_vec_env`` with ``workers=1`` (in process), ``workers=2``
+this process), then ``uav_ipp.make_vec_env`` with ``workers=1`` (in process), ``workers=2``
 (subprocess backend) and ``workers=2`` (Ray backend, a local Ray), for the ``mean`` and
 ``sendfuse`` fusions. A joint step is one step of one env copy (all its UAVs); a mission is
 ``budget`` joint steps. Each vec env flies one warm-up mission per copy before the timed missions;
@@ -24,11 +24,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # also for the workers, which inh
 
 import numpy as np
 
-import envs
-from envs import layout
+import uav_ipp
+from uav_ipp import layout
 
 BUDGET, N_UAVS = 15, 4
-#: ``--parts`` name -> (workers, backend) of ``envs.make_vec_env``.
+#: ``--parts`` name -> (workers, backend) of ``uav_ipp.make_vec_env``.
 SETUPS = {"1": (1, "subprocess"), "2": (2, "subprocess"), "ray": (2, "ray")}
 
 
@@ -42,7 +42,7 @@ def pick_valid(masks: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 def bench_raw(name: str, missions: int, seed: int) -> tuple[float, float]:
     """The raw ParallelEnv, one copy in this process: (joint steps/s, missions/s)."""
-    env = envs.make_env(name, n_uavs=N_UAVS, budget=BUDGET)
+    env = uav_ipp.make_env(name, n_uavs=N_UAVS, budget=BUDGET)
     rng = np.random.default_rng(seed)
     env.reset(seed=seed)
     steps = 0
@@ -62,7 +62,7 @@ def bench_vec(name: str, n_envs: int, missions: int, seed: int, fusion: str, par
     """``make_vec_env`` with the part's workers/backend: (build s, joint steps/s, missions/s)."""
     workers, backend = SETUPS[part]
     start = time.perf_counter()
-    venv = envs.make_vec_env(
+    venv = uav_ipp.make_vec_env(
         name, n_envs=n_envs, fusion=fusion, seed=seed, workers=workers, backend=backend, n_uavs=N_UAVS, budget=BUDGET
     )
     rng = np.random.default_rng(seed)

@@ -1,63 +1,74 @@
-"""The world side of sb3-coma: the multi-UAV IPP PettingZoo environment and its vectorisation.
+"""The world side of sb3-coma, installed as ``uav_ipp``: the multi-UAV IPP PettingZoo environment
+and its vectorisation.
 
-Public entry points (DESIGN section 7):
+Public entry points (docs/design.md, "Public names"):
 
 * :func:`make_env` -> PettingZoo ``ParallelEnv`` with raw observations;
 * :func:`make_vec_env` -> SB3 ``VecEnv`` (SuperSuit + fusion wrapper + adapter + VecMonitor), its
   copies in this process or, with ``workers=`` / ``backend=``, in worker processes or Ray actors;
-* gymnasium ids ``UavIpp-Env1-v0`` .. ``UavIpp-Env3-v0`` (vector entry points).
+* gymnasium ids ``UavIpp-Env1-v0`` .. ``UavIpp-Env3-v0`` (vector entry points), registered on import.
+
+Importing the package is cheap (the ids and :mod:`uav_ipp.layout` only): the numba kernels, maps,
+SuperSuit and SB3 load when a name below is first used (PEP 562), so a learner that only needs the
+observation layout (``sb3_coma``'s UAV policy) does not pay for the whole world.
 """
 
 from __future__ import annotations
 
-from typing import Any
+import importlib
+from typing import TYPE_CHECKING, Any
 
-from stable_baselines3.common.vec_env import VecEnv
+if __name__ != "uav_ipp":  # the source folder ``envs/`` imported under its folder name
+    raise ImportError(
+        f"the sb3-coma world installs as `uav_ipp`, not `{__name__}`: use `import uav_ipp` "
+        "(pip install sb3-coma, or pip install -e . in a checkout)"
+    )
 
-from .config import NOISE_PRESETS, WORLD_VERSION, ConfigError, IppConfig
-from .fusion import DEFAULT_FUSION, available_fusions
-from .ipp_env import UavIppEnv
-from .maps import GroundTruth, MapError, available_maps, load_ground_truth
 from .registration import ENV_IDS, map_name_of, register_envs
-from .vec_env import DEFAULT_MAP, IppVecEnv, check_copies_and_seed
-from .vec_env import make_vec_env as _make_vec_env
-from .workers import BACKENDS, EnvWorkerError, WorkerVecEnv, check_workers, make_worker_vec_env
+
+if TYPE_CHECKING:
+    from .api import make_env, make_vec_env
+    from .config import NOISE_PRESETS, WORLD_VERSION, ConfigError, IppConfig
+    from .fusion import DEFAULT_FUSION, available_fusions
+    from .ipp_env import UavIppEnv
+    from .maps import GroundTruth, MapError, available_maps, load_ground_truth
+    from .vec_env import DEFAULT_MAP, IppVecEnv
+    from .workers import BACKENDS, EnvWorkerError, WorkerVecEnv
+
+#: Public name -> the submodule that defines it (imported on first use).
+_LAZY = {
+    "make_env": "api",
+    "make_vec_env": "api",
+    "NOISE_PRESETS": "config",
+    "WORLD_VERSION": "config",
+    "ConfigError": "config",
+    "IppConfig": "config",
+    "DEFAULT_FUSION": "fusion",
+    "available_fusions": "fusion",
+    "UavIppEnv": "ipp_env",
+    "GroundTruth": "maps",
+    "MapError": "maps",
+    "available_maps": "maps",
+    "load_ground_truth": "maps",
+    "DEFAULT_MAP": "vec_env",
+    "IppVecEnv": "vec_env",
+    "BACKENDS": "workers",
+    "EnvWorkerError": "workers",
+    "WorkerVecEnv": "workers",
+}
 
 
-def make_env(name: str = DEFAULT_MAP, **options: Any) -> UavIppEnv:
-    """A PettingZoo ``ParallelEnv`` for the named map (``env1``/``env2``/``env3``, a gymnasium id,
-    or any name with ``map_path=`` and ``valuable=``); options as in :class:`IppConfig`."""
-    return UavIppEnv(IppConfig.from_options(map_name_of(name), **options))
+def __getattr__(name: str) -> Any:
+    """PEP 562: the heavy parts of the world load when one of their names is first used."""
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def make_vec_env(
-    name: str = DEFAULT_MAP,
-    n_envs: int = 1,
-    fusion: str = DEFAULT_FUSION,
-    seed: int | None = None,
-    workers: int = 1,
-    backend: str = "subprocess",
-    ray_address: str | None = None,
-    **options: Any,
-) -> VecEnv:
-    """SB3 ``VecEnv`` of ``n_envs`` copies; agent ``a`` of copy ``e`` at index ``e * n_agents + a``.
-
-    ``fusion``: ``"sendfuse"`` (default), ``"mean"``, ``"none"`` or any name in
-    :func:`available_fusions`; ``options``: :class:`IppConfig` options, ``fusion_kwargs``, ``monitor``.
-
-    Scale-out (docs/scaling.md): ``workers=1`` with the default backend steps every copy in this
-    process (:class:`IppVecEnv`); ``workers=W > 1`` splits the copies into ``W`` contiguous blocks
-    stepped in worker processes (``backend="subprocess"``) or, with ``backend="ray"`` (any
-    ``workers``), in Ray actors on this machine or on the cluster at ``ray_address``. Row order,
-    seeds and so trajectories are the same whatever ``workers`` and ``backend`` are."""
-    check_copies_and_seed(n_envs, seed)
-    check_workers(int(n_envs), workers, backend, ray_address)
-    if workers == 1 and backend == "subprocess":
-        return _make_vec_env(map_name_of(name), n_envs=n_envs, fusion=fusion, seed=seed, **options)
-    return make_worker_vec_env(
-        map_name_of(name), n_envs=n_envs, fusion=fusion, seed=seed, workers=int(workers), backend=backend,
-        ray_address=ray_address, **options,
-    )  # fmt: skip
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_LAZY])
 
 
 register_envs()
@@ -82,4 +93,5 @@ __all__ = [
     "load_ground_truth",
     "make_env",
     "make_vec_env",
+    "map_name_of",
 ]

@@ -1,6 +1,6 @@
 """Validated, typed options of the IPP environment.
 
-Every option a user can pass to :func:`envs.make_env` lives here with its default (DESIGN
+Every option a user can pass to :func:`uav_ipp.make_env` lives here with its default (DESIGN
 section 3). ``IppConfig.from_options(**options)`` is the single place where user input is
 checked, so a bad value fails at construction with a message naming the option, the value and
 what is allowed, instead of a traceback from deep inside a footprint kernel.

@@ -9,7 +9,7 @@ expected drop of the entropy the mission rewards: ipp-marl's class-weighted entr
 The gain depends on the cell's log-odds only, so :func:`build_local_table` tabulates it for every
 fixed-point log-odds value and every altitude level, next to the probability and entropy. The
 kernels keep, per UAV, the sum of each gain column over every *gain strip* cell of its own local
-map M_i (``envs.geometry``: footprints are exact unions of strips), so the gain of any candidate
+map M_i (``uav_ipp.geometry``: footprints are exact unions of strips), so the gain of any candidate
 footprint is a sum over a few hundred strip cells, exact, and never a pass over belief cells.
 """
 
@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from envs import kernels
+from uav_ipp import kernels
 
 WEIGHTINGS = ("class", "plain")
 #: Altitude levels the tables and kernels carry a gain column for (``kernels.GAIN_SLOTS`` / 2).

@@ -4,7 +4,7 @@ One instance is one mission: ``n_uavs`` UAVs on an 11 x 11 lattice at three alti
 binary ground truth with an altitude-dependent noisy camera, exchange their sensor maps over a
 noisy channel, and are rewarded together for reducing the class-weighted entropy of the global
 map (DESIGN section 3). All per-step work is bounded by the footprints' areas: the global belief
-and everything derived from it are updated incrementally by :mod:`envs.kernels`.
+and everything derived from it are updated incrementally by :mod:`uav_ipp.kernels`.
 
 Semantics worth knowing (also in ``docs/environment.md``):
 
@@ -543,7 +543,7 @@ class UavIppEnv(ParallelEnv):
         return self._readings[uav, : fp.r1 - fp.r0, : fp.c1 - fp.c0].copy()
 
     def gain_strip_sums(self) -> np.ndarray:
-        """(N, W, A, S, S) per UAV, weighting (``envs.gain.WEIGHTINGS``), altitude level and gain strip
+        """(N, W, A, S, S) per UAV, weighting (``uav_ipp.gain.WEIGHTINGS``), altitude level and gain strip
         cell: the summed expected gain of one reading, from the UAV's own M_i (what AG plans with)."""
         n, s = self.n_uavs, self.geometry.n_strips
         sums = self._l_strip.reshape(n, len(WEIGHTINGS), gain.MAX_LEVELS, s, s)

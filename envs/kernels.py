@@ -7,7 +7,7 @@ Why it looks like this (measured, ``benchmarks/env_throughput.py``, docs/environ
   entropy, class-weighted entropy, expected information gain of a reading at each altitude) is
   then one row of a small table (4001 rows: 64-160 KB, resident in L2), never a logarithm;
 * a footprint is walked *segment* by segment (runs of cells sharing a lattice block, a comm cell
-  and a gain strip, :class:`envs.geometry.FieldGeometry`), and running sums are flushed once per
+  and a gain strip, :class:`uav_ipp.geometry.FieldGeometry`), and running sums are flushed once per
   segment, so no store-to-load chain serialises the loop;
 * the sender's pass updates the global map and its own M_i from the same readings in one go;
   each receiver's pass decodes the sender's noisy image into its M_i;
@@ -59,7 +59,7 @@ REWARD_ENTROPIES = ("plain", "weighted")
 
 # Columns of the global table.
 G_REWARD, G_ENTROPY, G_PROB = 0, 1, 2
-# Columns of the local table: probability, entropy, then the gains (see envs.gain).
+# Columns of the local table: probability, entropy, then the gains (see uav_ipp.gain).
 L_PROB, L_ENTROPY, L_GAIN0 = 0, 1, 2
 # Global scalars accumulated by the kernels.
 S_REWARD, S_ENT_TRUE, S_TP, S_PP = 0, 1, 2, 3
@@ -315,7 +315,7 @@ class Tables(NamedTuple):
     gstep: np.ndarray
     #: (2 A TABLE_SIZE, 2 + GAIN_SLOTS) float32, the same for the local table.
     lstep: np.ndarray
-    #: (TABLE_SIZE, 2 + GAIN_SLOTS) float32 local table: probability, entropy, gains (``envs.gain``).
+    #: (TABLE_SIZE, 2 + GAIN_SLOTS) float32 local table: probability, entropy, gains (``uav_ipp.gain``).
     ltab: np.ndarray
     #: (NORMAL_LEVELS,) float32 standard-normal quantiles of the channel noise (:func:`normal_table`).
     normals: np.ndarray
@@ -326,7 +326,7 @@ class Tables(NamedTuple):
 
 
 class Geometry(NamedTuple):
-    """Static index arrays of the field (``envs.geometry.FieldGeometry.kernel_geometry``)."""
+    """Static index arrays of the field (``uav_ipp.geometry.FieldGeometry.kernel_geometry``)."""
 
     #: (lattice, A, 2) int64 half-open belief-cell range of a footprint along one axis.
     ranges: np.ndarray

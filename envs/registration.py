@@ -12,9 +12,6 @@ from typing import Any
 
 import gymnasium
 
-from .fusion import DEFAULT_FUSION
-from .vec_env import IppVecEnv, make_vec_env
-
 ENV_IDS: dict[str, str] = {
     "UavIpp-Env1-v0": "env1",
     "UavIpp-Env2-v0": "env2",
@@ -30,13 +27,18 @@ def map_name_of(env_id_or_name: str) -> str:
 def single_agent_entry_point(**kwargs: Any):
     raise TypeError(
         "UavIpp environments are multi-agent: use gymnasium.make_vec(id, num_envs=...), "
-        "envs.make_env(name) (PettingZoo ParallelEnv) or envs.make_vec_env(name) (SB3 VecEnv)"
+        "uav_ipp.make_env(name) (PettingZoo ParallelEnv) or uav_ipp.make_vec_env(name) (SB3 VecEnv)"
     )
 
 
-def vector_entry_point(name: str, num_envs: int = 1, fusion: str = DEFAULT_FUSION, **options: Any):
-    """gymnasium ``make_vec`` entry: the fused gymnasium vector env of ``num_envs`` copies."""
-    sb3_env = make_vec_env(name, n_envs=num_envs, fusion=fusion, monitor=False, **options)
+def vector_entry_point(name: str, num_envs: int = 1, fusion: str | None = None, **options: Any):
+    """gymnasium ``make_vec`` entry: the fused gymnasium vector env of ``num_envs`` copies
+    (``fusion=None``: the world's default fusion). Imports the world when first called, so that
+    registering the ids on ``import uav_ipp`` costs nothing."""
+    from .fusion import DEFAULT_FUSION
+    from .vec_env import IppVecEnv, make_vec_env
+
+    sb3_env = make_vec_env(name, n_envs=num_envs, fusion=fusion or DEFAULT_FUSION, monitor=False, **options)
     assert isinstance(sb3_env, IppVecEnv)
     return sb3_env.venv
 
@@ -46,7 +48,7 @@ def register_envs() -> None:
         if env_id not in gymnasium.registry:
             gymnasium.register(
                 id=env_id,
-                entry_point="envs.registration:single_agent_entry_point",
-                vector_entry_point="envs.registration:vector_entry_point",
+                entry_point="uav_ipp.registration:single_agent_entry_point",
+                vector_entry_point="uav_ipp.registration:vector_entry_point",
                 kwargs={"name": name},
             )

@@ -109,7 +109,7 @@ class IppVecEnv(VecEnv):
 
 def check_copies_and_seed(n_envs: Any, seed: Any) -> None:
     """One-line :class:`ConfigError` for a bad ``n_envs`` or ``seed``; shared with the worker
-    pipeline (``envs.workers``), which must refuse them before it starts any process."""
+    pipeline (``uav_ipp.workers``), which must refuse them before it starts any process."""
     if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
         raise ConfigError(f"invalid option n_envs={n_envs!r}: an integer >= 1 (env copies)")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
@@ -130,7 +130,7 @@ def make_vec_env(
     ``fusion`` is ``"sendfuse"`` (the paper's; provided by sb3-coma through the ``uav_ipp.fusion``
     entry point), ``"mean"`` (the ablation's naive average) or ``"none"`` (the raw observation,
     for tools); ``fusion_kwargs`` are the fusion wrapper's options; ``options`` are environment
-    options (:class:`envs.config.IppConfig`).
+    options (:class:`uav_ipp.config.IppConfig`).
     """
     check_copies_and_seed(n_envs, seed)
     config = IppConfig.from_options(name, **options)

@@ -58,7 +58,7 @@ from .fusion import RAW_FUSION, available_fusions, fusion_factory
 from .vec_env import IppVecEnv, check_copies_and_seed
 from .vec_env import make_vec_env as make_in_process_vec_env
 
-#: ``backend=`` values of :func:`make_worker_vec_env` (and ``envs.make_vec_env``).
+#: ``backend=`` values of :func:`make_worker_vec_env` (and ``uav_ipp.make_vec_env``).
 BACKENDS = ("subprocess", "ray")
 #: How often (s) a waiting learner checks that the worker it waits for is still alive.
 POLL_INTERVAL_S = 0.1

@@ -21,7 +21,7 @@ from gymnasium import spaces
 from stable_baselines3.common.logger import KVWriter, Logger
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-from envs import layout
+from uav_ipp import layout
 
 SIZE = layout.LATTICE
 # (dx, dy, dz) per action: 0 up, 1 -x, 2 -y, 3 +y, 4 +x, 5 down.
@@ -214,7 +214,7 @@ class FakeUavVecEnv(VecEnv):
 def make_fake_vec_env(
     n_envs: int = 2, n_agents: int = 2, budget: int = 6, seed: int | None = None, **kwargs: Any
 ) -> VecMonitor:
-    """The fake env wrapped like ``envs.make_vec_env`` wraps the real one (``VecMonitor`` outside)."""
+    """The fake env wrapped like ``uav_ipp.make_vec_env`` wraps the real one (``VecMonitor`` outside)."""
     venv = FakeUavVecEnv(n_envs=n_envs, n_agents=n_agents, budget=budget, **kwargs)
     if seed is not None:
         venv.seed(seed)

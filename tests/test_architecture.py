@@ -2,8 +2,8 @@
 
 Layers, by folder; each imports only from its own layer and the layers below it:
 
-0. ``envs`` (the world): imports nothing from ``sb3_coma``. Fusion wrappers that live on the
-   algorithm side (SenDFuse) reach ``envs.make_vec_env`` through the ``uav_ipp.fusion`` entry
+0. ``uav_ipp`` (the world, source folder ``envs/``): imports nothing from ``sb3_coma``. Fusion wrappers that live on the
+   algorithm side (SenDFuse) reach ``uav_ipp.make_vec_env`` through the ``uav_ipp.fusion`` entry
    point, looked up when an env is wrapped.
 1. the library: ``sb3_coma/coma/`` (the algorithm), ``sb3_coma/sendfuse/``, ``sb3_coma/baselines/``,
    ``sb3_coma/common/`` (evaluation of objects, tables, extractors, callbacks, checkpoints, paired
@@ -46,12 +46,12 @@ LAYERS: dict[str, int] = {
     "sb3_coma.cli": 4,
     "sb3_coma.__main__": 4,
 }
-LAYER_NAMES = {0: "envs", 1: "library", 2: "application", 3: "experiments", 4: "cli"}
+LAYER_NAMES = {0: "uav_ipp", 1: "library", 2: "application", 3: "experiments", 4: "cli"}
 
 
 def layer_of(module: str) -> int | None:
     """The layer of a module of this repository (``None``: not ours, e.g. numpy)."""
-    if module == "envs" or module.startswith("envs."):
+    if module == WORLD or module.startswith(WORLD + "."):
         return 0
     if module == "sb3_coma":
         return LAYERS["sb3_coma"]
@@ -71,15 +71,24 @@ class Import:
         return f"{self.where}: {self.module} imports {self.target}"
 
 
+#: The world installs as ``uav_ipp`` from the source folder ``envs/`` (setup.cfg ``package_dir``).
+WORLD, WORLD_SOURCE = "uav_ipp", "envs"
+
+
 def _module_name(path: Path) -> str:
     parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[0] == WORLD_SOURCE:
+        parts[0] = WORLD
     if parts[-1] == "__init__":
         parts.pop()
     return ".".join(parts)
 
 
 def _is_module(dotted: str) -> bool:
-    base = ROOT.joinpath(*dotted.split("."))
+    parts = dotted.split(".")
+    if parts[0] == WORLD:
+        parts[0] = WORLD_SOURCE
+    base = ROOT.joinpath(*parts)
     return base.with_suffix(".py").is_file() or (base / "__init__.py").is_file()
 
 
@@ -150,9 +159,9 @@ def test_the_walker_sees_imports_everywhere(tmp_path: Path) -> None:
     assert {"sb3_coma.app.training", "sb3_coma.app.zoo", "sb3_coma.cli"} <= got
 
 
-def test_envs_imports_nothing_from_sb3_coma() -> None:
-    bad = [imp for imp in _all_imports("envs") if imp.target == "sb3_coma" or imp.target.startswith("sb3_coma.")]
-    assert not bad, "envs must not import sb3_coma (docs/design.md):\n" + "\n".join(map(str, bad))
+def test_the_world_imports_nothing_from_sb3_coma() -> None:
+    bad = [imp for imp in _all_imports(WORLD_SOURCE) if imp.target == "sb3_coma" or imp.target.startswith("sb3_coma.")]
+    assert not bad, "uav_ipp must not import sb3_coma (docs/design.md):\n" + "\n".join(map(str, bad))
 
 
 def test_every_module_sits_in_a_layer_folder() -> None:

@@ -7,20 +7,20 @@ import itertools
 import numpy as np
 import pytest
 
-import envs
-from envs import layout
-from envs.gain import gain_density
-from envs.ipp_env import ACTION_DELTAS
+import uav_ipp
 from sb3_coma.baselines import PLANNERS, make_planner, plan_team, planner_class
 from sb3_coma.baselines.adaptive_gain import heard_matrix, strip_sums
 from sb3_coma.baselines.lawnmower import axis_ranges, best_lanes, union_length
 from sb3_coma.baselines.navigation import best_move, distance_field
 from sb3_coma.baselines.oracle import OTHER_WEIGHT, clairvoyant_density
+from uav_ipp import layout
+from uav_ipp.gain import gain_density
+from uav_ipp.ipp_env import ACTION_DELTAS
 
 
 @pytest.fixture(scope="module")
 def geometry():
-    return envs.make_env("env1").geometry
+    return uav_ipp.make_env("env1").geometry
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +71,7 @@ def _brute_gain(geometry, belief, flips, target, weighting="class"):
 
 def _fly(method, name="env1", n_envs=1, seed=0, **options):
     """Fly one batch of missions; return the planner, every (mask, action) pair and the last infos."""
-    venv = envs.make_vec_env(name, n_envs=n_envs, fusion="mean", seed=seed, **options)
+    venv = uav_ipp.make_vec_env(name, n_envs=n_envs, fusion="mean", seed=seed, **options)
     planner = make_planner(method, venv, seed=seed)
     obs = venv.reset()
     pairs, infos = [], None
@@ -93,7 +93,7 @@ def _all_valid(pairs):
 def test_registry_and_errors():
     assert set(PLANNERS) == {"random", "lawnmower", "ag", "oracle"}
     assert planner_class("NL").name == "lawnmower"
-    venv = envs.make_vec_env("env1", n_envs=1, budget=2)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, budget=2)
     with pytest.raises(ValueError, match=r"unknown baseline 'greedy'.*ag.*lawnmower.*random"):
         make_planner("greedy", venv)
     with pytest.raises(ValueError, match="altitude"):
@@ -109,7 +109,7 @@ def test_registry_and_errors():
 
 # ------------------------------------------------------------------ random
 def test_random_is_valid_uniform_and_seeded():
-    venv = envs.make_vec_env("env1", n_envs=1, budget=2)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, budget=2)
     obs = venv.reset()
     mask = np.tile(np.array([[1, 0, 1, 1, 0, 1]], np.int8), (4, 1))
     obs = dict(obs, action_mask=mask)
@@ -143,7 +143,7 @@ def test_lawnmower_covers_field_within_budget(geometry):
 
 
 def test_lawnmower_reaches_lanes_at_sweep_altitude():
-    venv = envs.make_vec_env("env1", n_envs=1, seed=0)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, seed=0)
     planner = make_planner("lawnmower", venv)
     obs = venv.reset()
     for _ in range(6):
@@ -277,7 +277,7 @@ def test_lookahead_one_is_ag_and_deeper_search_sees_further(geometry, flips):
 def test_lookahead_planner_flies_valid_and_reports_bad_options():
     planner, _pairs, _infos = _fly("ag", n_envs=1, budget=3)
     assert planner.lookahead == 1
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, budget=3)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, budget=3)
     deep = make_planner("ag", venv, seed=0, lookahead=2, weighting="plain")
     obs = venv.reset()
     for _ in range(3):
@@ -302,7 +302,7 @@ def test_ag_end_to_end_valid_and_seeded():
 # ---------------------------------------------------------------------------------------------
 def _fly_final(planner_name, seed=3, **kwargs):
     """Final (f1, entropy, team_entropy, actions) of one env1 mission with a planner."""
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=seed, split="test", start="random")
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=seed, split="test", start="random")
     planner = make_planner(planner_name, venv, seed=seed, **kwargs)
     obs, actions = venv.reset(), []
     for _ in range(15):
@@ -314,7 +314,7 @@ def _fly_final(planner_name, seed=3, **kwargs):
 
 
 def test_strip_sums_match_the_brute_force_sum():
-    env = envs.make_env("env1")
+    env = uav_ipp.make_env("env1")
     rng = np.random.default_rng(0)
     density = rng.random((env.config.grid, env.config.grid))
     fast = strip_sums(density, env.geometry)
@@ -331,7 +331,7 @@ def test_heard_matrix_follows_the_range():
 
 
 def test_comm_only_ag_equals_shared_ag_with_unlimited_range_and_differs_when_out_of_range():
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=3, split="test", start="random", comm_range=1e9)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=3, split="test", start="random", comm_range=1e9)
     a = make_planner("ag", venv, seed=3, knowledge="comm")
     b = make_planner("ag", venv, seed=3, knowledge="shared")
     obs = venv.reset()
@@ -342,7 +342,7 @@ def test_comm_only_ag_equals_shared_ag_with_unlimited_range_and_differs_when_out
         obs, *_ = venv.step(act_a)
     venv.close()
     # with no range at all no UAV hears another: claims are ignored, so the plans differ somewhere
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=3, split="test", start="random", comm_range=0.0)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=3, split="test", start="random", comm_range=0.0)
     deaf, full = make_planner("ag", venv, seed=3, knowledge="comm"), make_planner("ag", venv, seed=3)
     obs = venv.reset()
     differs = False
@@ -368,7 +368,7 @@ def test_oracle_density_prefers_truly_valuable_cells():
 def test_central_scores_by_table_lookup_equal_the_per_cell_formula(planner, kwargs):
     """The oracle and central AG look each cell's score up by its stored log-odds: the strip sums
     they plan with equal those of the formula applied to ``global_belief`` cell by cell."""
-    venv = envs.make_vec_env("env1", n_envs=2, seed=3)
+    venv = uav_ipp.make_vec_env("env1", n_envs=2, seed=3)
     p = make_planner(planner, venv, seed=0, **kwargs)
     obs = venv.reset()
     p.reset()

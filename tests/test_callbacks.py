@@ -9,7 +9,7 @@ import pytest
 from stable_baselines3.common.logger import KVWriter, Logger, make_output_format
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
-import envs
+import uav_ipp
 from sb3_coma.coma import COMA
 from sb3_coma.common.callbacks import (
     EpisodeMetricsCallback,
@@ -75,7 +75,7 @@ class Capture(KVWriter):
 
 
 def make_env(n_envs: int = 2, seed: int = 0) -> Recorder:
-    venv = envs.make_vec_env("env1", n_envs=n_envs, fusion="mean", seed=seed, n_uavs=N_AGENTS, budget=BUDGET)
+    venv = uav_ipp.make_vec_env("env1", n_envs=n_envs, fusion="mean", seed=seed, n_uavs=N_AGENTS, budget=BUDGET)
     return Recorder(venv)
 
 

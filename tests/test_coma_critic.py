@@ -6,10 +6,10 @@ import pytest
 import torch as th
 from coma_fakes import make_fake_vec_env, one_torch_thread  # noqa: F401 (autouse fixture)
 
-from envs import layout
 from sb3_coma.coma import COMA
 from sb3_coma.coma.policies import critic_input, other_actions_map
 from sb3_coma.coma.targets import counterfactual_advantage
+from uav_ipp import layout
 
 SMALL = dict(features_extractor_kwargs=dict(channels=(8, 16, 16), features_dim=32))
 

@@ -1,4 +1,4 @@
-"""End-to-end on the real environment: COMA trains, logs, saves and loads on envs.make_vec_env."""
+"""End-to-end on the real environment: COMA trains, logs, saves and loads on uav_ipp.make_vec_env."""
 
 from __future__ import annotations
 
@@ -11,13 +11,13 @@ from coma_fakes import capture_logger, one_torch_thread  # noqa: F401 (autouse f
 
 from sb3_coma.coma import COMA
 
-envs = pytest.importorskip("envs")
+uav_ipp = pytest.importorskip("uav_ipp")
 
 SMALL = dict(features_extractor_kwargs=dict(channels=(8, 16, 16), features_dim=32))
 
 
 def make_env(seed: int = 0):
-    return envs.make_vec_env("env1", n_envs=2, fusion="mean", n_uavs=2, budget=6, seed=seed)
+    return uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", n_uavs=2, budget=6, seed=seed)
 
 
 def test_learn_log_save_load_on_env1(tmp_path: Path) -> None:

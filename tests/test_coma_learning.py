@@ -77,9 +77,9 @@ def real_env_finals(
 ) -> dict[str, float]:
     """Mean final metrics over seeded unseen missions (``split="test"``, random starts);
     ``policy=None`` is the uniform-random-valid policy."""
-    import envs
+    import uav_ipp
 
-    venv = envs.make_vec_env("env1", n_envs=2, seed=seed, split="test", **REAL)
+    venv = uav_ipp.make_vec_env("env1", n_envs=2, seed=seed, split="test", **REAL)
     config = venv.get_attr("config", indices=[0])[0]
     assert (config.split, config.start_rule) == ("test", "random")  # unseen scenes, random starts
     rng = np.random.default_rng(seed)
@@ -101,9 +101,9 @@ def real_env_finals(
 
 def train_on_real_env(seed: int = 0, timesteps: int = 2048) -> COMA:
     """COMA on ``split="train"`` missions only (the test split's scenes are never flown here)."""
-    import envs
+    import uav_ipp
 
-    venv = envs.make_vec_env("env1", n_envs=2, seed=seed, split="train", **REAL)
+    venv = uav_ipp.make_vec_env("env1", n_envs=2, seed=seed, split="train", **REAL)
     model = COMA(
         "CBAMPolicy",
         venv,

@@ -5,16 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import envs
-from envs import layout
-from envs.config import ConfigError
+import uav_ipp
+from uav_ipp import layout
+from uav_ipp.config import ConfigError
 
 #: A fixed flight for every UAV (hover, sweep, descend), so channel settings can be compared.
 PLAN = [3, 4, 3, 5, 4, 2, 1, 4]
 
 
 def fly(plan=PLAN, seed=3, **options):
-    env = envs.make_env("env3", budget=len(plan), **options)
+    env = uav_ipp.make_env("env3", budget=len(plan), **options)
     obs, _ = env.reset(seed=seed)
     infos = []
     for action in plan:
@@ -87,8 +87,8 @@ def test_global_map_and_paper_metrics_ignore_every_channel_setting(channel):
 
 
 def test_explicit_alpha_low_and_sigma_override_the_preset():
-    assert envs.make_env("env1", noise="loud", sigma=0.0).config.noise_params == (0.6, 0.0)
-    assert envs.make_env("env1", noise="none", alpha_low=0.5).config.noise_params == (0.5, 0.0)
+    assert uav_ipp.make_env("env1", noise="loud", sigma=0.0).config.noise_params == (0.6, 0.0)
+    assert uav_ipp.make_env("env1", noise="none", alpha_low=0.5).config.noise_params == (0.5, 0.0)
     quiet = fly(noise="loud", alpha_low=1.0, sigma=0.0, comm_range=float("inf"))[0]
     none = fly(noise="none", comm_range=float("inf"))[0]
     np.testing.assert_array_equal(quiet.local_logodds(), none.local_logodds())
@@ -131,4 +131,4 @@ def test_received_map_is_the_comm_grid_average_of_the_noisy_image():
 )
 def test_new_channel_options_are_validated(options, name):
     with pytest.raises(ConfigError, match=name):
-        envs.make_env("env1", **options)
+        uav_ipp.make_env("env1", **options)

@@ -13,15 +13,15 @@ import math
 import numpy as np
 import pytest
 
-import envs
-from envs import kernels, layout
+import uav_ipp
+from uav_ipp import kernels, layout
 
 #: Two UAVs in opposite corners at 15 m: footprints never overlap, so each UAV's M_i holds its own
 #: readings in its footprint and only the other's message in the other footprint.
 CORNERS = [(0.0, 0.0, 15.0), (50.0, 50.0, 15.0)]
 
 
-def _fly(env: envs.UavIppEnv, seed: int | None, plan: list[list[int]]) -> list[dict]:
+def _fly(env: uav_ipp.UavIppEnv, seed: int | None, plan: list[list[int]]) -> list[dict]:
     """Reset and fly ``plan`` (one action per UAV per step); record, per measurement, every UAV's
     readings, the change of every M_i and of the global map, the links, rewards and infos."""
     frames = []
@@ -58,8 +58,8 @@ def test_same_measurement_gets_the_same_reading_under_different_plans():
     # uav_0: +x then -x, or -x then +x; uav_1: +y then -y, or down then up; then both descend
     plan_a = [[4, 3], [1, 2], [5, 5]]
     plan_b = [[1, 5], [4, 0], [5, 5]]
-    a = _fly(envs.make_env("env3", **options), 11, plan_a)
-    b = _fly(envs.make_env("env3", **options), 11, plan_b)
+    a = _fly(uav_ipp.make_env("env3", **options), 11, plan_a)
+    b = _fly(uav_ipp.make_env("env3", **options), 11, plan_b)
     assert not np.array_equal(a[1]["pos"], b[1]["pos"])  # the plans really differ on step 1
     for k in (0, 2, 3):
         np.testing.assert_array_equal(a[k]["pos"], b[k]["pos"])
@@ -79,8 +79,8 @@ def test_same_measurement_gets_the_same_reading_under_different_plans():
 def test_same_seed_and_actions_replay_bit_for_bit():
     options = dict(n_uavs=4, budget=6, noise="loud", drop_probability=0.3, split="train")
     plan = [[3, 4, 2, 5], [5, 1, 0, 3], [2, 2, 4, 1], [4, 5, 5, 0], [0, 3, 1, 2], [1, 0, 3, 4]]
-    first = _fly(envs.make_env("env3", **options), 5, plan)
-    env = envs.make_env("env3", **options)
+    first = _fly(uav_ipp.make_env("env3", **options), 5, plan)
+    env = uav_ipp.make_env("env3", **options)
     _fly(env, 6, plan)  # another mission in between: nothing carries over
     second = _fly(env, 5, plan)
     for fa, fb in zip(first, second):
@@ -96,8 +96,8 @@ def test_same_seed_and_actions_replay_bit_for_bit():
 
 def test_different_seeds_draw_different_noise():
     options = dict(n_uavs=2, start_positions=CORNERS, budget=1, noise="loud", comm_range=float("inf"))
-    a = _fly(envs.make_env("env3", **options), 0, [[0, 0]])
-    b = _fly(envs.make_env("env3", **options), 1, [[0, 0]])
+    a = _fly(uav_ipp.make_env("env3", **options), 0, [[0, 0]])
+    b = _fly(uav_ipp.make_env("env3", **options), 1, [[0, 0]])
     for k in range(2):
         np.testing.assert_array_equal(a[k]["pos"], b[k]["pos"])  # same fixed mission, same positions
         assert not np.array_equal(a[k]["readings"][0], b[k]["readings"][0])
@@ -107,7 +107,7 @@ def test_different_seeds_draw_different_noise():
 
 
 def test_unseeded_resets_vary_and_follow_the_env_generator():
-    env = envs.make_env("env3", n_uavs=2, start_positions=CORNERS, budget=1)
+    env = uav_ipp.make_env("env3", n_uavs=2, start_positions=CORNERS, budget=1)
     env.reset()
     first = env.footprint_readings(0)
     env.reset()
@@ -127,7 +127,7 @@ def test_readings_and_messages_follow_the_documented_keys():
     """Readings are ``truth ^ (flip_draws(seed, step, uav, cells) < threshold)``; a threshold
     receiver's bit is ``a I + n > 0.5`` with ``(a, n) = channel_draws(seed, step, sender, receiver)``."""
     alpha_low, sigma = 0.1, 0.3  # a wide channel: many cells cross 0.5, so the keys are pinned down
-    env = envs.make_env(
+    env = uav_ipp.make_env(
         "env3",
         n_uavs=2,
         start_positions=CORNERS,
@@ -170,10 +170,10 @@ def test_readings_and_messages_follow_the_documented_keys():
 @pytest.mark.parametrize("level,altitude", [(0, 5.0), (1, 10.0), (2, 15.0)])
 def test_flip_frequency_matches_the_configured_probability(level, altitude):
     """At least ~100k readings per altitude, from the env itself, flip with the configured q."""
-    q = envs.IppConfig().flip_probability[altitude]
+    q = uav_ipp.IppConfig().flip_probability[altitude]
     starts = [(10.0, 10.0 + 10.0 * k, altitude) for k in range(4)]
     steps = {0: 8, 1: 2, 2: 1}[level]
-    env = envs.make_env("env1", n_uavs=4, start_positions=starts, budget=steps)
+    env = uav_ipp.make_env("env1", n_uavs=4, start_positions=starts, budget=steps)
     env.reset(seed=100 + level)
     truth = env.ground_truth.valuable.astype(np.uint8)
     flips = cells = 0
@@ -195,7 +195,7 @@ def test_flip_frequency_matches_the_configured_probability(level, altitude):
 def test_channel_noise_has_the_preset_mean_and_spread(preset):
     """a ~ U(alpha_low, 1) and n ~ N(0, sigma^2) (quantile table, |n| < 3.7 sigma), over ~150k
     cells of one step's messages, and independent of each other."""
-    alpha_low, sigma = envs.NOISE_PRESETS[preset]
+    alpha_low, sigma = uav_ipp.NOISE_PRESETS[preset]
     normals = kernels.normal_table()
     a_all, n_all = [], []
     for sender, receiver in ((0, 1), (1, 0), (2, 3), (3, 2), (0, 3)):
@@ -234,7 +234,7 @@ def test_drop_rate_matches_drop_probability():
     per_link = dropped_arr.mean(axis=0)
     assert np.all(np.abs(per_link - p) < 5 * math.sqrt(p * (1 - p) / len(dropped_arr)))
     # and the env applies exactly these draws to the links in range
-    env = envs.make_env("env1", n_uavs=4, budget=15, comm_range=float("inf"), drop_probability=p)
+    env = uav_ipp.make_env("env1", n_uavs=4, budget=15, comm_range=float("inf"), drop_probability=p)
     env.reset(seed=3)
     lost = total = 0
     for step in range(16):
@@ -255,8 +255,8 @@ def test_channel_settings_never_change_readings_or_drops():
     """Flips and drops have their own keys: the noise preset changes only the channel draws."""
     options = dict(n_uavs=3, budget=3, drop_probability=0.4)
     plan = [[3, 4, 5], [4, 5, 2], [5, 3, 1]]
-    quiet = _fly(envs.make_env("env3", noise="none", **options), 9, plan)
-    loud = _fly(envs.make_env("env3", noise="loud", **options), 9, plan)
+    quiet = _fly(uav_ipp.make_env("env3", noise="none", **options), 9, plan)
+    loud = _fly(uav_ipp.make_env("env3", noise="loud", **options), 9, plan)
     for fq, fl in zip(quiet, loud):
         np.testing.assert_array_equal(fq["links"], fl["links"])
         np.testing.assert_array_equal(fq["glob_delta"], fl["glob_delta"])

@@ -15,7 +15,7 @@ import pytest
 import torch
 from stable_baselines3.common.logger import KVWriter, Logger
 
-import envs
+import uav_ipp
 from sb3_coma import COMA, evaluate
 from sb3_coma.common.tables import rows_for, table_markdown
 
@@ -47,7 +47,7 @@ def _one_thread():
 
 
 def _train(seed: int, policy: str = "CnnPolicy") -> tuple[list[dict[str, float]], dict[str, torch.Tensor], list]:
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4, noise="moderate")
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4, noise="moderate")
     try:
         model = COMA(
             policy,

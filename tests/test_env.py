@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from pettingzoo.test import parallel_api_test
 
-import envs
-from envs import gain, kernels, layout
-from envs.config import ConfigError
-from envs.ipp_env import ACTION_DELTAS
+import uav_ipp
+from uav_ipp import gain, kernels, layout
+from uav_ipp.config import ConfigError
+from uav_ipp.ipp_env import ACTION_DELTAS
 
 
 def random_episode(env, seed: int, policy_seed: int = 0):
@@ -28,11 +28,11 @@ def random_episode(env, seed: int, policy_seed: int = 0):
 
 @pytest.fixture(scope="module")
 def env():
-    return envs.make_env("env1", n_uavs=4, budget=15)
+    return uav_ipp.make_env("env1", n_uavs=4, budget=15)
 
 
 def test_pettingzoo_parallel_api():
-    parallel_api_test(envs.make_env("env1", budget=5), num_cycles=12)
+    parallel_api_test(uav_ipp.make_env("env1", budget=5), num_cycles=12)
 
 
 def test_observation_layout(env):
@@ -56,7 +56,7 @@ def test_observation_layout(env):
 
 
 def test_episode_length_budget_and_termination():
-    env = envs.make_env("env1", budget=7)
+    env = uav_ipp.make_env("env1", budget=7)
     hist = random_episode(env, seed=1)
     assert len(hist) == 7
     assert env.agents == []
@@ -66,27 +66,27 @@ def test_episode_length_budget_and_termination():
 
 
 def test_same_seed_identical_episode():
-    a = random_episode(envs.make_env("env1", budget=6), seed=3, policy_seed=5)
-    b = random_episode(envs.make_env("env1", budget=6), seed=3, policy_seed=5)
+    a = random_episode(uav_ipp.make_env("env1", budget=6), seed=3, policy_seed=5)
+    b = random_episode(uav_ipp.make_env("env1", budget=6), seed=3, policy_seed=5)
     for (ra, ia, oa), (rb, ib, ob) in zip(a, b):
         assert ra == rb and ia == ib
         for agent in oa:
             for key in oa[agent]:
                 np.testing.assert_array_equal(oa[agent][key], ob[agent][key])
-    c = random_episode(envs.make_env("env1", budget=6), seed=4, policy_seed=5)
+    c = random_episode(uav_ipp.make_env("env1", budget=6), seed=4, policy_seed=5)
     assert [r for r, _, _ in a] != [r for r, _, _ in c]
 
 
 @pytest.mark.parametrize("level,expected", [(0, 57), (1, 114), (2, 171)])
 def test_footprint_side_per_altitude(level, expected):
-    geo = envs.make_env("env1").geometry
+    geo = uav_ipp.make_env("env1").geometry
     side_m = 2 * [5.0, 10.0, 15.0][level] * math.tan(math.radians(30))
     assert abs(geo.footprint_side_cells(level) - side_m / geo.cell) <= 1.0
     assert abs(geo.footprint_side_cells(level) - expected) <= 1
 
 
 def test_footprint_clipped_at_field_border():
-    geo = envs.make_env("env1").geometry
+    geo = uav_ipp.make_env("env1").geometry
     fp = geo.footprint(0, 0, 2)
     assert fp.r0 == 0 and fp.c0 == 0
     assert fp.shape[0] == pytest.approx(171 / 2, abs=2)
@@ -111,7 +111,7 @@ def _sense_once(env, local_logodds, truth, level, threshold, seed=7):
 
 def test_belief_update_matches_closed_form():
     """Readings without flips move log-odds by exactly +-log((1-q)/q) per reading."""
-    env = envs.make_env("env1")
+    env = uav_ipp.make_env("env1")
     level, q = 1, 0.265
     truth = (np.arange(493 * 493).reshape(493, 493) % 3 == 0).astype(np.uint8)
     logodds = np.zeros((493, 493), np.int16)
@@ -130,7 +130,7 @@ def test_belief_update_matches_closed_form():
 
 
 def test_sensor_flip_rate_matches_altitude_table():
-    env = envs.make_env("env1")
+    env = uav_ipp.make_env("env1")
     truth = np.ones((493, 493), np.uint8)
     for level, q in enumerate((0.01, 0.265, 0.375)):
         readings, comm_sum, comm_cnt, _ = _sense_once(
@@ -161,8 +161,8 @@ def _received_image(env, image, alpha_low, sigma, soft, increment):
 def test_channel_noise_statistics(preset):
     """Each received cell is a I + n, a ~ U(alpha_low, 1), n ~ N(0, sigma^2); soft decoding adds
     increment x (2 clip(I_r, 0, 1) - 1), so the log-odds change reveals the evidence per cell."""
-    env = envs.make_env("env1")
-    lo, sigma = envs.NOISE_PRESETS[preset]
+    env = uav_ipp.make_env("env1")
+    lo, sigma = uav_ipp.NOISE_PRESETS[preset]
     inc = 1000
     side = env.geometry.footprint_ranges[5, 2, 1] - env.geometry.footprint_ranges[5, 2, 0]
     ones = np.ones((side, side), np.uint8)
@@ -182,7 +182,7 @@ def test_channel_noise_statistics(preset):
 
 
 def test_incremental_bookkeeping_matches_full_recompute():
-    env = envs.make_env("env1", budget=10)
+    env = uav_ipp.make_env("env1", budget=10)
     hist = random_episode(env, seed=2)
     info, obs = hist[-1][1], hist[-1][2]
     truth = env.ground_truth.valuable
@@ -193,7 +193,7 @@ def test_incremental_bookkeeping_matches_full_recompute():
     assert info["f1"] == pytest.approx(f1, abs=1e-9)
     assert info["entropy"] == pytest.approx(kernels.binary_entropy(p[truth]).mean(), abs=1e-4)
     assert info["reward_entropy"] == pytest.approx(kernels.binary_entropy(p).sum(), rel=1e-4)
-    weighted = envs.make_env("env1", budget=10, reward_entropy="weighted")
+    weighted = uav_ipp.make_env("env1", budget=10, reward_entropy="weighted")
     info_w = random_episode(weighted, seed=2)[-1][1]
     p_w = weighted.global_belief().astype(np.float64)
     assert info_w["reward_entropy"] == pytest.approx(kernels.weighted_entropy(p_w).sum(), rel=1e-4)
@@ -227,7 +227,7 @@ def _block_means(geo, cell_map):
 def test_action_gain_is_the_exact_footprint_gain_of_own_belief():
     """action_gain = the expected entropy drop summed over each action's target footprint, from the
     UAV's own per-cell M_i (brute force over cells), normalised by the best valid action."""
-    env = envs.make_env("env3", budget=6, comm_range=30.0)
+    env = uav_ipp.make_env("env3", budget=6, comm_range=30.0)
     hist = random_episode(env, seed=4)
     obs = hist[-1][2]
     geo = env.geometry
@@ -254,7 +254,7 @@ def test_metrics_on_hand_made_map(tmp_path):
     img[:, :50] = 255
     path = tmp_path / "half.png"
     cv2.imwrite(str(path), img)
-    env = envs.make_env(
+    env = uav_ipp.make_env(
         "mine",
         map_path=str(path),
         valuable="threshold:0.5",
@@ -274,7 +274,7 @@ def test_metrics_on_hand_made_map(tmp_path):
 
 
 def test_reward_sign_and_scale():
-    env = envs.make_env("env1", budget=3)
+    env = uav_ipp.make_env("env1", budget=3)
     env.reset(seed=0)
     h0 = env.metrics()["reward_entropy"]
     _, rewards, _, _, infos = env.step({a: 5 for a in env.agents})  # all descend: fresh cells
@@ -287,7 +287,7 @@ def test_reward_sign_and_scale():
 
 
 def test_masks_at_border_altitude_and_conflicts():
-    env = envs.make_env("env1", n_uavs=2, start_positions=[(0, 0, 15), (5, 0, 5)], budget=3)
+    env = uav_ipp.make_env("env1", n_uavs=2, start_positions=[(0, 0, 15), (5, 0, 5)], budget=3)
     env.reset(seed=0)
     m = env.action_masks()
     # uav_0 at the corner, top altitude: no up, no -x, no -y, no +x (uav_1 there); down and +y ok
@@ -297,7 +297,7 @@ def test_masks_at_border_altitude_and_conflicts():
 
 
 def test_invalid_action_hovers_and_bad_action_raises():
-    env = envs.make_env("env1", n_uavs=2, start_positions=[(0, 0, 15), (5, 0, 5)], budget=3)
+    env = uav_ipp.make_env("env1", n_uavs=2, start_positions=[(0, 0, 15), (5, 0, 5)], budget=3)
     env.reset(seed=0)
     before = env._pos.copy()
     env.step({"uav_0": 1, "uav_1": 5})  # -x off the field; down below the lowest altitude
@@ -313,7 +313,7 @@ def test_invalid_action_hovers_and_bad_action_raises():
 
 
 def test_simultaneous_moves_never_share_a_column():
-    env = envs.make_env("env1", n_uavs=2, start_positions=[(0, 0, 15), (10, 0, 15)], budget=3)
+    env = uav_ipp.make_env("env1", n_uavs=2, start_positions=[(0, 0, 15), (10, 0, 15)], budget=3)
     env.reset(seed=0)
     env.step({"uav_0": 4, "uav_1": 1})  # both aim at (5, 0)
     cols = {tuple(p[:2]) for p in env._pos}
@@ -321,8 +321,8 @@ def test_simultaneous_moves_never_share_a_column():
 
 
 def test_global_map_never_sees_channel_noise():
-    quiet = random_episode(envs.make_env("env1", noise="none", budget=5), seed=9)
-    loud = random_episode(envs.make_env("env1", noise="loud", budget=5), seed=9)
+    quiet = random_episode(uav_ipp.make_env("env1", noise="none", budget=5), seed=9)
+    loud = random_episode(uav_ipp.make_env("env1", noise="loud", budget=5), seed=9)
     # identical global metrics and state channels; only the received maps differ
     for (rq, iq, oq), (rl, il, ol) in zip(quiet, loud):
         assert iq["f1"] == il["f1"] and rq == rl
@@ -330,20 +330,20 @@ def test_global_map_never_sees_channel_noise():
 
 
 def test_comm_range_zero_isolates_uavs():
-    env = envs.make_env("env1", comm_range=0.0, budget=2)
+    env = uav_ipp.make_env("env1", comm_range=0.0, budget=2)
     obs, _ = env.reset(seed=0)
     assert np.all(obs["uav_0"][layout.KEY_RECEIVED_VALID] == [1, 0, 0, 0])
     assert np.all(obs["uav_0"][layout.KEY_RECEIVED][1:] == 0.5)
 
 
 def test_drop_probability_one_drops_everything():
-    env = envs.make_env("env1", drop_probability=1.0, comm_range=1e9, budget=2)
+    env = uav_ipp.make_env("env1", drop_probability=1.0, comm_range=1e9, budget=2)
     obs, _ = env.reset(seed=0)
     assert np.all(obs["uav_3"][layout.KEY_RECEIVED_VALID] == [1, 0, 0, 0])
 
 
 def test_random_starts_are_seeded_and_distinct():
-    env = envs.make_env("env1", start="random", n_uavs=6)
+    env = uav_ipp.make_env("env1", start="random", n_uavs=6)
     env.reset(seed=5)
     a = env._pos.copy()
     env.reset(seed=5)
@@ -352,11 +352,11 @@ def test_random_starts_are_seeded_and_distinct():
 
 
 def test_render_modes():
-    env = envs.make_env("env1", render_mode="rgb_array", budget=2)
+    env = uav_ipp.make_env("env1", render_mode="rgb_array", budget=2)
     env.reset(seed=0)
     img = env.render()
     assert img.shape == (493, 493, 3) and img.dtype == np.uint8
-    text = envs.make_env("env1", render_mode="ansi")
+    text = uav_ipp.make_env("env1", render_mode="ansi")
     text.reset(seed=0)
     assert "f1=" in text.render()
 
@@ -390,12 +390,12 @@ BAD_OPTIONS = [
 @pytest.mark.parametrize("options,option_name", BAD_OPTIONS)
 def test_bad_options_raise_clear_errors(options, option_name):
     with pytest.raises(ConfigError, match=option_name):
-        envs.make_env("env1", **options)
+        uav_ipp.make_env("env1", **options)
 
 
 def test_unknown_map_is_clear_error():
-    with pytest.raises(envs.MapError, match="env9"):
-        envs.make_env("env9")
+    with pytest.raises(uav_ipp.MapError, match="env9"):
+        uav_ipp.make_env("env9")
 
 
 def test_action_deltas_match_documented_meaning():
@@ -405,15 +405,15 @@ def test_action_deltas_match_documented_meaning():
 
 def test_bad_worlds_fail_at_construction_with_the_value_named(tmp_path):
     with pytest.raises(ConfigError, match=r"n_uavs=120.*110 flyable"):
-        envs.make_env("env3", n_uavs=120)
+        uav_ipp.make_env("env3", n_uavs=120)
     with pytest.raises(ConfigError, match=r"start_positions.*no-fly"):
-        envs.make_env("env3", n_uavs=1, start_positions=[(20, 20, 15)])
+        uav_ipp.make_env("env3", n_uavs=1, start_positions=[(20, 20, 15)])
     with pytest.raises(ConfigError, match="field_size"):
-        envs.make_env("env1", field_size=1e6)
-    with pytest.raises(envs.MapError, match="NUL"):
-        envs.make_env("mine", map_path="a\x00b.png", valuable="threshold:0.5")
+        uav_ipp.make_env("env1", field_size=1e6)
+    with pytest.raises(uav_ipp.MapError, match="NUL"):
+        uav_ipp.make_env("mine", map_path="a\x00b.png", valuable="threshold:0.5")
     with pytest.raises(ConfigError, match="reset seed=-1"):
-        envs.make_env("env1").reset(seed=-1)
+        uav_ipp.make_env("env1").reset(seed=-1)
 
 
 def test_map_with_almost_no_valuable_cells_warns(tmp_path):
@@ -424,4 +424,4 @@ def test_map_with_almost_no_valuable_cells_warns(tmp_path):
     path = tmp_path / "dot.png"
     cv2.imwrite(str(path), img)
     with pytest.warns(UserWarning, match="valuable cell"):
-        envs.make_env("dot", map_path=str(path), valuable="dark:0.5")
+        uav_ipp.make_env("dot", map_path=str(path), valuable="dark:0.5")

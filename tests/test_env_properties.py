@@ -6,8 +6,8 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import envs
-from envs import layout
+import uav_ipp
+from uav_ipp import layout
 
 options = st.fixed_dictionaries(
     {
@@ -23,7 +23,7 @@ PROPERTY_SETTINGS = settings(max_examples=12, deadline=None, suppress_health_che
 
 
 def _run(opts: dict, seed: int, actions: list[int], map_name: str = "env3"):
-    env = envs.make_env(map_name, **opts)
+    env = uav_ipp.make_env(map_name, **opts)
     obs, _ = env.reset(seed=seed)
     frames = [(obs, env.metrics())]
     k = 0

@@ -41,8 +41,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import envs
-from envs import ConfigError, MapError
+import uav_ipp
+from uav_ipp import ConfigError, MapError
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "errors.md"
 ENV_ID = "UavIpp-Env1-v0"
@@ -89,20 +89,20 @@ class Files:
     @functools.cached_property
     def venv(self):
         """The vec env COMA is built for (2 UAVs, mean fusion)."""
-        return envs.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4)
+        return uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4)
 
     @functools.cached_property
     def raw_venv(self):
-        return envs.make_vec_env("env1", n_envs=1, fusion="none", n_uavs=2, budget=4)
+        return uav_ipp.make_vec_env("env1", n_envs=1, fusion="none", n_uavs=2, budget=4)
 
     @functools.cached_property
     def gainless_venv(self):
-        return envs.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4, action_gain=False)
+        return uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4, action_gain=False)
 
     @functools.cached_property
     def env(self):
         """A PettingZoo env for the action cases (reset before every use)."""
-        return envs.make_env("env1", n_uavs=2, budget=4)
+        return uav_ipp.make_env("env1", n_uavs=2, budget=4)
 
     def reset_env(self):
         self.env.reset(seed=0)
@@ -435,7 +435,7 @@ def _replaced_shipped_weights(files: Files):
     folder = files.folder("pkg_weights").resolve()
     save_weights(files._net(), folder / "sendfuse_r44.safetensors")
     with mock.patch.object(weights_mod, "shipped_weights_dir", lambda: folder):
-        return envs.make_vec_env("env1", fusion="sendfuse", n_uavs=2, budget=2)
+        return uav_ipp.make_vec_env("env1", fusion="sendfuse", n_uavs=2, budget=2)
 
 
 def _replaced_shipped_model(files: Files):
@@ -489,7 +489,7 @@ CASES: list[Case | CliCase] = [
         "env-n_uavs-zero",
         E,
         'make_env("env1", n_uavs=0)',
-        lambda f: envs.make_env("env1", n_uavs=0),
+        lambda f: uav_ipp.make_env("env1", n_uavs=0),
         ConfigError,
         ("n_uavs=0",),
         "an integer >= 1",
@@ -498,7 +498,7 @@ CASES: list[Case | CliCase] = [
         "env-n_uavs-too-many",
         E,
         'make_env("env1", n_uavs=200)',
-        lambda f: envs.make_env("env1", n_uavs=200),
+        lambda f: uav_ipp.make_env("env1", n_uavs=200),
         ConfigError,
         ("n_uavs=200",),
         "at most 121",
@@ -507,7 +507,7 @@ CASES: list[Case | CliCase] = [
         "env-budget-zero",
         E,
         'make_env("env1", budget=0)',
-        lambda f: envs.make_env("env1", budget=0),
+        lambda f: uav_ipp.make_env("env1", budget=0),
         ConfigError,
         ("budget=0",),
         "an integer >= 1",
@@ -516,7 +516,7 @@ CASES: list[Case | CliCase] = [
         "env-noise-unknown",
         E,
         'make_env("env1", noise="quiet")',
-        lambda f: envs.make_env("env1", noise="quiet"),
+        lambda f: uav_ipp.make_env("env1", noise="quiet"),
         ConfigError,
         ("noise='quiet'",),
         "['loud', 'moderate', 'none']",
@@ -525,7 +525,7 @@ CASES: list[Case | CliCase] = [
         "env-noise-list",
         E,
         'make_env("env1", noise=["loud"])',
-        lambda f: envs.make_env("env1", noise=["loud"]),
+        lambda f: uav_ipp.make_env("env1", noise=["loud"]),
         ConfigError,
         ("noise=['loud']",),
         "['loud', 'moderate', 'none']",
@@ -534,7 +534,7 @@ CASES: list[Case | CliCase] = [
         "env-unknown-option",
         E,
         'make_env("env1", n_uav=3)',
-        lambda f: envs.make_env("env1", n_uav=3),
+        lambda f: uav_ipp.make_env("env1", n_uav=3),
         ConfigError,
         ("['n_uav']",),
         "allowed options",
@@ -543,7 +543,7 @@ CASES: list[Case | CliCase] = [
         "env-reward-unknown",
         E,
         'make_env("env1", reward="money")',
-        lambda f: envs.make_env("env1", reward="money"),
+        lambda f: uav_ipp.make_env("env1", reward="money"),
         ConfigError,
         ("reward='money'",),
         "'entropy'",
@@ -552,7 +552,7 @@ CASES: list[Case | CliCase] = [
         "env-action_gain-not-bool",
         E,
         'make_env("env1", action_gain="yes")',
-        lambda f: envs.make_env("env1", action_gain="yes"),
+        lambda f: uav_ipp.make_env("env1", action_gain="yes"),
         ConfigError,
         ("action_gain='yes'",),
         "True",
@@ -561,7 +561,7 @@ CASES: list[Case | CliCase] = [
         "env-observation-unknown",
         E,
         'make_env("env1", observation="v4")',
-        lambda f: envs.make_env("env1", observation="v4"),
+        lambda f: uav_ipp.make_env("env1", observation="v4"),
         ConfigError,
         ("observation='v4'",),
         "'v2', 'v3'",
@@ -570,7 +570,7 @@ CASES: list[Case | CliCase] = [
         "env-comm_range-negative",
         E,
         'make_env("env1", comm_range=-1)',
-        lambda f: envs.make_env("env1", comm_range=-1),
+        lambda f: uav_ipp.make_env("env1", comm_range=-1),
         ConfigError,
         ("comm_range=-1",),
         "a distance >= 0",
@@ -579,7 +579,7 @@ CASES: list[Case | CliCase] = [
         "env-comm_grid-not-multiple-of-4",
         E,
         'make_env("env1", comm_grid=45)',
-        lambda f: envs.make_env("env1", comm_grid=45),
+        lambda f: uav_ipp.make_env("env1", comm_grid=45),
         ConfigError,
         ("comm_grid=45",),
         "a multiple of 4",
@@ -588,7 +588,7 @@ CASES: list[Case | CliCase] = [
         "env-start-unknown",
         E,
         'make_env("env1", start="corner")',
-        lambda f: envs.make_env("env1", start="corner"),
+        lambda f: uav_ipp.make_env("env1", start="corner"),
         ConfigError,
         ("start='corner'",),
         "'fixed' or 'random'",
@@ -597,7 +597,7 @@ CASES: list[Case | CliCase] = [
         "env-start_positions-off-lattice",
         E,
         'make_env("env1", n_uavs=1, start_positions=[(12, 10, 15)])',
-        lambda f: envs.make_env("env1", n_uavs=1, start_positions=[(12, 10, 15)]),
+        lambda f: uav_ipp.make_env("env1", n_uavs=1, start_positions=[(12, 10, 15)]),
         ConfigError,
         ("(12.0, 10.0, 15.0)",),
         "multiples of 5 m",
@@ -606,7 +606,7 @@ CASES: list[Case | CliCase] = [
         "env-start_positions-shared-column",
         E,
         'make_env("env1", n_uavs=2, start_positions=[(10, 10, 15), (10, 10, 5)])',
-        lambda f: envs.make_env("env1", n_uavs=2, start_positions=[(10, 10, 15), (10, 10, 5)]),
+        lambda f: uav_ipp.make_env("env1", n_uavs=2, start_positions=[(10, 10, 15), (10, 10, 5)]),
         ConfigError,
         ("(10.0, 10.0, 5.0)",),
         "distinct (x, y) columns",
@@ -615,7 +615,7 @@ CASES: list[Case | CliCase] = [
         "env-altitudes-unsorted",
         E,
         'make_env("env1", altitudes=[15, 10, 5])',
-        lambda f: envs.make_env("env1", altitudes=[15, 10, 5]),
+        lambda f: uav_ipp.make_env("env1", altitudes=[15, 10, 5]),
         ConfigError,
         ("altitudes=(15.0, 10.0, 5.0)",),
         "strictly increasing",
@@ -624,7 +624,7 @@ CASES: list[Case | CliCase] = [
         "env-altitudes-not-a-list",
         E,
         'make_env("env1", altitudes=5)',
-        lambda f: envs.make_env("env1", altitudes=5),
+        lambda f: uav_ipp.make_env("env1", altitudes=5),
         ConfigError,
         ("altitudes=5",),
         "a non-empty list of positive altitudes",
@@ -633,7 +633,7 @@ CASES: list[Case | CliCase] = [
         "env-flip_probability-too-high",
         E,
         'make_env("env1", flip_probability={5: 0.1, 10: 0.2, 15: 0.7})',
-        lambda f: envs.make_env("env1", flip_probability={5: 0.1, 10: 0.2, 15: 0.7}),
+        lambda f: uav_ipp.make_env("env1", flip_probability={5: 0.1, 10: 0.2, 15: 0.7}),
         ConfigError,
         ("altitude 15.0 has 0.7",),
         "strictly between 0 and 0.5",
@@ -642,7 +642,7 @@ CASES: list[Case | CliCase] = [
         "env-fov_deg-text",
         E,
         'make_env("env1", fov_deg="wide")',
-        lambda f: envs.make_env("env1", fov_deg="wide"),
+        lambda f: uav_ipp.make_env("env1", fov_deg="wide"),
         ConfigError,
         ("fov_deg='wide'",),
         "(0, 180) degrees",
@@ -651,7 +651,7 @@ CASES: list[Case | CliCase] = [
         "env-drop_probability-above-1",
         E,
         'make_env("env1", drop_probability=2)',
-        lambda f: envs.make_env("env1", drop_probability=2),
+        lambda f: uav_ipp.make_env("env1", drop_probability=2),
         ConfigError,
         ("drop_probability=2",),
         "in [0, 1]",
@@ -660,7 +660,7 @@ CASES: list[Case | CliCase] = [
         "env-render_mode-human",
         E,
         'make_env("env1", render_mode="human")',
-        lambda f: envs.make_env("env1", render_mode="human"),
+        lambda f: uav_ipp.make_env("env1", render_mode="human"),
         ConfigError,
         ("render_mode='human'",),
         "'rgb_array' or 'ansi'",
@@ -669,7 +669,7 @@ CASES: list[Case | CliCase] = [
         "vec-n_envs-zero",
         E,
         'make_vec_env("env1", n_envs=0)',
-        lambda f: envs.make_vec_env("env1", n_envs=0),
+        lambda f: uav_ipp.make_vec_env("env1", n_envs=0),
         ConfigError,
         ("n_envs=0",),
         "an integer >= 1",
@@ -678,7 +678,7 @@ CASES: list[Case | CliCase] = [
         "vec-seed-text",
         E,
         'make_vec_env("env1", seed="a")',
-        lambda f: envs.make_vec_env("env1", seed="a"),
+        lambda f: uav_ipp.make_vec_env("env1", seed="a"),
         ConfigError,
         ("seed='a'",),
         "an integer or None",
@@ -688,7 +688,7 @@ CASES: list[Case | CliCase] = [
         "map-unknown-name",
         M,
         'make_env("env9")',
-        lambda f: envs.make_env("env9"),
+        lambda f: uav_ipp.make_env("env9"),
         MapError,
         ("'env9'",),
         "['env1', 'env2', 'env3']",
@@ -697,7 +697,7 @@ CASES: list[Case | CliCase] = [
         "map-file-as-name",
         M,
         'make_env("field.png")',
-        lambda f: envs.make_env("field.png"),
+        lambda f: uav_ipp.make_env("field.png"),
         MapError,
         ("'field.png'",),
         "map_path='field.png'",
@@ -706,7 +706,7 @@ CASES: list[Case | CliCase] = [
         "map-path-missing",
         M,
         'make_env("mine", map_path="<tmp>/maps/missing.png")',
-        lambda f: envs.make_env("mine", map_path=f.path("maps/missing.png")),
+        lambda f: uav_ipp.make_env("mine", map_path=f.path("maps/missing.png")),
         MapError,
         ("missing.png",),
         "does not exist",
@@ -715,7 +715,7 @@ CASES: list[Case | CliCase] = [
         "map-path-not-an-image",
         M,
         'make_env("mine", map_path="<tmp>/maps/field.png")  # a text file',
-        lambda f: envs.make_env("mine", map_path=f.not_an_image),
+        lambda f: uav_ipp.make_env("mine", map_path=f.not_an_image),
         MapError,
         ("field.png",),
         "PNG, JPEG, TIFF",
@@ -724,7 +724,7 @@ CASES: list[Case | CliCase] = [
         "map-path-blank-image",
         M,
         'make_env(map_path="<tmp>/maps/blank.png")  # all white',
-        lambda f: envs.make_env(map_path=f.blank_image),
+        lambda f: uav_ipp.make_env(map_path=f.blank_image),
         MapError,
         ("'blank'", "'threshold'"),
         "choose another rule",
@@ -733,7 +733,7 @@ CASES: list[Case | CliCase] = [
         "map-rule-unknown",
         M,
         'make_env("env2", valuable="bogus")',
-        lambda f: envs.make_env("env2", valuable="bogus"),
+        lambda f: uav_ipp.make_env("env2", valuable="bogus"),
         MapError,
         ("'bogus'",),
         "allowed rules",
@@ -742,7 +742,7 @@ CASES: list[Case | CliCase] = [
         "map-rule-missing-fraction",
         M,
         'make_env("env2", valuable="hottest")',
-        lambda f: envs.make_env("env2", valuable="hottest"),
+        lambda f: uav_ipp.make_env("env2", valuable="hottest"),
         MapError,
         ("'hottest'",),
         "'hottest:0.3'",
@@ -751,7 +751,7 @@ CASES: list[Case | CliCase] = [
         "map-rule-fraction-out-of-range",
         M,
         'make_env("env2", valuable="hottest:1.5")',
-        lambda f: envs.make_env("env2", valuable="hottest:1.5"),
+        lambda f: uav_ipp.make_env("env2", valuable="hottest:1.5"),
         MapError,
         ("'hottest:1.5'",),
         "strictly between 0 and 1",
@@ -760,7 +760,7 @@ CASES: list[Case | CliCase] = [
         "map-rule-not-a-number",
         M,
         'make_env("env2", valuable="threshold:x")',
-        lambda f: envs.make_env("env2", valuable="threshold:x"),
+        lambda f: uav_ipp.make_env("env2", valuable="threshold:x"),
         MapError,
         ("'threshold:x'", "'x'"),
         "is not a number",
@@ -769,7 +769,7 @@ CASES: list[Case | CliCase] = [
         "map-rule-ndvi-without-nir",
         M,
         'make_env("env2", valuable="ndvi:0.5")',
-        lambda f: envs.make_env("env2", valuable="ndvi:0.5"),
+        lambda f: uav_ipp.make_env("env2", valuable="ndvi:0.5"),
         MapError,
         ("'ndvi:0.5'", "'env2'"),
         "only env3 ships",
@@ -778,7 +778,7 @@ CASES: list[Case | CliCase] = [
         "map-rule-selects-nothing",
         M,
         'make_env("env2", valuable="threshold:1.0")',
-        lambda f: envs.make_env("env2", valuable="threshold:1.0"),
+        lambda f: uav_ipp.make_env("env2", valuable="threshold:1.0"),
         MapError,
         ("'threshold:1'",),
         "choose another rule or threshold",
@@ -787,7 +787,7 @@ CASES: list[Case | CliCase] = [
         "map-grid-too-large",
         M,
         'make_env("env1", grid=100000)',
-        lambda f: envs.make_env("env1", grid=100000),
+        lambda f: uav_ipp.make_env("env1", grid=100000),
         MapError,
         ("grid=100000",),
         "[11, 8192]",
@@ -797,7 +797,7 @@ CASES: list[Case | CliCase] = [
         "fusion-unknown",
         F,
         'make_vec_env("env1", fusion="median")',
-        lambda f: envs.make_vec_env("env1", fusion="median"),
+        lambda f: uav_ipp.make_vec_env("env1", fusion="median"),
         ValueError,
         ("'median'",),
         "'mean'",
@@ -806,7 +806,7 @@ CASES: list[Case | CliCase] = [
         "fusion-kwargs-unknown",
         F,
         'make_vec_env("env1", fusion="mean", fusion_kwargs={"alpha": 0.5})',
-        lambda f: envs.make_vec_env("env1", fusion="mean", fusion_kwargs={"alpha": 0.5}),
+        lambda f: uav_ipp.make_vec_env("env1", fusion="mean", fusion_kwargs={"alpha": 0.5}),
         ConfigError,
         ("['alpha']",),
         "it takes no options",
@@ -815,7 +815,7 @@ CASES: list[Case | CliCase] = [
         "fusion-sendfuse-alpha-out-of-range",
         F,
         'make_vec_env("env1", fusion="sendfuse", fusion_kwargs={"weights": W, "alpha": 5})',
-        lambda f: envs.make_vec_env(
+        lambda f: uav_ipp.make_vec_env(
             "env1", n_uavs=2, fusion="sendfuse", fusion_kwargs={"weights": f.weights, "alpha": 5}
         ),
         ConfigError,
@@ -826,7 +826,7 @@ CASES: list[Case | CliCase] = [
         "fusion-sendfuse-weights-missing",
         F,
         'make_vec_env("env1", fusion="sendfuse", fusion_kwargs={"weights": "<tmp>/none.safetensors"})',
-        lambda f: envs.make_vec_env(
+        lambda f: uav_ipp.make_vec_env(
             "env1", n_uavs=2, fusion="sendfuse", fusion_kwargs={"weights": f.path("none.safetensors")}
         ),
         SenDFuseWeightsError,
@@ -837,7 +837,7 @@ CASES: list[Case | CliCase] = [
         "fusion-sendfuse-grid-mismatch",
         F,
         'make_vec_env("env1", fusion="sendfuse", fusion_kwargs={"weights": <R=40 file>})  # env comm_grid 44',
-        lambda f: envs.make_vec_env("env1", n_uavs=2, fusion="sendfuse", fusion_kwargs={"weights": f.weights_r40}),
+        lambda f: uav_ipp.make_vec_env("env1", n_uavs=2, fusion="sendfuse", fusion_kwargs={"weights": f.weights_r40}),
         ValueError,
         ("40 x 40", "comm_grid=44"),
     ),
@@ -940,7 +940,7 @@ CASES: list[Case | CliCase] = [
         lambda f: _coma(f, env=__import__("gymnasium").make("CartPole-v1")),
         TypeError,
         ("TimeLimit",),
-        "envs.make_vec_env",
+        "uav_ipp.make_vec_env",
     ),
     Case(
         "coma-env-unfused",
@@ -1524,7 +1524,7 @@ CASES: list[Case | CliCase] = [
         "env-reward-metrics-weighted-entropy",
         E,
         'make_env("env1", reward="metrics", reward_entropy="weighted")',
-        lambda f: envs.make_env("env1", reward="metrics", reward_entropy="weighted"),
+        lambda f: uav_ipp.make_env("env1", reward="metrics", reward_entropy="weighted"),
         ConfigError,
         ("reward_entropy='weighted'", "reward='metrics'"),
         "drop reward_entropy",
@@ -2145,7 +2145,7 @@ ANY_VALUE = st.one_of(
     ),
     st.lists(st.tuples(st.integers(-5, 55), st.integers(-5, 55), st.sampled_from([5, 10, 15, 7])), max_size=5),
 )
-OPTION_NAMES = sorted(f for f in envs.IppConfig.__dataclass_fields__ if f != "map_name")
+OPTION_NAMES = sorted(f for f in uav_ipp.IppConfig.__dataclass_fields__ if f != "map_name")
 FAST = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
@@ -2155,7 +2155,7 @@ def test_any_env_option_value_is_accepted_or_a_config_error(options):
     """Whatever a user passes, validation answers with a ConfigError naming the option, never
     with a TypeError/ValueError/IndexError from inside."""
     try:
-        envs.IppConfig.from_options("env1", **options)
+        uav_ipp.IppConfig.from_options("env1", **options)
     except ConfigError as exc:
         assert str(exc).startswith("invalid option "), exc
 
@@ -2173,14 +2173,14 @@ def test_any_env_option_value_is_accepted_or_a_config_error(options):
     )
 )
 def test_any_valuable_rule_parses_or_is_a_map_error(rule):
-    from envs.maps import parse_rule
+    from uav_ipp.maps import parse_rule
 
     try:
         parsed = parse_rule(rule)
     except MapError as exc:
         assert "rule" in str(exc)
     else:
-        assert parsed.kind in envs.maps.RULE_NAMES
+        assert parsed.kind in uav_ipp.maps.RULE_NAMES
 
 
 @settings(

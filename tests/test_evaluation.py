@@ -10,14 +10,14 @@ import shutil
 import numpy as np
 import pytest
 
-import envs
-from envs.config import ConfigError
+import uav_ipp
 from sb3_coma import evaluate as evaluate_export
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.cli import main
 from sb3_coma.common.evaluation import FRACTIONS
 from sb3_coma.common.tables import rows_for, table_markdown, write_table_csv
 from sb3_coma.experiments import ablation
+from uav_ipp.config import ConfigError
 
 SMALL = dict(env="env1", budget=3, noise="moderate")
 
@@ -171,7 +171,7 @@ def test_cli_writes_table_and_plots(tmp_path, capsys):
 def model_path(tmp_path_factory):
     """One small untrained COMA model saved once (building one costs seconds)."""
     coma = pytest.importorskip("sb3_coma.coma")
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", budget=3)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", budget=3)
     path = tmp_path_factory.mktemp("models") / "model.zip"
     coma.COMA("CnnPolicy", venv, seed=0, device="cpu").save(str(path))
     return path
@@ -188,7 +188,7 @@ def test_model_by_path_flies_the_same_missions_as_the_object(tmp_path):
     missions must still be the requested ones (regression: a path used to fly seed 7's missions)."""
     from sb3_coma.coma import COMA
 
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", budget=3)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", budget=3)
     model = COMA("CnnPolicy", venv, seed=7, device="cpu")
     model.save(tmp_path / "seed7.zip")
     venv.close()
@@ -226,10 +226,10 @@ def test_ablation_finds_models_and_skips_missing_fusion(model_path, tmp_path, mo
 def test_evaluate_uses_the_models_observation_options():
     """A model trained without the action_gain key is evaluated without it, with no word from the
     caller: the network's inputs follow the model's recorded training options."""
-    import envs
+    import uav_ipp
     from sb3_coma import COMA, evaluate
 
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=3, action_gain=False)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=3, action_gain=False)
     model = COMA("CnnPolicy", venv, seed=0, n_steps=4, batch_size=4, device="cpu")
     model.env_options = {"map": "env1", "fusion": "mean", "action_gain": False}
     result = evaluate(model, env="env1", n_trials=2, n_uavs=2, budget=3)

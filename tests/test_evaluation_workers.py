@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import envs
+import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.app.evaluation import WorldMismatchWarning, _chunks, evaluate, evaluation_workers, parallel_evaluation
 from sb3_coma.app.training import record_env_options
@@ -37,7 +37,7 @@ def test_planners_on_two_workers_fly_the_same_missions(method):
 
 
 def test_model_object_on_two_workers_and_through_the_context():
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=4)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=4)
     model = COMA(
         "CnnPolicy",
         venv,
@@ -84,7 +84,7 @@ def test_cli_workers_zero_is_one_line(capsys):
 
 def test_worker_warnings_reach_the_caller_once():
     """A model flown in another world than it trained in warns in the caller, as in one process."""
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=4)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=4)
     kwargs = {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}}
     model = COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=kwargs)
     record_env_options(model, "env1", {"fusion": "mean", "n_uavs": 2, "budget": 4})

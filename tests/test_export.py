@@ -16,8 +16,7 @@ import numpy as np
 import pytest
 import yaml
 
-import envs
-from envs import layout
+import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.app.export import (
     ACTOR_FILE,
@@ -29,6 +28,7 @@ from sb3_coma.app.export import (
     onnx_session,
 )
 from sb3_coma.cli import main as cli_main
+from uav_ipp import layout
 
 MAPS = ("env1", "env2", "env3")
 #: Joint steps recorded per map: 4 UAVs x 20 steps (one mission of 15 and the start of the next).
@@ -40,7 +40,7 @@ def raw_observations() -> dict[str, np.ndarray]:
     """Raw observations of random valid flights, rows of all three maps stacked."""
     rows = []
     for k, name in enumerate(MAPS):
-        venv = envs.make_vec_env(name, n_envs=1, fusion="none", seed=10 + k)
+        venv = uav_ipp.make_vec_env(name, n_envs=1, fusion="none", seed=10 + k)
         rng = np.random.default_rng(k)
         obs = venv.reset()
         for _ in range(STEPS):
@@ -66,7 +66,7 @@ def exported(request, raw_observations, tmp_path_factory):
 
     Both actor graphs (with and without the ``action_gain`` input) are covered."""
     fusion, policy_kwargs = ACTORS[request.param]
-    venv = envs.make_vec_env("env1", n_envs=1, fusion=fusion, seed=0)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion=fusion, seed=0)
     model = COMA("CBAMPolicy", venv, seed=0, device="cpu", policy_kwargs=policy_kwargs)
     paths = export_onnx(model, tmp_path_factory.mktemp(f"onnx_{request.param}"))
     wrapper = fusion_wrapper(venv)
@@ -161,7 +161,7 @@ def test_metadata_describes_the_graphs(exported):
 
 
 def test_export_needs_a_known_fusion(tmp_path):
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=3)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=3)
     model = COMA(
         "CnnPolicy",
         venv,

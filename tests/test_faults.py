@@ -195,12 +195,12 @@ def test_sigkill_mid_run_resumes_from_last_checkpoint(tmp_path):
 def tiny_model():
     import torch
 
-    import envs
+    import uav_ipp
     from sb3_coma import COMA
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4)
     model = COMA("CnnPolicy", venv, batch_size=8, seed=0, policy_kwargs=SMALL_CNN)
     yield model
     venv.close()

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import torch as th
 
-import envs
-from envs import layout
-from envs.ipp_env import ACTION_DELTAS
+import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.baselines.adaptive_gain import plan_team
+from uav_ipp import layout
+from uav_ipp.ipp_env import ACTION_DELTAS
 
 SMALL = dict(n_uavs=2, budget=4)
 
@@ -27,7 +27,7 @@ def _positions(env) -> np.ndarray:
 
 
 def test_action_gain_is_normalised_masked_and_matches_ag():
-    env = envs.make_env("env3")
+    env = uav_ipp.make_env("env3")
     geometry = env.geometry
     rng = np.random.default_rng(3)
     obs, _ = env.reset(seed=3)
@@ -62,20 +62,20 @@ def test_action_gain_is_normalised_masked_and_matches_ag():
 
 
 def test_action_gain_can_be_switched_off():
-    env = envs.make_env("env1", action_gain=False, **SMALL)
+    env = uav_ipp.make_env("env1", action_gain=False, **SMALL)
     obs, _ = env.reset(seed=0)
     assert layout.KEY_GAIN not in obs["uav_0"]
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", action_gain=False, **SMALL)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", action_gain=False, **SMALL)
     assert layout.KEY_GAIN not in venv.observation_space.spaces
     venv.close()
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", **SMALL)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", **SMALL)
     assert venv.observation_space[layout.KEY_GAIN].shape == (2, 6)
     assert venv.reset()[layout.KEY_GAIN].shape == (2, 2, 6)
     venv.close()
 
 
 def test_metrics_reward_pays_the_change_of_f1_and_entropy():
-    env = envs.make_env("env2", reward="metrics", budget=6)
+    env = uav_ipp.make_env("env2", reward="metrics", budget=6)
     rng = np.random.default_rng(1)
     obs, _ = env.reset(seed=1)
     m0 = env.metrics()
@@ -92,7 +92,7 @@ def test_metrics_reward_pays_the_change_of_f1_and_entropy():
 
 
 def _small_model(**policy_kwargs):
-    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, **SMALL)
+    venv = uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, **SMALL)
     kwargs = dict(features_extractor_kwargs={"features_dim": 16}, **policy_kwargs)
     return COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=kwargs), venv
 
@@ -280,7 +280,7 @@ def test_gain_inputs_must_be_a_bool(bad):
 
 
 def test_gain_inputs_need_the_gain_observation():
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", action_gain=False, **SMALL)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", action_gain=False, **SMALL)
     with pytest.raises(ValueError, match=r"gain_inputs=True needs observation\['action_gain'\]"):
         COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs={"gain_inputs": True})
     venv.close()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch as th
 
-import envs
+import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma.imitation import clone_teacher
@@ -15,7 +15,7 @@ SMALL = {"features_extractor_kwargs": {"features_dim": 32, "channels": [8, 16, 1
 
 
 def _model(seed: int = 0, **kwargs) -> COMA:
-    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=seed, split="train", start="random")
+    venv = uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", seed=seed, split="train", start="random")
     return COMA("CnnPolicy", venv, seed=seed, n_steps=8, batch_size=8, policy_kwargs=SMALL, **kwargs)
 
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from PIL import Image, ImageOps
 
-from envs.maps import MapError, available_maps, block_fraction, block_index, load_ground_truth, parse_rule
-from envs.maps.rules import orient, read_image
+from uav_ipp.maps import MapError, available_maps, block_fraction, block_index, load_ground_truth, parse_rule
+from uav_ipp.maps.rules import orient, read_image
 
 STARTS = [(2, 2), (8, 2), (8, 8), (2, 8)]  # default start columns, lattice (x, y)
 
@@ -385,7 +385,7 @@ def _doc_message(row_id: str) -> str:
 
 
 def test_transparency_rows_of_the_errors_doc_are_the_real_messages(tmp_path):
-    import envs
+    import uav_ipp
 
     maps = tmp_path / "maps"
     maps.mkdir()
@@ -402,9 +402,9 @@ def test_transparency_rows_of_the_errors_doc_are_the_real_messages(tmp_path):
         return message.replace(str(tmp_path), "<tmp>")
 
     with pytest.warns(UserWarning) as caught:
-        envs.make_env("mine", map_path=str(maps / "logo.png"), valuable="dark:0.5")
+        uav_ipp.make_env("mine", map_path=str(maps / "logo.png"), valuable="dark:0.5")
     assert [shown(str(w.message)) for w in caught] == [_doc_message("map-path-transparent-pixels")]
     for row_id, file in (("map-path-fully-transparent", "ghost.png"), ("map-path-transparent-rest-flat", "half.png")):
         with pytest.raises(MapError) as info:
-            envs.make_env("mine", map_path=str(maps / file))
+            uav_ipp.make_env("mine", map_path=str(maps / file))
         assert shown(str(info.value)) == _doc_message(row_id)

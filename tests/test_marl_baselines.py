@@ -11,8 +11,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import obs_as_tensor
 
-import envs
-from envs import layout
+import uav_ipp
 from sb3_coma.common.marl_baselines import (
     DEFAULT_PPO_KWARGS,
     IPPOPolicy,
@@ -23,13 +22,14 @@ from sb3_coma.common.marl_baselines import (
     missions_of,
     timesteps_for_missions,
 )
+from uav_ipp import layout
 
 TINY = dict(n_uavs=2, budget=4, split="train")  # random stars and random starts: varied masks
 FACTORIES = {"ippo": make_ippo, "mappo": make_mappo}
 
 
 def tiny_venv(n_envs: int = 2, seed: int = 0, **options):
-    return envs.make_vec_env("env1", n_envs=n_envs, fusion="mean", seed=seed, **{**TINY, **options})
+    return uav_ipp.make_vec_env("env1", n_envs=n_envs, fusion="mean", seed=seed, **{**TINY, **options})
 
 
 def tiny_model(kind: str, venv, **kwargs):
@@ -193,7 +193,7 @@ def test_mission_counting():
 
 
 def test_bad_inputs():
-    raw = envs.make_vec_env("env1", n_envs=1, fusion="none", seed=0, n_uavs=2, budget=4)
+    raw = uav_ipp.make_vec_env("env1", n_envs=1, fusion="none", seed=0, n_uavs=2, budget=4)
     with pytest.raises(ValueError, match="fusion"):
         make_ippo(raw)
     raw.close()

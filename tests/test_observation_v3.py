@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import envs
-from envs import kernels, layout
-from envs.config import ConfigError
-from envs.ipp_env import ACTION_DELTAS
+import uav_ipp
+from uav_ipp import kernels, layout
+from uav_ipp.config import ConfigError
+from uav_ipp.ipp_env import ACTION_DELTAS
 
 OPTIONS = {"split": "train", "start": "random"}
 
@@ -41,7 +41,7 @@ def _block_means(env, grid_map: np.ndarray, index: np.ndarray, size: int) -> np.
 
 
 def test_v3_spaces_and_v2_channels_unchanged():
-    v2, v3 = envs.make_env("env3", **OPTIONS), envs.make_env("env3", observation="v3", **OPTIONS)
+    v2, v3 = uav_ipp.make_env("env3", **OPTIONS), uav_ipp.make_env("env3", observation="v3", **OPTIONS)
     assert v3.observation_space("uav_0")[layout.KEY_LOCAL].shape == (7 + layout.V3_LOCAL_EXTRA, 11, 11)
     assert v3.observation_space("uav_0")[layout.KEY_STATE].shape == (5, 11, 11)
     o2, o3 = _fly(v2, 5, 4), _fly(v3, 5, 4)
@@ -52,7 +52,7 @@ def test_v3_spaces_and_v2_channels_unchanged():
 
 
 def test_fine_view_is_the_comm_grid_mean_of_the_own_belief():
-    env = envs.make_env("env3", observation="v3", **OPTIONS)
+    env = uav_ipp.make_env("env3", observation="v3", **OPTIONS)
     obs = _fly(env, 11, 6)
     geo, f = env.geometry, layout.FINE_FACTOR
     for i, agent in enumerate(env.possible_agents):
@@ -68,7 +68,7 @@ def test_fine_view_is_the_comm_grid_mean_of_the_own_belief():
 
 
 def test_privileged_state_is_truth_and_belief_error():
-    env = envs.make_env("env3", observation="v3", **OPTIONS)
+    env = uav_ipp.make_env("env3", observation="v3", **OPTIONS)
     obs = _fly(env, 2, 5)
     geo = env.geometry
     truth = env._truth_u8.astype(np.float64)
@@ -83,7 +83,7 @@ def test_privileged_state_is_truth_and_belief_error():
 
 
 def test_intent_marks_where_received_teammates_head():
-    env = envs.make_env("env3", observation="v3", comm_range=1000.0, **OPTIONS)
+    env = uav_ipp.make_env("env3", observation="v3", comm_range=1000.0, **OPTIONS)
     obs, _ = env.reset(seed=4)
     moves = _first_valid(obs, env.agents)
     obs, *_ = env.step(moves)
@@ -100,15 +100,15 @@ def test_intent_marks_where_received_teammates_head():
 
 
 def test_no_message_no_intent():
-    env = envs.make_env("env3", observation="v3", drop_probability=1.0, **OPTIONS)
+    env = uav_ipp.make_env("env3", observation="v3", drop_probability=1.0, **OPTIONS)
     obs = _fly(env, 1, 3)
     for agent in env.possible_agents:
         assert not obs[agent][layout.KEY_LOCAL][layout.INTENT - 1].any()
 
 
 def test_fused_v3_keeps_fused_channel_at_its_index():
-    v2 = envs.make_vec_env("env3", n_envs=1, fusion="mean", seed=3, **OPTIONS)
-    v3 = envs.make_vec_env("env3", n_envs=1, fusion="mean", seed=3, observation="v3", **OPTIONS)
+    v2 = uav_ipp.make_vec_env("env3", n_envs=1, fusion="mean", seed=3, **OPTIONS)
+    v3 = uav_ipp.make_vec_env("env3", n_envs=1, fusion="mean", seed=3, observation="v3", **OPTIONS)
     o2, o3 = v2.reset(), v3.reset()
     assert o3[layout.KEY_LOCAL].shape[1] == layout.LOCAL_CHANNELS + layout.V3_LOCAL_EXTRA
     np.testing.assert_array_equal(o3[layout.KEY_LOCAL][:, : layout.LOCAL_CHANNELS], o2[layout.KEY_LOCAL])
@@ -118,4 +118,4 @@ def test_fused_v3_keeps_fused_channel_at_its_index():
 
 def test_bad_observation_option_is_one_clear_error():
     with pytest.raises(ConfigError, match="observation"):
-        envs.make_env("env3", observation="v4")
+        uav_ipp.make_env("env3", observation="v4")

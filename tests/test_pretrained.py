@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
-import envs
+import uav_ipp
 from sb3_coma import COMA
 from sb3_coma import load_pretrained as exported
 from sb3_coma.app import pretrained as pt
@@ -63,7 +63,7 @@ def test_load_pretrained_predict_honours_masks():
     assert isinstance(model, COMA) and model.pretrained_info["env"] == "env3"
     assert pt.model_info("UavIpp-Env3-v0")["file"] == model.pretrained_info["file"]
     trained = training_options(model)
-    venv = envs.make_vec_env(
+    venv = uav_ipp.make_vec_env(
         "env3", n_envs=2, fusion=trained["fusion"], seed=0, action_gain=trained["action_gain"], split="test"
     )
     obs = venv.reset()
@@ -126,10 +126,10 @@ def test_shipped_form_is_compact_and_flies_like_the_full_model(tmp_path):
     import numpy as np
     import torch as th
 
-    import envs
+    import uav_ipp
     from sb3_coma.app.pretrained import save_for_shipping
 
-    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, n_uavs=2, budget=4)
+    venv = uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, n_uavs=2, budget=4)
     model = COMA("CBAMPolicy", venv, seed=0, n_steps=8, batch_size=8, n_epochs=1, device="cpu")
     model.learn(64)
     full = tmp_path / "full.zip"

@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from envs.maps import SCENES, SPLIT_ROLES, VALIDATION_SPLIT, build_shipped_maps, load_ground_truth, shipped
-from envs.maps.scenes import PIXEL_METRES, SOURCE_SHAPES, SPLIT_GAP, Scene, split_scenes
+from uav_ipp.maps import SCENES, SPLIT_ROLES, VALIDATION_SPLIT, build_shipped_maps, load_ground_truth, shipped
+from uav_ipp.maps.scenes import PIXEL_METRES, SOURCE_SHAPES, SPLIT_GAP, Scene, split_scenes
 
 FAMILIES = ("env2", "env3")
 PAPER_FILES = {shipped.ENV2_FILE, shipped.ENV3_RGB_FILE, shipped.ENV3_NIR_FILE, shipped.ENV3_BUILTUP_FILE}

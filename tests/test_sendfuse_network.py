@@ -507,7 +507,7 @@ def test_envs_imports_nothing_of_sb3_coma() -> None:
     code = "import sys, envs; print(','.join(m for m in sys.modules if m.split('.')[0] == 'sb3_coma'))"
     root = Path(__file__).resolve().parents[1]
     result = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True)
-    assert result.stdout.strip() == "", f"import envs pulled in: {result.stdout.strip()}"
+    assert result.stdout.strip() == "", f"import uav_ipp pulled in: {result.stdout.strip()}"
 
 
 def test_tune_cpu_allocator_is_safe_to_call() -> None:

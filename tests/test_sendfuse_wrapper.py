@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-import envs
-from envs import ConfigError, fusion, layout
+import uav_ipp
 from sb3_coma.sendfuse.network import SenDFuseNet
 from sb3_coma.sendfuse.weights import SenDFuseWeightsError, load_weights
 from sb3_coma.sendfuse.wrapper import SenDFuseFusionWrapper
+from uav_ipp import ConfigError, fusion, layout
 
 
 def _random_actions(obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
@@ -32,8 +32,8 @@ class CountingNet(SenDFuseNet):
 
 
 def test_observation_space_equals_the_mean_wrappers() -> None:
-    sendfuse = envs.make_vec_env("env3", fusion="sendfuse", seed=0)
-    mean = envs.make_vec_env("env3", fusion="mean", seed=0)
+    sendfuse = uav_ipp.make_vec_env("env3", fusion="sendfuse", seed=0)
+    mean = uav_ipp.make_vec_env("env3", fusion="mean", seed=0)
     assert sendfuse.observation_space == mean.observation_space
     assert sendfuse.action_space == mean.action_space
     obs = sendfuse.reset()
@@ -42,7 +42,7 @@ def test_observation_space_equals_the_mean_wrappers() -> None:
 
 
 def test_fused_channel_is_finite_and_in_unit_range() -> None:
-    venv = envs.make_vec_env("env3", n_envs=2, fusion="sendfuse", seed=1, noise="loud", budget=5)
+    venv = uav_ipp.make_vec_env("env3", n_envs=2, fusion="sendfuse", seed=1, noise="loud", budget=5)
     rng = np.random.default_rng(0)
     obs = venv.reset()
     for _ in range(7):  # crosses an episode end (auto-reset, terminal observations fused too)
@@ -60,8 +60,8 @@ def test_fused_channel_is_finite_and_in_unit_range() -> None:
 def test_without_noise_and_in_range_it_is_close_to_the_mean() -> None:
     """No channel noise, every UAV hears every other: SenDFuse should reproduce the average."""
     options = dict(noise="none", comm_range=float("inf"), budget=6)
-    sendfuse = envs.make_vec_env("env3", fusion="sendfuse", seed=3, **options)
-    mean = envs.make_vec_env("env3", fusion="mean", seed=3, **options)
+    sendfuse = uav_ipp.make_vec_env("env3", fusion="sendfuse", seed=3, **options)
+    mean = uav_ipp.make_vec_env("env3", fusion="mean", seed=3, **options)
     rng = np.random.default_rng(3)
     obs_s, obs_m = sendfuse.reset(), mean.reset()
     diffs = []
@@ -81,20 +81,20 @@ def test_without_noise_and_in_range_it_is_close_to_the_mean() -> None:
 def test_missing_weights_give_a_clear_error(tmp_path) -> None:
     missing = tmp_path / "absent.safetensors"
     with pytest.raises(SenDFuseWeightsError, match=str(missing)):
-        envs.make_vec_env("env3", fusion="sendfuse", fusion_kwargs={"weights": missing})
+        uav_ipp.make_vec_env("env3", fusion="sendfuse", fusion_kwargs={"weights": missing})
 
 
 def test_corrupt_weights_give_a_clear_error(tmp_path) -> None:
     corrupt = tmp_path / "corrupt.safetensors"
     corrupt.write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00not a header at all")
     with pytest.raises(ValueError, match=str(corrupt)):
-        envs.make_vec_env("env3", fusion="sendfuse", fusion_kwargs={"weights": corrupt})
+        uav_ipp.make_vec_env("env3", fusion="sendfuse", fusion_kwargs={"weights": corrupt})
 
 
 def test_one_batched_network_call_per_step() -> None:
     net = CountingNet()
     n_envs, budget = 3, 4
-    venv = envs.make_vec_env(
+    venv = uav_ipp.make_vec_env(
         "env3", n_envs=n_envs, fusion="sendfuse", seed=0, budget=budget, fusion_kwargs={"network": net}
     )
     rng = np.random.default_rng(0)
@@ -116,7 +116,7 @@ def test_large_batches_are_fused_in_chunks_with_the_same_result() -> None:
     from sb3_coma.sendfuse.wrapper import FUSE_CHUNK
 
     net = CountingNet()
-    venv = envs.make_vec_env("env3", n_envs=1, fusion="sendfuse", seed=0, fusion_kwargs={"network": net})
+    venv = uav_ipp.make_vec_env("env3", n_envs=1, fusion="sendfuse", seed=0, fusion_kwargs={"network": net})
     wrapper = fusion_wrapper(venv)
     rng = np.random.default_rng(1)
     rows = 2 * FUSE_CHUNK + 5
@@ -133,31 +133,31 @@ def test_large_batches_are_fused_in_chunks_with_the_same_result() -> None:
 def test_wrapper_uses_the_given_network_and_checks_its_grid() -> None:
     torch.manual_seed(0)
     with pytest.raises(ValueError, match="comm_grid"):
-        envs.make_vec_env("env3", fusion="sendfuse", fusion_kwargs={"network": SenDFuseNet(grid_size=32)})
+        uav_ipp.make_vec_env("env3", fusion="sendfuse", fusion_kwargs={"network": SenDFuseNet(grid_size=32)})
 
 
 # ------------------------------------------------------------------ the entry point and the defaults
 def test_sendfuse_is_found_through_its_entry_point() -> None:
-    assert "sendfuse" in envs.available_fusions() and {"mean", "none"} <= set(envs.available_fusions())
+    assert "sendfuse" in uav_ipp.available_fusions() and {"mean", "none"} <= set(uav_ipp.available_fusions())
     assert fusion.fusion_factory("sendfuse") is SenDFuseFusionWrapper
     assert fusion.fusion_factory("mean") is fusion.MeanFusionWrapper
 
 
 def test_default_vec_env_is_env3_with_sendfuse() -> None:
-    venv = envs.make_vec_env(budget=2)
-    assert envs.DEFAULT_MAP == "env3" and venv.get_attr("config", indices=[0])[0].map_name == "env3"
-    assert isinstance(venv.venv.venv, SenDFuseFusionWrapper) and envs.DEFAULT_FUSION == "sendfuse"
+    venv = uav_ipp.make_vec_env(budget=2)
+    assert uav_ipp.DEFAULT_MAP == "env3" and venv.get_attr("config", indices=[0])[0].map_name == "env3"
+    assert isinstance(venv.venv.venv, SenDFuseFusionWrapper) and uav_ipp.DEFAULT_FUSION == "sendfuse"
     venv.close()
 
 
 def test_unknown_and_broken_fusions_name_the_choices(monkeypatch) -> None:
     with pytest.raises(ValueError, match=r"unknown fusion 'median'; choose one of \['mean', 'none', 'sendfuse'\]"):
-        envs.make_vec_env("env3", fusion="median")
+        uav_ipp.make_vec_env("env3", fusion="median")
     broken = {"ghost": fusion.metadata.EntryPoint("ghost", "no_such_module:Wrapper", fusion.ENTRY_POINT_GROUP)}
     monkeypatch.setattr(fusion, "_installed_fusions", lambda: broken)
-    assert envs.available_fusions() == ["ghost", "mean", "none"]
+    assert uav_ipp.available_fusions() == ["ghost", "mean", "none"]
     with pytest.raises(ConfigError, match=r"fusion 'ghost' \(no_such_module:Wrapper\) cannot be loaded"):
-        envs.make_vec_env("env3", fusion="ghost")
+        uav_ipp.make_vec_env("env3", fusion="ghost")
     monkeypatch.setattr(fusion, "_installed_fusions", dict)
     with pytest.raises(ValueError, match=r"no package provides entry points 'uav_ipp\.fusion'"):
-        envs.make_vec_env("env3", fusion="sendfuse")
+        uav_ipp.make_vec_env("env3", fusion="sendfuse")

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from envs.maps import (
+from uav_ipp.maps import (
     ENV1_SEED_RANGES,
     SCENES,
     SPLITS,
@@ -27,7 +27,7 @@ from envs.maps import (
     shipped,
     split_scenes,
 )
-from envs.maps.scenes import SOURCE_SHAPES, SPLIT_GAP, pick
+from uav_ipp.maps.scenes import SOURCE_SHAPES, SPLIT_GAP, pick
 
 FAMILIES = ("env2", "env3")
 STARTS = [(2, 2), (8, 2), (8, 8), (2, 8)]  # default start columns, lattice (x, y)

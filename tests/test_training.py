@@ -15,7 +15,7 @@ import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 from tiny_runs import ENV, tiny_entry
 
-import envs  # noqa: F401  (registers the gymnasium ids)
+import uav_ipp  # noqa: F401  (registers the gymnasium ids)
 from sb3_coma import cli, training_options
 from sb3_coma.app.config import TrainingError, default_config_path, list_variants, load_config
 from sb3_coma.app.training import TrainingInterrupted, train

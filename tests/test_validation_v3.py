@@ -24,8 +24,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-import envs
-from envs import ConfigError
+import uav_ipp
 from sb3_coma import COMA, evaluate
 from sb3_coma.app import evaluation as ev
 from sb3_coma.app import pretrained
@@ -35,6 +34,7 @@ from sb3_coma.cli import main
 from sb3_coma.common.checkpoints import atomic_save
 from sb3_coma.sendfuse import SenDFuseConfig, SenDFuseNet, SenDFuseWeightsError, save_weights
 from sb3_coma.sendfuse import weights as weights_mod
+from uav_ipp import ConfigError
 
 ENV_ID = "UavIpp-Env1-v0"
 TINY = {
@@ -63,7 +63,7 @@ def tiny_config(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def mean_zip(tmp_path_factory) -> Path:
     """A COMA zip that records its training env (env1, 2 UAVs, budget 4, mean fusion)."""
-    venv = envs.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4)
+    venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4)
     model = COMA(
         "CnnPolicy", venv, batch_size=8, seed=0, policy_kwargs={"features_extractor_kwargs": {"features_dim": 16}}
     )
@@ -97,7 +97,7 @@ def test_replaced_shipped_weights_are_refused_whatever_the_path(tmp_path, monkey
     package.mkdir()
     shutil.copyfile(weights_mod.default_weights_path(), package / "sendfuse_r44.safetensors")
     monkeypatch.setattr(weights_mod, "shipped_weights_dir", lambda: package.resolve())
-    envs.make_vec_env("env1", fusion="sendfuse", n_uavs=2, budget=2).close()  # the intact copy is fine
+    uav_ipp.make_vec_env("env1", fusion="sendfuse", n_uavs=2, budget=2).close()  # the intact copy is fine
 
     other = SenDFuseNet.from_config(SenDFuseConfig(grid_size=44, channels=(4, 4, 4)))
     save_weights(other, package / "sendfuse_r44.safetensors")  # a valid file, but not the shipped one
@@ -109,11 +109,11 @@ def test_replaced_shipped_weights_are_refused_whatever_the_path(tmp_path, monkey
         {"weights": str(tmp_path / "elsewhere" / "link.safetensors")},
     ):
         with pytest.raises(SenDFuseWeightsError, match="do not match their recorded SHA-256"):
-            envs.make_vec_env("env1", fusion="sendfuse", n_uavs=2, budget=2, fusion_kwargs=fusion_kwargs)
+            uav_ipp.make_vec_env("env1", fusion="sendfuse", n_uavs=2, budget=2, fusion_kwargs=fusion_kwargs)
 
     mine = tmp_path / "mine.safetensors"  # the user's own copy elsewhere is not the shipped file
     shutil.copyfile(package / "sendfuse_r44.safetensors", mine)
-    envs.make_vec_env("env1", fusion="sendfuse", n_uavs=2, budget=2, fusion_kwargs={"weights": str(mine)}).close()
+    uav_ipp.make_vec_env("env1", fusion="sendfuse", n_uavs=2, budget=2, fusion_kwargs={"weights": str(mine)}).close()
 
     if SHIPPED:  # evaluating a SenDFuse model builds such an env: one line, nothing flown
         argv = ["evaluate", "--methods", "", "--model", "env1", "--env", "env1", "--uavs", "2", "--budget", "2"]
@@ -276,8 +276,8 @@ def test_path_options_are_checked_before_any_work(tmp_path, monkeypatch, capsys)
 # =========================================================================== 6. conflicts
 def test_a_reward_option_the_reward_ignores_is_refused(tiny_config, capsys):
     with pytest.raises(ConfigError, match=r"reward_entropy='weighted': not with reward='metrics'"):
-        envs.make_env("env1", reward="metrics", reward_entropy="weighted")
-    envs.make_env("env1", reward="entropy", reward_entropy="weighted")  # the reward it shapes
+        uav_ipp.make_env("env1", reward="metrics", reward_entropy="weighted")
+    uav_ipp.make_env("env1", reward="entropy", reward_entropy="weighted")  # the reward it shapes
     argv = ["train", "--env", "env1", "--config", str(tiny_config), "--set", "env_kwargs.reward=metrics"]
     refused([*argv, "--set", "env_kwargs.reward_entropy=weighted"], capsys, "reward_entropy='weighted'", "'metrics'")
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-import envs
-from envs import layout
-from envs.config import ConfigError
-from envs.fusion import mean_fusion
+import uav_ipp
+from uav_ipp import layout
+from uav_ipp.config import ConfigError
+from uav_ipp.fusion import mean_fusion
 
 
 def valid_random_actions(obs, rng):
@@ -20,7 +20,7 @@ def valid_random_actions(obs, rng):
 
 @pytest.fixture(scope="module")
 def venv():
-    return envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, budget=4)
+    return uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, budget=4)
 
 
 def test_spaces_and_shapes(venv):
@@ -62,7 +62,7 @@ def test_step_terminal_observation_and_infos(venv):
 
 def test_seeding_per_copy_and_reproducible():
     def rollout(seed):
-        v = envs.make_vec_env("env1", n_envs=2, seed=seed, budget=3)
+        v = uav_ipp.make_vec_env("env1", n_envs=2, seed=seed, budget=3)
         rng = np.random.default_rng(1)
         obs = v.reset()
         out = [obs[layout.KEY_LOCAL].copy()]
@@ -102,8 +102,8 @@ def test_mean_fusion_is_the_average_of_valid_slots():
 
 
 def test_fused_channel_matches_raw_received():
-    raw = envs.make_vec_env("env1", n_envs=1, fusion="none", seed=3, budget=2, monitor=False)
-    fused = envs.make_vec_env("env1", n_envs=1, fusion="mean", seed=3, budget=2, monitor=False)
+    raw = uav_ipp.make_vec_env("env1", n_envs=1, fusion="none", seed=3, budget=2, monitor=False)
+    fused = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=3, budget=2, monitor=False)
     r, f = raw.reset(), fused.reset()
     np.testing.assert_array_equal(r[layout.KEY_LOCAL], f[layout.KEY_LOCAL][:, :7])
     geo = raw.copies[0].geometry
@@ -133,4 +133,4 @@ def test_gymnasium_ids_registered():
 )
 def test_bad_vec_env_arguments(kwargs, match):
     with pytest.raises((ConfigError, ValueError), match=match):
-        envs.make_vec_env("env1", **kwargs)
+        uav_ipp.make_vec_env("env1", **kwargs)

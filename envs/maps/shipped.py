@@ -75,7 +75,7 @@ def _read_shipped(file: str, flags: int) -> np.ndarray:
     if img is None or img.size == 0:
         raise MapError(
             f"shipped map file {str(path)!r} is missing or unreadable; reinstall sb3-coma "
-            "or rebuild it with `python -m envs.maps.build_shipped_maps`"
+            "or rebuild it with `python -m uav_ipp.maps.build_shipped_maps`"
         )
     return img
 
@@ -122,7 +122,7 @@ def env3_builtup(grid: int) -> np.ndarray:
     return resize_to_grid((mask > 0).astype(np.float32), grid)
 
 
-# --- the extra train / test scenes (envs.maps.scenes) ------------------------------------------------
+# --- the extra train / test scenes (uav_ipp.maps.scenes) ------------------------------------------------
 def env2_scene_image(file: str, grid: int) -> MapImage:
     """An extra env2 scene: its 8-bit thermal crop (native crop size, white = hot) at ``grid``."""
     return env2_image_from_codes(_read_shipped(file, cv2.IMREAD_GRAYSCALE), grid)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import copy
 import difflib
 import importlib
+import importlib.metadata
 import inspect
 import os
 import re
@@ -31,12 +32,12 @@ from rl_zoo3.utils import SimpleLinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
-import envs
-from envs import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
+import uav_ipp
 from sb3_coma.baselines import PLANNERS
 from sb3_coma.coma import COMA
 from sb3_coma.common.checkpoints import folder_write_problem
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
+from uav_ipp import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
 
 __all__ = [
     "ALLOW_TEST_SPLIT",
@@ -85,7 +86,7 @@ VARIANTS_KEY = "variants"
 RUN_KEY = "run"
 #: rl-zoo3 keys that both trainers understand besides COMA's arguments.
 ZOO_KEYS = ("n_timesteps", "n_envs", "policy", "policy_kwargs", "env_kwargs", "callback", "vec_env_wrapper")
-#: Keys that say where the env copies run (``envs.make_vec_env``'s ``workers`` / ``backend``), not
+#: Keys that say where the env copies run (``uav_ipp.make_vec_env``'s ``workers`` / ``backend``), not
 #: what they are: ``workers`` is an integer >= 1 or ``"auto"`` (every core, at most one per copy).
 LAYOUT_KEYS = ("workers", "backend")
 #: ``warm_start``: DAgger from a teacher planner before COMA trains (``sb3_coma.app.warm_start``).
@@ -113,7 +114,7 @@ UNSUPPORTED_KEYS = {
 #: It sits next to ``split`` so that the run's ``config.yml`` records it with the split it allows, and
 #: both trainers read it through :func:`split_env_kwargs`, which takes it out before the env is built.
 ALLOW_TEST_SPLIT = "allow_test_split"
-#: The gymnasium id of ``envs.DEFAULT_MAP``: what ``sb3-coma train`` trains without ``--env``.
+#: The gymnasium id of ``uav_ipp.DEFAULT_MAP``: what ``sb3-coma train`` trains without ``--env``.
 DEFAULT_ENV_ID = next(env_id for env_id, name in ENV_IDS.items() if name == DEFAULT_MAP)
 _SCHEDULE_KEYS = ("learning_rate", "critic_learning_rate")
 _SCHEDULE_RE = re.compile(r"^lin_(?P<value>[-+0-9.eE]+)$")
@@ -150,11 +151,16 @@ def resolve_env_id(env: str) -> str:
 
 
 def default_config_path() -> Path:
-    """``zoo_configs/coma.yml`` of a source checkout, else the copy installed under ``sys.prefix``."""
-    candidates = [
-        Path(__file__).resolve().parents[2] / "zoo_configs" / "coma.yml",
-        Path(sys.prefix) / "zoo_configs" / "coma.yml",
-    ]
+    """``zoo_configs/coma.yml`` of a source checkout, else the copy the installed distribution
+    carries (setup.cfg ``data_files``: it lands under the install prefix, found through the
+    distribution's own file list so that venv, ``--user`` and ``--prefix`` installs all work)."""
+    candidates = [Path(__file__).resolve().parents[2] / "zoo_configs" / "coma.yml"]
+    try:
+        files = importlib.metadata.distribution("sb3-coma").files or []
+    except importlib.metadata.PackageNotFoundError:
+        files = []
+    candidates += [Path(str(f.locate())).resolve() for f in files if f.as_posix().endswith("zoo_configs/coma.yml")]
+    candidates.append(Path(sys.prefix) / "zoo_configs" / "coma.yml")
     for path in candidates:
         if path.is_file():
             return path
@@ -229,7 +235,7 @@ def positive_int(where: str, key: str, value: Any) -> int:
 
 def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[str, dict[str, Any], dict[str, Any]]:
     """``(fusion, fusion_kwargs, env options)`` from an ``env_kwargs`` mapping (fusion default:
-    ``envs.DEFAULT_FUSION``, the same as ``envs.make_vec_env``'s)."""
+    ``uav_ipp.DEFAULT_FUSION``, the same as ``uav_ipp.make_vec_env``'s)."""
     options = dict(env_kwargs)
     fusion = options.pop("fusion", DEFAULT_FUSION)
     fusion_kwargs = options.pop("fusion_kwargs", None) or {}
@@ -239,7 +245,7 @@ def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[str, dict[str, Any]
 
 def _trainable_fusions() -> list[str]:
     """Fusions a COMA model can train on: every available one but the raw observation."""
-    return [name for name in envs.available_fusions() if name != "none"]
+    return [name for name in uav_ipp.available_fusions() if name != "none"]
 
 
 def _check_keys(entry: Mapping[str, Any], where: str) -> None:
@@ -267,8 +273,8 @@ def _check_zoo_values(entry: Mapping[str, Any], where: str) -> None:
         positive_int(where, "n_envs", entry["n_envs"])
     if entry.get("workers", "auto") != "auto":
         positive_int(where, "workers", entry["workers"])
-    if entry.get("backend", "subprocess") not in envs.BACKENDS:
-        _fail(where, f"backend must be one of {tuple(envs.BACKENDS)}, got {entry['backend']!r}")
+    if entry.get("backend", "subprocess") not in uav_ipp.BACKENDS:
+        _fail(where, f"backend must be one of {tuple(uav_ipp.BACKENDS)}, got {entry['backend']!r}")
     if "policy" in entry and not isinstance(entry["policy"], str):
         _fail(where, f"policy must be an alias (CBAMPolicy, CnnPolicy) or a dotted class path, got {entry['policy']!r}")
     if "policy_kwargs" in entry and not isinstance(entry["policy_kwargs"], (dict, str)):
@@ -325,7 +331,7 @@ def validate_entry(entry: Mapping[str, Any], where: str, map_name: str | None = 
     """Check one resolved config entry; raise :class:`TrainingError` naming ``where`` and the key.
 
     Checks key names (COMA's arguments + rl-zoo3's keys), the zoo keys' values, schedule
-    strings, and the environment options (through ``envs.IppConfig``). COMA's own value checks
+    strings, and the environment options (through ``uav_ipp.IppConfig``). COMA's own value checks
     (ranges, batch vs rollout) run when the model is built.
     """
     _check_keys(entry, where)
@@ -388,7 +394,7 @@ def _is_int_annotation(annotation: Any) -> bool:
 
 def _integer_settings() -> tuple[set[str], set[str]]:
     """``(entry keys, env options)`` that take whole numbers: rl-zoo3's counts, COMA's ``int``
-    arguments and ``envs.IppConfig``'s ``int`` fields, read from their signatures so that a new
+    arguments and ``uav_ipp.IppConfig``'s ``int`` fields, read from their signatures so that a new
     argument is covered without a list to keep in step."""
     params = inspect.signature(COMA.__init__).parameters
     coma = {name for name, p in params.items() if _is_int_annotation(p.annotation) and name not in RESERVED_KEYS}
@@ -745,14 +751,14 @@ def make_vec_env_from_kwargs(
     workers: int = 1,
     backend: str = "subprocess",
 ) -> VecEnv:
-    """``envs.make_vec_env`` of a gymnasium id and a config's ``env_kwargs`` (``fusion``,
+    """``uav_ipp.make_vec_env`` of a gymnasium id and a config's ``env_kwargs`` (``fusion``,
     ``fusion_kwargs`` and env options) on ``workers`` processes; a bad option becomes a
     :class:`TrainingError`."""
     fusion, fusion_kwargs, options = split_env_kwargs(env_kwargs or {})
     if options.get("render_mode") == "human":  # rl-zoo3's default for enjoy; maps render headless
         options.pop("render_mode")
     try:
-        return envs.make_vec_env(
+        return uav_ipp.make_vec_env(
             ENV_IDS[env_id],
             n_envs=n_envs,
             fusion=fusion,
@@ -762,14 +768,14 @@ def make_vec_env_from_kwargs(
             backend=backend,
             **options,
         )
-    except ValueError as exc:  # envs.ConfigError, an unavailable fusion, ...
+    except ValueError as exc:  # uav_ipp.ConfigError, an unavailable fusion, ...
         raise TrainingError(f"cannot build {env_id} (fusion={fusion!r}, options {options}): {exc}") from exc
 
 
 def make_training_env(
     cfg: TrainConfig, n_envs: int | None = None, seed: int | None = None, workers: int | None = None
 ) -> VecEnv:
-    """The SB3 vec env of a config (``envs.make_vec_env`` + the config's ``vec_env_wrapper``), its
+    """The SB3 vec env of a config (``uav_ipp.make_vec_env`` + the config's ``vec_env_wrapper``), its
     copies on the config's ``workers`` (or ``workers``) processes."""
     copies = n_envs or cfg.n_envs
     layout = resolve_workers(cfg.entry.get("workers", 1), copies) if workers is None else workers
@@ -805,9 +811,9 @@ def plain(value: Any) -> Any:
 def env_options_of(map_name: str, env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
     """The record of the env a model trains on, as ``COMA.env_options`` keeps it (saved in the zip).
 
-    ``{"map": map_name, "fusion": ..., "fusion_kwargs": {...}}`` plus every :class:`envs.IppConfig`
+    ``{"map": map_name, "fusion": ..., "fusion_kwargs": {...}}`` plus every :class:`uav_ipp.IppConfig`
     option resolved (defaults included, so the record survives a later change of a default);
-    ``envs.make_vec_env(opts.pop("map"), **opts)`` rebuilds that env.
+    ``uav_ipp.make_vec_env(opts.pop("map"), **opts)`` rebuilds that env.
     """
     fusion, fusion_kwargs, options = split_env_kwargs(env_kwargs)
     config = IppConfig.from_options(map_name, **options)

@@ -30,8 +30,7 @@ from typing import Any
 
 import numpy as np
 
-import envs
-from envs import NOISE_PRESETS, IppConfig
+import uav_ipp
 from sb3_coma.app import pretrained
 from sb3_coma.app.pretrained import shipped_env_options
 from sb3_coma.baselines import PLANNERS, Planner, make_planner, planner_class
@@ -50,6 +49,7 @@ from sb3_coma.common.evaluation import (
     protocol_of,
     relabel,
 )
+from uav_ipp import NOISE_PRESETS, IppConfig
 
 __all__ = [
     "OBSERVATION_OPTIONS",
@@ -565,7 +565,7 @@ def _env_maker(
 
     def make_env(n: int) -> Any:
         try:
-            return envs.make_vec_env(env, n_envs=n, fusion=flown_fusion, seed=None, **env_options)
+            return uav_ipp.make_vec_env(env, n_envs=n, fusion=flown_fusion, seed=None, **env_options)
         except ValueError as exc:
             if flown_fusion == "sendfuse" and own_fusion != "sendfuse" and "sendfuse" in str(exc):
                 raise ValueError(f"{exc}; evaluate a model trained without SenDFuse with fusion='mean'") from exc

@@ -4,7 +4,7 @@ A UAV flying a trained model needs two things at each decision, and nothing else
 training stack (no SB3, no critic, no env):
 
 1. the **fusion** that turns the maps it received over the channel into the 8th channel of its
-   local observation (``envs.fusion``: SenDFuse or the naive mean, then the projection from the
+   local observation (``uav_ipp.fusion``: SenDFuse or the naive mean, then the projection from the
    communication grid to the 11 x 11 lattice);
 2. the **actor**: CBAM/CNN trunk + action head (+ the gain prior when the model has one), with
    invalid actions masked, and the argmax.
@@ -56,9 +56,6 @@ import onnxruntime as ort
 import torch as th
 from torch import nn
 
-from envs import IppConfig, layout
-from envs.fusion import FusionWrapper, mean_fusion
-from envs.geometry import overlap_matrix
 from sb3_coma import __version__
 from sb3_coma.app.config import TrainingError, load_config, path_name_problem, split_env_kwargs
 from sb3_coma.app.evaluation import _looks_like_path
@@ -69,6 +66,9 @@ from sb3_coma.coma.masking import MASKED_LOGIT, mask_logits
 from sb3_coma.common.checkpoints import training_options
 from sb3_coma.sendfuse.network import UNKNOWN, SenDFuseNet
 from sb3_coma.sendfuse.weights import default_weights_path, load_weights
+from uav_ipp import IppConfig, layout
+from uav_ipp.fusion import FusionWrapper, mean_fusion
+from uav_ipp.geometry import overlap_matrix
 
 __all__ = [
     "ACTOR_FILE",
@@ -166,7 +166,7 @@ class FusionGraph(nn.Module):
         return fused, channel
 
     def fused_map(self, received: th.Tensor, received_valid: th.Tensor) -> th.Tensor:
-        """``(B, n, R, R), (B, n) -> (B, R, R)``: :func:`envs.fusion.mean_fusion` or ``SenDFuseNet.fuse``."""
+        """``(B, n, R, R), (B, n) -> (B, R, R)``: :func:`uav_ipp.fusion.mean_fusion` or ``SenDFuseNet.fuse``."""
         mask = received_valid > 0.5
         maps = th.where(mask[:, :, None, None], received, th.zeros_like(received))
         count = th.clamp(mask.to(maps.dtype).sum(dim=1), min=1.0)[:, None, None]
@@ -328,7 +328,7 @@ def _jsonable(value: Any) -> Any:
 
 
 def _config_dict(config: Any) -> dict[str, Any]:
-    """Every field of an :class:`envs.IppConfig` (what the observations were built with)."""
+    """Every field of an :class:`uav_ipp.IppConfig` (what the observations were built with)."""
     return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
 
 
@@ -393,7 +393,7 @@ def settings_of_source(source: ModelSource) -> dict[str, Any] | None:
 
 
 def fusion_wrapper(venv: Any) -> Any:
-    """The :class:`envs.fusion.FusionWrapper` inside a vec env from ``envs.make_vec_env``, or ``None``."""
+    """The :class:`uav_ipp.fusion.FusionWrapper` inside a vec env from ``uav_ipp.make_vec_env``, or ``None``."""
     seen = 0
     while venv is not None and seen < 16:
         if isinstance(venv, FusionWrapper):

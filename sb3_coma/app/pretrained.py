@@ -27,10 +27,10 @@ from typing import Any
 
 import torch as th
 
-from envs import WORLD_VERSION
 from sb3_coma.app.config import TrainingError, env_options_of, load_config
 from sb3_coma.coma import COMA
 from sb3_coma.common.shipped import SHIPPED_DIR, sha256_of
+from uav_ipp import WORLD_VERSION
 
 __all__ = [
     "MANIFEST",
@@ -215,7 +215,7 @@ def load_pretrained(
     """Load a shipped COMA model after verifying its checksum.
 
     :param name: ``"env1"``, ``"env2"``, ``"env3"`` (or the gymnasium id ``"UavIpp-Env3-v0"``)
-    :param env: optional vec env (``envs.make_vec_env(name, fusion=model.fusion)``) to attach;
+    :param env: optional vec env (``uav_ipp.make_vec_env(name, fusion=model.fusion)``) to attach;
         ``None`` is enough for ``predict``
     :param device: torch device (default cpu)
     :param directory: folder holding ``models.json`` and the zips (default: the shipped one)

@@ -641,7 +641,7 @@ def train(
     """Train COMA and return ``(model, run_dir)``.
 
     The returned model's training env is closed (``model.env``); give it a new one
-    (``envs.make_vec_env``) to predict or evaluate, or load ``run_dir / "model.zip"``.
+    (``uav_ipp.make_vec_env``) to predict or evaluate, or load ``run_dir / "model.zip"``.
 
     :param env: ``"env1"``/``"env2"``/``"env3"`` or a gymnasium id (default ``"env3"``; with
         ``resume`` of a run folder, the run's own env)

@@ -8,7 +8,7 @@ With ``--algo coma`` (the default) on a UavIpp env:
   rl-zoo3's experiment lifecycle (``setup_experiment``, ``learn``, ``save_trained_model``,
   ``hyperparameters_optimization``: its log folder layout ``logs/coma/<env id>_<n>/``, saved
   config, Optuna search) with :class:`ComaExperimentManager`, a subclass of rl-zoo3's
-  ``ExperimentManager`` that builds envs with ``envs.make_vec_env`` (``gym.make`` cannot return a
+  ``ExperimentManager`` that builds envs with ``uav_ipp.make_vec_env`` (``gym.make`` cannot return a
   multi-agent env), counts evaluation and checkpoint frequencies in joint steps and evaluations
   in missions, logs mission F1 / entropy / team reward, writes models and checkpoints atomically,
   records the env options in every saved model and validates the config with clear errors;
@@ -48,7 +48,6 @@ from rl_zoo3.utils import ALGOS, StoreDict, get_model_path, get_saved_hyperparam
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
-from envs import ENV_IDS, ConfigError, IppConfig
 from sb3_coma.app.config import (
     DEFAULT_ENV_ID,
     WARM_START_KEY,
@@ -77,6 +76,7 @@ from sb3_coma.common.checkpoints import (
     load_checkpoint,
     validate_checkpoint,
 )
+from uav_ipp import ENV_IDS, ConfigError, IppConfig
 
 __all__ = ["ComaExperimentManager", "enjoy_parser", "main", "register", "train_parser"]
 
@@ -161,7 +161,7 @@ class ComaExperimentManager(ExperimentManager):
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
         if self.vec_env_class is not DummyVecEnv and not getattr(self, "_told_vec_env", False):
-            print("Note: --vec-env is ignored for UavIpp envs (env copies are vectorised by envs.make_vec_env)")
+            print("Note: --vec-env is ignored for UavIpp envs (env copies are vectorised by uav_ipp.make_vec_env)")
             self._told_vec_env = True
         # rl-zoo3 would give the eval env no env_kwargs when they come from the config only.
         kwargs = self.eval_env_kwargs if eval_env and self._eval_env_kwargs_args is not None else self.env_kwargs
@@ -466,7 +466,7 @@ def _fly(model: COMA, env: VecEnv, steps: int, deterministic: bool, verbose: int
     episode_start = np.ones(env.num_envs, dtype=bool)
     try:
         for _ in range(steps):
-            assert isinstance(obs, dict)  # the vec envs of envs.make_vec_env have Dict observations
+            assert isinstance(obs, dict)  # the vec envs of uav_ipp.make_vec_env have Dict observations
             actions, _ = model.predict(obs, episode_start=episode_start, deterministic=deterministic)
             obs, _, dones, infos = env.step(actions)
             episode_start = dones

@@ -43,7 +43,7 @@ def planner_class(name: str) -> type[Planner]:
 
 
 def make_planner(name: str, venv: VecEnv, seed: int | None = None, **kwargs: Any) -> Planner:
-    """Build the named planner for ``venv`` (an ``envs.make_vec_env`` vec env)."""
+    """Build the named planner for ``venv`` (an ``uav_ipp.make_vec_env`` vec env)."""
     cls = planner_class(name)
     try:
         return cls(venv, seed=seed, **kwargs)

@@ -21,10 +21,10 @@ import numba
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from envs import kernels
-from envs.gain import WEIGHTINGS, check_weighting, gain_density
-from envs.geometry import FieldGeometry
-from envs.ipp_env import ACTION_DELTAS
+from uav_ipp import kernels
+from uav_ipp.gain import WEIGHTINGS, check_weighting, gain_density
+from uav_ipp.geometry import FieldGeometry
+from uav_ipp.ipp_env import ACTION_DELTAS
 
 from .base import Planner
 

@@ -16,13 +16,13 @@ from typing import Any, ClassVar
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from envs import layout
+from uav_ipp import layout
 
 
 class Planner(ABC):
     """A non-learned policy over the batched observation of an IPP vec env.
 
-    :param venv: the vec env the planner acts in (``envs.make_vec_env``); planners that read
+    :param venv: the vec env the planner acts in (``uav_ipp.make_vec_env``); planners that read
         env state need the same env whose observations they receive
     :param seed: seed of the planner's own random stream (tie-breaking, random actions), so a
         run is reproducible bit for bit
@@ -38,7 +38,7 @@ class Planner(ABC):
         if not isinstance(n_agents, (int, np.integer)) or n_agents < 1:
             raise TypeError(
                 f"{type(self).__name__} needs an IPP vec env with an n_agents attribute "
-                f"(envs.make_vec_env), got {type(venv).__name__}"
+                f"(uav_ipp.make_vec_env), got {type(venv).__name__}"
             )
         self.venv = venv
         self.n_agents = int(n_agents)

@@ -15,7 +15,7 @@ import itertools
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from envs.geometry import FieldGeometry
+from uav_ipp.geometry import FieldGeometry
 
 from .base import Planner
 from .navigation import DistanceCache, best_move, lattice_cell

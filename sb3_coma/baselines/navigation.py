@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from envs.ipp_env import ACTION_DELTAS
+from uav_ipp.ipp_env import ACTION_DELTAS
 
-#: Action indices by kind (see ``envs.ipp_env.ACTION_DELTAS``).
+#: Action indices by kind (see ``uav_ipp.ipp_env.ACTION_DELTAS``).
 ALTITUDE_MOVES = (5, 0)  # down first: reach the sweep altitude from the 15 m start early
 X_MOVES = (1, 4)
 Y_MOVES = (2, 3)

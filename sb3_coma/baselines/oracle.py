@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from envs import kernels
+from uav_ipp import kernels
 
 from .adaptive_gain import AdaptiveGainPlanner, stored_probabilities
 

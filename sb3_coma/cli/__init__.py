@@ -17,13 +17,13 @@ from types import ModuleType
 
 import torch
 
-from envs import ConfigError, MapError
 from sb3_coma.app.config import TrainingError
 from sb3_coma.app.evaluation import parallel_evaluation
 from sb3_coma.cli import commands
 from sb3_coma.common.checkpoints import CheckpointError, DiskFullError
 from sb3_coma.common.shipped import ShippedFileError
 from sb3_coma.sendfuse import SenDFuseWeightsError
+from uav_ipp import ConfigError, MapError
 
 
 class UserError(Exception):

@@ -15,7 +15,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 
-from envs import layout
+from uav_ipp import layout
 
 __all__ = ["JointBatch", "JointRolloutBuffer"]
 

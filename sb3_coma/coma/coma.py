@@ -51,7 +51,6 @@ from stable_baselines3.common.utils import (
 from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
-from envs import layout
 from sb3_coma.coma.buffer import JointRolloutBuffer
 from sb3_coma.coma.policies import CBAMPolicy, CnnPolicy, COMAPolicy
 from sb3_coma.coma.progress import JointStepProgressBar
@@ -66,6 +65,7 @@ from sb3_coma.coma.validation import (
     resolve_n_agents,
 )
 from sb3_coma.common.shipped import check_shipped_file
+from uav_ipp import layout
 
 SelfCOMA = TypeVar("SelfCOMA", bound="COMA")
 
@@ -83,7 +83,7 @@ class COMA(OnPolicyAlgorithm):
 
     :param policy: ``"CBAMPolicy"`` (paper), ``"CnnPolicy"`` (ablation) or a ``COMAPolicy`` subclass
     :param env: an SB3 ``VecEnv`` with one row per agent and an ``n_agents`` attribute
-        (``envs.make_vec_env``); may be ``None`` only when loading for prediction
+        (``uav_ipp.make_vec_env``); may be ``None`` only when loading for prediction
     :param learning_rate: actor learning rate (Adam), float or schedule; paper 1e-5
     :param critic_learning_rate: critic learning rate (Adam), float or schedule; paper 1e-4
     :param n_steps: steps per env copy per rollout; ``None``: 32, stretched when needed so that a
@@ -252,7 +252,7 @@ class COMA(OnPolicyAlgorithm):
             self.n_agents = resolve_n_agents(self.env)
             self.n_envs = self.env.num_envs
         if self.n_agents is None:
-            raise ValueError("n_agents is unknown: pass an env built by envs.make_vec_env")
+            raise ValueError("n_agents is unknown: pass an env built by uav_ipp.make_vec_env")
         self.n_copies = self.n_envs // self.n_agents
         # A rollout must hold at least one minibatch of joint steps. The constructor rejects an
         # explicit n_steps that is too short; a model loaded onto an env with fewer copies (e.g.
@@ -308,7 +308,7 @@ class COMA(OnPolicyAlgorithm):
     def _agents(self) -> int:
         """``n_agents``, known once the model is set up."""
         if self.n_agents is None:
-            raise ValueError("n_agents is unknown: pass an env built by envs.make_vec_env")
+            raise ValueError("n_agents is unknown: pass an env built by uav_ipp.make_vec_env")
         return self.n_agents
 
     def _obs_tensors(

@@ -21,7 +21,7 @@ import numpy as np
 import torch as th
 import torch.nn.functional as F
 
-from envs import layout
+from uav_ipp import layout
 
 __all__ = ["DaggerReport", "clone_teacher"]
 

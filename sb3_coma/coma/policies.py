@@ -25,9 +25,9 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from envs import layout
 from sb3_coma.coma.masking import behaviour_probs, mask_logits, sample_actions
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
+from uav_ipp import layout
 
 __all__ = ["CBAMPolicy", "COMAPolicy", "CnnPolicy", "critic_input", "other_actions_map"]
 

@@ -15,7 +15,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
-from envs import layout
+from uav_ipp import layout
 
 __all__ = [
     "check_batch_fits_rollout",
@@ -36,7 +36,7 @@ def resolve_n_agents(env: VecEnv) -> int:
     """
     if not isinstance(env, VecEnv):
         raise TypeError(
-            f"COMA needs an SB3 VecEnv whose rows are agents (e.g. envs.make_vec_env(...)), got {type(env).__name__}"
+            f"COMA needs an SB3 VecEnv whose rows are agents (e.g. uav_ipp.make_vec_env(...)), got {type(env).__name__}"
         )
     n_agents: Any = getattr(env, "n_agents", None)
     if n_agents is None:
@@ -48,7 +48,7 @@ def resolve_n_agents(env: VecEnv) -> int:
     if n_agents is None:
         raise ValueError(
             "the vec env does not expose `n_agents` (agents per env copy); COMA cannot regroup its "
-            "rows into joint steps. Build it with envs.make_vec_env(...) or set `n_agents` on it."
+            "rows into joint steps. Build it with uav_ipp.make_vec_env(...) or set `n_agents` on it."
         )
     if isinstance(n_agents, bool) or not isinstance(n_agents, int) or n_agents < 1:
         raise ValueError(f"`n_agents` must be a positive int, got {n_agents!r}")
@@ -72,7 +72,7 @@ def _check_box(obs_space: spaces.Dict, key: str, shape: tuple[int, ...] | None, 
 
 
 def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) -> None:
-    """The per-agent spaces COMA is built for (see ``envs.layout``).
+    """The per-agent spaces COMA is built for (see ``uav_ipp.layout``).
 
     ``local`` must hold the 8 channels of the fusion wrapper's output (a raw env has 7: wrap it
     with a fusion wrapper first), ``state`` the 3 global channels on the same grid, and

@@ -326,8 +326,8 @@ def training_options(model_or_path: Any) -> dict[str, Any] | None:
     ``python -m sb3_coma.app.zoo train`` and ``sb3_coma.app.training.train``; for a shipped model
     ``load_pretrained`` fills it from ``models.json`` and the config variant it names) or a model
     zip (read from its ``data`` member; the networks are not loaded). The dict is
-    ``{"map": "env3", "fusion": "sendfuse", "fusion_kwargs": {...}, <every envs.IppConfig option>}``,
-    so ``envs.make_vec_env(opts.pop("map"), **opts)`` rebuilds the training env (override
+    ``{"map": "env3", "fusion": "sendfuse", "fusion_kwargs": {...}, <every uav_ipp.IppConfig option>}``,
+    so ``uav_ipp.make_vec_env(opts.pop("map"), **opts)`` rebuilds the training env (override
     ``split``/``start`` for an evaluation protocol). Models saved before this was recorded (and
     models trained with a bare ``COMA(...).learn()``) give ``None``.
 

@@ -47,9 +47,9 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from envs.maps import TRANSFORMS
 from sb3_coma.baselines import Planner
 from sb3_coma.common.memory import release_freed_memory
+from uav_ipp.maps import TRANSFORMS
 
 #: Budget fractions of the paper's Table I and their column labels.
 FRACTIONS: tuple[float, ...] = (1 / 3, 2 / 3, 1.0)
@@ -233,7 +233,7 @@ def scene_label(name: str) -> str:
     """The scene of a mission from its map's name: ``"env3/test/south1/rot90"`` -> ``"env3/test/south1"``.
 
     A split mission is a scene (a map crop) under one of the 8 flips / rotations of
-    ``envs.maps.scenes.TRANSFORMS``; the missions of one scene share most of what makes a method
+    ``uav_ipp.maps.scenes.TRANSFORMS``; the missions of one scene share most of what makes a method
     do well or badly, so they are one cluster of the paired statistics. Names without a trailing
     transform (an env1 star ``"env1/test/star2000000007"``, a paper map ``"env3"``, a user map) are
     their own scene.
@@ -399,7 +399,7 @@ def evaluate_policy(
 
     :param predictor: an object with SB3's ``predict(obs, episode_start=..., deterministic=...)``
         (a model or a planner), or a :data:`PredictorFactory` ``(venv, seed) -> predictor``
-    :param make_env: ``make_env(n)`` -> an unseeded vec env of ``n`` copies (``envs.make_vec_env``
+    :param make_env: ``make_env(n)`` -> an unseeded vec env of ``n`` copies (``uav_ipp.make_vec_env``
         with the mission's options); it is closed after its batch
     :param n_trials: missions; trial ``k`` uses env seed ``seed + k``
     :param n_envs: env copies flown at once; results are reproducible for the same ``seed`` and ``n_envs``

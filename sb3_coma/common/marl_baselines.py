@@ -1,6 +1,6 @@
 """Learned baselines a user would pick instead of COMA: IPPO and MAPPO on SB3's own ``PPO``.
 
-Both fly the same vec env as COMA (``envs.make_vec_env``: agent ``a`` of env copy ``e`` is row
+Both fly the same vec env as COMA (``uav_ipp.make_vec_env``: agent ``a`` of env copy ``e`` is row
 ``e * n_agents + a``), so every UAV is one slot of PPO's rollout and one set of weights acts for
 all of them (parameter sharing). The actor reads the UAV's decentralised observation only: the 8
 ``local`` channels (the fused map included) and ``action_mask``; it never reads ``state`` (the
@@ -43,10 +43,10 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
-from envs import layout
 from sb3_coma.coma.masking import mask_logits
 from sb3_coma.coma.policies import GAIN_ENCODER_DIM
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
+from uav_ipp import layout
 
 __all__ = [
     "ACTOR_KEYS",
@@ -309,11 +309,11 @@ def _check_venv(venv: VecEnv) -> None:
     need = (layout.KEY_LOCAL, layout.KEY_MASK)
     if not isinstance(space, spaces.Dict) or any(k not in space.spaces for k in need):
         raise ValueError(
-            f"needs an envs.make_vec_env vec env with fusion 'mean' or 'sendfuse' (observation entries "
+            f"needs an uav_ipp.make_vec_env vec env with fusion 'mean' or 'sendfuse' (observation entries "
             f"{list(need)}), got observation space {space}"
         )
     local_shape = space[layout.KEY_LOCAL].shape
-    assert local_shape is not None  # a Box in every vec env of envs.make_vec_env
+    assert local_shape is not None  # a Box in every vec env of uav_ipp.make_vec_env
     if local_shape[0] not in (layout.LOCAL_CHANNELS, layout.LOCAL_CHANNELS + layout.V3_LOCAL_EXTRA):
         raise ValueError(
             f"observation['local'] has {local_shape[0]} channels, expected "
@@ -329,7 +329,7 @@ def _make(policy: type[MaskedActorCriticPolicy], venv: VecEnv, ppo_kwargs: dict[
 
 
 def make_ippo(venv: VecEnv, **ppo_kwargs: Any) -> PPO:
-    """IPPO on ``venv`` (an ``envs.make_vec_env`` vec env): SB3 ``PPO`` with :class:`IPPOPolicy`.
+    """IPPO on ``venv`` (an ``uav_ipp.make_vec_env`` vec env): SB3 ``PPO`` with :class:`IPPOPolicy`.
 
     ``ppo_kwargs`` are ``PPO``'s arguments; :data:`DEFAULT_PPO_KWARGS` and ``device="cpu"`` unless
     given. ``policy_kwargs`` reach :class:`MaskedActorCriticPolicy`, e.g.

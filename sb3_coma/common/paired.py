@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from envs import IppConfig
+from uav_ipp import IppConfig
 
 __all__ = [
     "ALPHA",
@@ -67,7 +67,7 @@ METRICS: dict[str, bool] = {"f1": False, "entropy": True, "team_f1": False, "tea
 #: Env options that decide *which* missions are flown; a difference in one of them reads "not the
 #: same missions", in any other option "not flown under the same settings".
 MISSION_OPTIONS = ("split", "start", "map_seed", "map_path", "n_uavs", "budget")
-#: Env options (``envs.IppConfig``) two paired results may differ in, and why that does not change
+#: Env options (``uav_ipp.IppConfig``) two paired results may differ in, and why that does not change
 #: the missions. Every other option (noise, comm_range, decoder, comm_grid, lattice, grid,
 #: altitudes, field_size, fov_deg, ...) changes the world or the channel and must match. Keys of
 #: ``env_options`` that are not ``IppConfig`` options (how the vec env is built: fusion_kwargs,
@@ -92,7 +92,7 @@ def _field_default(f: dataclasses.Field[Any]) -> Any:
     return f.default_factory()
 
 
-#: ``envs.IppConfig``'s options and defaults: an option a result does not name was flown at its default.
+#: ``uav_ipp.IppConfig``'s options and defaults: an option a result does not name was flown at its default.
 _DEFAULTS: dict[str, Any] = {f.name: _field_default(f) for f in dataclasses.fields(IppConfig) if f.name != "map_name"}
 
 
@@ -346,11 +346,11 @@ def _normal(value: Any) -> Any:
 
 
 def _effective_options(result: Any) -> dict[str, Any]:
-    """The world options (``envs.IppConfig``'s) a result was flown with, defaults filled in,
+    """The world options (``uav_ipp.IppConfig``'s) a result was flown with, defaults filled in,
     ``start`` as its rule (``None`` means "fixed" on split "paper", "random" elsewhere)."""
     given = getattr(result, "env_options", None) or {}
     options = {k: given.get(k, default) for k, default in _DEFAULTS.items()}
-    if options.get("start") is None:  # envs.IppConfig.start_rule: the split decides
+    if options.get("start") is None:  # uav_ipp.IppConfig.start_rule: the split decides
         options["start"] = "fixed" if options.get("split") == "paper" else "random"
     return options
 

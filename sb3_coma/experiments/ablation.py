@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import envs
+import uav_ipp
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.common.evaluation import EvaluationResult
 from sb3_coma.common.tables import TableRow, table_markdown, table_text
@@ -78,7 +78,7 @@ def fusion_unavailable(env: str, fusion: str, **env_options: Any) -> str | None:
     """``None`` when ``make_vec_env(fusion=...)`` works here, else why it does not."""
 
     try:
-        venv = envs.make_vec_env(env, n_envs=1, fusion=fusion, **env_options)
+        venv = uav_ipp.make_vec_env(env, n_envs=1, fusion=fusion, **env_options)
     except (ValueError, ImportError, FileNotFoundError, RuntimeError) as exc:
         return f"{type(exc).__name__}: {exc}"
     venv.close()

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-import envs
+import uav_ipp
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma.validation import resolve_n_agents
 
@@ -34,13 +34,13 @@ KEYS = ("f1", "entropy", "team_f1", "team_entropy")
 
 def fly(name: str, trials: int, **options: Any) -> np.ndarray:
     """(trials, 4) final metrics of AG on ``trials`` seeded paper missions (one env copy per trial)."""
-    venv = envs.make_vec_env(name, n_envs=trials, fusion="mean", seed=0, monitor=False, **options)
+    venv = uav_ipp.make_vec_env(name, n_envs=trials, fusion="mean", seed=0, monitor=False, **options)
     planner = make_planner("ag", venv, seed=0)
     obs = venv.reset()
     n = resolve_n_agents(venv)
     final = np.zeros((trials, len(KEYS)))
     for _ in range(venv.get_attr("config", indices=[0])[0].budget):
-        assert isinstance(obs, dict)  # the vec envs of envs.make_vec_env have Dict observations
+        assert isinstance(obs, dict)  # the vec envs of uav_ipp.make_vec_env have Dict observations
         actions, _ = planner.predict(obs)
         obs, _, dones, infos = venv.step(actions)
         for c in range(trials):

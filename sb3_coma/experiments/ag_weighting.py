@@ -24,9 +24,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from envs.gain import WEIGHTINGS
 from sb3_coma.app.evaluation import evaluate as evaluate_method
 from sb3_coma.common.paired import paired_difference
+from uav_ipp.gain import WEIGHTINGS
 
 __all__ = ["VALIDATION_MISSIONS", "VALIDATION_SEED", "WeightingChoice", "pick_ag_weighting", "validation_options"]
 

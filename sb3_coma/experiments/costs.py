@@ -30,13 +30,13 @@ import numpy as np
 import torch
 import torch as th
 
-import envs
-from envs import layout
-from envs.geometry import overlap_matrix
+import uav_ipp
 from sb3_coma.app.export import export_onnx, onnx_feeds, onnx_session
 from sb3_coma.baselines import make_planner
 from sb3_coma.baselines.adaptive_gain import default_weighting
 from sb3_coma.sendfuse.weights import default_weights_path, load_weights
+from uav_ipp import layout
+from uav_ipp.geometry import overlap_matrix
 
 __all__ = ["CostRow", "ag_cost", "costs_markdown", "decision_costs", "model_costs", "time_call"]
 
@@ -85,11 +85,11 @@ def _observation(
 ) -> tuple[Any, dict[str, np.ndarray]]:
     """A vec env of one mission after a few random moves (every link up), and UAV 0's observation."""
 
-    venv = envs.make_vec_env(env, n_envs=1, fusion=fusion, seed=seed, comm_range=float("inf"), **env_options)
+    venv = uav_ipp.make_vec_env(env, n_envs=1, fusion=fusion, seed=seed, comm_range=float("inf"), **env_options)
     obs = venv.reset()
     rng = np.random.default_rng(seed)
     for _ in range(moves):
-        assert isinstance(obs, dict)  # the vec envs of envs.make_vec_env have Dict observations
+        assert isinstance(obs, dict)  # the vec envs of uav_ipp.make_vec_env have Dict observations
         actions = np.array([rng.choice(np.flatnonzero(m > 0.5)) for m in obs[layout.KEY_MASK]])
         obs, *_ = venv.step(actions)
     assert isinstance(obs, dict)

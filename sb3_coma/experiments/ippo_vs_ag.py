@@ -47,7 +47,7 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
-import envs
+import uav_ipp
 from sb3_coma import COMA, evaluate
 from sb3_coma.app.training import VALIDATION_SEED, eval_copies
 from sb3_coma.common.callbacks import MissionEvalCallback
@@ -175,7 +175,9 @@ def _validation(args: argparse.Namespace, out: Path, train_options: dict[str, An
     """The validation every shipped COMA run gets: ``--val-missions`` missions of the train scenes
     from env seed ``VALIDATION_SEED`` (the same each time) every ``--val-freq`` joint steps; the
     best checkpoint becomes ``out/best_model.zip``."""
-    val_env = envs.make_vec_env(args.env, n_envs=eval_copies(args.val_missions), seed=VALIDATION_SEED, **train_options)
+    val_env = uav_ipp.make_vec_env(
+        args.env, n_envs=eval_copies(args.val_missions), seed=VALIDATION_SEED, **train_options
+    )
     return MissionEvalCallback(
         val_env,
         eval_freq=args.val_freq,
@@ -193,7 +195,7 @@ def _train(args: argparse.Namespace, out: Path) -> tuple[BaseAlgorithm, dict[str
     (``None`` without validation)."""
     options = _env_options(args)
     train_options = dict(fusion=args.fusion, split="train", reward=args.reward, **options)
-    venv = envs.make_vec_env(args.env, n_envs=args.n_envs, seed=args.seed, workers=args.workers, **train_options)
+    venv = uav_ipp.make_vec_env(args.env, n_envs=args.n_envs, seed=args.seed, workers=args.workers, **train_options)
     model, timesteps = _build(args, venv)
     per_mission = args.budget if args.algo == "coma" else args.uavs * args.budget  # COMA: joint steps
     validation = _validation(args, out, train_options) if args.val_freq > 0 else None

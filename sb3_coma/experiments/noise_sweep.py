@@ -31,7 +31,6 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from envs import ENV_IDS, IppConfig
 from sb3_coma.app.config import map_key
 from sb3_coma.app.evaluation import (
     WorldMismatchWarning,
@@ -43,6 +42,7 @@ from sb3_coma.app.evaluation import (
 from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult
 from sb3_coma.common.paired import PairedDifference, cell, holm_adjust, paired_difference
 from sb3_coma.experiments.protocols import Method
+from uav_ipp import ENV_IDS, IppConfig
 
 __all__ = [
     "ALPHA_LOWS",

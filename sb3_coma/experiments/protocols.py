@@ -32,12 +32,12 @@ from typing import Any
 
 import torch as th
 
-from envs import WORLD_VERSION
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.app.pretrained import load_pretrained, read_manifest
 from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult, Protocol, protocol_of
 from sb3_coma.common.paired import PairedDifference, cell, holm_adjust, p_text, paired_difference, scene_markdown
 from sb3_coma.common.tables import TableRow, table_markdown, write_per_step_csv, write_table_csv
+from uav_ipp import WORLD_VERSION
 
 __all__ = [
     "BASELINE_METHODS",

@@ -48,9 +48,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-import envs
-from envs import WORLD_VERSION
-from envs.maps.ground_truth import available_maps
+import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.app import evaluation as ev
 from sb3_coma.app import pretrained as pt
@@ -75,6 +73,8 @@ from sb3_coma.experiments.protocols import (
     run_protocol,
     shipped_methods,
 )
+from uav_ipp import WORLD_VERSION
+from uav_ipp.maps.ground_truth import available_maps
 
 DEFAULT_ENVS: tuple[str, ...] = ("env1", "env2", "env3")
 #: The baselines of Table I (the protocols also fly AG's look-ahead variants: sb3_coma.experiments.protocols).
@@ -382,7 +382,7 @@ def sendfuse_available() -> bool:
     """Whether ``fusion="sendfuse"`` can be built (its pre-trained weights exist)."""
 
     try:
-        envs.make_vec_env("env1", fusion="sendfuse").close()
+        uav_ipp.make_vec_env("env1", fusion="sendfuse").close()
         return True
     except Exception:  # any failure means: not usable here
         return False

@@ -39,7 +39,6 @@ from typing import Any
 import numpy as np
 import yaml
 
-from envs import WORLD_VERSION
 from sb3_coma import COMA, training_options
 from sb3_coma.app import pretrained as pt
 from sb3_coma.app.config import resolve_env_id
@@ -47,6 +46,7 @@ from sb3_coma.app.evaluation import evaluate
 from sb3_coma.app.training import VALIDATION_SEED, selection_end
 from sb3_coma.experiments.learning_curves import Validation, fly_validation
 from sb3_coma.experiments.reproduce import UNSEEN_MISSIONS, curve_from_metrics
+from uav_ipp import WORLD_VERSION
 
 __all__ = ["main", "run_command", "run_length", "seed_spread", "ship", "validation_best"]
 

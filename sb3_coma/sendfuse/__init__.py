@@ -5,7 +5,7 @@
 * :class:`SenDFuseLoss` (``loss``): MSE + MAE + (1 - SSIM) for the denoising pre-training.
 * :func:`save_weights` / :func:`load_weights` (``weights``): safetensors files that record the
   architecture, with clear errors for every way a file can be wrong.
-* :class:`SenDFuseFusionWrapper` (``wrapper``): ``envs.make_vec_env(fusion="sendfuse")``, found
+* :class:`SenDFuseFusionWrapper` (``wrapper``): ``uav_ipp.make_vec_env(fusion="sendfuse")``, found
   through the ``uav_ipp.fusion`` entry point.
 
 Pre-training data (``data``), the pre-training loop (``pretrain``) and the quality table

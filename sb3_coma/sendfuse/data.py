@@ -40,9 +40,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-import envs
-from envs import layout
-from envs.maps import GroundTruth, star_map
+import uav_ipp
+from uav_ipp import layout
+from uav_ipp.maps import GroundTruth, star_map
 
 __all__ = [
     "MAP_KINDS",
@@ -170,7 +170,7 @@ class LockstepPair:
     """Two copies of one environment, with channel noise and without, flown in lockstep.
 
     Args:
-        name: map name for :class:`envs.IppConfig` (``env1``/``env2``/``env3`` or a label when
+        name: map name for :class:`uav_ipp.IppConfig` (``env1``/``env2``/``env3`` or a label when
             ``map_path`` is given); for synthetic maps pass any and call :meth:`set_truth`.
         noise: channel-noise preset of the noisy copy (the quiet copy always has ``"none"``).
         options: further environment options (``n_uavs``, ``comm_range``, ``map_path``, ...).
@@ -179,10 +179,10 @@ class LockstepPair:
     def __init__(self, name: str = "env1", noise: str = "moderate", **options: object) -> None:
         if noise not in NOISE_PRESETS:
             raise ValueError(f"noise must be one of {NOISE_PRESETS}, got {noise!r}")
-        config = envs.IppConfig.from_options(name, noise=noise, **options)
+        config = uav_ipp.IppConfig.from_options(name, noise=noise, **options)
         self.noise = noise
-        self.noisy = envs.UavIppEnv(config)
-        self.quiet = envs.UavIppEnv(config.replace(noise="none"))
+        self.noisy = uav_ipp.UavIppEnv(config)
+        self.quiet = uav_ipp.UavIppEnv(config.replace(noise="none"))
         self.n_uavs = config.n_uavs
 
     def set_truth(self, truth: GroundTruth) -> None:

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from envs.fusion import mean_fusion
-from envs.geometry import overlap_matrix
+from uav_ipp.fusion import mean_fusion
+from uav_ipp.geometry import overlap_matrix
 
 from .data import NOISE_PRESETS, FusionSet, LockstepPair
 from .network import SenDFuseNet

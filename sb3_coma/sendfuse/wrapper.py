@@ -1,6 +1,6 @@
 """``fusion="sendfuse"``: the fused channel from the pre-trained SenDFuse network.
 
-``envs.make_vec_env(..., fusion="sendfuse")`` finds this wrapper through the ``uav_ipp.fusion``
+``uav_ipp.make_vec_env(..., fusion="sendfuse")`` finds this wrapper through the ``uav_ipp.fusion``
 entry point that sb3-coma's ``setup.cfg`` declares, so the environment package never imports
 ``sb3_coma``. One batched forward pass fuses the received maps of every agent of every env copy
 at a step.
@@ -14,10 +14,10 @@ import numpy as np
 import torch
 from gymnasium.vector import VectorEnv
 
-from envs.config import ConfigError
-from envs.fusion import FusionWrapper
 from sb3_coma.sendfuse.network import SenDFuseNet
 from sb3_coma.sendfuse.weights import default_weights_path, load_weights
+from uav_ipp.config import ConfigError
+from uav_ipp.fusion import FusionWrapper
 
 __all__ = ["FUSE_CHUNK", "SenDFuseFusionWrapper"]
 

@@ -16,11 +16,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from envs import DEFAULT_MAP
 from sb3_coma.cli import UserError, set_threads
 from sb3_coma.cli.commands import add_workers_argument
 from sb3_coma.common.tables import write_per_step_csv, write_table_csv
 from sb3_coma.experiments import ablation, plots
+from uav_ipp import DEFAULT_MAP
 
 NAME = "ablation"
 HELP = "evaluate the SenDFuse / CBAM ablation models at three noise levels"

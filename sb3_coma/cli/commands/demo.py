@@ -6,8 +6,8 @@ import argparse
 
 import numpy as np
 
-import envs
-from envs import layout
+import uav_ipp
+from uav_ipp import layout
 
 NAME = "demo"
 HELP = "fly one mission with random valid actions and print F1 / entropy per step"
@@ -16,8 +16,8 @@ HELP = "fly one mission with random valid actions and print F1 / entropy per ste
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--env",
-        default=envs.DEFAULT_MAP,
-        help=f"map name (env1, env2, env3) or gymnasium id (default {envs.DEFAULT_MAP})",
+        default=uav_ipp.DEFAULT_MAP,
+        help=f"map name (env1, env2, env3) or gymnasium id (default {uav_ipp.DEFAULT_MAP})",
     )
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud")
     parser.add_argument("--uavs", type=int, default=4)
@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    env = envs.make_env(args.env, noise=args.noise, n_uavs=args.uavs, budget=args.budget)
+    env = uav_ipp.make_env(args.env, noise=args.noise, n_uavs=args.uavs, budget=args.budget)
     rng = np.random.default_rng(args.seed)
     obs, _ = env.reset(seed=args.seed)
     m = env.metrics()

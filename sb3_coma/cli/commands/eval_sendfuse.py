@@ -8,11 +8,11 @@ import sys
 import torch
 from tqdm.auto import tqdm
 
-from envs import DEFAULT_MAP
 from sb3_coma.cli import UserError
 from sb3_coma.sendfuse.data import NOISE_PRESETS
 from sb3_coma.sendfuse.quality import evaluate_quality, format_table
 from sb3_coma.sendfuse.weights import load_weights
+from uav_ipp import DEFAULT_MAP
 
 NAME = "eval-sendfuse"
 HELP = "compare SenDFuse with the naive mean fusion (MSE vs the noise-free fused map) on held-out maps"

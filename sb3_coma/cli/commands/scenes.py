@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import argparse
 
-from envs.maps import ENV1_SEED_RANGES, SCENES, SPLITS, load_ground_truth, scene_count, split_scenes
-from envs.maps.scenes import SPLIT_ROLES, Scene, check_split
+from uav_ipp.maps import ENV1_SEED_RANGES, SCENES, SPLITS, load_ground_truth, scene_count, split_scenes
+from uav_ipp.maps.scenes import SPLIT_ROLES, Scene, check_split
 
 NAME = "scenes"
 HELP = "list the scenes of each mission split: crop rectangle, ground size, valuable fraction, note"

@@ -1,0 +1,41 @@
+"""Smoke test of the installed wheel, run by .ci/run from an empty folder outside the checkout
+that holds a dummy ``envs/`` package of its own (the layout of many users' RL projects): the
+installed world is ``uav_ipp`` and must neither shadow nor be shadowed by it."""
+
+from __future__ import annotations
+
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import torch as th
+
+th.set_num_threads(1)
+
+import envs  # noqa: E402  (the user's own package, from the working folder)
+
+assert envs.USER_PACKAGE, "the user's envs/ package was shadowed"
+
+import sb3_coma  # noqa: E402
+import uav_ipp  # noqa: E402
+from sb3_coma import COMA  # noqa: E402
+
+site = pathlib.Path(sb3_coma.__file__).resolve().parents[1]
+assert "site-packages" in str(site), f"sb3_coma imported from {site}, not the installed wheel"
+assert pathlib.Path(uav_ipp.__file__).resolve().parent.name == "uav_ipp", uav_ipp.__file__
+
+# a few training steps on the UAV world
+venv = uav_ipp.make_vec_env("env3", n_envs=1, fusion="mean", n_uavs=2, budget=4, seed=0)
+small = {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}}
+COMA("CBAMPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=small).learn(16)
+
+demo = subprocess.run([sys.executable, "-m", "sb3_coma", "demo", "--env", "env3"], capture_output=True, text=True)
+assert demo.returncode == 0, demo.stderr[-2000:]
+assert "F1" in demo.stdout or "f1" in demo.stdout, demo.stdout[-2000:]
+
+model = sb3_coma.load_pretrained("env3")
+result = sb3_coma.evaluate(model, env="env3", n_trials=1, n_envs=1)
+f1 = np.asarray(result.f1)
+assert np.isfinite(f1).all() and 0.0 <= f1.ravel()[-1] <= 1.0, f1
+print("wheel smoke test passed:", sb3_coma.__version__, "final F1", float(f1.ravel()[-1]))

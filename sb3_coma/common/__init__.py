@@ -1,0 +1,1 @@
+"""What the algorithms share: buffers, extractors, masking, callbacks, checkpoints and evaluation of objects."""
