@@ -17,7 +17,7 @@ from sb3_coma.common.checkpoints import training_options
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 from sb3_coma.sendfuse import SenDFuseNet
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 #: Names served lazily from the application (``name -> module``).
 _FRONT_DOORS = {"evaluate": "sb3_coma.app.evaluation", "load_pretrained": "sb3_coma.app.pretrained"}

@@ -498,13 +498,13 @@ def test_mismatched_tensors_and_configs_raise(tmp_path: Path) -> None:
 
 
 # --------------------------------------------------------------------------- import hygiene
-def test_envs_imports_nothing_of_sb3_coma() -> None:
+def test_the_world_imports_nothing_of_sb3_coma() -> None:
     """``envs`` finds the SenDFuse wrapper through an entry point when a vec env is built, so
     importing the environment package leaves the algorithm side alone (docs/design.md §2)."""
     import subprocess
     import sys
 
-    code = "import sys, envs; print(','.join(m for m in sys.modules if m.split('.')[0] == 'sb3_coma'))"
+    code = "import sys, uav_ipp; uav_ipp.make_env('env1'); print(','.join(m for m in sys.modules if m.split('.')[0] == 'sb3_coma'))"
     root = Path(__file__).resolve().parents[1]
     result = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "", f"import uav_ipp pulled in: {result.stdout.strip()}"

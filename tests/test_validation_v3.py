@@ -151,7 +151,7 @@ def test_a_model_is_not_flown_with_another_observation(mean_zip, monkeypatch):
     def no_env(*args, **kwargs):
         raise AssertionError("an env was built before the options were checked")
 
-    monkeypatch.setattr(ev.envs, "make_vec_env", no_env)
+    monkeypatch.setattr(ev.uav_ipp, "make_vec_env", no_env)
     with pytest.raises(ValueError, match=r"trained with lattice=11 but is asked to fly with lattice=9"):
         evaluate(str(mean_zip), env="env1", n_trials=1, n_uavs=2, lattice=9)
     with pytest.raises(ValueError, match=r"action_gain=True but is asked to fly with action_gain=False"):
