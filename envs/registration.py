@@ -38,7 +38,9 @@ def vector_entry_point(name: str, num_envs: int = 1, fusion: str | None = None, 
     from .fusion import DEFAULT_FUSION
     from .vec_env import IppVecEnv, make_vec_env
 
-    sb3_env = make_vec_env(name, n_envs=num_envs, fusion=fusion or DEFAULT_FUSION, monitor=False, **options)
+    sb3_env = make_vec_env(
+        name, n_envs=num_envs, fusion=DEFAULT_FUSION if fusion is None else fusion, monitor=False, **options
+    )
     assert isinstance(sb3_env, IppVecEnv)
     return sb3_env.venv
 

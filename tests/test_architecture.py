@@ -250,3 +250,24 @@ def test_import_sb3_coma_loads_neither_rl_zoo3_nor_the_application() -> None:
     lines = out.stdout.strip().splitlines()
     assert lines[0] == "[]", lines[0]
     assert lines[1] == "sb3_coma.app.evaluation sb3_coma.app.pretrained"
+
+
+def test_importing_the_world_is_cheap_and_its_names_resolve() -> None:
+    """``import uav_ipp`` registers the gymnasium ids only (docs/design.md, "Packaging"); every
+    public name is served, lazily, from the submodule ``_LAZY`` names, and ``__all__`` lists them."""
+    code = (
+        "import sys, uav_ipp, gymnasium\n"
+        "heavy = [m for m in ('numba', 'supersuit', 'uav_ipp.kernels', 'uav_ipp.maps') if m in sys.modules]\n"
+        "assert not heavy, heavy\n"
+        "assert 'UavIpp-Env3-v0' in gymnasium.registry\n"
+        "assert sorted(uav_ipp.__all__) == sorted([*uav_ipp._LAZY, 'ENV_IDS', 'map_name_of']), uav_ipp.__all__\n"
+        "assert all(getattr(uav_ipp, name) is not None for name in uav_ipp.__all__)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT.parent, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
+def test_the_source_folder_is_not_importable_as_envs() -> None:
+    """In a checkout, ``import envs`` would load a second copy of the world: it fails with one line."""
+    result = subprocess.run([sys.executable, "-c", "import envs"], cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode != 0 and "import uav_ipp" in result.stderr.strip().splitlines()[-1]
