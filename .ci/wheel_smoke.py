@@ -34,6 +34,15 @@ demo = subprocess.run([sys.executable, "-m", "sb3_coma", "demo", "--env", "env3"
 assert demo.returncode == 0, demo.stderr[-2000:]
 assert "F1" in demo.stdout or "f1" in demo.stdout, demo.stdout[-2000:]
 
+# COMA on a third-party PettingZoo env through the route SB3 users take (entry-point aliases and
+# the generic policies come from the installed metadata, not the checkout)
+from mpe2 import simple_spread_v3  # noqa: E402
+
+spread = sb3_coma.make_marl_vec_env(lambda: simple_spread_v3.parallel_env(continuous_actions=False), n_envs=2, seed=0)
+generic = COMA("MlpPolicy", spread, n_steps=16, batch_size=16, seed=0).learn(64)
+generic.save("spread.zip")
+assert COMA.load("spread.zip", env=spread).predict(spread.reset())[0].shape == (6,)
+
 model = sb3_coma.load_pretrained("env3")
 result = sb3_coma.evaluate(model, env="env3", n_trials=1, n_envs=1)
 f1 = np.asarray(result.f1)

@@ -1,10 +1,13 @@
-"""sb3-coma: COMA for multi-UAV informative path planning, as a Stable-Baselines3 extension.
+"""sb3-coma: COMA (counterfactual multi-agent policy gradients) for Stable-Baselines3, with a
+multi-UAV informative path planning world (SenDFuse, CBAM) as its first user.
 
-The library: ``COMA`` and its policies (``CBAMPolicy``, ``CnnPolicy``), the features extractors,
-SenDFuse and ``training_options`` (the env options a saved model was trained with). Two front
-doors of the application are reachable from here and load it only when first used, so that
-``import sb3_coma`` imports neither rl_zoo3 nor the application: ``evaluate`` (a model, a shipped
-name, a path or a baseline on seeded missions) and ``load_pretrained`` (a shipped trained model).
+The library: ``COMA`` and its policies for any env (``MlpPolicy``, ``CnnPolicy``,
+``MultiInputPolicy``), ``make_marl_vec_env`` (any PettingZoo ``ParallelEnv`` -> the multi-agent
+VecEnv COMA reads), the features extractors, SenDFuse and ``training_options`` (the env options a
+saved model was trained with). Served lazily, so that ``import sb3_coma`` loads neither the UAV
+world nor rl_zoo3 nor the application: the UAV world's policies (``CBAMPolicy``,
+``UavCnnPolicy``) and two front doors of the application, ``evaluate`` (a model, a shipped name, a
+path or a baseline on seeded missions) and ``load_pretrained`` (a shipped trained model).
 """
 
 from __future__ import annotations
@@ -12,21 +15,27 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from sb3_coma.coma import COMA, CBAMPolicy, CnnPolicy, COMAPolicy
+from sb3_coma.coma import COMA, CnnPolicy, COMAPolicy, MlpPolicy, MultiInputPolicy
 from sb3_coma.common.checkpoints import training_options
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
+from sb3_coma.common.marl_vec_env import make_marl_vec_env
 from sb3_coma.sendfuse import SenDFuseNet
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
-#: Names served lazily from the application (``name -> module``).
-_FRONT_DOORS = {"evaluate": "sb3_coma.app.evaluation", "load_pretrained": "sb3_coma.app.pretrained"}
+#: Names served lazily (``name -> module``): the application's front doors and the UAV policies.
+_LAZY = {
+    "evaluate": "sb3_coma.app.evaluation",
+    "load_pretrained": "sb3_coma.app.pretrained",
+    "CBAMPolicy": "sb3_coma.uav.policies",
+    "UavCnnPolicy": "sb3_coma.uav.policies",
+}
 
 
 def __getattr__(name: str) -> Any:
-    """PEP 562: ``sb3_coma.evaluate`` / ``sb3_coma.load_pretrained`` import the application on first use."""
-    if name in _FRONT_DOORS:
-        return getattr(importlib.import_module(_FRONT_DOORS[name]), name)
+    """PEP 562: the front doors import the application, the UAV policies the world, on first use."""
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'sb3_coma' has no attribute {name!r}")
 
 
@@ -37,9 +46,13 @@ __all__ = [
     "COMAPolicy",
     "CnnExtractor",
     "CnnPolicy",
+    "MlpPolicy",
+    "MultiInputPolicy",
     "SenDFuseNet",
+    "UavCnnPolicy",
     "__version__",
     "evaluate",
     "load_pretrained",
+    "make_marl_vec_env",
     "training_options",
 ]

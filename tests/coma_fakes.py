@@ -218,7 +218,7 @@ def make_fake_vec_env(
     venv = FakeUavVecEnv(n_envs=n_envs, n_agents=n_agents, budget=budget, **kwargs)
     if seed is not None:
         venv.seed(seed)
-    return VecMonitor(venv)
+    return VecMonitor(venv, info_keywords=("f1", "entropy"))
 
 
 def random_valid_return(venv: VecEnv, episodes: int, seed: int = 0) -> float:

@@ -39,6 +39,7 @@ LAYERS: dict[str, int] = {
     "sb3_coma.sendfuse": 1,
     "sb3_coma.baselines": 1,
     "sb3_coma.common": 1,
+    "sb3_coma.uav": 1,
     "sb3_coma.app": 2,
     "sb3_coma.training": 2,
     "sb3_coma.zoo": 2,

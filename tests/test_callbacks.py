@@ -82,7 +82,7 @@ def make_env(n_envs: int = 2, seed: int = 0) -> Recorder:
 def make_model(env, batch_size: int = 6) -> COMA:
     # 2 copies, batch 6 -> 3 steps per copy per rollout = 6 joint steps = one mission per copy.
     return COMA(
-        "CnnPolicy",
+        "UavCnnPolicy",
         env,
         batch_size=batch_size,
         n_steps=batch_size // 2,
@@ -208,7 +208,7 @@ def test_seeded_evaluations_fly_the_same_missions(eval_seed, tmp_path):
     each time (without it the missions run on and the scores differ)."""
     env = make_env()
     model = COMA(
-        "CnnPolicy",
+        "UavCnnPolicy",
         env,
         batch_size=6,
         n_steps=3,

@@ -16,13 +16,14 @@ from coma_fakes import (
 )
 from gymnasium import spaces
 
-from sb3_coma.coma import COMA, CBAMPolicy, CnnPolicy
+from sb3_coma.coma import COMA
+from sb3_coma.uav.policies import CBAMPolicy, UavCnnPolicy
 
 SMALL = dict(features_extractor_kwargs=dict(channels=(8, 16, 16), features_dim=32))
 FAST = dict(batch_size=16, n_steps=8, learning_rate=1e-3, critic_learning_rate=1e-3, policy_kwargs=SMALL)
 
 
-def make(policy: str = "CnnPolicy", seed: int = 0, n_envs: int = 2, n_agents: int = 2, **kwargs) -> COMA:
+def make(policy: str = "UavCnnPolicy", seed: int = 0, n_envs: int = 2, n_agents: int = 2, **kwargs) -> COMA:
     args = {**FAST, **kwargs}
     return COMA(policy, make_fake_vec_env(n_envs=n_envs, n_agents=n_agents, seed=seed), seed=seed, **args)
 
@@ -40,7 +41,7 @@ def test_timesteps_are_joint_steps_and_logs_are_written() -> None:
     model.learn(3 * 16)  # 3 rollouts of 8 steps x 2 copies
     assert model.n_copies == 2 and model.n_agents == 2 and model.env.num_envs == 4
     assert model.num_timesteps == 48  # not 96 agent steps
-    assert model.rollout_buffer.local.shape[:3] == (8, 2, 2)
+    assert model.rollout_buffer.obs["local"].shape[:3] == (8, 2, 2)
     last = out.dumps[-1]
     for key in (
         "train/critic_loss",
@@ -74,8 +75,8 @@ def test_default_n_steps_is_32_stretched_to_fill_one_batch_per_rollout() -> None
     assert model.learning_rate == 3e-4 and model.critic_learning_rate == 1e-3
     assert model.gamma == 0.99 and model.td_lambda == 0.8
     assert (model.n_epochs, model.clip_range, model.advantage) == (4, 0.2, "return")
-    assert COMA("CnnPolicy", make_fake_vec_env(n_envs=1), batch_size=512, policy_kwargs=SMALL).n_steps == 512
-    assert COMA("CnnPolicy", make_fake_vec_env(n_envs=3), batch_size=200, policy_kwargs=SMALL).n_steps == 67
+    assert COMA("UavCnnPolicy", make_fake_vec_env(n_envs=1), batch_size=512, policy_kwargs=SMALL).n_steps == 512
+    assert COMA("UavCnnPolicy", make_fake_vec_env(n_envs=3), batch_size=200, policy_kwargs=SMALL).n_steps == 67
 
 
 def test_target_update_interval_is_honoured() -> None:
@@ -139,13 +140,14 @@ def test_save_load_round_trip_and_continue(tmp_path: Path) -> None:
     a1, _ = model.predict(obs, deterministic=True)
     a2, _ = loaded.predict(obs, deterministic=True)
     assert np.array_equal(a1, a2)
-    local, state, _, _ = model._obs_tensors(obs, grouped=True)
+    joint = model._grouped(obs)
+    state = model._joint_state(joint, None)
     actions = th.as_tensor(a1).view(2, 2)
     with th.no_grad():
         for target in (False, True):
             assert th.equal(
-                model.policy.q_values(local, state, actions, target=target),
-                loaded.policy.q_values(local, state, actions, target=target),
+                model.policy.q_values(joint, state, actions, target=target),
+                loaded.policy.q_values(joint, state, actions, target=target),
             )
     for name in ("optimizer", "critic_optimizer"):
         saved = getattr(model.policy, name).state_dict()
@@ -174,9 +176,9 @@ def test_removed_arguments_are_refused_for_new_models(removed: dict) -> None:
 
 
 def test_policy_save_load(tmp_path: Path) -> None:
-    model = make("CnnPolicy")
+    model = make("UavCnnPolicy")
     model.policy.save(tmp_path / "policy.pt")
-    policy = CnnPolicy.load(tmp_path / "policy.pt")
+    policy = UavCnnPolicy.load(tmp_path / "policy.pt")
     obs = model.env.reset()
     assert np.array_equal(model.predict(obs, deterministic=True)[0], policy.predict(obs, deterministic=True)[0])
 
@@ -197,24 +199,39 @@ class TestErrors:
     @pytest.mark.parametrize(
         ("space", "match"),
         [
-            (obs_space(drop_key="state"), "lacks the key 'state'"),
-            (obs_space(drop_key="action_mask"), "lacks the key 'action_mask'"),
+            (obs_space(drop_key="state"), r"need observation\['state'\]"),
+            (obs_space(drop_key="action_mask"), r"need observation\['action_mask'\]"),
             (
                 obs_space(local_shape=(7, 11, 11)),
                 r"shape \(8, H, W\) or, observation v3, \(41, H, W\); got \(7, 11, 11\).*fusion",
             ),
             (obs_space(state_shape=(3, 9, 9)), r"'state'.*\(3, 11, 11\), got \(3, 9, 9\)"),
-            (spaces.Box(0.0, 1.0, (8, 11, 11)), "Dict observation space"),
+            (spaces.Box(0.0, 1.0, (8, 11, 11)), "need a Dict observation"),
         ],
     )
     def test_bad_observation_space(self, space: spaces.Space, match: str) -> None:
         with pytest.raises(ValueError, match=match):
             COMA("CBAMPolicy", FakeUavVecEnv(observation_space=space))
 
-    @pytest.mark.parametrize("action_space", [spaces.Discrete(5), spaces.Box(-1.0, 1.0, (6,))])
-    def test_bad_action_space(self, action_space: spaces.Space) -> None:
-        with pytest.raises(ValueError, match=r"Discrete\(6\)"):
-            COMA("CBAMPolicy", FakeUavVecEnv(action_space=action_space))
+    @pytest.mark.parametrize(
+        ("action_space", "observation_space", "match"),
+        [
+            # COMA's own check: the mask has 6 entries, the action space 5
+            (spaces.Discrete(5), None, r"one entry per action of Discrete\(5\)"),
+            (spaces.Box(-1.0, 1.0, (6,)), None, r"Discrete actions per agent, got Box"),
+            # a consistent mask, but the UAV policies need the 6 moves
+            (
+                spaces.Discrete(5),
+                spaces.Dict({**obs_space().spaces, "action_mask": spaces.Box(0.0, 1.0, (5,))}),
+                r"Discrete\(6\), got Discrete\(5\)",
+            ),
+        ],
+    )
+    def test_bad_action_space(
+        self, action_space: spaces.Space, observation_space: spaces.Space | None, match: str
+    ) -> None:
+        with pytest.raises(ValueError, match=match):
+            COMA("CBAMPolicy", FakeUavVecEnv(action_space=action_space, observation_space=observation_space))
 
     @pytest.mark.parametrize(
         ("kwargs", "error", "match"),
@@ -240,8 +257,8 @@ class TestErrors:
             COMA("CBAMPolicy", FakeUavVecEnv(), **args)
 
     def test_unknown_policy_alias(self) -> None:
-        with pytest.raises(ValueError, match=r"unknown policy alias 'MlpPolicy'.*CBAMPolicy"):
-            COMA("MlpPolicy", FakeUavVecEnv())
+        with pytest.raises(ValueError, match=r"unknown policy alias 'NoSuchPolicy'.*CBAMPolicy"):
+            COMA("NoSuchPolicy", FakeUavVecEnv())
         with pytest.raises(TypeError, match="COMAPolicy subclass"):
             COMA(dict, FakeUavVecEnv())
 
@@ -250,7 +267,7 @@ class TestErrors:
 def test_time_limit_truncation_is_bootstrapped(truncate: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     """A truncated mission adds gamma * V(terminal state) to its last reward; a terminated one does not."""
     venv = FakeUavVecEnv(n_envs=2, n_agents=2, budget=3, truncate=truncate)
-    model = COMA("CnnPolicy", venv, batch_size=12, n_steps=6, gamma=0.5, seed=0, policy_kwargs=SMALL)
+    model = COMA("UavCnnPolicy", venv, batch_size=12, n_steps=6, gamma=0.5, seed=0, policy_kwargs=SMALL)
     rewards_seen: list[np.ndarray] = []
     original_step = venv.step_wait
 
@@ -260,7 +277,9 @@ def test_time_limit_truncation_is_bootstrapped(truncate: bool, monkeypatch: pyte
         return out
 
     monkeypatch.setattr(venv, "step_wait", recording_step)
-    monkeypatch.setattr(model, "_expected_target_values", lambda obs: th.full((len(obs["local"]) // 2, 2), 3.0))
+    monkeypatch.setattr(
+        model, "_expected_target_values", lambda obs, masks, states: th.full((len(obs["local"]) // 2, 2), 3.0)
+    )
     monkeypatch.setattr(model, "train", lambda: None)
     model.learn(12)
     stored = model.rollout_buffer.rewards.reshape(6, 4)
@@ -299,9 +318,8 @@ def test_advantage_is_the_chosen_term_minus_the_counterfactual_baseline(kind: st
     targets = th.randn(*actions.shape, generator=gen)
     advantage, old_log_prob = model._advantages(data, q_all, targets)
     with th.no_grad():
-        logits = model.policy.masked_logits(
-            data["local"].flatten(0, 1), data["mask"].flatten(0, 1), data["prior"].flatten(0, 1)
-        )
+        rows = {key: value.flatten(0, 1) for key, value in data["obs"].items()}
+        logits = model.policy.masked_logits(rows, data["mask"].flatten(0, 1))
     probs = th.softmax(logits, -1).view(*actions.shape, 6)
     baseline = (probs * q_all).sum(-1)
     first = targets if kind == "return" else q_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)

@@ -21,10 +21,11 @@ def step_obs(t: int) -> dict[str, np.ndarray]:
 
 
 def filled() -> JointRolloutBuffer:
-    buf = JointRolloutBuffer(T, E, N, obs_space())
+    buf = JointRolloutBuffer(T, E, N, obs_space(), n_actions=6)
     for t in range(T):
         rows = np.arange(E * N)
-        buf.add(step_obs(t), rows % 6, rows.astype(np.float32) + t, rows == t)
+        obs = step_obs(t)
+        buf.add(obs, obs["action_mask"], rows % 6, rows.astype(np.float32) + t, rows == t)
     buf.set_bootstrap(np.arange(E * N, dtype=np.float32))
     return buf
 
@@ -37,22 +38,22 @@ def test_rows_regroup_into_copy_and_agent() -> None:
     for t in range(T):
         for e in range(E):
             for a in range(N):
-                assert data["local"][t, e, a, 0, 0, 0].item() == 100 * t + e * N + a
+                assert data["obs"]["local"][t, e, a, 0, 0, 0].item() == 100 * t + e * N + a
                 assert data["rewards"][t, e, a].item() == e * N + a + t
     assert data["bootstrap"][2, 1].item() == 2 * N + 1
     with pytest.raises(RuntimeError, match="full"):
-        buf.add(step_obs(0), np.zeros(E * N), np.zeros(E * N), np.zeros(E * N))
+        buf.add(step_obs(0), np.ones((E * N, 6)), np.zeros(E * N), np.zeros(E * N), np.zeros(E * N))
 
 
 def test_minibatches_hold_whole_joint_steps() -> None:
     buf = filled()
     flat = buf.joint_steps()
-    assert flat["local"].shape[:2] == (T * E, N)
+    assert flat["obs"]["local"].shape[:2] == (T * E, N)
     th.manual_seed(0)
     batches = list(buf.minibatch_indices(T * E, 5))
     assert sorted(th.cat(batches).tolist()) == list(range(T * E))
     assert [len(b) for b in batches] == [5, 5, 2]
-    tags = flat["local"][batches[0], :, 0, 0, 0]  # (5, N): each row one joint step
+    tags = flat["obs"]["local"][batches[0], :, 0, 0, 0]  # (5, N): each row one joint step
     for row in tags:
         t, base = divmod(int(row[0].item()), 100)
         assert base % N == 0 and row.tolist() == [100 * t + base + a for a in range(N)]

@@ -7,8 +7,8 @@ import torch as th
 from coma_fakes import make_fake_vec_env, one_torch_thread  # noqa: F401 (autouse fixture)
 
 from sb3_coma.coma import COMA
-from sb3_coma.coma.policies import critic_input, other_actions_map
 from sb3_coma.coma.targets import counterfactual_advantage
+from sb3_coma.uav.policies import critic_input, other_actions_map
 from uav_ipp import layout
 
 SMALL = dict(features_extractor_kwargs=dict(channels=(8, 16, 16), features_dim=32))
@@ -66,20 +66,20 @@ def model() -> COMA:
 
 def joint_obs(model: COMA) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     obs = model.env.reset()
-    local, state, mask, _ = model._obs_tensors(obs, grouped=True)
-    return local, state, mask
+    joint = model._grouped(obs)
+    return joint["local"].float(), joint["state"].float(), joint["action_mask"].float()
 
 
 def test_own_action_does_not_change_own_q_row(model: COMA) -> None:
     local, state, _ = joint_obs(model)
     base = th.tensor([[0, 1, 2], [3, 4, 5]])
     with th.no_grad():
-        q = model.policy.q_values(local, state, base)
+        q = model.policy.q_values({"local": local}, state, base)
         for i in range(3):
             for u in range(6):
                 changed = base.clone()
                 changed[:, i] = u
-                q2 = model.policy.q_values(local, state, changed)
+                q2 = model.policy.q_values({"local": local}, state, changed)
                 assert th.equal(q2[:, i], q[:, i]), "agent i's row must ignore u_i"
                 if u != base[0, i]:
                     others = [j for j in range(3) if j != i]
@@ -88,10 +88,10 @@ def test_own_action_does_not_change_own_q_row(model: COMA) -> None:
 
 def test_baseline_matches_policy_over_valid_actions(model: COMA) -> None:
     local, state, mask = joint_obs(model)
-    actions = model.policy.act(local.flatten(0, 1), mask.flatten(0, 1)).view(2, 3)
+    actions = model.policy.act({"local": local.flatten(0, 1)}, mask.flatten(0, 1)).view(2, 3)
     with th.no_grad():
-        q = model.policy.q_values(local, state, actions)
-        probs = model.policy.action_probs(local.flatten(0, 1), mask.flatten(0, 1)).view(2, 3, 6)
+        q = model.policy.q_values({"local": local}, state, actions)
+        probs = model.policy.action_probs({"local": local.flatten(0, 1)}, mask.flatten(0, 1)).view(2, 3, 6)
     adv, base, _q_taken = counterfactual_advantage(q, actions, probs)
     for e in range(2):
         for i in range(3):

@@ -43,9 +43,10 @@ def test_learn_log_save_load_on_env1(tmp_path: Path) -> None:
     loaded = COMA.load(tmp_path / "coma_env1.zip", env=make_env(seed=1))
     obs = loaded.env.reset()
     assert np.array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
-    local, state, _, _ = model._obs_tensors(obs, grouped=True)
+    joint = model._grouped(obs)
+    state = model._joint_state(joint, None)
     actions = th.zeros(2, 2, dtype=th.long)
     with th.no_grad():
-        assert th.equal(model.policy.q_values(local, state, actions), loaded.policy.q_values(local, state, actions))
+        assert th.equal(model.policy.q_values(joint, state, actions), loaded.policy.q_values(joint, state, actions))
     loaded.learn(24, reset_num_timesteps=False)
     assert loaded.num_timesteps == 72

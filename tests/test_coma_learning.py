@@ -50,7 +50,7 @@ def deterministic_return(model: COMA, episodes: int, seed: int) -> float:
 
 def test_coma_beats_random_on_fake_env() -> None:
     model = COMA(
-        "CnnPolicy",
+        "UavCnnPolicy",
         make_fake_vec_env(n_envs=E, n_agents=N, budget=BUDGET, seed=0),
         learning_rate=3e-3,
         critic_learning_rate=3e-3,

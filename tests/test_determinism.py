@@ -46,7 +46,7 @@ def _one_thread():
     torch.set_num_threads(threads)
 
 
-def _train(seed: int, policy: str = "CnnPolicy") -> tuple[list[dict[str, float]], dict[str, torch.Tensor], list]:
+def _train(seed: int, policy: str = "UavCnnPolicy") -> tuple[list[dict[str, float]], dict[str, torch.Tensor], list]:
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4, noise="moderate")
     try:
         model = COMA(

@@ -50,7 +50,7 @@ TINY = {
     ENV_ID: {
         "n_timesteps": 8,
         "n_envs": 1,
-        "policy": "CnnPolicy",
+        "policy": "UavCnnPolicy",
         "policy_kwargs": {"features_extractor_kwargs": {"features_dim": 16}},
         "batch_size": 8,
         "env_kwargs": {"fusion": "mean", "n_uavs": 2, "budget": 4, "noise": "moderate"},
@@ -115,7 +115,7 @@ class Files:
         from sb3_coma.common.checkpoints import atomic_save
 
         model = COMA(
-            "CnnPolicy",
+            "UavCnnPolicy",
             self.venv,
             batch_size=8,
             seed=0,
@@ -131,7 +131,7 @@ class Files:
         from sb3_coma.common.checkpoints import atomic_save
 
         model = COMA(
-            "CnnPolicy",
+            "UavCnnPolicy",
             self.venv,
             batch_size=8,
             seed=0,
@@ -304,7 +304,7 @@ def _coma(files: Files, **kwargs):
     from sb3_coma import COMA
 
     kwargs.setdefault("batch_size", 8)
-    policy = kwargs.pop("policy", "CnnPolicy")
+    policy = kwargs.pop("policy", "UavCnnPolicy")
     env = kwargs.pop("env", files.venv)
     return COMA(policy, env, **kwargs)
 
@@ -918,16 +918,16 @@ CASES: list[Case | CliCase] = [
     Case(
         "coma-policy-unknown",
         C,
-        'COMA("MlpPolicy", venv)',
-        lambda f: _coma(f, policy="MlpPolicy"),
+        'COMA("NoSuchPolicy", venv)',
+        lambda f: _coma(f, policy="NoSuchPolicy"),
         ValueError,
-        ("'MlpPolicy'",),
-        "['CBAMPolicy', 'COMAPolicy', 'CnnPolicy']",
+        ("'NoSuchPolicy'",),
+        "['CBAMPolicy', 'CnnPolicy', 'MlpPolicy', 'MultiInputPolicy', 'UavCOMAPolicy', 'UavCnnPolicy']",
     ),
     Case(
         "coma-device-no-cuda",
         C,
-        'COMA("CnnPolicy", venv, device="cuda")  # no GPU here',
+        'COMA("UavCnnPolicy", venv, device="cuda")  # no GPU here',
         lambda f: _coma_without_gpu(f, "cuda"),
         ValueError,
         ("'cuda'",),
@@ -936,16 +936,16 @@ CASES: list[Case | CliCase] = [
     Case(
         "coma-env-not-vec",
         C,
-        'COMA("CnnPolicy", gymnasium.make("CartPole-v1"))',
+        'COMA("UavCnnPolicy", gymnasium.make("CartPole-v1"))',
         lambda f: _coma(f, env=__import__("gymnasium").make("CartPole-v1")),
         TypeError,
         ("TimeLimit",),
-        "uav_ipp.make_vec_env",
+        "sb3_coma.make_marl_vec_env",
     ),
     Case(
         "coma-env-unfused",
         C,
-        'COMA("CnnPolicy", make_vec_env(..., fusion="none"))',
+        'COMA("UavCnnPolicy", make_vec_env(..., fusion="none"))',
         lambda f: _coma(f, env=f.raw_venv),
         ValueError,
         ("(7, 11, 11)",),

@@ -173,7 +173,7 @@ def model_path(tmp_path_factory):
     coma = pytest.importorskip("sb3_coma.coma")
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", budget=3)
     path = tmp_path_factory.mktemp("models") / "model.zip"
-    coma.COMA("CnnPolicy", venv, seed=0, device="cpu").save(str(path))
+    coma.COMA("UavCnnPolicy", venv, seed=0, device="cpu").save(str(path))
     return path
 
 
@@ -189,7 +189,7 @@ def test_model_by_path_flies_the_same_missions_as_the_object(tmp_path):
     from sb3_coma.coma import COMA
 
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", budget=3)
-    model = COMA("CnnPolicy", venv, seed=7, device="cpu")
+    model = COMA("UavCnnPolicy", venv, seed=7, device="cpu")
     model.save(tmp_path / "seed7.zip")
     venv.close()
     by_object = evaluate(model, n_trials=3, seed=0, fusion="mean", deterministic=True, **SMALL)
@@ -230,7 +230,7 @@ def test_evaluate_uses_the_models_observation_options():
     from sb3_coma import COMA, evaluate
 
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=3, action_gain=False)
-    model = COMA("CnnPolicy", venv, seed=0, n_steps=4, batch_size=4, device="cpu")
+    model = COMA("UavCnnPolicy", venv, seed=0, n_steps=4, batch_size=4, device="cpu")
     model.env_options = {"map": "env1", "fusion": "mean", "action_gain": False}
     result = evaluate(model, env="env1", n_trials=2, n_uavs=2, budget=3)
     assert result.fusion == "mean" and result.env_options["action_gain"] is False

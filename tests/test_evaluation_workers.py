@@ -39,7 +39,7 @@ def test_planners_on_two_workers_fly_the_same_missions(method):
 def test_model_object_on_two_workers_and_through_the_context():
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=4)
     model = COMA(
-        "CnnPolicy",
+        "UavCnnPolicy",
         venv,
         n_steps=8,
         batch_size=8,
@@ -86,7 +86,7 @@ def test_worker_warnings_reach_the_caller_once():
     """A model flown in another world than it trained in warns in the caller, as in one process."""
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=4)
     kwargs = {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}}
-    model = COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=kwargs)
+    model = COMA("UavCnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=kwargs)
     record_env_options(model, "env1", {"fusion": "mean", "n_uavs": 2, "budget": 4})
     with pytest.warns(WorldMismatchWarning) as caught:
         evaluate(model, fusion="mean", record=0, workers=2, **{**SMALL, "noise": "loud"})

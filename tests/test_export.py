@@ -99,12 +99,8 @@ def test_actor_argmax_equals_predict(exported):
     import torch as th
 
     with th.no_grad():
-        gain = obs.get(layout.KEY_GAIN)
-        ref = model.policy.masked_logits(
-            th.as_tensor(obs[layout.KEY_LOCAL]),
-            th.as_tensor(obs[layout.KEY_MASK]),
-            None if gain is None else th.as_tensor(gain),
-        ).numpy()
+        rows = {k: th.as_tensor(obs[k]) for k in (layout.KEY_LOCAL, layout.KEY_GAIN) if k in obs}
+        ref = model.policy.masked_logits(rows, th.as_tensor(obs[layout.KEY_MASK])).numpy()
     np.testing.assert_allclose(logits, ref, rtol=1e-5, atol=1e-5)
 
 
@@ -163,7 +159,7 @@ def test_metadata_describes_the_graphs(exported):
 def test_export_needs_a_known_fusion(tmp_path):
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=3)
     model = COMA(
-        "CnnPolicy",
+        "UavCnnPolicy",
         venv,
         seed=0,
         device="cpu",
@@ -195,7 +191,7 @@ def test_export_needs_a_known_fusion(tmp_path):
             {
                 "UavIpp-Env1-v0": {
                     "n_timesteps": 8,
-                    "policy": "CnnPolicy",
+                    "policy": "UavCnnPolicy",
                     "env_kwargs": {"fusion": "mean", "n_uavs": 2, "budget": 3, "noise": "loud"},
                 },
                 "run": {"env": "UavIpp-Env1-v0"},

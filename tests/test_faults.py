@@ -50,7 +50,7 @@ CONFIG = {
         "env_kwargs": {"fusion": "sendfuse", "n_uavs": 2, "budget": 4, "noise": "moderate"},
         "callback": ["throttle.Throttle"],
     },
-    "variants": {"mean-cnn": {"policy": "CnnPolicy", "env_kwargs": {"fusion": "mean"}}},
+    "variants": {"mean-cnn": {"policy": "UavCnnPolicy", "env_kwargs": {"fusion": "mean"}}},
 }
 THROTTLE = '''
 import os
@@ -201,7 +201,7 @@ def tiny_model():
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4)
-    model = COMA("CnnPolicy", venv, batch_size=8, seed=0, policy_kwargs=SMALL_CNN)
+    model = COMA("UavCnnPolicy", venv, batch_size=8, seed=0, policy_kwargs=SMALL_CNN)
     yield model
     venv.close()
     torch.set_num_threads(threads)
@@ -299,7 +299,7 @@ def test_nan_in_a_loss_stops_training_without_saving_a_model(tmp_path, single_th
         train(
             env="env1",
             config=config,
-            overrides={"env_kwargs.fusion": "mean", "policy": "CnnPolicy"},
+            overrides={"env_kwargs.fusion": "mean", "policy": "UavCnnPolicy"},
             total_timesteps=SAVE_FREQ,
             seed=0,
             run_dir=run,

@@ -94,7 +94,7 @@ def test_metrics_reward_pays_the_change_of_f1_and_entropy():
 def _small_model(**policy_kwargs):
     venv = uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", seed=0, **SMALL)
     kwargs = dict(features_extractor_kwargs={"features_dim": 16}, **policy_kwargs)
-    return COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=kwargs), venv
+    return COMA("UavCnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=kwargs), venv
 
 
 def test_gain_prior_starts_as_soft_greedy_planner():
@@ -105,7 +105,7 @@ def test_gain_prior_starts_as_soft_greedy_planner():
     mask = th.as_tensor(obs[layout.KEY_MASK]).float()
     prior = th.as_tensor(obs[layout.KEY_GAIN])
     with th.no_grad():
-        logits = model.policy.masked_logits(th.as_tensor(obs[layout.KEY_LOCAL]), mask, prior)
+        logits = model.policy.masked_logits({"local": th.as_tensor(obs[layout.KEY_LOCAL]), "action_gain": prior}, mask)
     expected = 5.0 * prior.sum(1)
     valid = mask.bool()
     # The network's own term starts near zero (output gain 0.01): the prior decides.
@@ -128,7 +128,7 @@ def test_gain_prior_learns_saves_and_loads(tmp_path: Path):
     model.learn(32)
     after = model.policy.actor.prior_weights.detach().clone()
     assert not th.allclose(before, after)  # the weights are trained
-    assert np.any(model.rollout_buffer.prior != 0)  # the buffer keeps what the actor acted on
+    assert np.any(model.rollout_buffer.obs[layout.KEY_GAIN] != 0)  # the buffer keeps what the actor acted on
     model.save(tmp_path / "m.zip")
     loaded = COMA.load(tmp_path / "m.zip", env=venv)
     assert loaded.policy.gain_prior == 2.0 and loaded.policy.gain_prior_speed == 50.0
@@ -209,7 +209,8 @@ def test_correction_bound_caps_the_network_term_and_round_trips(tmp_path: Path):
     """``correction_bound=c``: the network's term is ``c * tanh(net / c)``, the prior's is untouched."""
     model, venv = _small_model(gain_prior=5.0, correction_bound=2.0)
     obs = venv.reset()
-    local, _, mask, prior = model._obs_tensors(obs, grouped=False)
+    local, mask, prior = (th.as_tensor(obs[k]).float() for k in (layout.KEY_LOCAL, layout.KEY_MASK, layout.KEY_GAIN))
+    rows = {"local": local, "action_gain": prior}
     actor = model.policy.actor
     with th.no_grad():
         raw = actor.head(actor.features_extractor(local))
@@ -222,9 +223,7 @@ def test_correction_bound_caps_the_network_term_and_round_trips(tmp_path: Path):
     loaded = COMA.load(tmp_path / "m.zip", env=venv)
     assert loaded.policy.correction_bound == 2.0 and loaded.policy.actor.correction_bound == 2.0
     with th.no_grad():
-        th.testing.assert_close(
-            loaded.policy.masked_logits(local, mask, prior), model.policy.masked_logits(local, mask, prior)
-        )
+        th.testing.assert_close(loaded.policy.masked_logits(rows, mask), model.policy.masked_logits(rows, mask))
     venv.close()
 
 
@@ -245,15 +244,15 @@ def test_gain_inputs_are_read_by_the_network_not_added_to_the_logits():
     local, mask = th.as_tensor(obs[layout.KEY_LOCAL]), th.as_tensor(obs[layout.KEY_MASK]).float()
     gains = th.as_tensor(obs[layout.KEY_GAIN])
     with th.no_grad():
-        probs = model.policy.action_probs(local, mask, prior=gains)
-        logits = model.policy.masked_logits(local, mask, gains)
-        flipped = model.policy.masked_logits(local, mask, -gains)
+        probs = model.policy.action_probs({"local": local, "action_gain": gains}, mask)
+        logits = model.policy.masked_logits({"local": local, "action_gain": gains}, mask)
+        flipped = model.policy.masked_logits({"local": local, "action_gain": -gains}, mask)
     valid = mask.bool()
     uniform = mask / mask.sum(-1, keepdim=True)
     assert th.allclose(probs[valid], uniform[valid], atol=0.02)  # output gain 0.01: near-uniform start
     assert not th.allclose(logits[valid], flipped[valid])  # the gains are an input of the network
     with pytest.raises(ValueError, match=r"needs observation\['action_gain'\] \(reads it \(gain_inputs\)\)"):
-        model.policy.masked_logits(local, mask, None)
+        model.policy.masked_logits({"local": local}, mask)
     venv.close()
 
 
@@ -268,8 +267,11 @@ def test_gain_inputs_learn_save_and_load(tmp_path: Path):
     assert loaded.policy.gain_inputs is True and loaded.policy.gain_input_size == 12
     obs = venv.reset()
     with th.no_grad():
-        args = [th.as_tensor(obs[k]).float() for k in (layout.KEY_LOCAL, layout.KEY_MASK, layout.KEY_GAIN)]
-        th.testing.assert_close(model.policy.masked_logits(*args), loaded.policy.masked_logits(*args))
+        local, mask, gains = (
+            th.as_tensor(obs[k]).float() for k in (layout.KEY_LOCAL, layout.KEY_MASK, layout.KEY_GAIN)
+        )
+        rows = {"local": local, "action_gain": gains}
+        th.testing.assert_close(model.policy.masked_logits(rows, mask), loaded.policy.masked_logits(rows, mask))
     venv.close()
 
 
@@ -282,5 +284,5 @@ def test_gain_inputs_must_be_a_bool(bad):
 def test_gain_inputs_need_the_gain_observation():
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", action_gain=False, **SMALL)
     with pytest.raises(ValueError, match=r"gain_inputs=True needs observation\['action_gain'\]"):
-        COMA("CnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs={"gain_inputs": True})
+        COMA("UavCnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs={"gain_inputs": True})
     venv.close()

@@ -19,7 +19,7 @@ SMALL = {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]
 
 def test_coma_learns_on_the_gpu_with_cpu_collection() -> None:
     venv = uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", seed=0)
-    model = COMA("CnnPolicy", venv, seed=0, n_steps=8, batch_size=8, device="cuda", policy_kwargs=SMALL)
+    model = COMA("UavCnnPolicy", venv, seed=0, n_steps=8, batch_size=8, device="cuda", policy_kwargs=SMALL)
     model.learn(32)
     assert next(model.policy.parameters()).device.type == "cuda"
     actions, _ = model.predict(venv.reset(), deterministic=True)

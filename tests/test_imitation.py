@@ -9,14 +9,14 @@ import torch as th
 import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.baselines import make_planner
-from sb3_coma.coma.imitation import clone_teacher
+from sb3_coma.uav.imitation import clone_teacher
 
 SMALL = {"features_extractor_kwargs": {"features_dim": 32, "channels": [8, 16, 16]}, "gain_inputs": True}
 
 
 def _model(seed: int = 0, **kwargs) -> COMA:
     venv = uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", seed=seed, split="train", start="random")
-    return COMA("CnnPolicy", venv, seed=seed, n_steps=8, batch_size=8, policy_kwargs=SMALL, **kwargs)
+    return COMA("UavCnnPolicy", venv, seed=seed, n_steps=8, batch_size=8, policy_kwargs=SMALL, **kwargs)
 
 
 def _agreement_with(model: COMA, teacher, missions: int = 2) -> float:
@@ -87,10 +87,11 @@ def test_kl_pull_keeps_the_fine_tuned_actor_near_its_reference():
         model.set_reference_actor()
         model.learn(64)
         data = model.rollout_buffer.joint_steps()
-        local, mask, prior = (data[k].flatten(0, 1) for k in ("local", "mask", "prior"))
+        obs = {k: data["obs"][k].flatten(0, 1) for k in ("local", "action_gain")}
+        mask = data["mask"].flatten(0, 1)
         with th.no_grad():
-            ref = th.log_softmax(model.policy.masked_logits_of(model.reference_actor, local, mask, prior), -1)
-            now = th.log_softmax(model.policy.masked_logits(local, mask, prior), -1)
+            ref = th.log_softmax(model.policy.masked_logits(obs, mask, actor=model.reference_actor), -1)
+            now = th.log_softmax(model.policy.masked_logits(obs, mask), -1)
         return float((ref.exp() * (ref - now)).sum(-1).mean())
 
     assert divergence(10.0) < 0.5 * divergence(0.0)

@@ -150,7 +150,7 @@ def test_actor_never_reads_state_or_gain(kind):
 @pytest.mark.parametrize("kind", ["ippo", "mappo"])
 def test_gain_inputs_make_the_actor_read_the_gains(kind):
     """``gain_inputs=True``: the same on-board gains COMA's ``gain_inputs`` actor reads."""
-    from sb3_coma.coma.policies import GAIN_ENCODER_DIM
+    from sb3_coma.uav.policies import GAIN_ENCODER_DIM
 
     venv = tiny_venv()
     model = tiny_model(kind, venv, policy_kwargs=dict(features_extractor_kwargs=dict(gain_inputs=True)))

@@ -108,7 +108,7 @@ def test_default_config_has_the_settings_that_learn_and_the_paper_variant():
     variants = list_variants(path)
     assert {"paper", "paper-actor", "sendfuse-cbam", "sendfuse-cnn", "mean-cbam", "mean-cnn"} <= set(variants)
     base = load_config("env3", path, "mean-cnn").entry
-    assert base["policy"] == "CnnPolicy" and base["env_kwargs"]["fusion"] == "mean"
+    assert base["policy"] == "UavCnnPolicy" and base["env_kwargs"]["fusion"] == "mean"
     assert base["env_kwargs"]["noise"] == "moderate"  # merged key by key
 
 
@@ -386,9 +386,9 @@ def test_numbers_written_without_a_dot_are_numbers_and_inf_is_refused_up_front(t
     an infinite learning rate is refused before anything is built, naming the value."""
     from sb3_coma.app.config import coma_kwargs
 
-    kwargs = coma_kwargs({"learning_rate": "1e-4", "critic_learning_rate": "3E-3", "policy": "CnnPolicy"})
+    kwargs = coma_kwargs({"learning_rate": "1e-4", "critic_learning_rate": "3E-3", "policy": "UavCnnPolicy"})
     assert kwargs["learning_rate"] == 1e-4 and kwargs["critic_learning_rate"] == 3e-3
-    assert coma_kwargs({"policy": "CnnPolicy", "advantage": "q"})["advantage"] == "q"  # words stay words
+    assert coma_kwargs({"policy": "UavCnnPolicy", "advantage": "q"})["advantage"] == "q"  # words stay words
     with pytest.raises((ValueError, TrainingError), match="learning_rate must be a finite positive number, got inf"):
         train(
             env="env1",

@@ -13,7 +13,7 @@ SMALL = {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]
 def _train(workers: int) -> th.Tensor:
     venv = uav_ipp.make_vec_env("env1", n_envs=4, fusion="mean", seed=3, split="train", start="random", workers=workers)
     try:
-        model = COMA("CnnPolicy", venv, seed=3, n_steps=8, batch_size=16, policy_kwargs=SMALL)
+        model = COMA("UavCnnPolicy", venv, seed=3, n_steps=8, batch_size=16, policy_kwargs=SMALL)
         model.learn(64)  # two rollouts: the missions end and reset inside the workers
         return th.cat([p.detach().flatten() for p in model.policy.parameters()])
     finally:

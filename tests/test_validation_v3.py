@@ -41,7 +41,7 @@ TINY = {
     ENV_ID: {
         "n_timesteps": 8,
         "n_envs": 1,
-        "policy": "CnnPolicy",
+        "policy": "UavCnnPolicy",
         "policy_kwargs": {"features_extractor_kwargs": {"features_dim": 16}},
         "batch_size": 8,
         "env_kwargs": {"fusion": "mean", "n_uavs": 2, "budget": 4, "noise": "moderate"},
@@ -65,7 +65,7 @@ def mean_zip(tmp_path_factory) -> Path:
     """A COMA zip that records its training env (env1, 2 UAVs, budget 4, mean fusion)."""
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", n_uavs=2, budget=4)
     model = COMA(
-        "CnnPolicy", venv, batch_size=8, seed=0, policy_kwargs={"features_extractor_kwargs": {"features_dim": 16}}
+        "UavCnnPolicy", venv, batch_size=8, seed=0, policy_kwargs={"features_extractor_kwargs": {"features_dim": 16}}
     )
     record_env_options(model, "env1", {"fusion": "mean", "n_uavs": 2, "budget": 4})
     path = atomic_save(model, tmp_path_factory.mktemp("models") / "coma_mean.zip")
@@ -219,7 +219,7 @@ def test_numbers_in_exponent_notation_through_the_config_loader(tmp_path):
     config = tmp_path / "numbers.yml"
     config.write_text(
         f"{ENV_ID}:\n  n_timesteps: 1e2\n  n_steps: 8.0\n  learning_rate: 1e-4\n  critic_learning_rate: 1.0e3\n"
-        "  policy: CnnPolicy\n  env_kwargs: {fusion: mean, n_uavs: 2e0, budget: 4, sigma: 1e-1}\n"
+        "  policy: UavCnnPolicy\n  env_kwargs: {fusion: mean, n_uavs: 2e0, budget: 4, sigma: 1e-1}\n"
     )
     assert isinstance(yaml.safe_load(config.read_text())[ENV_ID]["learning_rate"], str)  # PyYAML's reading
     entry = load_config("env1", config).entry

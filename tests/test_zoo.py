@@ -21,7 +21,7 @@ ENV = "UavIpp-Env1-v0"
 TINY = {
     ENV: {
         "n_timesteps": 16,
-        "policy": "CnnPolicy",
+        "policy": "UavCnnPolicy",
         "policy_kwargs": {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}},
         "learning_rate": 1.0e-4,
         "critic_learning_rate": "lin_1e-3",

@@ -25,7 +25,7 @@ TRIALS_PER_WORKER = 2
 TINY = {
     ENV: {
         "n_timesteps": 200,
-        "policy": "CnnPolicy",
+        "policy": "UavCnnPolicy",
         "policy_kwargs": {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}},
         "learning_rate": 1.0e-4,
         "critic_learning_rate": 1.0e-3,

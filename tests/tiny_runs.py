@@ -14,7 +14,7 @@ def tiny_entry() -> dict[str, Any]:
     return {
         "n_timesteps": 40,
         "n_envs": 1,
-        "policy": "CnnPolicy",
+        "policy": "UavCnnPolicy",
         "policy_kwargs": {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}},
         "learning_rate": 1.0e-4,
         "critic_learning_rate": 1.0e-3,

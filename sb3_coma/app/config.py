@@ -35,6 +35,7 @@ from torch import nn
 import uav_ipp
 from sb3_coma.baselines import PLANNERS
 from sb3_coma.coma import COMA
+from sb3_coma.coma.plugins import plugin_policies
 from sb3_coma.common.checkpoints import folder_write_problem
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 from uav_ipp import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
@@ -276,7 +277,11 @@ def _check_zoo_values(entry: Mapping[str, Any], where: str) -> None:
     if entry.get("backend", "subprocess") not in uav_ipp.BACKENDS:
         _fail(where, f"backend must be one of {tuple(uav_ipp.BACKENDS)}, got {entry['backend']!r}")
     if "policy" in entry and not isinstance(entry["policy"], str):
-        _fail(where, f"policy must be an alias (CBAMPolicy, CnnPolicy) or a dotted class path, got {entry['policy']!r}")
+        _fail(
+            where,
+            f"policy must be an alias (CBAMPolicy, UavCnnPolicy, MlpPolicy, ...) or a dotted class path, "
+            f"got {entry['policy']!r}",
+        )
     if "policy_kwargs" in entry and not isinstance(entry["policy_kwargs"], (dict, str)):
         _fail(where, f"policy_kwargs must be a mapping or a Python expression string, got {entry['policy_kwargs']!r}")
     for key in _SCHEDULE_KEYS:
@@ -700,7 +705,7 @@ def coma_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
         if key in kwargs:
             kwargs[key] = parse_schedule(kwargs[key])
     policy = entry.get("policy", "CBAMPolicy")
-    if isinstance(policy, str) and policy not in COMA.policy_aliases:
+    if isinstance(policy, str) and policy not in COMA.policy_aliases and policy not in plugin_policies():
         policy = import_dotted(policy, "policy")
     kwargs["policy"] = policy
     if "policy_kwargs" in entry:

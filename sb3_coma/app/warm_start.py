@@ -9,7 +9,7 @@
         critic_warmup: 0.2      # first fraction of learn() in which only the critic learns
 
 Before ``learn()``, a new run clones the teacher into the actor
-(:func:`sb3_coma.coma.imitation.clone_teacher`) on copies of its own training world kept in this
+(:func:`sb3_coma.uav.imitation.clone_teacher`) on copies of its own training world kept in this
 process (the oracle reads each copy's ground truth and global belief at every step), stores the
 clone as the KL reference (``COMA.set_reference_actor``), and holds the actor's learning rate at
 0 for the first ``critic_warmup`` of training: the critic is new to this policy, and advantages
@@ -31,7 +31,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_coma.app.config import WARM_START_KEY, TrainConfig, check_warm_start, make_training_env
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma import COMA
-from sb3_coma.coma.imitation import clone_teacher
+from sb3_coma.uav.imitation import clone_teacher
 
 __all__ = ["actor_frozen_then", "warm_start", "warm_start_run"]
 

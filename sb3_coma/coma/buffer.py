@@ -10,16 +10,25 @@ regroups them, and minibatches are drawn over whole joint steps.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
 
-from uav_ipp import layout
+from sb3_coma.coma.joint import map_obs
 
 __all__ = ["JointBatch", "JointRolloutBuffer"]
 
-JointBatch = dict[str, th.Tensor]
+JointBatch = dict[str, Any]
+
+
+def _storage(space: spaces.Space, lead: tuple[int, ...]) -> np.ndarray:
+    """Zeros for ``lead`` + one observation of ``space``, in the space's own dtype (uint8 images
+    stay small); a ``Discrete`` observation is stored as its index."""
+    if isinstance(space, spaces.Discrete):
+        return np.zeros(lead, dtype=np.int64)
+    return np.zeros(lead + tuple(space.shape or ()), dtype=space.dtype)
 
 
 class JointRolloutBuffer:
@@ -28,8 +37,11 @@ class JointRolloutBuffer:
     :param n_steps: steps per env copy per rollout (``T``)
     :param n_copies: env copies (``E``)
     :param n_agents: agents per copy (``N``)
-    :param observation_space: the per-agent ``Dict`` space (``local``, ``state``, ``action_mask``)
-    :param device: where :meth:`tensors` puts the data
+    :param observation_space: one agent's observation space (a ``Dict`` is stored key by key)
+    :param n_actions: actions per agent (the mask's width)
+    :param state_shape: shape of the per-copy global state to store (``None``: the state is read
+        from the observations, nothing extra is stored)
+    :param device: where :meth:`time_major` puts the data
     """
 
     def __init__(
@@ -37,7 +49,9 @@ class JointRolloutBuffer:
         n_steps: int,
         n_copies: int,
         n_agents: int,
-        observation_space: spaces.Dict,
+        observation_space: spaces.Space,
+        n_actions: int,
+        state_shape: tuple[int, ...] | None = None,
         device: th.device | str = "cpu",
     ) -> None:
         self.n_steps = n_steps
@@ -45,16 +59,15 @@ class JointRolloutBuffer:
         self.n_agents = n_agents
         self.device = th.device(device)
         lead = (n_steps, n_copies, n_agents)
-
-        def shape(key: str) -> tuple[int, ...]:
-            return tuple(observation_space[key].shape or ())
-
-        self.local = np.zeros(lead + shape(layout.KEY_LOCAL), dtype=np.float32)
-        self.state = np.zeros(lead + shape(layout.KEY_STATE), dtype=np.float32)
-        self.mask = np.zeros(lead + shape(layout.KEY_MASK), dtype=np.float32)
-        #: The actor's prior (``action_gain``); zeros when the observation has none.
-        prior = shape(layout.KEY_GAIN) if layout.KEY_GAIN in observation_space.spaces else (1, self.mask.shape[-1])
-        self.prior = np.zeros(lead + prior, dtype=np.float32)
+        self.obs: np.ndarray | dict[str, np.ndarray]
+        if isinstance(observation_space, spaces.Dict):
+            self.obs = {key: _storage(space, lead) for key, space in observation_space.spaces.items()}
+        else:
+            self.obs = _storage(observation_space, lead)
+        #: The env's global state per copy (state source "env" only).
+        self.states = None if state_shape is None else np.zeros((n_steps, n_copies, *state_shape), dtype=np.float32)
+        #: 1.0 for valid actions (all ones when the env gives no masks).
+        self.mask = np.zeros((*lead, n_actions), dtype=np.float32)
         self.actions = np.zeros(lead, dtype=np.int64)
         self.rewards = np.zeros(lead, dtype=np.float32)
         #: 1.0 where the episode ended with this step (termination or truncation).
@@ -75,26 +88,34 @@ class JointRolloutBuffer:
     def reset(self) -> None:
         self.pos = 0
 
-    def _grouped(self, flat: np.ndarray) -> np.ndarray:
+    def _grouped(self, flat: Any) -> np.ndarray:
         """``(E * N, ...) -> (E, N, ...)`` (a view)."""
         return np.asarray(flat).reshape((self.n_copies, self.n_agents, *np.shape(flat)[1:]))
 
     def add(
         self,
-        obs: dict[str, np.ndarray],
+        obs: np.ndarray | dict[str, np.ndarray],
+        mask: np.ndarray,
         actions: np.ndarray,
         rewards: np.ndarray,
         dones: np.ndarray,
+        states: np.ndarray | None = None,
     ) -> None:
-        """Store one vec-env step; every array has ``E * N`` rows in the vec env's order."""
+        """Store one vec-env step; every array has ``E * N`` rows in the vec env's order
+        (``states``: one row per copy)."""
         if self.full:
             raise RuntimeError("JointRolloutBuffer is full; call reset() before adding more steps")
         t = self.pos
-        self.local[t] = self._grouped(obs[layout.KEY_LOCAL])
-        self.state[t] = self._grouped(obs[layout.KEY_STATE])
-        self.mask[t] = self._grouped(obs[layout.KEY_MASK])
-        if layout.KEY_GAIN in obs:
-            self.prior[t] = self._grouped(obs[layout.KEY_GAIN])
+        if isinstance(self.obs, dict):
+            assert isinstance(obs, dict)
+            for key, store in self.obs.items():
+                store[t] = self._grouped(obs[key])
+        else:
+            self.obs[t] = self._grouped(obs)
+        if self.states is not None:
+            assert states is not None
+            self.states[t] = np.asarray(states, dtype=np.float32).reshape(self.states.shape[1:])
+        self.mask[t] = self._grouped(mask)
         self.actions[t] = self._grouped(actions)
         self.rewards[t] = self._grouped(rewards)
         self.dones[t] = self._grouped(dones)
@@ -105,14 +126,13 @@ class JointRolloutBuffer:
         self.bootstrap[...] = np.asarray(values, dtype=np.float32).reshape(self.n_copies, self.n_agents)
 
     def time_major(self) -> JointBatch:
-        """The filled part as tensors shaped ``(T, E, N, ...)`` (no copy on CPU)."""
+        """The filled part as tensors shaped ``(T, E, N, ...)`` (``states``: ``(T, E, ...)``; no copy on CPU)."""
         t = self.pos
         to = lambda a: th.as_tensor(a[:t], device=self.device)  # noqa: E731
         return {
-            "local": to(self.local),
-            "state": to(self.state),
+            "obs": map_obs(to, self.obs),
+            "states": None if self.states is None else to(self.states),
             "mask": to(self.mask),
-            "prior": to(self.prior),
             "actions": to(self.actions),
             "rewards": to(self.rewards),
             "dones": to(self.dones),
@@ -123,7 +143,8 @@ class JointRolloutBuffer:
         """Per-step tensors flattened to joint steps, ``(T * E, N, ...)``; agents stay together."""
         data = self.time_major()
         data.pop("bootstrap")
-        return {k: v.flatten(0, 1) for k, v in data.items()}
+        flat = lambda v: v.flatten(0, 1)  # noqa: E731
+        return {key: None if value is None else map_obs(flat, value) for key, value in data.items()}
 
     @staticmethod
     def minibatch_indices(n_joint_steps: int, batch_size: int, shuffle: bool = True) -> Iterator[th.Tensor]:

@@ -1,13 +1,20 @@
 """COMA (Foerster et al. 2018) as a Stable-Baselines3 on-policy algorithm.
 
-One vec env row per agent, ``N`` agents per env copy (agent ``a`` of copy ``e`` at row
-``e * N + a``). Each rollout is regrouped into joint steps ``(T, E, N)``; the centralised critic
-learns ``Q(s, u_-i, .)`` from TD(lambda) targets of a target critic; the shared actor follows
+A general algorithm for cooperative, parameter-sharing multi-agent envs with ``Discrete(n)``
+actions. What it reads of an env (the multi-agent VecEnv contract, docs/design.md): one vec env
+row per agent, ``N`` agents per env copy (agent ``a`` of copy ``e`` at row ``e * N + a``), an
+``n_agents`` attribute, one global state per joint step (a ``state`` observation key, else the
+env's ``get_state()``, else the concatenation of the agents' observations) and optional masks (an
+``action_mask`` observation key, or sb3-contrib's ``action_masks()``). ``make_marl_vec_env``
+builds such a VecEnv from any PettingZoo ``ParallelEnv``.
+
+Each rollout is regrouped into joint steps ``(T, E, N)``; the centralised critic learns
+``Q(s, u_-i, .)`` from TD(lambda) targets of a target critic; the shared actor follows
 ``-log pi(u_i | o_i) * A_i`` with COMA's counterfactual advantage over valid actions.
 
 Time is counted in **joint steps**: ``num_timesteps`` grows by one per env copy per step (not
-per agent), so ``learn(total_timesteps)`` means joint steps. The paper trains 1200 missions of
-15 steps: ``total_timesteps=18_000``. ``n_steps`` is per env copy, ``batch_size`` in joint steps.
+per agent), so ``learn(total_timesteps)`` means joint steps. ``n_steps`` is per env copy,
+``batch_size`` in joint steps.
 
 Choices the paper leaves open, as implemented here:
 
@@ -30,7 +37,7 @@ import io
 import math
 import os
 import pathlib
-from collections import deque
+import sys
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -38,6 +45,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.logger import HumanOutputFormat, Logger
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
@@ -52,7 +60,9 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
 from sb3_coma.coma.buffer import JointRolloutBuffer
-from sb3_coma.coma.policies import CBAMPolicy, CnnPolicy, COMAPolicy
+from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, concat_state, concat_state_space, map_obs
+from sb3_coma.coma.plugins import resolve_policy, saved_policy_class
+from sb3_coma.coma.policies import CnnPolicy, COMAPolicy, MlpPolicy, MultiInputPolicy
 from sb3_coma.coma.progress import JointStepProgressBar
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
@@ -60,12 +70,13 @@ from sb3_coma.coma.validation import (
     check_batch_fits_rollout,
     check_coma_arguments,
     check_device,
+    check_masks,
     check_observation,
     check_spaces,
     resolve_n_agents,
+    resolve_state_source,
 )
 from sb3_coma.common.shipped import check_shipped_file
-from uav_ipp import layout
 
 SelfCOMA = TypeVar("SelfCOMA", bound="COMA")
 
@@ -74,6 +85,9 @@ DEFAULT_ROLLOUT_STEPS = 32
 
 __all__ = ["ADVANTAGES", "COMA"]
 
+#: Format of the models this version saves (see ``coma_format``).
+COMA_FORMAT = 2
+
 #: Joint steps per forward pass when the target critic scores a whole rollout (bounds memory).
 _SCORING_CHUNK = 1024
 
@@ -81,18 +95,21 @@ _SCORING_CHUNK = 1024
 class COMA(OnPolicyAlgorithm):
     """Counterfactual multi-agent policy gradients with a shared actor and a centralised critic.
 
-    :param policy: ``"CBAMPolicy"`` (paper), ``"CnnPolicy"`` (ablation) or a ``COMAPolicy`` subclass
+    :param policy: ``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"`` (any env), an alias
+        registered by a plug-in (``"CBAMPolicy"``, ``"UavCnnPolicy"``: the UAV world's) or a
+        ``COMAPolicy`` subclass
     :param env: an SB3 ``VecEnv`` with one row per agent and an ``n_agents`` attribute
-        (``uav_ipp.make_vec_env``); may be ``None`` only when loading for prediction
-    :param learning_rate: actor learning rate (Adam), float or schedule; paper 1e-5
-    :param critic_learning_rate: critic learning rate (Adam), float or schedule; paper 1e-4
+        (``sb3_coma.make_marl_vec_env``, ``uav_ipp.make_vec_env``); may be ``None`` only when
+        loading for prediction
+    :param learning_rate: actor learning rate (Adam), float or schedule
+    :param critic_learning_rate: critic learning rate (Adam), float or schedule
     :param n_steps: steps per env copy per rollout; ``None``: 32, stretched when needed so that a
         rollout holds at least ``batch_size`` joint steps
-    :param batch_size: minibatch size in joint steps (all agents of a step stay together); paper 512
-    :param n_epochs: passes of actor minibatch updates over each rollout; paper 1
+    :param batch_size: minibatch size in joint steps (all agents of a step stay together)
+    :param n_epochs: passes of actor minibatch updates over each rollout
     :param clip_range: PPO-style clip of the probability ratio in the actor's surrogate, so several
         passes cannot move the policy far from the one that collected the rollout; ``None``: the
-        plain policy gradient (paper)
+        plain policy gradient (the paper)
     :param advantage: first term of the counterfactual advantage ``A_i = X - sum_u' pi(u'|o_i)
         Q(s, (u_-i, u'))``: ``"return"``, the TD(lambda) return of the joint action taken
         (measured to learn, docs/training.md), or ``"q"``, the critic's ``Q(s, u)`` (the paper)
@@ -106,23 +123,28 @@ class COMA(OnPolicyAlgorithm):
     :param exploration_initial_eps: initial weight of uniform-over-valid-actions exploration
     :param exploration_final_eps: final weight
     :param exploration_fraction: fraction of training over which epsilon anneals linearly
+    :param kl_coef: weight of a KL pull toward a frozen reference actor (``set_reference_actor``)
+    :param kl_fraction: fraction of ``learn()`` over which that weight falls to 0
     :param stats_window_size: episodes averaged in the rollout/ logs
     :param tensorboard_log: TensorBoard log folder (``None``: no TensorBoard)
-    :param policy_kwargs: extra arguments for the policy (extractor classes and kwargs, ...)
+    :param policy_kwargs: extra arguments for the policy (``net_arch``, extractor classes, ...)
     :param verbose: 0 silent, 1 info, 2 debug
     :param seed: seed for torch, numpy, python and the env
     :param device: torch device
     :param _init_setup_model: build networks now (SB3's ``load`` passes ``False``)
 
     ``env_options`` (``None`` until a trainer sets it, saved with the model): the env the model
-    was trained on, as ``{"map": ..., "fusion": ..., "fusion_kwargs": {...}, <IppConfig options>}``
-    (``sb3_coma.training_options`` reads it from a model or a zip).
+    was trained on (the UAV world's trainer records its map and options there;
+    ``sb3_coma.training_options`` reads it from a model or a zip). ``state_source`` (``"obs"``,
+    ``"env"`` or ``"concat"``) and ``state_space`` are read from the env and saved with the model.
+    Numeric keys of the episode infos that SB3's ``VecMonitor`` collects (``info_keywords``) are
+    logged as ``rollout/ep_<key>``.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
-        "CBAMPolicy": CBAMPolicy,
+        "MlpPolicy": MlpPolicy,
         "CnnPolicy": CnnPolicy,
-        "COMAPolicy": COMAPolicy,
+        "MultiInputPolicy": MultiInputPolicy,
     }
     policy: COMAPolicy  # type: ignore[assignment]  # SB3 types it as ActorCriticPolicy
     rollout_buffer: JointRolloutBuffer  # type: ignore[assignment]
@@ -213,7 +235,7 @@ class COMA(OnPolicyAlgorithm):
     # ------------------------------------------------------------ set-up
     @staticmethod
     def _agents_of(env: GymEnv | None) -> int | None:
-        """UAVs per env copy (``None`` without an env), after checking the env's spaces."""
+        """Agents per env copy (``None`` without an env), after checking the env's spaces."""
         if env is None:
             return None
         n_agents = resolve_n_agents(env)  # type: ignore[arg-type]
@@ -226,19 +248,38 @@ class COMA(OnPolicyAlgorithm):
         #: not saved: the pull decays to zero within the run that set it.
         self.reference_actor: th.nn.Module | None = None
         self.env_options: dict[str, Any] | None = None
+        #: The saved-model format: 2 since COMA became generic (a 0.2 zip has none and names its
+        #: UAV policy by the class's old home, :func:`~sb3_coma.coma.plugins.saved_policy_class`).
+        self.coma_format = COMA_FORMAT
+        self.state_source: str | None = None
+        self.state_space: spaces.Space | None = None
+        self._last_states: np.ndarray | None = None
         self._n_critic_updates = 0
         self._n_target_updates = 0
 
     @classmethod
     def _resolve_policy(cls, policy: str | type[COMAPolicy]) -> type[COMAPolicy]:
-        """Map an alias to its class here (SB3's base refuses "CnnPolicy" on Dict spaces)."""
-        if isinstance(policy, str):
-            if policy not in cls.policy_aliases:
-                raise ValueError(f"unknown policy alias {policy!r}; COMA knows {sorted(cls.policy_aliases)}")
-            return cls.policy_aliases[policy]  # type: ignore[return-value]
-        if not (isinstance(policy, type) and issubclass(policy, COMAPolicy)):
-            raise TypeError(f"policy must be an alias or a COMAPolicy subclass, got {policy!r}")
-        return policy
+        """Map an alias to its class here (SB3's base refuses "CnnPolicy" on Dict spaces); aliases
+        of plug-ins (the UAV world's ``CBAMPolicy``) load on first use (:mod:`sb3_coma.coma.plugins`)."""
+        return resolve_policy(policy, cls.policy_aliases)  # type: ignore[return-value]
+
+    def _resolve_state(self) -> None:
+        """Where the global state comes from, and its space (kept from a saved model when loading
+        without an env; a model saved before COMA was generic reads its ``state`` key)."""
+        if self.env is not None:
+            self.state_source, state_space = resolve_state_source(self.env, self.n_agents)
+        elif self.state_source is None:
+            has_key = isinstance(self.observation_space, spaces.Dict) and KEY_STATE in self.observation_space.spaces
+            self.state_source, state_space = ("obs", None) if has_key else ("concat", None)
+        else:
+            return
+        if self.state_source == "obs":
+            assert isinstance(self.observation_space, spaces.Dict)
+            state_space = self.observation_space[KEY_STATE]
+        elif self.state_source == "concat":
+            assert self.n_agents is not None
+            state_space = concat_state_space(self.observation_space, self.n_agents)
+        self.state_space = state_space
 
     def _setup_model(self) -> None:
         """Build schedules, buffer and policy from attributes alone (``load`` relies on that)."""
@@ -252,8 +293,9 @@ class COMA(OnPolicyAlgorithm):
             self.n_agents = resolve_n_agents(self.env)
             self.n_envs = self.env.num_envs
         if self.n_agents is None:
-            raise ValueError("n_agents is unknown: pass an env built by uav_ipp.make_vec_env")
+            raise ValueError("n_agents is unknown: pass an env built by sb3_coma.make_marl_vec_env")
         self.n_copies = self.n_envs // self.n_agents
+        self._resolve_state()
         # A rollout must hold at least one minibatch of joint steps. The constructor rejects an
         # explicit n_steps that is too short; a model loaded onto an env with fewer copies (e.g.
         # evaluation on 2 copies of a model trained on 8) stretches its rollouts instead.
@@ -263,11 +305,14 @@ class COMA(OnPolicyAlgorithm):
         check_batch_fits_rollout(self.batch_size, self.n_steps, self.n_copies)
         self.set_random_seed(self.seed)
 
+        assert isinstance(self.action_space, spaces.Discrete) and self.state_space is not None
         self.rollout_buffer = JointRolloutBuffer(
             self.n_steps,
             self.n_copies,
             self.n_agents,
-            self.observation_space,  # type: ignore[arg-type]
+            self.observation_space,
+            int(self.action_space.n),
+            state_shape=tuple(self.state_space.shape or ()) if self.state_source == "env" else None,
             device=self.device,
         )
         self.policy = self.policy_class(  # type: ignore[assignment]
@@ -275,19 +320,17 @@ class COMA(OnPolicyAlgorithm):
             self.action_space,
             self.lr_schedule,
             critic_lr_schedule=self.critic_lr_schedule,
+            n_agents=self.n_agents,
+            state_space=self.state_space,
             **self.policy_kwargs,
         )
         self.policy = self.policy.to(self.device)
-        self._ep_metrics: dict[str, deque] = {
-            "f1": deque(maxlen=self._stats_window_size),
-            "entropy": deque(maxlen=self._stats_window_size),
-        }
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "reference_actor"]
 
     def set_reference_actor(self) -> None:
-        """Freeze a copy of the current actor (e.g. after :func:`~sb3_coma.coma.imitation.clone_teacher`)
+        """Freeze a copy of the current actor (e.g. after :func:`~sb3_coma.uav.imitation.clone_teacher`)
         as the policy that ``kl_coef`` pulls the fine-tuning toward, with a weight that falls linearly
         from ``kl_coef`` to 0 over the first ``kl_fraction`` of ``learn()``."""
         self.reference_actor = copy.deepcopy(self.policy.actor).requires_grad_(False).eval()
@@ -308,37 +351,81 @@ class COMA(OnPolicyAlgorithm):
     def _agents(self) -> int:
         """``n_agents``, known once the model is set up."""
         if self.n_agents is None:
-            raise ValueError("n_agents is unknown: pass an env built by uav_ipp.make_vec_env")
+            raise ValueError("n_agents is unknown: pass an env built by sb3_coma.make_marl_vec_env")
         return self.n_agents
 
-    def _obs_tensors(
-        self, obs: dict[str, np.ndarray], grouped: bool
-    ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor | None]:
-        """``local``, ``state``, ``mask`` and the actor's prior (``action_gain``, or ``None``) as
-        tensors; ``grouped`` reshapes rows to ``(E, N, ...)``."""
-        out: list[th.Tensor | None] = []
-        for key in (layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK, layout.KEY_GAIN):
-            if key not in obs:
-                out.append(None)
-                continue
-            x = th.as_tensor(obs[key], device=self.device).float()
-            if grouped:
-                x = x.view(-1, self._agents, *x.shape[1:])
-            out.append(x)
-        return out[0], out[1], out[2], out[3]  # type: ignore[return-value]
+    def _grouped(self, obs: Any) -> Any:
+        """Vec-env rows ``(E * N, ...)`` (arrays or a dict of them) as tensors ``(E, N, ...)``."""
+        return map_obs(
+            lambda x: th.as_tensor(np.asarray(x), device=self.device).view(-1, self._agents, *np.shape(x)[1:]), obs
+        )
+
+    def _masks(self, obs: Any, env: VecEnv | None = None) -> np.ndarray:
+        """Valid actions of every row, float ``(rows, n)``: the ``action_mask`` key of the observation,
+        else sb3-contrib's ``action_masks()`` of ``env``, else all valid."""
+        assert isinstance(self.action_space, spaces.Discrete)
+        if isinstance(obs, dict) and KEY_MASK in obs:
+            masks = np.asarray(obs[KEY_MASK], dtype=np.float32)
+        elif env is not None and self._env_masks:
+            masks = np.stack(env.env_method("action_masks")).astype(np.float32)
+        else:
+            rows = len(next(iter(obs.values()))) if isinstance(obs, dict) else len(obs)
+            return np.ones((rows, int(self.action_space.n)), dtype=np.float32)
+        check_masks(masks, int(self.action_space.n))
+        return masks
+
+    def _joint_state(self, obs: Any, states: th.Tensor | None) -> th.Tensor:
+        """The critic's state per agent row, ``(B, N, ...)``, from joint observations ``(B, N, ...)``
+        and (state source ``"env"``) the env's states ``(B, ...)``."""
+        n = self._agents
+        if self.state_source == "obs":
+            return obs[KEY_STATE].float()
+        if self.state_source == "env":
+            assert states is not None
+            return states.float()[:, None].expand(-1, n, *states.shape[1:])
+        flat = concat_state(obs, self.observation_space, self.policy.normalize_images)
+        return flat[:, None].expand(-1, n, -1)
+
+    def _current_states(self) -> np.ndarray | None:
+        """The env's global state of every copy now (state source ``"env"`` only)."""
+        if self.state_source != "env" or self.env is None:
+            return None
+        return np.asarray(self.env.get_state(), dtype=np.float32)  # type: ignore[attr-defined]
+
+    def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
+        """SB3's set-up, then the env's state and mask conventions for the rollouts.
+
+        Without TensorBoard and a logger of the caller's, SB3 logs to stdout but first makes an
+        empty ``SB3-<timestamp>`` folder in the system temp dir at every ``learn()``; the same
+        logger is built here without a folder."""
+        own_logger = not self._custom_logger and self.tensorboard_log is None
+        if own_logger:
+            self._logger = Logger(
+                folder=None, output_formats=[HumanOutputFormat(sys.stdout)] if self.verbose >= 1 else []
+            )
+            self._custom_logger = True
+        try:
+            out = super()._setup_learn(*args, **kwargs)
+        finally:
+            if own_logger:
+                self._custom_logger = False
+        self._env_masks = self.env is not None and self.env.has_attr("action_masks")
+        self._last_states = self._current_states()
+        return out
 
     @th.no_grad()
-    def _expected_target_values(self, obs: dict[str, np.ndarray]) -> th.Tensor:
+    def _expected_target_values(self, obs: Any, masks: np.ndarray, states: np.ndarray | None) -> th.Tensor:
         """``V_i(s) = sum_u pi(u|o_i) Q_target(s, (u_-i, u))`` per agent of every copy in ``obs``.
 
         The other agents' actions ``u_-i`` are drawn from the current policy (no exploration),
         so this is the on-policy value of the state the rollout stopped in.
         """
-        local, state, mask, prior = self._obs_tensors(obs, grouped=True)
-        flat_local, flat_mask = local.flatten(0, 1), mask.flatten(0, 1)
-        probs = self.policy.action_probs(flat_local, flat_mask, prior=None if prior is None else prior.flatten(0, 1))
-        actions = th.multinomial(probs, 1).view(local.shape[:2])
-        q = self.policy.q_values(local, state, actions, target=True)
+        joint = self._grouped(obs)
+        rows = map_obs(lambda x: x.flatten(0, 1), joint)
+        probs = self.policy.action_probs(rows, th.as_tensor(masks, device=self.device))
+        actions = th.multinomial(probs, 1).view(-1, self._agents)
+        state = self._joint_state(joint, None if states is None else th.as_tensor(states, device=self.device))
+        q = self.policy.q_values(joint, state, actions, target=True)
         return (probs.view(q.shape) * q).sum(-1)
 
     def _bootstrap_truncations(self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]) -> np.ndarray:
@@ -354,29 +441,27 @@ class COMA(OnPolicyAlgorithm):
         n = self._agents
         copies = sorted({i // n for i in truncated})
         rows = [c * n + a for c in copies for a in range(n)]
-        terminal = {
-            key: np.stack([infos[r]["terminal_observation"][key] for r in rows])
-            for key in (layout.KEY_LOCAL, layout.KEY_STATE, layout.KEY_MASK, layout.KEY_GAIN)
-            if key in infos[rows[0]]["terminal_observation"]
-        }
-        values = self._expected_target_values(terminal).flatten().cpu().numpy()
+        first = infos[rows[0]]["terminal_observation"]
+        if isinstance(first, dict):
+            terminal: Any = {key: np.stack([infos[r]["terminal_observation"][key] for r in rows]) for key in first}
+        else:
+            terminal = np.stack([infos[r]["terminal_observation"] for r in rows])
+        states = None
+        if self.state_source == "env":
+            states = np.stack([infos[c * n]["terminal_state"] for c in copies])
+        values = self._expected_target_values(terminal, self._masks(terminal), states).flatten().cpu().numpy()
         for row, value in zip(rows, values):
             if row in truncated:
                 rewards[row] += self.gamma * value
         return rewards
 
     def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
-        """Record each mission once (from its first agent's row), with its final F1 and entropy."""
+        """Record each episode once (from its copy's first agent row, not once per agent)."""
         assert self.ep_info_buffer is not None
         for row in range(0, len(infos), self.n_agents or 1):
-            info = infos[row]
-            episode = info.get("episode")
+            episode = infos[row].get("episode")
             if episode is not None:
                 self.ep_info_buffer.append(episode)
-            if dones is not None and dones[row]:
-                for key in ("f1", "entropy"):
-                    if key in info:
-                        self._ep_metrics[key].append(float(info[key]))
 
     # ---------------------------------------------------------- rollouts
     def collect_rollouts(
@@ -394,12 +479,14 @@ class COMA(OnPolicyAlgorithm):
         callback.on_rollout_start()
 
         new_obs = self._last_obs
+        masks = self._masks(self._last_obs, env)
         while buffer.pos < n_rollout_steps:
             progress = 1.0 - float(self.num_timesteps) / float(max(self._total_timesteps, 1))
             self.exploration_rate = self.exploration_schedule(progress)
             with th.no_grad():
-                local, _, mask, prior = self._obs_tensors(self._last_obs, grouped=False)  # type: ignore[arg-type]
-                actions = self.policy.act(local, mask, epsilon=self.exploration_rate, prior=prior).cpu().numpy()
+                obs_tensor = map_obs(lambda x: th.as_tensor(x, device=self.device), self._last_obs)
+                mask_tensor = th.as_tensor(masks, device=self.device)
+                actions = self.policy.act(obs_tensor, mask_tensor, epsilon=self.exploration_rate).cpu().numpy()
 
             new_obs, rewards, dones, infos = env.step(actions)  # type: ignore[assignment]
             self.num_timesteps += self.n_copies  # joint steps, not agent steps
@@ -409,27 +496,44 @@ class COMA(OnPolicyAlgorithm):
                 return False
             self._update_info_buffer(infos, dones)
             rewards = self._bootstrap_truncations(rewards, dones, infos)
-            buffer.add(self._last_obs, actions, rewards, dones)  # type: ignore[arg-type]
+            buffer.add(self._last_obs, masks, actions, rewards, dones, self._last_states)  # type: ignore[arg-type]
             self._last_obs = new_obs  # type: ignore[assignment]
+            self._last_states = self._current_states()
             self._last_episode_starts = dones
+            masks = self._masks(new_obs, env)
 
-        buffer.set_bootstrap(self._expected_target_values(new_obs).cpu().numpy())  # type: ignore[arg-type]
+        bootstrap = self._expected_target_values(new_obs, masks, self._last_states)
+        buffer.set_bootstrap(bootstrap.cpu().numpy())
         callback.update_locals(locals())
         callback.on_rollout_end()
         return True
 
     # ---------------------------------------------------------- training
+    @staticmethod
+    def _take(obs: Any, idx: th.Tensor) -> Any:
+        """Joint steps ``idx`` of joint observations (a tensor or a dict of them)."""
+        return map_obs(lambda x: x[idx], obs)
+
+    @staticmethod
+    def _rows(obs: Any) -> Any:
+        """Joint observations ``(B, N, ...)`` as agent rows ``(B * N, ...)``."""
+        return map_obs(lambda x: x.flatten(0, 1), obs)
+
+    def _q(self, data: dict[str, Any], idx: th.Tensor, target: bool = False) -> th.Tensor:
+        """The critic's ``Q(s, u_-i, .)`` ``(b, N, n)`` on joint steps ``idx`` of the rollout."""
+        obs = self._take(data["obs"], idx)
+        states = None if data["states"] is None else data["states"][idx]
+        return self.policy.q_values(obs, self._joint_state(obs, states), data["actions"][idx], target=target)
+
     @th.no_grad()
     def _td_targets(self) -> th.Tensor:
         """TD(lambda) targets ``(T * E, N)`` from the target critic's Q at the taken joint actions."""
         data = self.rollout_buffer.time_major()
         T, E, N = data["actions"].shape
-        flat = {k: data[k].flatten(0, 1) for k in ("local", "state", "actions")}
+        flat = self.rollout_buffer.joint_steps()
         q_taken = th.cat(
             [
-                self.policy.q_values(flat["local"][idx], flat["state"][idx], flat["actions"][idx], target=True)
-                .gather(-1, flat["actions"][idx].unsqueeze(-1))
-                .squeeze(-1)
+                self._q(flat, idx, target=True).gather(-1, flat["actions"][idx].unsqueeze(-1)).squeeze(-1)
                 for idx in th.arange(T * E).split(_SCORING_CHUNK)
             ]
         ).view(T, E, N)
@@ -459,9 +563,7 @@ class COMA(OnPolicyAlgorithm):
             self._n_target_updates += 1
 
     @th.no_grad()
-    def _advantages(
-        self, data: dict[str, th.Tensor], q_all: th.Tensor, targets: th.Tensor
-    ) -> tuple[th.Tensor, th.Tensor]:
+    def _advantages(self, data: dict[str, Any], q_all: th.Tensor, targets: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """COMA's advantage ``(T * E, N)`` per agent and the log-probability of the taken action
         under the policy that collected the rollout.
 
@@ -469,22 +571,22 @@ class COMA(OnPolicyAlgorithm):
         over valid actions; ``X`` is the TD(lambda) return of the joint action taken
         (``advantage="return"``) or the critic's ``Q(s, u)`` (``"q"``, the paper).
         """
-        local, mask, actions = data["local"], data["mask"], data["actions"]
-        logits = self.policy.masked_logits(local.flatten(0, 1), mask.flatten(0, 1), data["prior"].flatten(0, 1))
+        mask, actions = data["mask"], data["actions"]
+        logits = self.policy.masked_logits(self._rows(data["obs"]), mask.flatten(0, 1))
         log_probs = th.log_softmax(logits, dim=-1).view(*actions.shape, -1)
         q_advantage, baseline, _ = counterfactual_advantage(q_all, actions, log_probs.exp())
         advantage = targets - baseline if self.advantage == "return" else q_advantage
         return advantage, log_probs.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
 
     def _actor_loss(
-        self, data: dict[str, th.Tensor], idx: th.Tensor, advantage: th.Tensor, old_log_prob: th.Tensor
+        self, data: dict[str, Any], idx: th.Tensor, advantage: th.Tensor, old_log_prob: th.Tensor
     ) -> tuple[th.Tensor, float, float]:
         """Clipped surrogate (or plain policy gradient) minus the entropy bonus on one minibatch
         of joint steps; returns (loss, mean entropy, fraction of clipped ratios)."""
         b_actions = data["actions"][idx].flatten()
-        logits = self.policy.masked_logits(
-            data["local"][idx].flatten(0, 1), data["mask"][idx].flatten(0, 1), data["prior"][idx].flatten(0, 1)
-        )
+        obs = self._rows(self._take(data["obs"], idx))
+        mask = data["mask"][idx].flatten(0, 1)
+        logits = self.policy.masked_logits(obs, mask)
         log_probs = th.log_softmax(logits, dim=-1)
         advantage = advantage.flatten()
         if self.normalize_advantage and advantage.numel() > 1:
@@ -502,15 +604,7 @@ class COMA(OnPolicyAlgorithm):
         if kl_weight > 0.0:
             assert self.reference_actor is not None
             with th.no_grad():
-                ref = th.log_softmax(
-                    self.policy.masked_logits_of(
-                        self.reference_actor,
-                        data["local"][idx].flatten(0, 1),
-                        data["mask"][idx].flatten(0, 1),
-                        data["prior"][idx].flatten(0, 1),
-                    ),
-                    dim=-1,
-                )
+                ref = th.log_softmax(self.policy.masked_logits(obs, mask, actor=self.reference_actor), dim=-1)
             loss = loss + kl_weight * (ref.exp() * (ref - log_probs)).sum(-1).mean()
         return loss, entropy.item(), clip_fraction
 
@@ -529,14 +623,14 @@ class COMA(OnPolicyAlgorithm):
 
         targets = self._td_targets()
         data = self.rollout_buffer.joint_steps()
-        local, state, _mask, actions = data["local"], data["state"], data["mask"], data["actions"]
+        actions = data["actions"]
         n_joint = actions.shape[0]
         q_all = th.zeros(*actions.shape, self.policy.n_actions, device=self.device)
 
         critic_losses = []
         for epoch in range(self.n_critic_epochs):
             for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
-                q = self.policy.q_values(local[idx], state[idx], actions[idx])
+                q = self._q(data, idx)
                 q_taken = q.gather(-1, actions[idx].unsqueeze(-1)).squeeze(-1)
                 loss = F.mse_loss(q_taken, targets[idx])
                 self._critic_step(loss)
@@ -574,10 +668,8 @@ class COMA(OnPolicyAlgorithm):
         self.logger.record("train/kl_weight", self._kl_weight())
         self.logger.record("train/entropy", float(np.mean(entropies)))
         self.logger.record("train/target_updates", self._n_target_updates)
-        weights = self.policy.actor.prior_weights
-        if weights is not None:
-            for name, w in zip(layout.GAIN_WEIGHTINGS, weights.tolist()):
-                self.logger.record(f"train/gain_prior_{name}", w)
+        for name, value in self.policy.log_values().items():
+            self.logger.record(f"train/{name}", value)
         self.logger.record("train/critic_updates", self._n_critic_updates)
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/learning_rate", self.lr_schedule(progress))
@@ -585,11 +677,14 @@ class COMA(OnPolicyAlgorithm):
 
     # ----------------------------------------------------------- logging
     def dump_logs(self, iteration: int = 0) -> None:
-        """SB3's rollout/time logs plus the mission's final F1 and entropy."""
-        if len(self._ep_metrics["f1"]) > 0:
-            self.logger.record("rollout/ep_f1", safe_mean(self._ep_metrics["f1"]))
-        if len(self._ep_metrics["entropy"]) > 0:
-            self.logger.record("rollout/ep_entropy", safe_mean(self._ep_metrics["entropy"]))
+        """SB3's rollout/time logs plus the mean of every other numeric key of the episode infos
+        (``VecMonitor(info_keywords=...)``; the UAV world's final F1 and entropy)."""
+        assert self.ep_info_buffer is not None
+        extra = sorted({key for info in self.ep_info_buffer for key in info} - {"r", "l", "t"})
+        for key in extra:
+            values = [info[key] for info in self.ep_info_buffer if isinstance(info.get(key), (int, float, np.number))]
+            if values:
+                self.logger.record(f"rollout/ep_{key}", safe_mean(values))
         super().dump_logs(iteration)
 
     def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
@@ -612,9 +707,13 @@ class COMA(OnPolicyAlgorithm):
         **kwargs: Any,
     ) -> SelfCOMA:
         """SB3's ``load``, after checking a shipped model's file against its recorded SHA-256
-        (:mod:`sb3_coma.common.shipped`): no path reaches a replaced shipped zip unchecked."""
+        (:mod:`sb3_coma.common.shipped`): no path reaches a replaced shipped zip unchecked. A model
+        saved by sb3-coma 0.2 names its UAV policy by the class's old home; it loads as that class."""
         if isinstance(path, (str, os.PathLike)):
             check_shipped_file(path)
+        renamed = saved_policy_class(path)
+        if renamed is not None and "policy_class" not in (custom_objects or {}):
+            custom_objects = {**(custom_objects or {}), "policy_class": renamed}
         return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
 
     def predict(
@@ -623,11 +722,22 @@ class COMA(OnPolicyAlgorithm):
         state: tuple[np.ndarray, ...] | None = None,
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
+        action_masks: np.ndarray | None = None,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict`` (one action per vec-env row, masked), after checking the observation:
-        a missing ``action_mask`` or a NaN in the maps is an error naming the key."""
-        check_observation(observation)
-        return super().predict(observation, state, episode_start, deterministic)
+        """One action per vec-env row. Masks: the observation's ``action_mask`` key, or
+        ``action_masks`` (sb3-contrib's ``MaskablePPO.predict`` convention, ``(rows, n)``).
+        The observation is checked first: a missing key or a NaN is an error naming the key."""
+        check_observation(observation, self.observation_space)
+        if action_masks is None:
+            return super().predict(observation, state, episode_start, deterministic)
+        self.policy.set_training_mode(False)
+        obs_tensor, vectorized = self.policy.obs_to_tensor(observation)
+        masks = np.atleast_2d(np.asarray(action_masks, dtype=np.float32))
+        check_masks(masks, self.policy.n_actions)
+        with th.no_grad():
+            actions = self.policy.act(obs_tensor, th.as_tensor(masks, device=self.device), deterministic=deterministic)
+        out = actions.cpu().numpy()
+        return (out if vectorized else out.squeeze(0)), state
 
     def learn(
         self: SelfCOMA,

@@ -1,297 +1,175 @@
-"""COMA's policy: a shared masked actor, a centralised critic and its target, in one SB3 policy.
+"""COMA's policies for any env: a shared masked actor, a centralised critic and its target.
 
 Keeping critic, target critic and the critic's optimizer inside the policy (an ``nn.Module``)
 means SB3's ``save``/``load`` store and restore all of them with no special casing: the policy's
 ``state_dict`` holds the three networks and ``policy.optimizer`` / ``policy.critic_optimizer``
 are listed in :meth:`COMA._get_torch_save_params`.
 
-Shapes: the actor works per agent on ``(B, ...)``; the critic works on whole joint steps,
-``(B, N, ...)`` with ``N`` agents, because agent ``i``'s critic input depends on the other agents'
-actions.
+Shapes: the actor works per agent row on ``(B, ...)``; the critic works on whole joint steps,
+``(B, N, ...)`` with ``N`` agents, because agent ``i``'s input holds the other agents' actions.
+The default critic is COMA's own (Foerster et al. 2018, as in pymarl's ``coma_critic``): the
+global state, the agent's one-hot id, the other agents' one-hot actions and (``critic_obs``) the
+agent's own observation -> ``Q(s, u_-i, .)`` for all of its ``n`` actions in one pass.
+:meth:`COMAPolicy.critic_features` is the hook a world-specific policy overrides to build its
+critic input another way (``sb3_coma.uav.CBAMPolicy`` draws the other UAVs' actions at their cells).
 """
 
 from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from functools import partial
-from typing import Any, cast
+from typing import Any
 
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from stable_baselines3.common.preprocessing import is_image_space, preprocess_obs
+from stable_baselines3.common.torch_layers import (
+    BaseFeaturesExtractor,
+    CombinedExtractor,
+    FlattenExtractor,
+    NatureCNN,
+    create_mlp,
+)
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
+from torch.nn import functional as F
 
+from sb3_coma.coma.joint import KEY_MASK, actor_observation_space, actor_view, map_obs
 from sb3_coma.coma.masking import behaviour_probs, mask_logits, sample_actions
-from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
-from uav_ipp import layout
 
-__all__ = ["CBAMPolicy", "COMAPolicy", "CnnPolicy", "critic_input", "other_actions_map"]
-
-#: Width of the actor's gain encoder (``gain_inputs=True``): the per-action gains are mapped to
-#: this many features before they join the trunk's features in the head.
-GAIN_ENCODER_DIM = 64
+__all__ = ["COMAPolicy", "CnnPolicy", "MlpPolicy", "MultiInputPolicy"]
 
 _CRITIC_PREFIX = "critic."
 _TARGET_PREFIX = "critic_target."
 
-#: FOOTPRINT marks the current cell with 1.0 and earlier visits with 0.5; anything above this
-#: threshold is "here" (equivalent to ``== 1`` for those values, but immune to float round-off).
-_HERE_THRESHOLD = 0.75
+#: Hidden layers of the actor (``pi``, SB3's PPO default) and of the critic (``qf``, wider: it
+#: reads the state and every agent's action).
+DEFAULT_NET_ARCH: dict[str, list[int]] = {"pi": [64, 64], "qf": [128, 128]}
 
 
-def other_actions_map(footprint: th.Tensor, actions: th.Tensor, n_actions: int = layout.N_ACTIONS) -> th.Tensor:
-    """The critic's 12th channel: for agent ``i``, ``(u_j + 1) / A`` at each other agent ``j``'s cell.
-
-    Agent ``j``'s cell is read from its own FOOTPRINT channel (1.0 at the current cell). Agent
-    ``i``'s own action never enters its map, which is what makes ``Q(s, u_-i, .)`` a function of
-    the other agents' actions only; the ``+ 1`` keeps action 0 distinguishable from "no UAV".
-
-    :param footprint: ``(B, N, H, W)``, each agent's FOOTPRINT channel
-    :param actions: ``(B, N)`` integer actions
-    :return: ``(B, N, H, W)``; if two UAVs ever shared a column the larger value wins
-    """
-    _batch, n_agents = actions.shape
-    here = (footprint > _HERE_THRESHOLD).to(footprint.dtype)
-    contrib = here * ((actions.to(footprint.dtype) + 1.0) / n_actions)[:, :, None, None]  # (B, N, H, W)
-    others = 1.0 - th.eye(n_agents, dtype=footprint.dtype, device=footprint.device)  # [i, j] = j != i
-    # (B, 1, N, H, W) * (1, N, N, 1, 1) -> (B, N_i, N_j, H, W), then the max over j.
-    return (contrib[:, None] * others[None, :, :, None, None]).amax(dim=2)
+def _net_arch(net_arch: list[int] | dict[str, list[int]] | None) -> dict[str, list[int]]:
+    """``None``: the default; a list: the same hidden layers for actor and critic; a dict ``pi`` / ``qf``."""
+    if net_arch is None:
+        return {key: list(value) for key, value in DEFAULT_NET_ARCH.items()}
+    if isinstance(net_arch, dict):
+        unknown = set(net_arch) - {"pi", "qf"}
+        if unknown:
+            raise ValueError(f"net_arch={net_arch!r}: keys must be 'pi' and/or 'qf', got {sorted(unknown)}")
+        return {key: list(net_arch.get(key, DEFAULT_NET_ARCH[key])) for key in ("pi", "qf")}
+    if isinstance(net_arch, list) and all(isinstance(n, int) and n > 0 for n in net_arch):
+        return {"pi": list(net_arch), "qf": list(net_arch)}
+    raise ValueError(f"net_arch={net_arch!r}: must be a list of layer sizes or a dict with 'pi' / 'qf' lists")
 
 
-def critic_input(local: th.Tensor, state: th.Tensor, actions: th.Tensor) -> th.Tensor:
-    """Stack ``local`` (8) + ``state`` (3) + other agents' actions (1) into ``(B, N, 12, H, W)``."""
-    action_map = other_actions_map(local[:, :, layout.FOOTPRINT], actions)
-    return th.cat([local, state, action_map[:, :, None]], dim=2)
-
-
-class _Head(nn.Module):
-    """A features extractor followed by one linear layer to one output per action."""
-
-    def __init__(
-        self, features_extractor: BaseFeaturesExtractor, n_actions: int, gain: float, ortho_init: bool = True
-    ) -> None:
-        super().__init__()
-        self.features_extractor = features_extractor
-        self.head = nn.Linear(features_extractor.features_dim, n_actions)
-        if ortho_init:
-            # As SB3 does for A2C/PPO: PyTorch's default init shrinks activations through the
-            # ReLU trunk until features barely vary between inputs and the actor cannot learn.
-            features_extractor.apply(partial(BasePolicy.init_weights, gain=math.sqrt(2)))
-        nn.init.orthogonal_(self.head.weight, gain=gain)
-        nn.init.zeros_(self.head.bias)
-
-    def forward(self, x: th.Tensor) -> th.Tensor:
-        return self.head(self.features_extractor(x))
-
-
-class _Actor(_Head):
-    """The actor's head, plus an optional prior: ``logits = net(local) + sum_k beta_k * gain_k``.
-
-    With a prior, the observation's per-action information gains (``action_gain``: the one-step
-    look-ahead a UAV computes from its own belief, under K entropy weightings) are added to the
-    logits with learned weights ``beta``, so the first policy is a soft greedy planner and COMA
-    learns a correction to it instead of the whole planning skill from scratch
-    (docs/training.md, "gain prior"). ``beta = speed * theta`` with ``theta`` the parameter: Adam
-    moves a parameter by about the learning rate per step whatever its gradient's size, so the
-    ``speed`` factor lets the few mixing weights move as fast as they need to while the network
-    keeps the learning rate that keeps it stable.
-    """
+class ActorNet(nn.Module):
+    """A features extractor, hidden layers and one logit per action."""
 
     def __init__(
         self,
         features_extractor: BaseFeaturesExtractor,
+        hidden: list[int],
+        activation_fn: type[nn.Module],
         n_actions: int,
-        gain: float,
-        ortho_init: bool = True,
-        prior_init: Sequence[float] = (),
-        prior_speed: float = 1.0,
-        correction_bound: float | None = None,
-        gain_inputs: int = 0,
     ) -> None:
-        super().__init__(features_extractor, n_actions, gain, ortho_init)
-        self.correction_bound = correction_bound
-        #: With ``gain_inputs`` (the number of ``action_gain`` values), the network reads the gains
-        #: as inputs: a learned encoder whose features join the trunk's in the head.
-        self.gain_encoder: nn.Sequential | None = None
-        if gain_inputs > 0:
-            self.gain_encoder = nn.Sequential(nn.Linear(gain_inputs, GAIN_ENCODER_DIM), nn.ReLU())
-            self.head = nn.Linear(features_extractor.features_dim + GAIN_ENCODER_DIM, n_actions)
-            if ortho_init:
-                self.gain_encoder.apply(partial(BasePolicy.init_weights, gain=math.sqrt(2)))
-            nn.init.orthogonal_(self.head.weight, gain=gain)
-            nn.init.zeros_(self.head.bias)
-        self.prior_speed = float(prior_speed)
-        self.prior_theta: nn.Parameter | None = None
-        if any(w > 0 for w in prior_init):
-            self.prior_theta = nn.Parameter(th.tensor([float(w) for w in prior_init]) / self.prior_speed)
+        super().__init__()
+        self.features_extractor = features_extractor
+        self.mlp = nn.Sequential(*create_mlp(features_extractor.features_dim, -1, hidden, activation_fn))
+        self.head = nn.Linear(hidden[-1] if hidden else features_extractor.features_dim, n_actions)
 
-    @property
-    def prior_weights(self) -> th.Tensor | None:
-        """``beta``: the weight of each gain row in the logits (``None`` without a prior)."""
-        return None if self.prior_theta is None else self.prior_speed * self.prior_theta
-
-    def prior_logits(self, prior: th.Tensor) -> th.Tensor:
-        """The prior's own term ``sum_k beta_k * gain_k``, ``(B, A)`` from ``prior`` ``(B, K, A)``."""
-        return th.einsum("k,bka->ba", self.prior_weights, prior)
-
-    @property
-    def reads_gain(self) -> bool:
-        """Whether the actor needs ``observation["action_gain"]`` (as a prior or as inputs)."""
-        return self.prior_theta is not None or self.gain_encoder is not None
-
-    def network_logits(self, x: th.Tensor, gains: th.Tensor | None = None) -> th.Tensor:
-        """The network's own term ``(B, A)``: ``c * tanh(net / c)`` with a ``correction_bound`` c,
-        so it can reorder moves whose prior logits lie within about 2c of each other but never
-        swamp the prior (unbounded, it grew to +-50 in collapsed runs, docs/training.md).
-        ``gains`` ``(B, K, A)``: the encoder's input when the actor has one."""
-        features = self.features_extractor(x)
-        if self.gain_encoder is not None:
-            assert gains is not None
-            features = th.cat([features, self.gain_encoder(gains.flatten(1))], dim=1)
-        net = self.head(features)
-        if self.correction_bound is None:
-            return net
-        return self.correction_bound * th.tanh(net / self.correction_bound)
-
-    def forward(self, x: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:  # type: ignore[override]
-        if self.reads_gain and prior is None:
-            role = (
-                "adds it to its logits (gain_prior > 0)" if self.prior_theta is not None else "reads it (gain_inputs)"
-            )
-            raise ValueError(
-                f"this actor needs observation[{layout.KEY_GAIN!r}] ({role}), "
-                "but the observation has no such key: make the env with action_gain=True"
-            )
-        logits = self.network_logits(x, prior)
-        if self.prior_theta is not None:
-            assert prior is not None
-            logits = logits + self.prior_logits(prior)
-        return logits
+    def forward(self, obs: PyTorchObs) -> th.Tensor:
+        return self.head(self.mlp(self.features_extractor(obs)))
 
 
-def _correction_bound(value: Any) -> float | None:
-    """``None`` or a finite number > 0, with an error that names the bad value."""
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (value > 0 and math.isfinite(value)):
-        raise ValueError(f"correction_bound={value!r}: must be null (unbounded) or a finite number > 0")
-    return float(value)
-
-
-def _gain_input_size(value: Any, observation_space: spaces.Dict) -> int:
-    """How many ``action_gain`` values the actor's network reads (0: none), with errors that name
-    the bad value."""
-    if not isinstance(value, bool):
-        raise ValueError(f"gain_inputs={value!r}: must be true or false")
-    if not value:
-        return 0
-    space = observation_space.spaces.get(layout.KEY_GAIN)
-    if space is None:
-        raise ValueError(f"gain_inputs=True needs observation[{layout.KEY_GAIN!r}]: make the env with action_gain=True")
-    return int(math.prod(space.shape or (0,)))
-
-
-def _prior_init(gain_prior: Any, speed: Any, observation_space: spaces.Dict) -> tuple[float, ...]:
-    """The starting weight of each ``action_gain`` row (empty: no prior), with errors that name the
-    bad value. A single number applies to every row."""
-    try:
-        speed = float(speed)
-    except (TypeError, ValueError):
-        raise ValueError(f"gain_prior_speed={speed!r}: must be a number") from None
-    if not (speed > 0.0 and math.isfinite(speed)):
-        raise ValueError(f"gain_prior_speed={speed!r}: must be a finite number > 0")
-    scalar = isinstance(gain_prior, (int, float)) and not isinstance(gain_prior, bool)
-    try:
-        weights = [float(gain_prior)] if scalar else [float(w) for w in gain_prior]
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"gain_prior={gain_prior!r}: must be a number or a list of numbers, one per "
-            f"{layout.KEY_GAIN!r} row {layout.GAIN_WEIGHTINGS}"
-        ) from None
-    if not weights or not all(w >= 0.0 and math.isfinite(w) for w in weights):
-        raise ValueError(f"gain_prior={gain_prior!r}: weights must be finite numbers >= 0 (0 = no prior)")
-    if not any(w > 0 for w in weights):
-        return ()
-    if layout.KEY_GAIN not in observation_space.spaces:
-        raise ValueError(
-            f"gain_prior={gain_prior!r} needs observation[{layout.KEY_GAIN!r}]: make the env "
-            "with action_gain=True (the default), or use gain_prior=0"
-        )
-    rows = int((observation_space[layout.KEY_GAIN].shape or (0,))[0])
-    if scalar:
-        return tuple(weights * rows)
-    if len(weights) != rows:
-        raise ValueError(
-            f"gain_prior={gain_prior!r}: needs one weight per {layout.KEY_GAIN!r} row, "
-            f"{rows} ({', '.join(layout.GAIN_WEIGHTINGS)}), got {len(weights)}"
-        )
-    return tuple(weights)
-
-
-class COMAPolicy(BasePolicy):
-    """Shared actor ``pi(u | o_i)`` over ``obs["local"]`` + mask, centralised critic ``Q(s, u_-i, .)``.
-
-    :param observation_space: the per-agent ``Dict`` (``local``, ``state``, ``action_mask``)
-    :param action_space: ``Discrete(6)``
-    :param lr_schedule: actor learning-rate schedule (SB3 convention)
-    :param critic_lr_schedule: critic learning-rate schedule; defaults to ``lr_schedule``
-    :param features_extractor_class: the actor's trunk
-    :param features_extractor_kwargs: its keyword arguments
-    :param critic_features_extractor_class: the critic's trunk (defaults to the actor's class)
-    :param critic_features_extractor_kwargs: its keyword arguments (default: the actor's)
-    :param optimizer_class: optimizer for both networks (Adam, as in the paper)
-    :param optimizer_kwargs: extra optimizer arguments, shared by both
-    :param ortho_init: orthogonal initialisation (gain sqrt 2 in the trunks, 0.01 on the actor's
-        output so the first policy is near-uniform, 1 on the critic's), as SB3's A2C/PPO do
-    :param normalize_images: unused (all maps are float in [0, 1]); kept for SB3's signature
-    :param gain_prior: initial weight of the rows of the per-action information-gain prior added
-        to the actor's logits: one number for every row, or one per row (``layout.GAIN_WEIGHTINGS``
-        order: class-weighted, plain), e.g. ``[10, 0]`` starts as adaptive-gain's greedy choice.
-        ``0`` (or all zeros): no prior, the paper's actor. Needs the ``action_gain`` key
-    :param gain_prior_speed: how much faster than the network the prior's weights learn (see
-        ``_Actor``)
-    :param correction_bound: bound ``c`` on the network's term of the actor's logits, which
-        becomes ``c * tanh(net / c)`` (``None``: unbounded, the paper's actor). With a gain prior
-        it keeps the learned correction from swamping the prior (see ``_Actor.network_logits``)
-    :param gain_inputs: the actor's network also reads ``observation["action_gain"]`` (every
-        move's one-step gain, computed on board from the UAV's own belief) as input features,
-        through a learned encoder joined to the trunk's features before the head. Nothing is
-        added to the logits by hand: the weights start random and the network learns what the
-        gains are worth. Needs the ``action_gain`` key
-    """
+class CriticNet(nn.Module):
+    """COMA's critic: [state features, own observation features, one-hot id, others' one-hot
+    actions] -> hidden layers -> ``Q`` of every action of the agent."""
 
     def __init__(
         self,
-        observation_space: spaces.Dict,
+        state_extractor: BaseFeaturesExtractor,
+        obs_extractor: BaseFeaturesExtractor | None,
+        extra_dim: int,
+        hidden: list[int],
+        activation_fn: type[nn.Module],
+        n_actions: int,
+    ) -> None:
+        super().__init__()
+        self.state_extractor = state_extractor
+        self.obs_extractor = obs_extractor
+        width = state_extractor.features_dim + extra_dim + (obs_extractor.features_dim if obs_extractor else 0)
+        self.mlp = nn.Sequential(*create_mlp(width, -1, hidden, activation_fn))
+        self.head = nn.Linear(hidden[-1] if hidden else width, n_actions)
+
+    def forward(self, state: th.Tensor, obs: PyTorchObs | None, extra: th.Tensor) -> th.Tensor:
+        parts = [self.state_extractor(state), extra]
+        if self.obs_extractor is not None:
+            assert obs is not None
+            parts.insert(1, self.obs_extractor(obs))
+        return self.head(self.mlp(th.cat(parts, dim=1)))
+
+
+def one_hot_others(actions: th.Tensor, n_actions: int) -> th.Tensor:
+    """Row ``i`` of joint step ``b``: every other agent's one-hot action, agent ``i``'s own zeroed,
+    ``(B, N, N * n)``: what makes ``Q(s, u_-i, .)`` a function of the others' actions only."""
+    _batch, n_agents = actions.shape
+    one_hot = F.one_hot(actions.long(), n_actions).float()  # (B, N_j, n)
+    others = 1.0 - th.eye(n_agents, device=actions.device)  # [i, j] = j != i
+    return (one_hot[:, None] * others[None, :, :, None]).flatten(2)
+
+
+class COMAPolicy(BasePolicy):
+    """Shared actor ``pi(u | o_i)`` and centralised critic ``Q(s, u_-i, .)`` for ``Discrete(n)`` agents.
+
+    :param observation_space: one agent's observation space (``state`` / ``action_mask`` keys of a
+        ``Dict`` are not actor inputs)
+    :param action_space: ``Discrete(n)``
+    :param lr_schedule: actor learning-rate schedule (SB3 convention)
+    :param critic_lr_schedule: critic learning-rate schedule; defaults to ``lr_schedule``
+    :param n_agents: agents per joint step (the critic reads every agent's action)
+    :param state_space: the global state's space (COMA passes it from the env's state source)
+    :param net_arch: hidden layers, a list for both networks or ``{"pi": [...], "qf": [...]}``
+    :param activation_fn: activation of the hidden layers
+    :param features_extractor_class: the actor's features extractor (SB3's, or your own)
+    :param features_extractor_kwargs: its keyword arguments
+    :param critic_features_extractor_class: the critic's extractor of the state (default: the
+        actor's class when the state is an image like the observation, else ``FlattenExtractor``)
+    :param critic_features_extractor_kwargs: its keyword arguments
+    :param critic_obs: the critic also reads the agent's own observation (pymarl's default)
+    :param optimizer_class: optimizer of both networks
+    :param optimizer_kwargs: its extra arguments, shared by both
+    :param ortho_init: orthogonal initialisation as in SB3's A2C/PPO (0.01 on the actor's output,
+        so the first policy is near-uniform over valid actions)
+    :param normalize_images: divide image observations by 255 (SB3's convention)
+    """
+
+    #: The shared actor, the critic and its target (world-specific policies build their own modules).
+    actor: nn.Module
+    critic: nn.Module
+    critic_target: nn.Module
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
         action_space: spaces.Discrete,
         lr_schedule: Schedule,
         critic_lr_schedule: Schedule | None = None,
-        features_extractor_class: type[BaseFeaturesExtractor] = CBAMExtractor,
+        n_agents: int = 1,
+        state_space: spaces.Space | None = None,
+        net_arch: list[int] | dict[str, list[int]] | None = None,
+        activation_fn: type[nn.Module] = nn.Tanh,
+        features_extractor_class: type[BaseFeaturesExtractor] = FlattenExtractor,
         features_extractor_kwargs: dict[str, Any] | None = None,
         critic_features_extractor_class: type[BaseFeaturesExtractor] | None = None,
         critic_features_extractor_kwargs: dict[str, Any] | None = None,
+        critic_obs: bool = True,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         ortho_init: bool = True,
-        normalize_images: bool = False,
-        gain_prior: float | Sequence[float] = 0.0,
-        gain_prior_speed: float = 100.0,
-        correction_bound: float | None = None,
-        gain_inputs: bool = False,
+        normalize_images: bool = True,
     ) -> None:
-        self.correction_bound = _correction_bound(correction_bound)
-        #: How many ``action_gain`` values the actor's network reads (0: it reads none).
-        self.gain_input_size = _gain_input_size(gain_inputs, observation_space)
-        self.gain_inputs = self.gain_input_size > 0
-        #: The starting weight of each gain row (empty without a prior).
-        self.gain_prior_init = _prior_init(gain_prior, gain_prior_speed, observation_space)
-        self.gain_prior = gain_prior if isinstance(gain_prior, (int, float)) else [float(w) for w in gain_prior]
-        gain_prior_speed = float(gain_prior_speed)
-        self.gain_prior_speed = gain_prior_speed
         super().__init__(
             observation_space,
             action_space,
@@ -301,45 +179,61 @@ class COMAPolicy(BasePolicy):
             optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs,
         )
-        self.critic_features_extractor_class = critic_features_extractor_class or features_extractor_class
-        self.critic_features_extractor_kwargs = (
-            dict(self.features_extractor_kwargs)
-            if critic_features_extractor_kwargs is None
-            else dict(critic_features_extractor_kwargs)
-        )
+        self.n_agents = int(n_agents)
+        self.state_space = state_space
+        self.net_arch = _net_arch(net_arch)
+        self.activation_fn = activation_fn
+        self.critic_obs = bool(critic_obs)
+        self.critic_features_extractor_class = critic_features_extractor_class
+        self.critic_features_extractor_kwargs = dict(critic_features_extractor_kwargs or {})
         self.n_actions = int(action_space.n)
         self.ortho_init = ortho_init
+        #: What the actor reads (the observation without ``state`` / ``action_mask``).
+        self.actor_space = actor_observation_space(observation_space)
         self._build(lr_schedule, critic_lr_schedule or lr_schedule)
 
-    def _build(self, lr_schedule: Schedule, critic_lr_schedule: Schedule) -> None:
-        observation_space = cast(spaces.Dict, self.observation_space)
-        local, state = observation_space[layout.KEY_LOCAL], observation_space[layout.KEY_STATE]
-        assert isinstance(local, spaces.Box) and isinstance(state, spaces.Box)
-        channels = local.shape[0] + state.shape[0] + 1
-        critic_space = spaces.Box(0.0, 1.0, (channels, *local.shape[1:]), dtype=local.dtype)
-        actor_space = spaces.Box(0.0, 1.0, local.shape, dtype=local.dtype)
+    # ------------------------------------------------------------ set-up
+    def _state_extractor(self) -> BaseFeaturesExtractor:
+        """The critic's extractor of the state (see ``critic_features_extractor_class``)."""
+        if self.state_space is None:
+            raise ValueError("COMAPolicy needs state_space (COMA passes it from the env's state source)")
+        cls = self.critic_features_extractor_class
+        kwargs = self.critic_features_extractor_kwargs
+        if cls is None:
+            same = all(
+                is_image_space(space, check_channels=False, normalized_image=True)
+                for space in (self.state_space, self.actor_space)
+            )
+            cls = self.features_extractor_class if same else FlattenExtractor
+            kwargs = dict(self.features_extractor_kwargs) if same else {}
+        return cls(self.state_space, **kwargs)
 
-        # Small output gain: a near-uniform initial policy explores every valid action.
-        self.actor = _Actor(
-            self.features_extractor_class(actor_space, **self.features_extractor_kwargs),
+    def _build(self, lr_schedule: Schedule, critic_lr_schedule: Schedule) -> None:
+        pi, qf = self.net_arch["pi"], self.net_arch["qf"]
+        actor = ActorNet(
+            self.features_extractor_class(self.actor_space, **self.features_extractor_kwargs),
+            pi,
+            self.activation_fn,
             self.n_actions,
-            gain=0.01,
-            ortho_init=self.ortho_init,
-            prior_init=self.gain_prior_init,
-            prior_speed=self.gain_prior_speed,
-            correction_bound=self.correction_bound,
-            gain_inputs=self.gain_input_size,
         )
-        self.critic = _Head(
-            self.critic_features_extractor_class(critic_space, **self.critic_features_extractor_kwargs),
-            self.n_actions,
-            gain=1.0,
-            ortho_init=self.ortho_init,
-        )
+        obs_extractor = None
+        if self.critic_obs:
+            obs_extractor = self.features_extractor_class(self.actor_space, **self.features_extractor_kwargs)
+        extra = self.n_agents + self.n_agents * self.n_actions
+        critic = CriticNet(self._state_extractor(), obs_extractor, extra, qf, self.activation_fn, self.n_actions)
+        if self.ortho_init:
+            for module in (actor, critic):
+                module.apply(partial(BasePolicy.init_weights, gain=math.sqrt(2)))
+            nn.init.orthogonal_(actor.head.weight, gain=0.01)
+            nn.init.orthogonal_(critic.head.weight, gain=1.0)
+        self.actor, self.critic = actor, critic
+        self._finish_build(lr_schedule, critic_lr_schedule)
+
+    def _finish_build(self, lr_schedule: Schedule, critic_lr_schedule: Schedule) -> None:
+        """Target critic (a frozen copy) and the two optimizers."""
         self.critic_target = copy.deepcopy(self.critic)
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
-
         # SB3 types optimizer_class as Optimizer's own class, whose __init__ has no lr (SB3 ignores it too)
         self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
             self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
@@ -353,17 +247,18 @@ class COMAPolicy(BasePolicy):
         data.update(
             lr_schedule=self._dummy_schedule,
             critic_lr_schedule=self._dummy_schedule,
+            n_agents=self.n_agents,
+            state_space=self.state_space,
+            net_arch=self.net_arch,
+            activation_fn=self.activation_fn,
             features_extractor_class=self.features_extractor_class,
             features_extractor_kwargs=self.features_extractor_kwargs,
             critic_features_extractor_class=self.critic_features_extractor_class,
             critic_features_extractor_kwargs=self.critic_features_extractor_kwargs,
+            critic_obs=self.critic_obs,
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,
             ortho_init=self.ortho_init,
-            gain_prior=self.gain_prior,
-            gain_prior_speed=self.gain_prior_speed,
-            correction_bound=self.correction_bound,
-            gain_inputs=self.gain_inputs,
         )
         return data
 
@@ -373,60 +268,67 @@ class COMAPolicy(BasePolicy):
         self.critic.train(mode)
         self.training = mode
 
-    # ----------------------------------------------------------------- actor
-    def masked_logits(self, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:
-        """Actor logits with invalid actions pushed to a large negative value, ``(B, A)``.
-        ``prior``: the ``action_gain`` rows, used when the actor has a gain prior."""
-        return self.masked_logits_of(self.actor, local, mask, prior)
+    def log_values(self) -> dict[str, float]:
+        """Extra ``train/`` values a policy wants logged after each update (none here)."""
+        return {}
 
-    def masked_logits_of(
-        self, actor: nn.Module, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None
-    ) -> th.Tensor:
-        """:meth:`masked_logits` of another actor of the same shape (a frozen reference copy)."""
-        return mask_logits(actor(local, prior), mask)
+    # ------------------------------------------------------------- actor
+    def _actor_input(self, obs: PyTorchObs) -> PyTorchObs:
+        """The actor's view of ``obs`` rows, preprocessed as SB3 does (floats, images / 255)."""
+        return preprocess_obs(actor_view(obs, self.observation_space), self.actor_space, self.normalize_images)
 
-    def action_probs(
-        self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0, prior: th.Tensor | None = None
-    ) -> th.Tensor:
+    def masked_logits(self, obs: PyTorchObs, mask: th.Tensor | None, actor: nn.Module | None = None) -> th.Tensor:
+        """Actor logits ``(B, n)`` of agent rows, invalid actions pushed to a large negative value.
+
+        :param actor: another actor of the same shape (a frozen reference copy); default: this one
+        """
+        logits = (actor or self.actor)(self._actor_input(obs))
+        return logits if mask is None else mask_logits(logits, mask)
+
+    def action_probs(self, obs: PyTorchObs, mask: th.Tensor | None, epsilon: float = 0.0) -> th.Tensor:
         """Behaviour probabilities (the policy mixed with uniform-over-valid by ``epsilon``)."""
-        return behaviour_probs(self.masked_logits(local, mask, prior), mask, epsilon)
+        logits = self.masked_logits(obs, mask)
+        return behaviour_probs(logits, th.ones_like(logits) if mask is None else mask, epsilon)
 
     def act(
-        self,
-        local: th.Tensor,
-        mask: th.Tensor,
-        epsilon: float = 0.0,
-        deterministic: bool = False,
-        prior: th.Tensor | None = None,
+        self, obs: PyTorchObs, mask: th.Tensor | None, epsilon: float = 0.0, deterministic: bool = False
     ) -> th.Tensor:
         """One action per agent row; all agents of all env copies in a single forward pass."""
         if deterministic:
-            return sample_actions(self.masked_logits(local, mask, prior), deterministic=True)
-        return sample_actions(self.action_probs(local, mask, epsilon, prior))
+            return sample_actions(self.masked_logits(obs, mask), deterministic=True)
+        return sample_actions(self.action_probs(obs, mask, epsilon))
 
     def forward(self, obs: PyTorchObs, deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
         return self._predict(obs, deterministic)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
-        assert isinstance(observation, dict)
-        local = observation[layout.KEY_LOCAL].float()
-        mask = observation[layout.KEY_MASK].float()
-        prior = observation.get(layout.KEY_GAIN)
-        return self.act(local, mask, deterministic=deterministic, prior=None if prior is None else prior.float())
+        """SB3's ``predict`` path: the ``action_mask`` key of a ``Dict`` observation is applied."""
+        mask = observation.get(KEY_MASK) if isinstance(observation, dict) else None
+        return self.act(observation, None if mask is None else mask.float(), deterministic=deterministic)
 
-    # ---------------------------------------------------------------- critic
-    def q_values(self, local: th.Tensor, state: th.Tensor, actions: th.Tensor, target: bool = False) -> th.Tensor:
-        """``Q(s, u_-i, .)`` for every agent of every joint step: ``(B, N, A)`` in one pass.
+    # ------------------------------------------------------------ critic
+    def critic_features(self, obs: PyTorchObs, state: th.Tensor, actions: th.Tensor) -> tuple[Any, ...]:
+        """The critic's inputs for every agent of every joint step, rows ``B * N``.
 
-        :param local: ``(B, N, 8, H, W)``
-        :param state: ``(B, N, 3, H, W)``
+        :param obs: joint observations ``(B, N, ...)``
+        :param state: the global state per agent row, ``(B, N, ...)``
         :param actions: ``(B, N)`` joint actions (agent ``i``'s own entry does not matter for row ``i``)
-        :param target: use the target critic
         """
         batch, n_agents = actions.shape
-        x = critic_input(local, state, actions).flatten(0, 1)
+        ids = th.eye(n_agents, device=actions.device).expand(batch, n_agents, n_agents)
+        extra = th.cat([ids, one_hot_others(actions, self.n_actions)], dim=2).flatten(0, 1)
+        assert self.state_space is not None
+        flat_state = preprocess_obs(state.flatten(0, 1), self.state_space, self.normalize_images)
+        own = None
+        if self.critic_obs:
+            own = self._actor_input(map_obs(lambda x: x.flatten(0, 1), obs))
+        return flat_state, own, extra
+
+    def q_values(self, obs: PyTorchObs, state: th.Tensor, actions: th.Tensor, target: bool = False) -> th.Tensor:
+        """``Q(s, u_-i, .)`` for every agent of every joint step: ``(B, N, n)`` in one pass."""
+        batch, n_agents = actions.shape
         net = self.critic_target if target else self.critic
-        return net(x).view(batch, n_agents, self.n_actions)
+        return net(*self.critic_features(obs, state, actions)).view(batch, n_agents, self.n_actions)
 
     @th.no_grad()
     def sync_target(self) -> None:
@@ -449,17 +351,22 @@ class COMAPolicy(BasePolicy):
         return super().load_state_dict(state, strict=strict, assign=assign)
 
 
-class CBAMPolicy(COMAPolicy):
-    """CBAM actor + CBAM critic: the paper's networks."""
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        kwargs.setdefault("features_extractor_class", CBAMExtractor)
-        super().__init__(*args, **kwargs)
+class MlpPolicy(COMAPolicy):
+    """Vector observations: flattened inputs, MLP actor and critic (SB3's ``MlpPolicy`` for COMA)."""
 
 
 class CnnPolicy(COMAPolicy):
-    """Plain-CNN actor + plain-CNN critic: the ablation without attention."""
+    """Image observations: SB3's ``NatureCNN`` (or ``features_extractor_class``, e.g.
+    :class:`~sb3_coma.common.extractors.CBAMExtractor`) for the actor and an image state."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
-        kwargs.setdefault("features_extractor_class", CnnExtractor)
+        kwargs.setdefault("features_extractor_class", NatureCNN)
+        super().__init__(*args, **kwargs)
+
+
+class MultiInputPolicy(COMAPolicy):
+    """``Dict`` observations: SB3's ``CombinedExtractor`` over every key but ``state`` / ``action_mask``."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("features_extractor_class", CombinedExtractor)
         super().__init__(*args, **kwargs)

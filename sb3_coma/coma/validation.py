@@ -15,16 +15,18 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
-from uav_ipp import layout
+from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, STATE_SOURCES
 
 __all__ = [
     "check_batch_fits_rollout",
     "check_device",
+    "check_masks",
     "check_positive_int",
     "check_positive_rate",
     "check_spaces",
     "check_unit_interval",
     "resolve_n_agents",
+    "resolve_state_source",
 ]
 
 
@@ -36,7 +38,8 @@ def resolve_n_agents(env: VecEnv) -> int:
     """
     if not isinstance(env, VecEnv):
         raise TypeError(
-            f"COMA needs an SB3 VecEnv whose rows are agents (e.g. uav_ipp.make_vec_env(...)), got {type(env).__name__}"
+            "COMA needs an SB3 VecEnv whose rows are agents (sb3_coma.make_marl_vec_env(parallel_env)), "
+            f"got {type(env).__name__}"
         )
     n_agents: Any = getattr(env, "n_agents", None)
     if n_agents is None:
@@ -48,7 +51,7 @@ def resolve_n_agents(env: VecEnv) -> int:
     if n_agents is None:
         raise ValueError(
             "the vec env does not expose `n_agents` (agents per env copy); COMA cannot regroup its "
-            "rows into joint steps. Build it with uav_ipp.make_vec_env(...) or set `n_agents` on it."
+            "rows into joint steps. Build it with sb3_coma.make_marl_vec_env(parallel_env) or set `n_agents` on it."
         )
     if isinstance(n_agents, bool) or not isinstance(n_agents, int) or n_agents < 1:
         raise ValueError(f"`n_agents` must be a positive int, got {n_agents!r}")
@@ -60,47 +63,63 @@ def resolve_n_agents(env: VecEnv) -> int:
     return n_agents
 
 
-def _check_box(obs_space: spaces.Dict, key: str, shape: tuple[int, ...] | None, what: str) -> spaces.Box:
-    if key not in obs_space.spaces:
-        raise ValueError(f"observation space lacks the key {key!r} ({what}); it has {list(obs_space.spaces)}")
-    box = obs_space.spaces[key]
-    if not isinstance(box, spaces.Box):
-        raise ValueError(f"observation[{key!r}] must be a Box ({what}), got {box}")
-    if shape is not None and tuple(box.shape) != shape:
-        raise ValueError(f"observation[{key!r}] ({what}) must have shape {shape}, got {tuple(box.shape)}")
-    return box
-
-
 def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) -> None:
-    """The per-agent spaces COMA is built for (see ``uav_ipp.layout``).
+    """What COMA needs of one agent's spaces: ``Discrete(n)`` actions; an ``action_mask`` key, if
+    any, with one entry per action. All other shapes are the env's and the policy's business.
 
-    ``local`` must hold the 8 channels of the fusion wrapper's output (a raw env has 7: wrap it
-    with a fusion wrapper first), ``state`` the 3 global channels on the same grid, and
-    ``action_mask`` one entry per action of ``Discrete(6)``.
-
-    :raises TypeError: wrong space types
-    :raises ValueError: missing keys or wrong shapes
+    :raises ValueError: naming the space
     """
-    if not isinstance(action_space, spaces.Discrete) or int(action_space.n) != layout.N_ACTIONS:
-        raise ValueError(f"COMA needs the action space Discrete({layout.N_ACTIONS}), got {action_space}")
-    if not isinstance(observation_space, spaces.Dict):
+    if not isinstance(action_space, spaces.Discrete):
         raise ValueError(
-            "COMA needs a Dict observation space with keys "
-            f"{layout.KEY_LOCAL!r}, {layout.KEY_STATE!r}, {layout.KEY_MASK!r}; got {observation_space}"
+            f"COMA needs Discrete actions per agent, got {action_space} (SuperSuit's "
+            "pad_action_space_v0 does not discretise; a continuous env needs a discrete action wrapper)"
         )
-    local = _check_box(observation_space, layout.KEY_LOCAL, None, f"{layout.LOCAL_CHANNELS} x H x W actor maps")
-    v2, v3 = layout.LOCAL_CHANNELS, layout.LOCAL_CHANNELS + layout.V3_LOCAL_EXTRA
-    if len(local.shape) != 3 or local.shape[0] not in (v2, v3):
-        raw = local.shape[:1] in ((layout.RAW_LOCAL_CHANNELS,), (v3 - 1,))
+    if isinstance(observation_space, spaces.Dict) and KEY_MASK in observation_space.spaces:
+        mask = observation_space[KEY_MASK]
+        if tuple(mask.shape or ()) != (int(action_space.n),):
+            raise ValueError(
+                f"observation[{KEY_MASK!r}] must have shape ({int(action_space.n)},), one entry per action of "
+                f"{action_space}; got {mask}"
+            )
+
+
+def check_masks(masks: np.ndarray, n_actions: int) -> None:
+    """Masks of every row ``(rows, n)``, each row with at least one valid action.
+
+    :raises ValueError: the wrong shape, or the rows that allow nothing
+    """
+    if masks.ndim != 2 or masks.shape[1] != n_actions:
+        raise ValueError(f"action masks must have shape (rows, {n_actions}), got {masks.shape}")
+    empty = np.flatnonzero(~(masks > 0.5).any(axis=1))
+    if empty.size:
+        raise ValueError(f"action masks of rows {empty[:8].tolist()} allow no action: every agent needs a valid one")
+
+
+def resolve_state_source(env: VecEnv, n_agents: int | None) -> tuple[str, spaces.Space | None]:
+    """Where the global state of a joint step comes from: the env's ``state_source`` attribute
+    (``sb3_coma.make_marl_vec_env`` sets it), else a ``state`` observation key, else the env's
+    ``get_state()`` with its ``state_space``, else the concatenation of the agents' observations.
+
+    :return: the source and, for ``"env"``, the state's space (the other sources' follow from the
+        observation space)
+    :raises ValueError: an unknown source, or ``"env"`` without ``state_space``
+    """
+    source = getattr(env, "state_source", None)
+    state_space = getattr(env, "state_space", None)
+    if source is None:
+        has_key = isinstance(env.observation_space, spaces.Dict) and KEY_STATE in env.observation_space.spaces
+        source = "obs" if has_key else "env" if state_space is not None and hasattr(env, "get_state") else "concat"
+    if source not in STATE_SOURCES:
+        raise ValueError(f"the vec env's state_source {source!r} is not one of {STATE_SOURCES}")
+    if source == "env" and not isinstance(state_space, spaces.Box):
+        raise ValueError(f"state_source 'env' needs a Box state_space on the vec env, got {state_space!r}")
+    if source == "obs" and not (
+        isinstance(env.observation_space, spaces.Dict) and KEY_STATE in env.observation_space.spaces
+    ):
         raise ValueError(
-            f"observation[{layout.KEY_LOCAL!r}] must have shape ({v2}, H, W) or, observation v3, ({v3}, H, W); got "
-            f"{tuple(local.shape)}" + (" (a raw env: add a fusion wrapper)" if raw else "")
+            f"state_source 'obs' needs a {KEY_STATE!r} key in the observation, got {env.observation_space}"
         )
-    if local.shape[1] < 4 or local.shape[2] < 4:
-        raise ValueError(f"observation[{layout.KEY_LOCAL!r}] maps must be at least 4 x 4, got {tuple(local.shape)}")
-    state_channels = layout.STATE_CHANNELS + (layout.V3_STATE_EXTRA if local.shape[0] == v3 else 0)
-    _check_box(observation_space, layout.KEY_STATE, (state_channels, *local.shape[1:]), "critic's global maps")
-    _check_box(observation_space, layout.KEY_MASK, (layout.N_ACTIONS,), "valid-action mask")
+    return source, state_space if source == "env" else None
 
 
 def check_positive_rate(name: str, value: float | Callable[[float], float]) -> None:
@@ -142,15 +161,19 @@ def check_batch_fits_rollout(batch_size: int, n_steps: int, n_copies: int) -> No
         )
 
 
-def check_observation(observation: Any) -> None:
-    """What ``COMA.predict`` is given: the vec env's observation dict, with the action mask and
-    finite maps. A NaN would silently become some action; say so at the API boundary instead."""
-    if not isinstance(observation, dict):
-        raise TypeError(f"COMA.predict needs the vec env's observation dict, got {type(observation).__name__}")
-    for key in (layout.KEY_LOCAL, layout.KEY_MASK):
-        if key not in observation:
-            raise ValueError(f"observation lacks {key!r} (keys: {sorted(observation)}); pass what the vec env returns")
-    for key, value in observation.items():
+def check_observation(observation: Any, observation_space: spaces.Space | None = None) -> None:
+    """What ``COMA.predict`` is given: every key of a ``Dict`` observation space present, and finite
+    numbers. A NaN would silently become some action; say so at the API boundary instead."""
+    if isinstance(observation_space, spaces.Dict):
+        if not isinstance(observation, dict):
+            raise TypeError(f"COMA.predict needs the vec env's observation dict, got {type(observation).__name__}")
+        for key in observation_space.spaces:
+            if key not in observation:
+                raise ValueError(
+                    f"observation lacks {key!r} (keys: {sorted(observation)}); pass what the vec env returns"
+                )
+    values = observation.items() if isinstance(observation, dict) else [("observation", observation)]
+    for key, value in values:
         array = np.asarray(value)
         if array.dtype.kind == "f" and not np.isfinite(array).all():
             raise ValueError(f"observation {key!r} holds NaN or inf ({int((~np.isfinite(array)).sum())} values)")

@@ -226,7 +226,7 @@ class CBAMExtractor(_Trunk):
 
 
 class CnnExtractor(_Trunk):
-    """The same trunk without CBAM, for the ablation (``CnnPolicy``)."""
+    """The same trunk without CBAM, for the ablation (``UavCnnPolicy``)."""
 
     def __init__(
         self,

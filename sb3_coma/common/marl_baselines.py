@@ -44,8 +44,9 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
 from sb3_coma.coma.masking import mask_logits
-from sb3_coma.coma.policies import GAIN_ENCODER_DIM
+from sb3_coma.common.central_value import CentralStateVecEnv, CentralValuePolicy
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
+from sb3_coma.uav.policies import GAIN_ENCODER_DIM
 from uav_ipp import layout
 
 __all__ = [
@@ -328,19 +329,37 @@ def _make(policy: type[MaskedActorCriticPolicy], venv: VecEnv, ppo_kwargs: dict[
     return PPO(policy, venv, **kwargs)
 
 
-def make_ippo(venv: VecEnv, **ppo_kwargs: Any) -> PPO:
-    """IPPO on ``venv`` (an ``uav_ipp.make_vec_env`` vec env): SB3 ``PPO`` with :class:`IPPOPolicy`.
+def _is_uav(venv: VecEnv) -> bool:
+    """Whether ``venv`` has the UAV world's layout (else it is any multi-agent VecEnv)."""
+    return layout.KEY_LOCAL in getattr(venv.observation_space, "spaces", {})
 
-    ``ppo_kwargs`` are ``PPO``'s arguments; :data:`DEFAULT_PPO_KWARGS` and ``device="cpu"`` unless
-    given. ``policy_kwargs`` reach :class:`MaskedActorCriticPolicy`, e.g.
-    ``policy_kwargs=dict(features_extractor_kwargs=dict(trunk="cbam", residual=True))``.
+
+def make_ippo(venv: VecEnv, **ppo_kwargs: Any) -> PPO:
+    """IPPO on ``venv``: SB3 ``PPO`` with parameter sharing over the agent rows.
+
+    On the UAV world (an ``uav_ipp.make_vec_env`` vec env) the policy is :class:`IPPOPolicy`,
+    :data:`DEFAULT_PPO_KWARGS` and ``device="cpu"`` unless given; ``policy_kwargs`` reach
+    :class:`MaskedActorCriticPolicy`, e.g.
+    ``policy_kwargs=dict(features_extractor_kwargs=dict(trunk="cbam", residual=True))``. On any other
+    multi-agent vec env (``sb3_coma.make_marl_vec_env``) it is SB3's own ``PPO(policy, venv,
+    **ppo_kwargs)``, ``policy`` defaulting to ``"MlpPolicy"``: the route SB3 users take.
     """
+    if not _is_uav(venv):
+        kwargs = dict(ppo_kwargs)
+        return PPO(kwargs.pop("policy", "MlpPolicy"), venv, **kwargs)
     return _make(IPPOPolicy, venv, ppo_kwargs)
 
 
 def make_mappo(venv: VecEnv, **ppo_kwargs: Any) -> PPO:
-    """MAPPO on ``venv``: SB3 ``PPO`` with :class:`MAPPOPolicy` (the IPPO actor, a centralised value
-    function over ``local`` + ``state``); arguments as :func:`make_ippo`."""
+    """MAPPO on ``venv``: SB3 ``PPO`` with the IPPO actor and a centralised value function.
+
+    On the UAV world, :class:`MAPPOPolicy` (value function over ``local`` + ``state``); on any other
+    multi-agent vec env, :class:`~sb3_coma.common.central_value.CentralValuePolicy` over
+    :class:`~sb3_coma.common.central_value.CentralStateVecEnv` (value function over the global
+    state COMA's critic reads + the agent's one-hot id). Arguments as :func:`make_ippo`.
+    """
+    if not _is_uav(venv):
+        return PPO(CentralValuePolicy, CentralStateVecEnv(venv), **ppo_kwargs)
     if layout.KEY_STATE not in getattr(venv.observation_space, "spaces", {}):
         raise ValueError(f"MAPPO's value function reads observation[{layout.KEY_STATE!r}], which this vec env lacks")
     return _make(MAPPOPolicy, venv, ppo_kwargs)

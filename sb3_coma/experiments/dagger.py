@@ -6,7 +6,7 @@
 
 Builds the model of the map's config entry (``zoo_configs/coma.yml``: the same networks, inputs
 and settings as ``sb3-coma train``), clones the oracle into its actor with
-:func:`sb3_coma.coma.imitation.clone_teacher` (or loads a clone with ``--from``), optionally
+:func:`sb3_coma.uav.imitation.clone_teacher` (or loads a clone with ``--from``), optionally
 fine-tunes it with COMA for ``--finetune`` joint steps under a KL pull toward the clone that
 decays to zero over the first half (``kl_coef=--kl``), then flies the model, AG and the oracle on
 the same ``--missions-eval`` unseen missions (``split="test"``, random starts) and prints the
@@ -30,8 +30,8 @@ from sb3_coma.app.training import build_model, make_training_env, plan_run, reco
 from sb3_coma.app.warm_start import actor_frozen_then
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma import COMA
-from sb3_coma.coma.imitation import clone_teacher
 from sb3_coma.common.paired import holm_adjust, paired_difference
+from sb3_coma.uav.imitation import clone_teacher
 
 __all__ = ["main"]
 

@@ -162,7 +162,7 @@ def _env_options(args: argparse.Namespace) -> dict[str, Any]:
 def _build(args: argparse.Namespace, venv: Any) -> tuple[BaseAlgorithm, int]:
     """The learner and the ``total_timesteps`` that make ``--missions`` missions in its own unit."""
     if args.algo == "coma":
-        policy = "CBAMPolicy" if args.trunk == "cbam" else "CnnPolicy"
+        policy = "CBAMPolicy" if args.trunk == "cbam" else "UavCnnPolicy"
         model = COMA(policy, venv, seed=args.seed, policy_kwargs=dict(gain_inputs=bool(args.gain_inputs)))
         return model, args.missions * args.budget  # COMA counts joint steps
     factory = {"ippo": make_ippo, "mappo": make_mappo}[args.algo]

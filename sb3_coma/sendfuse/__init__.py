@@ -14,6 +14,8 @@ Pre-training data (``data``), the pre-training loop (``pretrain``) and the quali
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from .loss import DEFAULT_WEIGHTS, SenDFuseLoss, SenDFuseLossTerms
 from .network import (
     DEFAULT_CHANNELS,
@@ -25,7 +27,20 @@ from .network import (
     fusion_weights,
 )
 from .weights import SenDFuseWeightsError, default_weights_path, load_weights, read_metadata, save_weights
-from .wrapper import SenDFuseFusionWrapper
+
+if TYPE_CHECKING:
+    from .wrapper import SenDFuseFusionWrapper
+
+
+def __getattr__(name: str) -> Any:
+    """PEP 562: the wrapper (which loads the UAV world) is imported on first use, so that
+    ``import sb3_coma`` does not load the world's kernels and maps."""
+    if name == "SenDFuseFusionWrapper":
+        from .wrapper import SenDFuseFusionWrapper
+
+        return SenDFuseFusionWrapper
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "DEFAULT_CHANNELS",

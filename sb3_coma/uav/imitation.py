@@ -63,9 +63,10 @@ class _Dataset:
 
 
 def _student_actions(model: Any, obs: dict[str, np.ndarray]) -> np.ndarray:
-    local, _, mask, prior = model._obs_tensors(obs, grouped=False)
+    tensors = {key: th.as_tensor(np.asarray(value), device=model.device) for key, value in obs.items()}
+    mask = tensors[layout.KEY_MASK].float()
     with th.no_grad():
-        return model.policy.act(local, mask, deterministic=True, prior=prior).cpu().numpy()
+        return model.policy.act(tensors, mask, deterministic=True).cpu().numpy()
 
 
 def _fly_round(model: Any, teacher: Any, data: _Dataset, missions: int, beta: float, rng: np.random.Generator) -> int:
@@ -119,11 +120,10 @@ def _fit(model: Any, tensors: dict[str, th.Tensor | None], epochs: int, batch_si
 def _logits(policy: Any, tensors: dict[str, th.Tensor | None], idx: th.Tensor, device: th.device) -> th.Tensor:
     local, mask, prior = tensors["local"], tensors["mask"], tensors["prior"]
     assert local is not None and mask is not None
-    return policy.masked_logits(
-        local[idx].to(device).float(),
-        mask[idx].to(device).float(),
-        None if prior is None else prior[idx].to(device).float(),
-    )
+    obs = {layout.KEY_LOCAL: local[idx].to(device).float()}
+    if prior is not None:
+        obs[layout.KEY_GAIN] = prior[idx].to(device).float()
+    return policy.masked_logits(obs, mask[idx].to(device).float())
 
 
 def clone_teacher(

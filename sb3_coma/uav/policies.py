@@ -1,20 +1,17 @@
-"""COMA's policy: a shared masked actor, a centralised critic and its target, in one SB3 policy.
+"""The paper's policies for the UAV world: a CBAM (or plain-CNN) actor over the fused 11 x 11 maps,
+and a centralised critic over 12 channels whose last one draws the other UAVs' actions at their cells.
 
-Keeping critic, target critic and the critic's optimizer inside the policy (an ``nn.Module``)
-means SB3's ``save``/``load`` store and restore all of them with no special casing: the policy's
-``state_dict`` holds the three networks and ``policy.optimizer`` / ``policy.critic_optimizer``
-are listed in :meth:`COMA._get_torch_save_params`.
-
-Shapes: the actor works per agent on ``(B, ...)``; the critic works on whole joint steps,
-``(B, N, ...)`` with ``N`` agents, because agent ``i``'s critic input depends on the other agents'
-actions.
+They are COMA policies (:class:`sb3_coma.coma.policies.COMAPolicy`) that override two hooks: the
+actor reads ``local`` (+ ``action_gain``), and :meth:`UavCOMAPolicy.critic_features` builds the
+spatial critic input instead of the generic one-hot actions. Module names (``actor``, ``critic``,
+``critic_target``) and the initialisation order are those of the models shipped before COMA became
+generic, so their weights load unchanged and a fixed seed trains the same parameters.
 """
 
 from __future__ import annotations
 
-import copy
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from functools import partial
 from typing import Any, cast
 
@@ -25,18 +22,16 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_coma.coma.masking import behaviour_probs, mask_logits, sample_actions
+from sb3_coma.coma.masking import mask_logits
+from sb3_coma.coma.policies import COMAPolicy
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 from uav_ipp import layout
 
-__all__ = ["CBAMPolicy", "COMAPolicy", "CnnPolicy", "critic_input", "other_actions_map"]
+__all__ = ["CBAMPolicy", "UavCOMAPolicy", "UavCnnPolicy", "check_uav_spaces", "critic_input", "other_actions_map"]
 
 #: Width of the actor's gain encoder (``gain_inputs=True``): the per-action gains are mapped to
 #: this many features before they join the trunk's features in the head.
 GAIN_ENCODER_DIM = 64
-
-_CRITIC_PREFIX = "critic."
-_TARGET_PREFIX = "critic_target."
 
 #: FOOTPRINT marks the current cell with 1.0 and earlier visits with 0.5; anything above this
 #: threshold is "here" (equivalent to ``== 1`` for those values, but immune to float round-off).
@@ -232,13 +227,65 @@ def _prior_init(gain_prior: Any, speed: Any, observation_space: spaces.Dict) -> 
     return tuple(weights)
 
 
-class COMAPolicy(BasePolicy):
-    """Shared actor ``pi(u | o_i)`` over ``obs["local"]`` + mask, centralised critic ``Q(s, u_-i, .)``.
+def _check_box(obs_space: spaces.Dict, key: str, shape: tuple[int, ...] | None, what: str) -> spaces.Box:
+    if key not in obs_space.spaces:
+        raise ValueError(
+            f"the UAV policies need observation[{key!r}] ({what}); the observation has {list(obs_space.spaces)}: "
+            "for another env use MlpPolicy, CnnPolicy or MultiInputPolicy"
+        )
+    box = obs_space.spaces[key]
+    if not isinstance(box, spaces.Box):
+        raise ValueError(f"observation[{key!r}] must be a Box ({what}), got {box}")
+    if shape is not None and tuple(box.shape) != shape:
+        raise ValueError(f"observation[{key!r}] ({what}) must have shape {shape}, got {tuple(box.shape)}")
+    return box
+
+
+def check_uav_spaces(observation_space: spaces.Space, action_space: spaces.Space) -> None:
+    """The UAV world's layout (``uav_ipp.layout``), which these policies are built for.
+
+    ``local`` must hold the 8 channels of the fusion wrapper's output (a raw env has 7: wrap it
+    with a fusion wrapper first), ``state`` the 3 global channels on the same grid, and
+    ``action_mask`` one entry per action of ``Discrete(6)``.
+
+    :raises ValueError: naming what is missing or has the wrong shape, and what to use instead
+    """
+    if not isinstance(action_space, spaces.Discrete) or int(action_space.n) != layout.N_ACTIONS:
+        raise ValueError(
+            f"the UAV policies (CBAMPolicy, UavCnnPolicy) need the action space Discrete({layout.N_ACTIONS}), "
+            f"got {action_space}: for another env use MlpPolicy, CnnPolicy or MultiInputPolicy"
+        )
+    if not isinstance(observation_space, spaces.Dict):
+        raise ValueError(
+            "the UAV policies (CBAMPolicy, UavCnnPolicy) need a Dict observation with keys "
+            f"{layout.KEY_LOCAL!r}, {layout.KEY_STATE!r}, {layout.KEY_MASK!r} (uav_ipp.make_vec_env); got "
+            f"{observation_space}: for another env use MlpPolicy, CnnPolicy (images) or MultiInputPolicy"
+        )
+    local = _check_box(observation_space, layout.KEY_LOCAL, None, f"{layout.LOCAL_CHANNELS} x H x W actor maps")
+    v2, v3 = layout.LOCAL_CHANNELS, layout.LOCAL_CHANNELS + layout.V3_LOCAL_EXTRA
+    if len(local.shape) != 3 or local.shape[0] not in (v2, v3):
+        raw = local.shape[:1] in ((layout.RAW_LOCAL_CHANNELS,), (v3 - 1,))
+        raise ValueError(
+            f"observation[{layout.KEY_LOCAL!r}] must have shape ({v2}, H, W) or, observation v3, ({v3}, H, W); got "
+            f"{tuple(local.shape)}" + (" (a raw env: add a fusion wrapper)" if raw else "")
+        )
+    if local.shape[1] < 4 or local.shape[2] < 4:
+        raise ValueError(f"observation[{layout.KEY_LOCAL!r}] maps must be at least 4 x 4, got {tuple(local.shape)}")
+    state_channels = layout.STATE_CHANNELS + (layout.V3_STATE_EXTRA if local.shape[0] == v3 else 0)
+    _check_box(observation_space, layout.KEY_STATE, (state_channels, *local.shape[1:]), "critic's global maps")
+    _check_box(observation_space, layout.KEY_MASK, (layout.N_ACTIONS,), "valid-action mask")
+
+
+class UavCOMAPolicy(COMAPolicy):
+    """Shared actor ``pi(u | o_i)`` over ``obs["local"]`` + mask, centralised critic ``Q(s, u_-i, .)``
+    over the 12-channel spatial input (:func:`critic_input`).
 
     :param observation_space: the per-agent ``Dict`` (``local``, ``state``, ``action_mask``)
     :param action_space: ``Discrete(6)``
     :param lr_schedule: actor learning-rate schedule (SB3 convention)
     :param critic_lr_schedule: critic learning-rate schedule; defaults to ``lr_schedule``
+    :param n_agents: UAVs per joint step (given by COMA; the spatial critic input works for any)
+    :param state_space: the state's space (given by COMA: ``observation["state"]``)
     :param features_extractor_class: the actor's trunk
     :param features_extractor_kwargs: its keyword arguments
     :param critic_features_extractor_class: the critic's trunk (defaults to the actor's class)
@@ -264,12 +311,17 @@ class COMAPolicy(BasePolicy):
         gains are worth. Needs the ``action_gain`` key
     """
 
+    actor: _Actor
+    critic: _Head
+
     def __init__(
         self,
         observation_space: spaces.Dict,
         action_space: spaces.Discrete,
         lr_schedule: Schedule,
         critic_lr_schedule: Schedule | None = None,
+        n_agents: int = 1,
+        state_space: spaces.Space | None = None,
         features_extractor_class: type[BaseFeaturesExtractor] = CBAMExtractor,
         features_extractor_kwargs: dict[str, Any] | None = None,
         critic_features_extractor_class: type[BaseFeaturesExtractor] | None = None,
@@ -283,6 +335,7 @@ class COMAPolicy(BasePolicy):
         correction_bound: float | None = None,
         gain_inputs: bool = False,
     ) -> None:
+        check_uav_spaces(observation_space, action_space)
         self.correction_bound = _correction_bound(correction_bound)
         #: How many ``action_gain`` values the actor's network reads (0: it reads none).
         self.gain_input_size = _gain_input_size(gain_inputs, observation_space)
@@ -290,9 +343,10 @@ class COMAPolicy(BasePolicy):
         #: The starting weight of each gain row (empty without a prior).
         self.gain_prior_init = _prior_init(gain_prior, gain_prior_speed, observation_space)
         self.gain_prior = gain_prior if isinstance(gain_prior, (int, float)) else [float(w) for w in gain_prior]
-        gain_prior_speed = float(gain_prior_speed)
-        self.gain_prior_speed = gain_prior_speed
-        super().__init__(
+        self.gain_prior_speed = float(gain_prior_speed)
+        # The generic COMAPolicy.__init__ builds the generic networks: skip it, set what it would.
+        BasePolicy.__init__(
+            self,
             observation_space,
             action_space,
             features_extractor_class=features_extractor_class,
@@ -301,6 +355,9 @@ class COMAPolicy(BasePolicy):
             optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs,
         )
+        self.n_agents = int(n_agents)
+        self.state_space = state_space if state_space is not None else observation_space[layout.KEY_STATE]
+        self.actor_space = observation_space[layout.KEY_LOCAL]
         self.critic_features_extractor_class = critic_features_extractor_class or features_extractor_class
         self.critic_features_extractor_kwargs = (
             dict(self.features_extractor_kwargs)
@@ -330,29 +387,23 @@ class COMAPolicy(BasePolicy):
             correction_bound=self.correction_bound,
             gain_inputs=self.gain_input_size,
         )
+        critic_class = self.critic_features_extractor_class
+        assert critic_class is not None  # the actor's class unless given
         self.critic = _Head(
-            self.critic_features_extractor_class(critic_space, **self.critic_features_extractor_kwargs),
+            critic_class(critic_space, **self.critic_features_extractor_kwargs),
             self.n_actions,
             gain=1.0,
             ortho_init=self.ortho_init,
         )
-        self.critic_target = copy.deepcopy(self.critic)
-        self.critic_target.requires_grad_(False)
-        self.critic_target.train(False)
-
-        # SB3 types optimizer_class as Optimizer's own class, whose __init__ has no lr (SB3 ignores it too)
-        self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
-            self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
-        )
-        self.critic_optimizer = self.optimizer_class(  # type: ignore[call-arg]
-            self.critic.parameters(), lr=critic_lr_schedule(1), **self.optimizer_kwargs
-        )
+        self._finish_build(lr_schedule, critic_lr_schedule)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
+        data = BasePolicy._get_constructor_parameters(self)
         data.update(
             lr_schedule=self._dummy_schedule,
             critic_lr_schedule=self._dummy_schedule,
+            n_agents=self.n_agents,
+            state_space=self.state_space,
             features_extractor_class=self.features_extractor_class,
             features_extractor_kwargs=self.features_extractor_kwargs,
             critic_features_extractor_class=self.critic_features_extractor_class,
@@ -367,89 +418,27 @@ class COMAPolicy(BasePolicy):
         )
         return data
 
-    def set_training_mode(self, mode: bool) -> None:
-        """Train/eval mode for actor and critic; the target critic always stays in eval mode."""
-        self.actor.train(mode)
-        self.critic.train(mode)
-        self.training = mode
+    def log_values(self) -> dict[str, float]:
+        """The gain prior's weights, one per weighting (none without a prior)."""
+        weights = self.actor.prior_weights
+        if weights is None:
+            return {}
+        return {f"gain_prior_{name}": float(w) for name, w in zip(layout.GAIN_WEIGHTINGS, weights.tolist())}
 
-    # ----------------------------------------------------------------- actor
-    def masked_logits(self, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None) -> th.Tensor:
-        """Actor logits with invalid actions pushed to a large negative value, ``(B, A)``.
-        ``prior``: the ``action_gain`` rows, used when the actor has a gain prior."""
-        return self.masked_logits_of(self.actor, local, mask, prior)
+    def masked_logits(self, obs: PyTorchObs, mask: th.Tensor | None, actor: nn.Module | None = None) -> th.Tensor:
+        """Actor logits ``(B, 6)`` from ``local`` (and ``action_gain`` when the actor reads it)."""
+        assert isinstance(obs, dict)
+        gain = obs.get(layout.KEY_GAIN)
+        logits = (actor or self.actor)(obs[layout.KEY_LOCAL].float(), None if gain is None else gain.float())
+        return logits if mask is None else mask_logits(logits, mask)
 
-    def masked_logits_of(
-        self, actor: nn.Module, local: th.Tensor, mask: th.Tensor, prior: th.Tensor | None = None
-    ) -> th.Tensor:
-        """:meth:`masked_logits` of another actor of the same shape (a frozen reference copy)."""
-        return mask_logits(actor(local, prior), mask)
-
-    def action_probs(
-        self, local: th.Tensor, mask: th.Tensor, epsilon: float = 0.0, prior: th.Tensor | None = None
-    ) -> th.Tensor:
-        """Behaviour probabilities (the policy mixed with uniform-over-valid by ``epsilon``)."""
-        return behaviour_probs(self.masked_logits(local, mask, prior), mask, epsilon)
-
-    def act(
-        self,
-        local: th.Tensor,
-        mask: th.Tensor,
-        epsilon: float = 0.0,
-        deterministic: bool = False,
-        prior: th.Tensor | None = None,
-    ) -> th.Tensor:
-        """One action per agent row; all agents of all env copies in a single forward pass."""
-        if deterministic:
-            return sample_actions(self.masked_logits(local, mask, prior), deterministic=True)
-        return sample_actions(self.action_probs(local, mask, epsilon, prior))
-
-    def forward(self, obs: PyTorchObs, deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
-        return self._predict(obs, deterministic)
-
-    def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
-        assert isinstance(observation, dict)
-        local = observation[layout.KEY_LOCAL].float()
-        mask = observation[layout.KEY_MASK].float()
-        prior = observation.get(layout.KEY_GAIN)
-        return self.act(local, mask, deterministic=deterministic, prior=None if prior is None else prior.float())
-
-    # ---------------------------------------------------------------- critic
-    def q_values(self, local: th.Tensor, state: th.Tensor, actions: th.Tensor, target: bool = False) -> th.Tensor:
-        """``Q(s, u_-i, .)`` for every agent of every joint step: ``(B, N, A)`` in one pass.
-
-        :param local: ``(B, N, 8, H, W)``
-        :param state: ``(B, N, 3, H, W)``
-        :param actions: ``(B, N)`` joint actions (agent ``i``'s own entry does not matter for row ``i``)
-        :param target: use the target critic
-        """
-        batch, n_agents = actions.shape
-        x = critic_input(local, state, actions).flatten(0, 1)
-        net = self.critic_target if target else self.critic
-        return net(x).view(batch, n_agents, self.n_actions)
-
-    @th.no_grad()
-    def sync_target(self) -> None:
-        """Copy the critic into the target critic."""
-        self.critic_target.load_state_dict(self.critic.state_dict())
-
-    def load_state_dict(self, state_dict: Mapping[str, Any], strict: bool = True, assign: bool = False) -> Any:
-        """Also accept the compact shipped form (``sb3_coma.app.pretrained.save_for_shipping``): weights
-        in half precision (cast back to the parameters' float32) and no target critic, which is then
-        the critic itself, as right after a synchronisation."""
-        state = dict(state_dict)
-        if not any(key.startswith(_TARGET_PREFIX) for key in state):
-            state.update(
-                {
-                    _TARGET_PREFIX + key[len(_CRITIC_PREFIX) :]: value
-                    for key, value in state_dict.items()
-                    if key.startswith(_CRITIC_PREFIX)
-                }
-            )
-        return super().load_state_dict(state, strict=strict, assign=assign)
+    def critic_features(self, obs: PyTorchObs, state: th.Tensor, actions: th.Tensor) -> tuple[Any, ...]:
+        """The 12-channel critic input of every agent row, ``(B * N, 12, H, W)``."""
+        assert isinstance(obs, dict)
+        return (critic_input(obs[layout.KEY_LOCAL].float(), state.float(), actions).flatten(0, 1),)
 
 
-class CBAMPolicy(COMAPolicy):
+class CBAMPolicy(UavCOMAPolicy):
     """CBAM actor + CBAM critic: the paper's networks."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -457,7 +446,7 @@ class CBAMPolicy(COMAPolicy):
         super().__init__(*args, **kwargs)
 
 
-class CnnPolicy(COMAPolicy):
+class UavCnnPolicy(UavCOMAPolicy):
     """Plain-CNN actor + plain-CNN critic: the ablation without attention."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:

@@ -1,0 +1,109 @@
+"""The multi-agent VecEnv contract as COMA reads it: observation keys, state sources, joint tensors.
+
+An observation is a tensor or a dict of tensors (SB3's ``PyTorchObs``). Rows are agents; COMA
+regroups them into joint steps ``(B, N, ...)`` and back. Two keys of a ``Dict`` observation have a
+meaning of their own: ``state`` (the global state, the critic's privileged input, never the actor's)
+and ``action_mask`` (valid actions, applied to the logits, not an input either).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.preprocessing import get_flattened_obs_dim, preprocess_obs
+from stable_baselines3.common.type_aliases import PyTorchObs
+
+__all__ = [
+    "KEY_MASK",
+    "KEY_STATE",
+    "STATE_SOURCES",
+    "actor_observation_space",
+    "actor_view",
+    "concat_state",
+    "concat_state_space",
+    "map_obs",
+]
+
+#: Observation key of the global state an env provides to every agent (the critic's input).
+KEY_STATE = "state"
+#: Observation key of the valid-action mask (sb3-contrib's other convention is ``action_masks()``).
+KEY_MASK = "action_mask"
+#: Where the global state of a joint step comes from, in order of preference: a ``state`` key of
+#: the observation, the env's ``get_state()`` (PettingZoo's ``state()``), or the concatenation of
+#: all agents' observations of the joint step (EPyMARL's and BenchMARL's default).
+STATE_SOURCES = ("obs", "env", "concat")
+_PRIVILEGED = (KEY_STATE, KEY_MASK)
+
+
+def map_obs(fn: Callable[[Any], Any], obs: Any) -> Any:
+    """``fn`` applied to a tensor / array, or to every value of a dict of them."""
+    if isinstance(obs, dict):
+        return {key: fn(value) for key, value in obs.items()}
+    return fn(obs)
+
+
+def actor_observation_space(observation_space: spaces.Space) -> spaces.Space:
+    """What the actor reads: the observation without its ``state`` and ``action_mask`` keys.
+
+    A ``Dict`` left with a single key (PettingZoo's ``{"observation", "action_mask"}`` convention)
+    becomes that key's space, so ``MlpPolicy`` and ``CnnPolicy`` fit such envs.
+    """
+    if not isinstance(observation_space, spaces.Dict):
+        return observation_space
+    kept = {key: space for key, space in observation_space.spaces.items() if key not in _PRIVILEGED}
+    if not kept:
+        raise ValueError(
+            f"the observation has only {list(observation_space.spaces)}: nothing is left for the actor to read"
+        )
+    if len(kept) == 1:
+        return next(iter(kept.values()))
+    return spaces.Dict(kept)
+
+
+def actor_view(obs: PyTorchObs, observation_space: spaces.Space) -> PyTorchObs:
+    """The part of ``obs`` that :func:`actor_observation_space` describes."""
+    if not isinstance(observation_space, spaces.Dict):
+        return obs
+    assert isinstance(obs, dict)
+    kept = [key for key in observation_space.spaces if key not in _PRIVILEGED]
+    if len(kept) == 1:
+        return obs[kept[0]]
+    return {key: obs[key] for key in kept}
+
+
+def _flat_dim(space: spaces.Space) -> int:
+    if isinstance(space, spaces.Dict):
+        return sum(_flat_dim(sub) for sub in space.spaces.values())
+    return int(get_flattened_obs_dim(space))
+
+
+def concat_state_space(observation_space: spaces.Space, n_agents: int) -> spaces.Box:
+    """The space of :func:`concat_state`: every agent's actor observation, flattened, side by side."""
+    dim = n_agents * _flat_dim(actor_observation_space(observation_space))
+    return spaces.Box(-np.inf, np.inf, (dim,), dtype=np.float32)
+
+
+def _flatten(x: th.Tensor, space: spaces.Space, normalize_images: bool) -> th.Tensor:
+    """``(B, N, ...)`` -> ``(B, N * D)``, each agent's part preprocessed as SB3 does for its actor."""
+    batch, n_agents = x.shape[:2]
+    rows = preprocess_obs(x.flatten(0, 1), space, normalize_images)
+    assert isinstance(rows, th.Tensor)
+    return rows.float().reshape(batch, n_agents, -1).flatten(1)
+
+
+def concat_state(obs: PyTorchObs, observation_space: spaces.Space, normalize_images: bool = True) -> th.Tensor:
+    """The state of a joint step from its agents' observations, ``(B, N * D)``.
+
+    :param obs: joint observations ``(B, N, ...)`` (a tensor or a dict of them)
+    """
+    space = actor_observation_space(observation_space)
+    view = actor_view(obs, observation_space)
+    if isinstance(space, spaces.Dict):
+        assert isinstance(view, dict)
+        return th.cat([_flatten(view[key], sub, normalize_images) for key, sub in space.spaces.items()], dim=1)
+    assert isinstance(view, th.Tensor)
+    return _flatten(view, space, normalize_images)
