@@ -44,7 +44,7 @@ import torch as th
 import yaml
 from huggingface_sb3 import EnvironmentName
 from rl_zoo3.exp_manager import ExperimentManager
-from rl_zoo3.utils import ALGOS, StoreDict, get_model_path, get_saved_hyperparams, get_wrapper_class
+from rl_zoo3.utils import ALGOS, StoreDict, get_model_path, get_wrapper_class
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
@@ -411,6 +411,45 @@ def train(args: argparse.Namespace) -> None:
     manager.save_trained_model(model)
 
 
+class _ZooLogLoader(yaml.SafeLoader):
+    """YAML as rl-zoo3 writes a log folder's ``config.yml`` / ``args.yml`` (``yaml.dump`` of an
+    ``OrderedDict``), without the power to build any other Python object: rl-zoo3 itself reads
+    them with ``yaml.UnsafeLoader``, so a shared log folder could run code from its YAML."""
+
+
+def _ordered_dict(loader: yaml.SafeLoader, node: yaml.Node) -> OrderedDict:
+    assert isinstance(node, yaml.SequenceNode)
+    pairs = loader.construct_sequence(node, deep=True)
+    return OrderedDict((key, value) for key, value in (pairs[0] if pairs and isinstance(pairs[0], list) else pairs))
+
+
+_ZooLogLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict", _ordered_dict)
+
+
+def read_zoo_log_yaml(path: Path) -> Any:
+    """A log folder's YAML, safely (:class:`_ZooLogLoader`); any other Python tag is one line."""
+    try:
+        return yaml.load(path.read_text(encoding="utf-8"), Loader=_ZooLogLoader)
+    except yaml.constructor.ConstructorError as exc:
+        tag = getattr(exc, "problem", "") or str(exc).splitlines()[0]
+        raise TrainingError(
+            f"{path}: {tag}; sb3-coma reads log-folder YAML as plain data (and rl-zoo3's OrderedDicts) only, "
+            "never Python objects: fix or delete that entry"
+        ) from None
+    except yaml.YAMLError as exc:
+        raise TrainingError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+
+
+def _saved_hyperparams(stats_path: str) -> dict[str, Any]:
+    """rl-zoo3's ``get_saved_hyperparams`` for what ``enjoy`` uses (``env_kwargs``, the vec-env
+    wrapper), with the safe loader."""
+    config = Path(stats_path) / "config.yml"
+    if not config.is_file():
+        return {}
+    loaded = read_zoo_log_yaml(config)
+    return dict(loaded) if isinstance(loaded, dict) else {}
+
+
 def _enjoy_env_kwargs(
     log_path: str, env_name: str, hyperparams: dict[str, Any], given: dict[str, Any] | None
 ) -> dict[str, Any]:
@@ -419,7 +458,7 @@ def _enjoy_env_kwargs(
     env_kwargs = dict(hyperparams.get("env_kwargs") or {})
     args_path = Path(log_path) / env_name / "args.yml"
     if args_path.is_file():
-        saved = yaml.load(args_path.read_text(), Loader=yaml.UnsafeLoader)  # rl-zoo3 writes it with Python tags
+        saved = read_zoo_log_yaml(args_path) or {}
         if saved.get("env_kwargs") is not None:
             env_kwargs = dict(saved["env_kwargs"])
     env_kwargs.update(given or {})
@@ -437,7 +476,7 @@ def enjoy(args: argparse.Namespace) -> None:
     except (AssertionError, ValueError) as exc:
         raise TrainingError(str(exc)) from exc
     print(f"Loading {model_path}")
-    hyperparams, _ = get_saved_hyperparams(os.path.join(log_path, env_name), test_mode=True)
+    hyperparams = _saved_hyperparams(os.path.join(log_path, env_name))
     env = make_vec_env_from_kwargs(
         args.env, _enjoy_env_kwargs(log_path, env_name, hyperparams, args.env_kwargs), args.n_envs, args.seed
     )

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
 import pkgutil
 import sys
 from types import ModuleType
@@ -64,6 +65,7 @@ def set_threads(threads: int) -> None:
 
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, ModuleType]]:
     parser = argparse.ArgumentParser(prog="sb3-coma", description="COMA + SenDFuse + CBAM for multi-UAV IPP")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {importlib.metadata.version('sb3-coma')}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     table = {}
     for mod in _command_modules():
