@@ -2,10 +2,12 @@
 ``--out`` as a whole or not at all.
 
 Unit tests of the context manager (an exception or SIGTERM inside leaves the target untouched;
-success replaces it, keeps other commands' files, drops the command's own old ones; stale staging
-folders of dead runs are cleaned with one line; the fallback swap and its crash recovery), the
-CLI's SIGTERM exit status, and a real ``sb3-coma reproduce --quick`` killed with SIGKILL while it
+success replaces it, keeps other commands' files, drops the command's own old ones; a target
+holding files no manifest lists is refused before any work; stale staging folders of dead runs,
+recognised by their marker, are cleaned with one line; the fallback swap and its crash recovery),
+the CLI's SIGTERM exit status, and a real ``sb3-coma reproduce --quick`` killed with SIGKILL while it
 writes into a folder that holds a finished run: afterwards that folder is the old run, byte for byte.
+More on what an output may touch: ``tests/test_output_ownership.py``.
 """
 
 from __future__ import annotations
@@ -54,15 +56,23 @@ def dead_pid() -> int:
     return proc.pid
 
 
-def write_run(target: Path, command: str, files: dict[str, str]) -> None:
-    """A finished output of ``command``: its files and its complete manifest."""
+def write_run(target: Path, command: str, files: dict[str, str], complete: bool = True) -> None:
+    """An output of ``command`` (finished unless ``complete=False``): its files and its manifest."""
     target.mkdir(parents=True, exist_ok=True)
     for name, text in files.items():
         (target / name).parent.mkdir(parents=True, exist_ok=True)
         (target / name).write_text(text)
     entries = sorted({name.split("/")[0] for name in files})
-    record = {"command": command, "complete": True, "entries": entries}
+    record = {"command": command, "complete": complete, "entries": entries}
     (target / manifest_name(command)).write_text(json.dumps(record))
+
+
+def mark(folder: Path, target: Path, pid: int, role: str = "staging", command: str = "evaluate") -> None:
+    """The marker an sb3-coma run writes into its staging folder (``role="staging"``) or into an
+    old output it is about to swap out or set aside (``"retired"``): only marked folders next to
+    ``--out`` are ever cleaned up."""
+    record = {"sb3_coma_staging": True, "role": role, "target": target.name, "command": command, "pid": pid}
+    (folder / outputs.STAGING_MARKER).write_text(json.dumps(record))
 
 
 # ----------------------------------------------------------------------------- the context manager
@@ -81,9 +91,17 @@ def test_an_exception_inside_leaves_the_target_untouched(tmp_path):
 def test_success_replaces_the_target_and_keeps_files_of_others(tmp_path):
     target = tmp_path / "out"
     write_run(target, "evaluate", {"table.md": "old", "mission_env1_ag.gif": "old gif"})
-    (target / "notes.txt").write_text("the user's")  # not written by evaluate: kept
-    (target / "noise_sweep").mkdir()
-    (target / "noise_sweep" / "noise_sweep.md").write_text("another command's")
+    # 0.3.0: a file that no sb3-coma manifest lists (the user's) is never replaced nor carried:
+    # the command is refused before any work and the file stays as it was
+    (target / "notes.txt").write_text("the user's")
+    with (
+        pytest.raises(OutputFolderError, match="pass an empty or new folder"),
+        staged_output(target, command="evaluate"),
+    ):
+        pytest.fail("refused before the work starts")
+    assert (target / "notes.txt").read_text() == "the user's" and siblings(target) == []
+    write_run(target, "export", {"notes.txt": "the user's"})  # written by another command: kept
+    write_run(target / "noise_sweep", "noise-sweep", {"noise_sweep.md": "another command's"})  # an output inside
     with staged_output(target, command="evaluate") as stage:
         (stage / "table.md").write_text("new")
     assert (target / "table.md").read_text() == "new"
@@ -96,7 +114,7 @@ def test_success_replaces_the_target_and_keeps_files_of_others(tmp_path):
     assert siblings(target) == []
 
 
-def test_a_new_target_is_made_and_a_folder_without_manifest_keeps_what_is_not_the_commands(tmp_path):
+def test_a_new_target_is_made_and_a_folder_without_manifest_is_refused_and_kept(tmp_path):
     target = tmp_path / "deep" / "out"
     with staged_output(target, command="noise-sweep", own=("noise_sweep.*",)) as stage:
         (stage / "noise_sweep.md").write_text("first")
@@ -105,9 +123,17 @@ def test_a_new_target_is_made_and_a_folder_without_manifest_keeps_what_is_not_th
     legacy.mkdir()
     (legacy / "noise_sweep.png").write_text("old figure")
     (legacy / "mine.txt").write_text("keep")
-    with staged_output(legacy, command="noise-sweep", own=("noise_sweep.*",)) as stage:
-        (stage / "noise_sweep.md").write_text("new")
-    assert sorted(p.name for p in legacy.iterdir()) == [manifest_name("noise-sweep"), "mine.txt", "noise_sweep.md"]
+    # 0.3.0: names matching ``own`` no longer make files the command's (they were deleted): without
+    # a manifest nothing in the folder is sb3-coma's, so the command is refused and all of it stays
+    with (
+        pytest.raises(
+            OutputFolderError, match=r"holds what no sb3-coma command wrote there \('mine.txt', 'noise_sweep.png'\)"
+        ),
+        staged_output(legacy, command="noise-sweep", own=("noise_sweep.*",)),
+    ):
+        pytest.fail("refused before the work starts")
+    assert sorted(p.name for p in legacy.iterdir()) == ["mine.txt", "noise_sweep.png"]
+    assert (legacy / "noise_sweep.png").read_text() == "old figure" and siblings(legacy) == ["deep"]
 
 
 def test_sigterm_inside_raises_and_leaves_the_target_untouched(tmp_path):
@@ -128,13 +154,17 @@ def test_sigterm_inside_raises_and_leaves_the_target_untouched(tmp_path):
 def test_a_stale_staging_folder_is_removed_with_one_line_and_a_live_one_is_left(tmp_path):
     target = tmp_path / "out"
     write_run(target, "evaluate", {"table.md": "old"})
-    stale = target.with_name(f"out.partial-{dead_pid()}")
-    write_run(stale, "evaluate", {"table.md": "half"})
+    pid = dead_pid()
+    stale = target.with_name(f"out.partial-{pid}")
+    write_run(stale, "evaluate", {"table.md": "half"}, complete=False)
+    mark(stale, target, pid)
     killed = target.with_name("out.partial-1")  # its lock file is free: the writer died (pid 1 lives on)
     killed.mkdir()
     (killed / outputs.STAGING_LOCK).write_text("{}")
+    mark(killed, target, 1)
     live = target.with_name("out.partial-2")  # its lock is held: a run writing right now
     live.mkdir()
+    mark(live, target, 2)
     lines: list[str] = []
     with FolderLock(live, outputs.STAGING_LOCK), staged_output(target, command="evaluate", say=lines.append) as stage:
         (stage / "table.md").write_text("new")
@@ -155,14 +185,17 @@ def test_the_fallback_swap_and_its_crash_recovery(tmp_path, monkeypatch):
     assert (target / "table.md").read_text() == "new" and siblings(target) == []
 
     pid = dead_pid()  # crashed after "old aside", before "new in": the new one is complete
+    mark(target, target, pid, role="retired")  # written into the old output before it is set aside
     target.rename(target.with_name(f"out.old-{pid}"))
     write_run(target.with_name(f"out.partial-{pid}"), "evaluate", {"table.md": "newer"})
+    mark(target.with_name(f"out.partial-{pid}"), target, pid)
     lines: list[str] = []
     with pytest.raises(RuntimeError), staged_output(target, command="evaluate", say=lines.append):
         raise RuntimeError("this run fails; the recovery before it stands")
     assert (target / "table.md").read_text() == "newer" and siblings(target) == []
     assert any("moved" in line for line in lines)
 
+    mark(target, target, pid, role="retired")
     target.rename(target.with_name(f"out.old-{pid}"))  # only the old one is left: it comes back
     with pytest.raises(RuntimeError), staged_output(target, command="evaluate", say=lines.append):
         raise RuntimeError("fails too")
@@ -217,8 +250,7 @@ def _env() -> dict[str, str]:
 def test_sigkill_mid_reproduce_leaves_the_previous_results_untouched(tmp_path):
     out = tmp_path / "res"
     write_run(out, "reproduce", {"table.md": "the finished run", "summary.json": '{"wall_s": 1}', "figures/x.png": "x"})
-    (out / "noise_sweep").mkdir()  # another command's output inside
-    (out / "noise_sweep" / "noise_sweep.md").write_text("sweep")
+    write_run(out / "noise_sweep", "noise-sweep", {"noise_sweep.md": "sweep"})  # another command's output inside
     before = snapshot(out)
     command = [sys.executable, "-m", "sb3_coma.cli", "reproduce", "--quick", "--baselines-only", "--env", "env1"]
     command += ["--out", str(out), "--no-docs", "--no-plots", "--no-generalisation", "--no-ablation", "--no-costs"]
@@ -261,8 +293,7 @@ def test_full_disk_inside_a_staged_output_is_one_line_and_leaves_nothing(tmp_pat
     from sb3_coma.common.outputs import staged_output
 
     target = tmp_path / "out"
-    target.mkdir()
-    (target / "old.txt").write_text("old")
+    write_run(target, "evaluate", {"old.txt": "old"})  # 0.3.0: a folder without a manifest is refused up front
     with (
         pytest.raises(DiskFullError, match="disk is full") as info,
         staged_output(target, command="evaluate", say=lambda _: None) as staging,

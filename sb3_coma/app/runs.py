@@ -41,7 +41,14 @@ from sb3_coma.common.checkpoints import (
     folder_write_problem,
     validate_checkpoint,
 )
-from sb3_coma.common.outputs import LOCK_FILE, FolderInUseError, FolderLock, LockHolder, lock_holder
+from sb3_coma.common.outputs import (
+    LOCK_FILE,
+    FolderInUseError,
+    FolderLock,
+    LockHolder,
+    folder_name_problem,
+    lock_holder,
+)
 
 __all__ = [
     "CHECKPOINT_DIR",
@@ -74,9 +81,15 @@ def _slug(text: str) -> str:
 def check_run_dir(run_dir: str | os.PathLike[str] | None) -> None:
     """Refuse an explicit run folder that cannot be made (it or a parent is a file, or its
     location is not writable) before the env and the model are built, rather than in ``mkdir``
-    after them."""
+    after them; and one whose name is no folder name (:func:`folder_name_problem`: a control
+    character, ``.``/``..``, a leading dot), since ``--run-dir .`` trained into a hidden ``._2``."""
     if run_dir is None:
         return
+    problem = folder_name_problem(run_dir)
+    if problem is not None:
+        raise TrainingError(
+            f"run folder {os.fspath(run_dir)!r} {problem}: pass a visible folder name such as runs/my-run"
+        )
     problem = folder_write_problem(run_dir)
     if problem is not None:
         raise TrainingError(f"run folder {run_dir} cannot be made: {problem}")
