@@ -33,7 +33,7 @@ NAME = "evaluate"
 HELP = "evaluate trained models and baselines (AG, lawnmower, random) as in the paper's Table I"
 DESCRIPTION = (
     "Fly N seeded missions per method (trial k uses env seed SEED+k, identical for every method), print "
-    "F1 and entropy at 33/67/100 %% of the budget as mean +- std, and write tables, per-step curves, "
+    "F1 and entropy at 33/67/100 % of the budget as mean +- std, and write tables, per-step curves, "
     "planning times and plots to --out."
 )
 

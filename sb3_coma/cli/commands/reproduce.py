@@ -29,7 +29,7 @@ HELP = (
 DESCRIPTION = (
     "Evaluate the shipped COMA models (or retrain them with --train through zoo_configs/coma.yml) and every other "
     "shipped model against AG (the map's validated weighting), AG with look-ahead 2 and 3, lawnmower and random on "
-    "env1-env3 under moderate noise: the paper protocol (split paper, 10 seeded trials, Table I at 33/67/100 %% of "
+    "env1-env3 under moderate noise: the paper protocol (split paper, 10 seeded trials, Table I at 33/67/100 % of "
     "the budget, mean +- std) and the unseen protocol (50 missions on split test, random starts), global and team "
     "metrics, paired verdicts; the SenDFuse x CBAM ablation on env3; the noise sweep; generalisation; the cost per "
     "UAV decision; figures and RESULTS.md. --out is written into a staging folder next to it and replaced as a "
