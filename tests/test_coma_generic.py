@@ -306,3 +306,10 @@ def test_learn_leaves_no_empty_folder_in_the_temp_dir(tmp_path: Path, monkeypatc
     model.learn(32, reset_num_timesteps=False)
     assert not list(tmp_path.glob("SB3-*"))
     assert model.logger.name_to_value is not None  # the logger still records
+
+
+def test_a_string_is_not_a_bool() -> None:
+    """``normalize_advantage="false"`` would be truthy: refused with one line naming the value."""
+    venv = make_marl_vec_env(_spread, n_envs=1, seed=0)
+    with pytest.raises(ValueError, match=r"normalize_advantage must be True or False, got 'false'"):
+        COMA("MlpPolicy", venv, normalize_advantage="false")  # type: ignore[arg-type]

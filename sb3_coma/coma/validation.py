@@ -234,6 +234,8 @@ def check_coma_arguments(args: dict[str, Any]) -> None:
     if args["clip_range"] is not None:
         _check_positive_number("clip_range", args["clip_range"], "None or a positive number")
     _check_positive_number("max_grad_norm", args["max_grad_norm"])
+    if not isinstance(args["normalize_advantage"], (bool, np.bool_)):
+        raise ValueError(f"normalize_advantage must be True or False, got {args['normalize_advantage']!r}")
     if args["advantage"] not in ADVANTAGES:
         raise ValueError(f"advantage must be one of {ADVANTAGES}, got {args['advantage']!r}")
     seed = args["seed"]
