@@ -70,6 +70,7 @@ from sb3_coma.coma.validation import (
     check_batch_fits_rollout,
     check_coma_arguments,
     check_device,
+    check_finite_weights,
     check_masks,
     check_observation,
     check_spaces,
@@ -709,12 +710,15 @@ class COMA(OnPolicyAlgorithm):
         """SB3's ``load``, after checking a shipped model's file against its recorded SHA-256
         (:mod:`sb3_coma.common.shipped`): no path reaches a replaced shipped zip unchecked. A model
         saved by sb3-coma 0.2 names its UAV policy by the class's old home; it loads as that class."""
-        if isinstance(path, (str, os.PathLike)):
-            check_shipped_file(path)
+        named = path if isinstance(path, (str, os.PathLike)) else getattr(path, "name", None)
+        if isinstance(named, (str, os.PathLike)):  # a path, or a file object opened from one
+            check_shipped_file(named)
         renamed = saved_policy_class(path)
         if renamed is not None and "policy_class" not in (custom_objects or {}):
             custom_objects = {**(custom_objects or {}), "policy_class": renamed}
-        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
+        model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
+        check_finite_weights(model.policy, named if named is not None else "the model")
+        return model
 
     def predict(
         self,

@@ -20,6 +20,7 @@ from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, STATE_SOURCES
 __all__ = [
     "check_batch_fits_rollout",
     "check_device",
+    "check_finite_weights",
     "check_masks",
     "check_positive_int",
     "check_positive_rate",
@@ -177,6 +178,21 @@ def check_observation(observation: Any, observation_space: spaces.Space | None =
         array = np.asarray(value)
         if array.dtype.kind == "f" and not np.isfinite(array).all():
             raise ValueError(f"observation {key!r} holds NaN or inf ({int((~np.isfinite(array)).sum())} values)")
+
+
+def check_finite_weights(module: th.nn.Module, where: Any) -> None:
+    """Every parameter and buffer finite: a diverged or damaged model would otherwise fly and
+    export as some arbitrary policy without a word.
+
+    :raises ValueError: naming the file and the first non-finite tensor
+    """
+    for name, tensor in [*module.named_parameters(), *module.named_buffers()]:
+        if tensor.is_floating_point() and not th.isfinite(tensor).all():
+            bad = int((~th.isfinite(tensor)).sum())
+            raise ValueError(
+                f"{where}: tensor {name!r} holds {bad} NaN or inf values (a diverged run or a damaged file); "
+                "not loaded"
+            )
 
 
 def check_device(device: Any) -> None:

@@ -52,6 +52,19 @@ CHECKPOINT_PREFIX = "rl_model"
 _CHECKPOINT_RE = re.compile(r"^(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip$")
 #: Members every SB3 model zip holds.
 _REQUIRED_MEMBERS = ("data", "policy.pth")
+#: Every member an SB3 zip of a COMA model holds (the shipped compact form leaves out the optimizers);
+#: anything else is not SB3's and may carry a payload, so a checkpoint holding it is refused.
+_COMA_MEMBERS = frozenset(
+    {
+        "data",
+        "pytorch_variables.pth",
+        "policy.pth",
+        "policy.optimizer.pth",
+        "policy.critic_optimizer.pth",
+        "_stable_baselines3_version",
+        "system_info.txt",
+    }
+)
 #: Saved attributes that only a COMA model has (see ``sb3_coma.coma.COMA``).
 _COMA_ATTRIBUTES = ("n_agents", "td_lambda", "critic_learning_rate")
 
@@ -257,10 +270,17 @@ def validate_checkpoint(path: str | os.PathLike[str]) -> CheckpointInfo:
     version = None
     try:
         with zipfile.ZipFile(p) as archive:
-            if "_stable_baselines3_version" in archive.namelist():
+            names = archive.namelist()
+            if "_stable_baselines3_version" in names:
                 version = archive.read("_stable_baselines3_version").decode().strip()
     except (zipfile.BadZipFile, OSError):  # already checked above; keep validation total
-        version = None
+        names = []
+    extra = sorted(set(names) - _COMA_MEMBERS)
+    if extra:
+        raise CheckpointError(
+            f"checkpoint {p} holds members a COMA model zip never has: {extra[:4]} "
+            f"(SB3 writes only {sorted(_COMA_MEMBERS)}); it is not loaded"
+        )
     steps = data.get("num_timesteps") or 0
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
         # resume and newest_model() count joint steps from it: a hand-edited or foreign value
