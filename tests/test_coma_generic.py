@@ -313,3 +313,30 @@ def test_a_string_is_not_a_bool() -> None:
     venv = make_marl_vec_env(_spread, n_envs=1, seed=0)
     with pytest.raises(ValueError, match=r"normalize_advantage must be True or False, got 'false'"):
         COMA("MlpPolicy", venv, normalize_advantage="false")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("value", [1e100, 10**10 + 1, 0, 2.5, "100"])
+def test_joint_step_totals_outside_the_sensible_range_are_named(value: Any) -> None:
+    """One rule for ``learn()``, the config's ``n_timesteps`` and ``--timesteps``: 1 .. 1e10."""
+    from sb3_coma.coma.validation import check_total_timesteps
+
+    model = COMA("MlpPolicy", make_marl_vec_env(_spread, n_envs=1, seed=0), device="cpu", **FAST)
+    with pytest.raises(ValueError, match=r"total_timesteps must be a whole number of joint steps from 1 to 1e\+10"):
+        model.learn(value)
+    assert check_total_timesteps(3.6e4) == 36_000
+
+
+def test_cli_and_config_take_the_same_bound(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    from sb3_coma.app.config import TrainingError, validate_entry
+    from sb3_coma.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--timesteps", "1e100", "--run-dir", str(tmp_path / "run")])
+    assert exit_info.value.code == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]  # argparse: usage, then one error line
+    assert last.endswith(
+        "argument --timesteps: the value must be a whole number of joint steps from 1 to 1e+10, got 1e+100"
+    )
+    assert not (tmp_path / "run").exists()
+    with pytest.raises(TrainingError, match=r"n_timesteps must be a whole number of joint steps from 1 to 1e\+10"):
+        validate_entry({"n_timesteps": 1e100}, "coma.yml: UavIpp-Env1-v0")

@@ -36,6 +36,7 @@ import uav_ipp
 from sb3_coma.baselines import PLANNERS
 from sb3_coma.coma import COMA
 from sb3_coma.coma.plugins import plugin_policies
+from sb3_coma.coma.validation import check_total_timesteps
 from sb3_coma.common.checkpoints import folder_write_problem
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 from uav_ipp import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
@@ -270,6 +271,10 @@ def _check_zoo_values(entry: Mapping[str, Any], where: str) -> None:
     if "n_timesteps" not in entry:
         _fail(where, "n_timesteps (joint steps to train) is missing")
     positive_int(where, "n_timesteps", entry["n_timesteps"])
+    try:
+        check_total_timesteps(entry["n_timesteps"], "n_timesteps")
+    except ValueError as exc:
+        _fail(where, str(exc))
     if "n_envs" in entry:
         positive_int(where, "n_envs", entry["n_envs"])
     if entry.get("workers", "auto") != "auto":

@@ -74,6 +74,7 @@ from sb3_coma.coma.validation import (
     check_masks,
     check_observation,
     check_spaces,
+    check_total_timesteps,
     resolve_n_agents,
     resolve_state_source,
 )
@@ -753,12 +754,7 @@ class COMA(OnPolicyAlgorithm):
         progress_bar: bool = False,
     ) -> SelfCOMA:
         """Train for ``total_timesteps`` **joint** steps (one per env copy per step)."""
-        if (
-            isinstance(total_timesteps, bool)
-            or not isinstance(total_timesteps, (int, np.integer))
-            or total_timesteps < 1
-        ):
-            raise ValueError(f"total_timesteps must be an integer >= 1 (joint steps), got {total_timesteps!r}")
+        total_timesteps = check_total_timesteps(total_timesteps)
         return super().learn(
             total_timesteps=total_timesteps,
             callback=callback,

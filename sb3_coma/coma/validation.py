@@ -25,6 +25,7 @@ __all__ = [
     "check_positive_int",
     "check_positive_rate",
     "check_spaces",
+    "check_total_timesteps",
     "check_unit_interval",
     "resolve_n_agents",
     "resolve_state_source",
@@ -123,6 +124,25 @@ def resolve_state_source(env: VecEnv, n_agents: int | None) -> tuple[str, spaces
     return source, state_space if source == "env" else None
 
 
+#: The most joint steps one ``learn()`` may be asked for: 10^10 is weeks of the fastest collection
+#: measured here; a larger number is a typo (``1e100``), and floats lose whole steps past 2^53.
+MAX_JOINT_STEPS = 10**10
+
+
+def check_total_timesteps(value: Any, what: str = "total_timesteps") -> int:
+    """A whole number of joint steps in ``[1, MAX_JOINT_STEPS]`` (``3.6e4`` passes), the one rule for
+    ``learn()``, the config's ``n_timesteps`` and ``--timesteps``.
+
+    :raises ValueError: naming the value and the bounds
+    """
+    given = value
+    if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_JOINT_STEPS:
+        raise ValueError(f"{what} must be a whole number of joint steps from 1 to {MAX_JOINT_STEPS:.0e}, got {given!r}")
+    return int(value)
+
+
 def check_positive_rate(name: str, value: float | Callable[[float], float]) -> None:
     """A learning rate: a positive number, or a schedule whose starting value is positive."""
     start = value(1.0) if callable(value) else value
@@ -190,8 +210,7 @@ def check_finite_weights(module: th.nn.Module, where: Any) -> None:
         if tensor.is_floating_point() and not th.isfinite(tensor).all():
             bad = int((~th.isfinite(tensor)).sum())
             raise ValueError(
-                f"{where}: tensor {name!r} holds {bad} NaN or inf values (a diverged run or a damaged file); "
-                "not loaded"
+                f"{where}: tensor {name!r} holds {bad} NaN or inf values (a diverged run or a damaged file); not loaded"
             )
 
 

@@ -21,6 +21,7 @@ from sb3_coma.app.config import (
 from sb3_coma.app.pretrained import PretrainedError, verify_shipped_file
 from sb3_coma.app.training import TrainingInterrupted
 from sb3_coma.cli import UserError, set_threads
+from sb3_coma.coma.validation import check_total_timesteps
 from sb3_coma.common.checkpoints import CheckpointError
 
 NAME = "train"
@@ -55,7 +56,12 @@ def _joint_steps(text: str) -> int:
         raise argparse.ArgumentTypeError(f"invalid whole number: {text!r}") from None
     if isinstance(number, float) and not number.is_integer():
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of joint steps")
-    return int(number)
+    if number < 1:
+        return int(number)  # "must be >= 1", said once for every count below
+    try:
+        return check_total_timesteps(number, "the value")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _add_change_option(parser: argparse.ArgumentParser) -> None:
