@@ -283,6 +283,8 @@ def test_opaque_alpha_channel_changes_nothing_and_warns_nothing(tmp_path, images
     cv2.imwrite(str(tmp_path / "opaque.png"), np.dstack([bgr, np.full(bgr.shape[:2], 255, np.uint8)]))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
+        # the picture is 80 x 40: its stretch onto the square field is said (test_user_image_aspect.py)
+        warnings.filterwarnings("ignore", message=r".*not square; it is stretched", category=UserWarning)
         a = load_ground_truth("a", map_path=tmp_path / "opaque.png", valuable="excess-green", grid=80, lattice=5)
     b = load_ground_truth("b", map_path=images["colour.png"], valuable="excess-green", grid=80, lattice=5)
     np.testing.assert_array_equal(a.valuable, b.valuable)

@@ -154,12 +154,22 @@ def _load_file(
 ) -> GroundTruth:
     """A user's image; ``stamp`` (mtime_ns, size) keys the cache so an edited file is re-read.
 
+    A picture that is not square is stretched onto the square field, and said so (a warning).
     The file is read as shown (EXIF orientation applied) and its transparent pixels are no data:
     never valuable. That is said once per loaded file and grid (a warning, not an error: a drawing
     on a transparent background is a legitimate map), because the cells silently drop out of the
     rule's threshold and the user should know how many.
     """
     file = read_image(path)
+    height, width = file.gray.shape[:2]
+    if height != width:  # the field is square: say that the picture is stretched onto it
+        warnings.warn(
+            f"map_path {path!r}: the image is {width} x {height} pixels, not square; it is stretched onto the "
+            f"square field (its width scaled by {height / width:.2f} against its height); crop it square to keep "
+            "its proportions",
+            UserWarning,
+            stacklevel=3,
+        )
     image, transparent_cells = image_on_grid(file, grid)
     effective = rule if rule is not None else Rule("threshold")
     try:
