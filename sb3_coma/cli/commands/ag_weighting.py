@@ -16,6 +16,7 @@ import argparse
 import json
 from pathlib import Path
 
+from sb3_coma.app.config import map_list
 from sb3_coma.baselines.adaptive_gain import WEIGHTING_BY_MAP
 from sb3_coma.cli import UserError
 from sb3_coma.cli.commands import add_workers_argument
@@ -48,10 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-
-    names = [e.strip() for e in args.env.split(",") if e.strip()]
-    if not names:
-        raise UserError("--env is empty")
+    names = map_list(args.env)  # each map once (evaluate's rule): env1,env1 is one line, not two flights
     options = {k: v for k, v in (("n_uavs", args.uavs), ("budget", args.budget)) if v is not None}
     choices = []
     for name in names:
