@@ -490,3 +490,24 @@ def test_save_freq_zero_means_no_checkpoints_by_one_rule(tmp_path):
     assert (run / "model.zip").is_file() and not find_checkpoints(run / "checkpoints")
     with pytest.raises(TrainingError, match="save_freq must be an integer >= 0"):
         train(ENV, config=write_config(tmp_path), run_dir=tmp_path / "run1", save_freq=-1, **quiet())
+
+
+def test_resume_from_an_older_checkpoint_is_refused_in_place_and_forks_with_fork(tmp_path):
+    """Resuming in place from a checkpoint older than the run's newest would replace model.zip, cut
+    metrics.csv and leave the next resume on the other branch: refused; --fork continues it in a new
+    run folder that names its parent, and the parent is not touched."""
+    config = write_config(tmp_path)
+    _, run = train(env="env1", config=config, seed=0, run_dir=tmp_path / "run", save_freq=16, **quiet())
+    older = find_checkpoints(run / "checkpoints")[0][1]
+    parent_model, parent_rows = digest(run / "model.zip"), len(metric_rows(run))
+    with pytest.raises(TrainingError, match=r"already reached 40 \(model\.zip\).*fork the run's history.*--fork"):
+        train(resume=older, **quiet())
+    assert digest(run / "model.zip") == parent_model and len(metric_rows(run)) == parent_rows
+    forked, branch = train(resume=older, fork=True, run_dir=tmp_path / "branch", total_timesteps=32, **quiet())
+    assert branch == tmp_path / "branch" and forked.num_timesteps == 32
+    record = yaml.safe_load((branch / "config.yml").read_text())["run"]
+    assert record["forked_from"] == str(run) and record["resumed_from"] == str(older)
+    assert digest(run / "model.zip") == parent_model and len(metric_rows(run)) == parent_rows
+    # the newest checkpoint itself is no fork: it resumes in place as before
+    _, again = train(resume=run / "model.zip", total_timesteps=48, **quiet())
+    assert again == run

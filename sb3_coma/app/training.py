@@ -56,6 +56,7 @@ from sb3_coma.app.runs import (
     check_run_dir,
     claim_run_dir,
     lock_run_folder,
+    newest_model,
     read_run_config,
     resolve_resume,
     write_run_config,
@@ -330,6 +331,25 @@ def _allowed_changes(
     return {k: {"from": old, "to": new} for k, (old, new, _) in changes.items()}
 
 
+def _check_not_a_fork(run_dir: Path, model: Path, fork: bool) -> bool:
+    """Whether resuming ``model`` forks ``run_dir``'s history (it is older than the run's newest
+    model); without ``fork`` that is one line, since resuming it in place would replace the final
+    model, cut ``metrics.csv`` back and leave the next resume on the other branch."""
+    newest = newest_model(run_dir)
+    if newest is None or newest.resolve() == model.resolve():
+        return False
+    at, latest = validate_checkpoint(model).num_timesteps, validate_checkpoint(newest).num_timesteps
+    if at >= latest:
+        return False
+    if not fork:
+        raise TrainingError(
+            f"--resume {model} is at {at} joint steps but run {run_dir} already reached {latest} ({newest.name}): "
+            "resuming it in place would fork the run's history; resume the run folder (its newest), or pass "
+            "--fork to continue from that checkpoint in a new run folder"
+        )
+    return True
+
+
 def plan_run(
     env: str | None = None,
     config: str | os.PathLike[str] | None = None,
@@ -342,11 +362,15 @@ def plan_run(
     eval_seed: int | None = None,
     device: str = "auto",
     allow_change: bool = False,
+    fork: bool = False,
 ) -> RunPlan:
     """Load the config (or the resumed run's), apply the command-line settings, pick the seed.
 
     A resume in place takes the run folder's lock first (a second writer is refused before it
     reads or touches anything) and holds it in the plan; :meth:`RunPlan.release` lets it go.
+    A checkpoint older than its run's newest model is a fork of the run's history: refused in place
+    (:func:`_check_not_a_fork`), or, with ``fork``, continued in a new run folder with the parent
+    run's config, recorded as ``forked_from``.
     """
     if total_timesteps is not None:
         total_timesteps = positive_int("train()", "total_timesteps", total_timesteps)
@@ -358,13 +382,20 @@ def plan_run(
         raise TrainingError(f"eval_seed must be an integer, got {eval_seed!r}")
     check_device(device)
     resume_run, resume_model = resolve_resume(resume) if resume is not None else (None, None)
+    parent = None
+    if resume_run is not None and resume_model is not None and _check_not_a_fork(resume_run, resume_model, fork):
+        parent, resume_run = resume_run, None  # continue the parent's recipe in a new folder
     lock = lock_run_folder(resume_run, resuming=True) if resume_run is not None else None
     try:
         changes: dict[str, dict[str, Any]] = {}
-        if resume_run is not None:
+        if resume_run is not None or parent is not None:
             assert resume_model is not None, "resolve_resume() gives a model with a run folder"
-            cfg = _resumed_config(resume_run, resume, env, config, variant, overrides)
+            source = resume_run or parent
+            assert source is not None
+            cfg = _resumed_config(source, resume, env, config, variant, overrides)
             changes = _allowed_changes(resume, _resume_changes(cfg, resume_model, n_envs), allow_change)
+            if parent is not None:
+                cfg.run = {**cfg.run, "forked_from": str(parent)}
         else:
             cfg = load_config(env, config, variant, overrides)
         if n_envs is not None:
@@ -382,7 +413,7 @@ def plan_run(
         raise
     done = info.num_timesteps if info is not None else 0
     if seed is None:  # a resumed run continues its own seed, moved on by the steps done
-        base = cfg.run.get("seed") if resume_run is not None else None
+        base = cfg.run.get("seed") if resume_run is not None or parent is not None else None
         seed = int(base) + done if is_int(base) else int(np.random.randint(0, 2**31 - 1))
     return RunPlan(
         cfg=cfg,
@@ -455,6 +486,8 @@ def _run_record(plan: RunPlan) -> dict[str, Any]:
     }
     if plan.resume_model is not None:
         run["resumed_from"] = str(plan.resume_model)
+    if plan.cfg.run.get("forked_from"):  # a branch of another run (resume --fork): its parent
+        run["forked_from"] = plan.cfg.run["forked_from"]
     run["settings"] = run_settings(plan.cfg.entry)  # to tell a later hand edit of the entry above
     return run
 
@@ -637,6 +670,7 @@ def train(
     runs_root: str | os.PathLike[str] = "runs",
     log: Callable[[str], None] | None = None,
     allow_change: bool = False,
+    fork: bool = False,
 ) -> tuple[COMA, Path]:
     """Train COMA and return ``(model, run_dir)``.
 
@@ -655,6 +689,8 @@ def train(
         anything gets a ``_<n>`` suffix instead of being reused)
     :param resume: a run folder or checkpoint zip to continue from (same timestep count,
         optimiser states restored, ``reset_num_timesteps=False``)
+    :param fork: with ``resume`` of a checkpoint older than its run's newest model: continue from it
+        in a new run folder (its ``config.yml`` names the parent as ``forked_from``) instead of refusing
     :param overrides: config keys to change, dots reach into mappings (``{"env_kwargs.noise": "loud"}``)
     :param n_envs: env copies (default: the config's ``n_envs``)
     :param save_freq: joint steps between checkpoints (default: a tenth of the run)
@@ -680,7 +716,7 @@ def train(
     _check_counts(eval_freq, save_freq, eval_seed)
     check_run_dir(run_dir)
     plan = plan_run(
-        env, config, variant, overrides, resume, total_timesteps, n_envs, seed, eval_seed, device, allow_change
+        env, config, variant, overrides, resume, total_timesteps, n_envs, seed, eval_seed, device, allow_change, fork
     )
     try:  # the run folder stays locked until the run is over, however it ends
         model, run_path, standard, callback_list = _set_up(

@@ -116,6 +116,12 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     )
     _add_change_option(parser)
     parser.add_argument(
+        "--fork",
+        action="store_true",
+        help="with --resume of a checkpoint older than its run's newest model: continue from it in a new "
+        "run folder that records the run as its parent (in place it would fork the run's history: refused)",
+    )
+    parser.add_argument(
         "--run-dir",
         default=None,
         metavar="DIR",
@@ -238,6 +244,7 @@ def run(args: argparse.Namespace) -> int:
             device=args.device,
             verbose=args.verbose,
             allow_change=args.allow_change,
+            fork=args.fork,
         )
     except (TrainingError, CheckpointError) as exc:
         raise UserError(str(exc)) from exc
