@@ -348,6 +348,44 @@ def _load_weights(path: Path, **kwargs):
     return load_weights(path, **kwargs)
 
 
+def _with_extra_member(f: Files) -> Path:
+    """A valid COMA zip with a member SB3 never writes (a payload riding along)."""
+    import shutil
+    import zipfile
+
+    carrier = f.path("carrier.zip")
+    shutil.copy(f.coma_zip, carrier)
+    with zipfile.ZipFile(carrier, "a") as archive:
+        archive.writestr("payload.py", "print('hello')")
+    return carrier
+
+
+def _nan_zip(f: Files) -> Path:
+    """A COMA zip whose actor holds a NaN (a diverged run)."""
+    import torch
+
+    from sb3_coma import COMA
+
+    model = COMA.load(f.coma_zip, device="cpu")
+    with torch.no_grad():
+        model.policy.actor.head.weight[0, 0] = float("nan")
+    model.save(f.path("diverged.zip"))
+    return f.path("diverged.zip")
+
+
+def _load_model(path: Path):
+    from sb3_coma import COMA
+
+    return COMA.load(path, device="cpu")
+
+
+def _foreign_out(f: Files) -> list[str]:
+    """``evaluate --out`` into a folder of the user's own files."""
+    out = f.folder("my_results")
+    (out / "thesis.xlsx").write_text("the user's")
+    return ["evaluate", "--methods", "random", "--env", "env1", "--trials", "1", "--no-plots", "--out", str(out)]
+
+
 def _validate(path: Path):
     from sb3_coma.common.checkpoints import validate_checkpoint
 
@@ -1320,6 +1358,45 @@ CASES: list[Case | CliCase] = [
         "not a zip archive",
     ),
     Case(
+        "model-extra-member",
+        MF,
+        "validate_checkpoint(<a COMA zip with payload.py added>)",
+        lambda f: _validate(_with_extra_member(f)),
+        CheckpointError,
+        ("carrier.zip", "payload.py"),
+        "a COMA model zip never has",
+    ),
+    Case(
+        "model-non-finite-weights",
+        MF,
+        "COMA.load(<a zip whose actor holds a NaN>)",
+        lambda f: _load_model(_nan_zip(f)),
+        ValueError,
+        ("diverged.zip", "actor.head.weight"),
+        "NaN or inf",
+    ),
+    Case(
+        "coma-learn-timesteps-huge",
+        C,
+        "COMA(...).learn(1e100)",
+        lambda f: _coma(f).learn(1e100),
+        ValueError,
+        ("1e+100",),
+        "from 1 to 1e+10",
+    ),
+    Case(
+        "yaml-key-twice",
+        Y,
+        "learning_rate written twice in one entry",
+        lambda f: _load_config(
+            f,
+            path=f.text("twice.yml", f"{ENV_ID}:\n  n_timesteps: 8\n  learning_rate: 1e-4\n  learning_rate: 3e-4\n"),
+        ),
+        TrainingError,
+        ("twice.yml", "'learning_rate'", "lines 3 and 4"),
+        "written twice",
+    ),
+    Case(
         "model-truncated",
         MF,
         "validate_checkpoint(<first half of a COMA zip>)",
@@ -1611,6 +1688,20 @@ CASES: list[Case | CliCase] = [
         "allowed",
     ),
     # ------------------------------------------------------------------ CLI
+    CliCase(
+        "cli-evaluate-out-holds-user-files",
+        "sb3-coma evaluate ... --out <a folder of the user's own files>",
+        _foreign_out,
+        ("my_results", "thesis.xlsx"),
+        "pass an empty or new folder",
+    ),
+    CliCase(
+        "cli-train-run-dir-hidden",
+        "sb3-coma train --run-dir .",
+        lambda f: ["train", "--env", "env1", "--config", str(f.config()), "--run-dir", "."],
+        ("'.'",),
+        None,
+    ),
     CliCase(
         "cli-train-threads-zero",
         "sb3-coma train --threads 0",
