@@ -90,3 +90,21 @@ def test_warm_start_without_warmup_lets_the_actor_move(tmp_path):
 def test_bad_warm_start_is_named(tmp_path, warm, match):
     with pytest.raises(TrainingError, match=match):
         load_config(ENV, _config(tmp_path, **warm))
+
+
+def test_the_warm_start_says_every_round_with_elapsed_time_and_an_estimate(tmp_path):
+    """A user waiting minutes for DAgger sees each round end, not a silent process (newcomer issue)."""
+    lines: list[str] = []
+    train(
+        ENV,
+        config=_config(tmp_path, critic_warmup=0.6),
+        seed=0,
+        run_dir=tmp_path / "run",
+        progress_bar=False,
+        verbose=0,
+        log=lines.append,
+    )
+    rounds = [line for line in lines if line.strip().startswith("round ")]
+    assert len(rounds) == 2, lines
+    assert rounds[0].strip().startswith("round 1/2:") and rounds[1].strip().startswith("round 2/2:")
+    assert all("agreement" in line and "s elapsed, about" in line and "s left" in line for line in rounds)

@@ -63,7 +63,17 @@ def warm_start(
         model.set_env(venv)
         say(f"Warm start: DAgger from {spec['teacher']}, {spec['rounds']} rounds x {spec['missions']} missions")
         teacher = make_planner(spec["teacher"], venv, seed=seed)
-        report = clone_teacher(model, teacher, spec["missions"], spec["rounds"], seed=seed)
+
+        def progress(record: dict[str, float]) -> None:
+            done, rounds = int(record["round"]) + 1, int(spec["rounds"])
+            elapsed = time.perf_counter() - tic
+            say(
+                f"  round {done}/{rounds}: {int(record['missions'])} missions, {int(record['states']):,} labelled "
+                f"states, agreement {record['agreement']:.0%}, {elapsed:.0f} s elapsed, "
+                f"about {elapsed / done * (rounds - done):.0f} s left (later rounds fit more data)"
+            )
+
+        report = clone_teacher(model, teacher, spec["missions"], spec["rounds"], seed=seed, on_round=progress)
     finally:
         venv.close()
         if training_env is not None:

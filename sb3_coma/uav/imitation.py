@@ -14,6 +14,7 @@ weight that decays to zero), never a hand-made term in the logits: the network d
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -136,6 +137,7 @@ def clone_teacher(
     batch_size: int = 256,
     seed: int = 0,
     learning_rate: float = 3e-4,
+    on_round: Callable[[dict[str, float]], None] | None = None,
 ) -> DaggerReport:
     """DAgger the actor of ``model`` (a :class:`~sb3_coma.COMA`) toward ``teacher`` (module docstring).
 
@@ -146,6 +148,7 @@ def clone_teacher(
     :param batch_size: agent decisions per gradient step
     :param learning_rate: the actor optimiser's rate while fitting (restored afterwards): a model
         configured to fine-tune slowly still clones at the rate cloning needs
+    :param on_round: called with each finished round's record (progress for a caller that shows it)
     """
     for name, value in (("missions_per_round", missions_per_round), ("rounds", rounds), ("epochs", epochs)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -169,6 +172,8 @@ def clone_teacher(
             report.rounds.append(
                 {"round": k, "beta": beta, "missions": flown, "states": len(data), "loss": loss, "agreement": agreement}
             )
+            if on_round is not None:
+                on_round(report.rounds[-1])
     finally:
         for g, rate in zip(groups, rates):
             g["lr"] = rate
