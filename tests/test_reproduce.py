@@ -52,6 +52,8 @@ def test_reproduce_quick_end_to_end(tmp_path, capsys):
         and (docs.parent / "figures" / "table1_curves.png").is_file()
     )
     assert "sb3-coma reproduce --quick" in text
+    said = capsys.readouterr().out
+    assert "[1/12] load models (0 s elapsed)" in said and "[12/12] write results (" in said  # a line per step
 
 
 def test_reproduce_refuses_bad_input(tmp_path, capsys):

@@ -317,8 +317,10 @@ def reproduce(
     say = log or (lambda _m: None)
     with staged_output(out, command="reproduce", own=OUTPUT_PATTERNS, say=say) as staging:
         run = Run(opts, staging, say, target=Path(out))
-        for step in STEPS:
+        start = time.perf_counter()
+        for number, step in enumerate(STEPS, start=1):
             tic = time.perf_counter()
+            say(f"[{number}/{len(STEPS)}] {step.__name__.replace('_', ' ')} ({tic - start:.0f} s elapsed)")
             step(run)
             run.timings[step.__name__] = round(time.perf_counter() - tic, 1)
     return run.summary
