@@ -16,14 +16,12 @@ sb3-coma run wrote.
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from staging_helpers import dead_pid, siblings, snapshot, write_run
 
 from sb3_coma import cli
 from sb3_coma.app.config import TrainingError
@@ -33,35 +31,6 @@ from sb3_coma.common.outputs import OutputFolderError, manifest_name, staged_out
 
 #: The patterns ``evaluate`` passes as ``own=`` (they used to decide what was deleted).
 EVALUATE_PATTERNS = ("table.*", "per_step.csv", "planning_time.*", "curves_*.png", "mission_*", "training_reward.png")
-
-
-def snapshot(folder: Path) -> dict[str, str]:
-    """``{relative path: sha256}`` of every file under ``folder`` (folders as ``"<dir>"``)."""
-    out = {}
-    for path in sorted(folder.rglob("*")):
-        key = str(path.relative_to(folder))
-        out[key] = "<dir>" if path.is_dir() else hashlib.sha256(path.read_bytes()).hexdigest()
-    return out
-
-
-def siblings(target: Path) -> list[str]:
-    return sorted(p.name for p in target.parent.iterdir() if p.name != target.name)
-
-
-def dead_pid() -> int:
-    proc = subprocess.Popen([sys.executable, "-c", "pass"])
-    proc.wait()
-    return proc.pid
-
-
-def write_run(target: Path, command: str, files: dict[str, str]) -> None:
-    """A finished output of ``command``: its files and its complete manifest."""
-    target.mkdir(parents=True, exist_ok=True)
-    for name, text in files.items():
-        (target / name).parent.mkdir(parents=True, exist_ok=True)
-        (target / name).write_text(text)
-    record = {"command": command, "complete": True, "entries": sorted({n.split("/")[0] for n in files})}
-    (target / manifest_name(command)).write_text(json.dumps(record))
 
 
 def users_folder(folder: Path) -> None:

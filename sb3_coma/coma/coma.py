@@ -60,7 +60,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
 from sb3_coma.coma.buffer import JointRolloutBuffer
-from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, concat_state, concat_state_space, map_obs
+from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, concat_state, map_obs, state_space_of
 from sb3_coma.coma.plugins import resolve_policy, saved_policy_class
 from sb3_coma.coma.policies import CnnPolicy, COMAPolicy, MlpPolicy, MultiInputPolicy
 from sb3_coma.coma.progress import JointStepProgressBar
@@ -268,20 +268,13 @@ class COMA(OnPolicyAlgorithm):
     def _resolve_state(self) -> None:
         """Where the global state comes from, and its space (kept from a saved model when loading
         without an env; a model saved before COMA was generic reads its ``state`` key)."""
+        assert self.n_agents is not None
         if self.env is not None:
-            self.state_source, state_space = resolve_state_source(self.env, self.n_agents)
+            self.state_source, self.state_space = resolve_state_source(self.env, self.n_agents)
         elif self.state_source is None:
             has_key = isinstance(self.observation_space, spaces.Dict) and KEY_STATE in self.observation_space.spaces
-            self.state_source, state_space = ("obs", None) if has_key else ("concat", None)
-        else:
-            return
-        if self.state_source == "obs":
-            assert isinstance(self.observation_space, spaces.Dict)
-            state_space = self.observation_space[KEY_STATE]
-        elif self.state_source == "concat":
-            assert self.n_agents is not None
-            state_space = concat_state_space(self.observation_space, self.n_agents)
-        self.state_space = state_space
+            self.state_source = "obs" if has_key else "concat"
+            self.state_space = state_space_of(self.state_source, self.observation_space, self.n_agents)
 
     def _setup_model(self) -> None:
         """Build schedules, buffer and policy from attributes alone (``load`` relies on that)."""

@@ -26,6 +26,7 @@ __all__ = [
     "concat_state",
     "concat_state_space",
     "map_obs",
+    "state_space_of",
 ]
 
 #: Observation key of the global state an env provides to every agent (the critic's input).
@@ -107,3 +108,16 @@ def concat_state(obs: PyTorchObs, observation_space: spaces.Space, normalize_ima
         return th.cat([_flatten(view[key], sub, normalize_images) for key, sub in space.spaces.items()], dim=1)
     assert isinstance(view, th.Tensor)
     return _flatten(view, space, normalize_images)
+
+
+def state_space_of(
+    source: str, observation_space: spaces.Space, n_agents: int, env_state_space: spaces.Space | None = None
+) -> spaces.Space:
+    """The global state's space for a state source (``env_state_space``: the env's, for ``"env"``)."""
+    if source == "obs":
+        assert isinstance(observation_space, spaces.Dict)
+        return observation_space[KEY_STATE]
+    if source == "env":
+        assert env_state_space is not None
+        return env_state_space
+    return concat_state_space(observation_space, n_agents)

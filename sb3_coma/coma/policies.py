@@ -242,25 +242,31 @@ class COMAPolicy(BasePolicy):
             self.critic.parameters(), lr=critic_lr_schedule(1), **self.optimizer_kwargs
         )
 
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
+    def _shared_constructor_parameters(self) -> dict[str, Any]:
+        """What every COMA policy saves to be rebuilt (``load``); subclasses add their own options."""
+        data = BasePolicy._get_constructor_parameters(self)
         data.update(
             lr_schedule=self._dummy_schedule,
             critic_lr_schedule=self._dummy_schedule,
             n_agents=self.n_agents,
             state_space=self.state_space,
-            net_arch=self.net_arch,
-            activation_fn=self.activation_fn,
             features_extractor_class=self.features_extractor_class,
             features_extractor_kwargs=self.features_extractor_kwargs,
             critic_features_extractor_class=self.critic_features_extractor_class,
             critic_features_extractor_kwargs=self.critic_features_extractor_kwargs,
-            critic_obs=self.critic_obs,
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,
             ortho_init=self.ortho_init,
         )
         return data
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {
+            **self._shared_constructor_parameters(),
+            "net_arch": self.net_arch,
+            "activation_fn": self.activation_fn,
+            "critic_obs": self.critic_obs,
+        }
 
     def set_training_mode(self, mode: bool) -> None:
         """Train/eval mode for actor and critic; the target critic always stays in eval mode."""

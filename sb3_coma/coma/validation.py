@@ -15,7 +15,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, STATE_SOURCES
+from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, STATE_SOURCES, state_space_of
 
 __all__ = [
     "check_batch_fits_rollout",
@@ -97,13 +97,12 @@ def check_masks(masks: np.ndarray, n_actions: int) -> None:
         raise ValueError(f"action masks of rows {empty[:8].tolist()} allow no action: every agent needs a valid one")
 
 
-def resolve_state_source(env: VecEnv, n_agents: int | None) -> tuple[str, spaces.Space | None]:
+def resolve_state_source(env: VecEnv, n_agents: int) -> tuple[str, spaces.Space]:
     """Where the global state of a joint step comes from: the env's ``state_source`` attribute
     (``sb3_coma.make_marl_vec_env`` sets it), else a ``state`` observation key, else the env's
     ``get_state()`` with its ``state_space``, else the concatenation of the agents' observations.
 
-    :return: the source and, for ``"env"``, the state's space (the other sources' follow from the
-        observation space)
+    :return: the source and the state's space
     :raises ValueError: an unknown source, or ``"env"`` without ``state_space``
     """
     source = getattr(env, "state_source", None)
@@ -121,7 +120,7 @@ def resolve_state_source(env: VecEnv, n_agents: int | None) -> tuple[str, spaces
         raise ValueError(
             f"state_source 'obs' needs a {KEY_STATE!r} key in the observation, got {env.observation_space}"
         )
-    return source, state_space if source == "env" else None
+    return source, state_space_of(source, env.observation_space, n_agents, state_space)
 
 
 #: The most joint steps one ``learn()`` may be asked for: 10^10 is weeks of the fastest collection

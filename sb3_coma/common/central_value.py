@@ -28,7 +28,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from torch import nn
 
-from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, concat_state, concat_state_space, map_obs
+from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, concat_state, map_obs
 from sb3_coma.coma.validation import resolve_n_agents, resolve_state_source
 
 __all__ = ["KEY_AGENT_ID", "CentralStateVecEnv", "CentralValuePolicy", "KeysExtractor"]
@@ -45,18 +45,11 @@ class CentralStateVecEnv(VecEnvWrapper):
 
     def __init__(self, venv: VecEnv) -> None:
         self.n_agents = resolve_n_agents(venv)
-        source, env_state_space = resolve_state_source(venv, self.n_agents)
-        self.state_source = source
+        self.state_source, state_space = resolve_state_source(venv, self.n_agents)
         space = venv.observation_space
         own = dict(space.spaces) if isinstance(space, spaces.Dict) else {KEY_OBS: space}
         own.pop(KEY_MASK, None)
-        if source == "obs":
-            state_space = own.pop(KEY_STATE)
-        elif source == "env":
-            assert env_state_space is not None
-            state_space = env_state_space
-        else:
-            state_space = concat_state_space(space, self.n_agents)
+        own.pop(KEY_STATE, None)
         self._source_space = space
         parts = {**own, KEY_STATE: state_space, KEY_AGENT_ID: spaces.Box(0.0, 1.0, (self.n_agents,), np.float32)}
         super().__init__(venv, observation_space=spaces.Dict(parts))

@@ -31,10 +31,10 @@ from pettingzoo.utils.wrappers import BaseParallelWrapper
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
+from sb3_coma.coma.joint import STATE_SOURCES
+
 __all__ = ["STATE_SOURCES", "MarlVecEnv", "make_marl_vec_env"]
 
-#: Where a learner finds the global state, in the order ``state="auto"`` tries them.
-STATE_SOURCES: tuple[str, ...] = ("obs", "env", "concat")
 
 # Private info keys of the channel between _InfoChannel (inside each copy) and MarlVecEnv.
 _RESET_KEY = "_marl_reset_info"

@@ -398,25 +398,13 @@ class UavCOMAPolicy(COMAPolicy):
         self._finish_build(lr_schedule, critic_lr_schedule)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = BasePolicy._get_constructor_parameters(self)
-        data.update(
-            lr_schedule=self._dummy_schedule,
-            critic_lr_schedule=self._dummy_schedule,
-            n_agents=self.n_agents,
-            state_space=self.state_space,
-            features_extractor_class=self.features_extractor_class,
-            features_extractor_kwargs=self.features_extractor_kwargs,
-            critic_features_extractor_class=self.critic_features_extractor_class,
-            critic_features_extractor_kwargs=self.critic_features_extractor_kwargs,
-            optimizer_class=self.optimizer_class,
-            optimizer_kwargs=self.optimizer_kwargs,
-            ortho_init=self.ortho_init,
-            gain_prior=self.gain_prior,
-            gain_prior_speed=self.gain_prior_speed,
-            correction_bound=self.correction_bound,
-            gain_inputs=self.gain_inputs,
-        )
-        return data
+        return {
+            **self._shared_constructor_parameters(),
+            "gain_prior": self.gain_prior,
+            "gain_prior_speed": self.gain_prior_speed,
+            "correction_bound": self.correction_bound,
+            "gain_inputs": self.gain_inputs,
+        }
 
     def log_values(self) -> dict[str, float]:
         """The gain prior's weights, one per weighting (none without a prior)."""
