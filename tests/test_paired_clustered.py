@@ -1,5 +1,6 @@
-"""Clustered paired statistics (sb3_coma.common.paired): scenes, CR1 standard errors, the t test,
-Holm's correction, the one-scene case, refusals and the per-scene table, on hand-made examples."""
+"""Clustered paired statistics (sb3_coma.common.paired): scenes, CR2 (and the old CR1) standard
+errors, the t test, Holm's correction, the one-scene case, refusals and the per-scene table, on
+hand-made examples (tests/test_paired_cr2.py checks CR2 against an outside reference)."""
 
 from __future__ import annotations
 
@@ -103,7 +104,11 @@ def test_holm_turns_two_lone_wins_into_ties_in_one_table():
 # ------------------------------------------------------------------ the clustered estimator
 def test_cr1_standard_error_by_hand():
     # mean 4; cluster sums of residuals: x (1-4)+(2-4)+(3-4) = -6, y 10-4 = 6; G/(G-1) * 72 / 16 = 9
-    assert clustered_mean_se([1.0, 2.0, 3.0, 10.0], ["x", "x", "x", "y"]) == pytest.approx((4.0, 3.0, 2))
+    assert clustered_mean_se([1.0, 2.0, 3.0, 10.0], ["x", "x", "x", "y"], method="CR1") == pytest.approx((4.0, 3.0, 2))
+    # The default became CR2 (issue #35), which weighs each cluster by 1 / (1 - n_g / N) instead of
+    # G / (G - 1): (36 / (1 - 3/4) + 36 / (1 - 1/4)) / 16 = (144 + 48) / 16 = 12, so the expected
+    # 3.0 (CR1) is now sqrt(12) for these two unequal clusters.
+    assert clustered_mean_se([1.0, 2.0, 3.0, 10.0], ["x", "x", "x", "y"]) == pytest.approx((4.0, math.sqrt(12.0), 2))
     d = np.array([0.1, 0.3, 0.2, 0.6, 0.5, 0.4])
     # equal cluster sizes: the ordinary standard error of the cluster means
     means = np.array([0.2, 0.4, 0.45])

@@ -6,9 +6,12 @@ method flies the *same* missions (env seed k for trial k), the per-mission diffe
 ``a_k - b_k`` cancels most of that spread. But missions are not independent draws: an unseen
 mission is a scene (a map crop) under one of 8 flips / rotations, and several missions share a
 scene, so a method that suits one scene wins all of that scene's missions at once. The standard
-error is therefore clustered by scene (CR1, the cluster-robust standard error of a mean), the
-test is a t test with ``scenes - 1`` degrees of freedom, and the p-values of one verdict table
-are Holm-corrected together (docs/statistics.md has the formulas). With a single scene (the
+error is therefore clustered by scene. A verdict table has 8-9 scenes of unequal size, where the
+usual CR1 cluster-robust error with ``scenes - 1`` degrees of freedom rejects too often, so the
+error is CR2 (Bell and McCaffrey's bias-reduced linearisation) and the t test uses the
+Bell-McCaffrey / Satterthwaite degrees of freedom (Pustejovsky and Tipton 2018; Imbens and
+Kolesar 2016), a float between 1 and ``scenes - 1``. The p-values of one verdict table are
+Holm-corrected together (docs/statistics.md has the formulas and the outside check). With a single scene (the
 paper's protocol: one mission, 10 noise draws) no test is possible: the verdict says so
 (:data:`NO_VERDICT`) and the mission-level numbers are labelled as what they are.
 
@@ -36,13 +39,18 @@ from uav_ipp import IppConfig
 
 __all__ = [
     "ALPHA",
+    "CLUSTER_METHODS",
     "MAY_DIFFER",
     "METRICS",
     "NO_VERDICT",
+    "SE_METHOD",
+    "ClusteredMean",
     "PairedDifference",
     "SceneStat",
+    "bell_mccaffrey_df",
     "cell",
     "check_same_missions",
+    "cluster_robust_mean",
     "clustered_mean_se",
     "holm",
     "holm_adjust",
@@ -62,6 +70,11 @@ NO_VERDICT = "one scene: no verdict"
 #: What ``n`` counts when all missions share one scene (fixed starts, or random starts).
 ONE_MISSION = "noise draws of one mission"
 ONE_SCENE = "missions of one scene"
+#: The cluster-robust standard error the verdicts use (CR2 with Bell-McCaffrey degrees of freedom).
+SE_METHOD = "CR2"
+#: What :func:`cluster_robust_mean` computes: CR2 (the verdicts'), CR1 (the old ``G / (G - 1)``
+#: correction with ``G - 1`` degrees of freedom, kept for comparison) and CR0 (no correction).
+CLUSTER_METHODS = ("CR2", "CR1", "CR0")
 #: Metrics a paired difference can be taken of, and whether lower is better.
 METRICS: dict[str, bool] = {"f1": False, "entropy": True, "team_f1": False, "team_entropy": True}
 #: Env options that decide *which* missions are flown; a difference in one of them reads "not the
@@ -167,26 +180,97 @@ def t_ppf(q: float, df: float) -> float:
 # ---------------------------------------------------------------------------------------------
 # the estimator and the multiple-comparison correction
 # ---------------------------------------------------------------------------------------------
-def clustered_mean_se(values: Sequence[float] | np.ndarray, clusters: Sequence[str]) -> tuple[float, float, int]:
-    """(mean, CR1 standard error, number of clusters) of ``values`` grouped by ``clusters``.
+@dataclass(frozen=True)
+class ClusteredMean:
+    """A mean with its cluster-robust standard error and the degrees of freedom of its t test."""
 
-    The cluster-robust (CR1) standard error of a mean, as ``regress d, vce(cluster scene)``:
-    ``se^2 = G / (G - 1) * sum_g (sum_{i in g} (d_i - mean))^2 / N^2``, the mean being the plain
-    mean over all N values. With equal cluster sizes this is the ordinary standard error of the G
-    cluster means; with one value per cluster it is the ordinary standard error of the N values.
-    One cluster: NaN (nothing to estimate the spread between clusters from).
-    """
-    d = np.asarray(values, dtype=np.float64)
+    mean: float
+    se: float
+    n_clusters: int
+    #: Degrees of freedom of the t test: Bell-McCaffrey (CR2) or ``G - 1`` (CR1, CR0); ``G - 1``
+    #: (0, or -1 without values) when there are fewer than 2 clusters and no test exists.
+    df: float
+    method: str
+
+
+def _cluster_sums(d: np.ndarray, clusters: Sequence[str]) -> tuple[float, np.ndarray, np.ndarray]:
+    """(mean, residual sum ``u_g``, size ``n_g``) per cluster, clusters in order of first appearance."""
     if len(clusters) != len(d):
         raise ValueError(f"{len(clusters)} cluster labels for {len(d)} values")
-    keys = list(dict.fromkeys(clusters))
-    g, n = len(keys), len(d)
-    mean = float(d.mean()) if n else float("nan")
+    keys = {c: k for k, c in enumerate(dict.fromkeys(clusters))}
+    index = np.array([keys[c] for c in clusters], dtype=np.int64)
+    mean = float(d.mean()) if len(d) else float("nan")
+    sums = np.bincount(index, weights=d - mean, minlength=len(keys))
+    return mean, sums, np.bincount(index, minlength=len(keys)).astype(np.float64)
+
+
+def bell_mccaffrey_df(sizes: Sequence[int] | np.ndarray) -> float:
+    """Bell-McCaffrey / Satterthwaite degrees of freedom of the CR2 t test of a mean, from the
+    cluster sizes ``n_g`` alone (``G - 1`` below 2 clusters, where no test exists).
+
+    Why a formula of the sizes only: the approximation matches the first two moments of the CR2
+    variance under the working model of independent, equal-variance missions (Bell and McCaffrey
+    2002; Pustejovsky and Tipton 2018 with the identity working model, clubSandwich's default for
+    ``lm``). For the intercept-only model, with ``p_g = n_g / N`` and ``q_g = p_g^2 / (1 - p_g)``,
+    the general ``(sum_g p_g'p_g)^2 / sum_{g,h} (p_g'p_h)^2`` reduces to
+    ``1 / (sum_g p_g^2 + (sum_g q_g)^2 - sum_g q_g^2)``. It is ``G - 1`` for equal sizes (returned
+    exactly), exactly 1 for any two clusters, and lies in ``[1, G - 1]`` (a Satterthwaite df is
+    ``(tr B)^2 / tr(B^2) >= 1`` for a PSD ``B`` of rank at most ``G - 1``); the result is clipped to
+    that range so that rounding never turns a test into "no verdict" (``df < 1``).
+    """
+    n = np.asarray(sizes, dtype=np.float64)
+    g = len(n)
+    if g < 2 or bool(np.all(n == n[0])):
+        return float(g - 1)
+    share = n / n.sum()
+    q = share**2 / (1.0 - share)
+    total = float(np.sum(share**2) + np.sum(q) ** 2 - np.sum(q**2))
+    return min(float(g - 1), max(1.0, 1.0 / total))
+
+
+def cluster_robust_mean(
+    values: Sequence[float] | np.ndarray, clusters: Sequence[str], method: str = SE_METHOD
+) -> ClusteredMean:
+    """The mean of ``values`` with a standard error clustered by ``clusters`` and its t test's df.
+
+    With ``u_g = sum_{i in g} (d_i - mean)``, ``n_g`` the cluster's size and ``p_g = n_g / N``:
+
+    * ``"CR2"`` (the verdicts'): ``se^2 = sum_g u_g^2 / (1 - p_g) / N^2``, the bias-reduced
+      linearisation of Bell and McCaffrey. For a regression on 1 the hat block is
+      ``H_gg = J / N``, so ``A_g = (I - H_gg)^{-1/2} = I + (1 / sqrt(1 - p_g) - 1) J / n_g`` and
+      ``1' A_g e_g = u_g / sqrt(1 - p_g)``. It is unbiased when the missions are independent with
+      equal variance, and weights each cluster by its own share instead of CR1's blanket
+      ``G / (G - 1)``, which undercorrects large clusters. df: :func:`bell_mccaffrey_df`.
+    * ``"CR1"``: ``se^2 = G / (G - 1) * sum_g u_g^2 / N^2`` (Stata's ``vce(cluster)`` for a mean),
+      df ``G - 1``: what the verdicts used before; liberal with few clusters of unequal size.
+    * ``"CR0"``: ``sum_g u_g^2 / N^2``, no correction (CR2 is never below it).
+
+    CR2 equals CR1 when the clusters have equal sizes (then the ordinary standard error of the G
+    cluster means, with df ``G - 1``) or one value each (the ordinary ``sd / sqrt(N)``). One
+    cluster: NaN standard error and df 0 (nothing to estimate the spread between clusters from).
+    """
+    if method not in CLUSTER_METHODS:
+        raise ValueError(f"method must be one of {CLUSTER_METHODS}, got {method!r}")
+    d = np.asarray(values, dtype=np.float64)
+    mean, u, sizes = _cluster_sums(d, clusters)
+    g, n = len(u), len(d)
     if g < 2:
-        return mean, float("nan"), g
-    index = np.array([keys.index(c) for c in clusters])
-    sums = np.bincount(index, weights=d - mean, minlength=g)
-    return mean, float(math.sqrt(g / (g - 1) * float(np.sum(sums**2)) / n**2)), g
+        return ClusteredMean(mean, float("nan"), g, float(g - 1), method)
+    if method == "CR2":
+        variance = float(np.sum(u**2 / (1.0 - sizes / n))) / n**2
+        return ClusteredMean(mean, math.sqrt(variance), g, bell_mccaffrey_df(sizes), method)
+    factor = g / (g - 1) if method == "CR1" else 1.0
+    return ClusteredMean(mean, math.sqrt(factor * float(np.sum(u**2)) / n**2), g, float(g - 1), method)
+
+
+def clustered_mean_se(
+    values: Sequence[float] | np.ndarray, clusters: Sequence[str], method: str = SE_METHOD
+) -> tuple[float, float, int]:
+    """(mean, standard error, number of clusters) of ``values`` grouped by ``clusters``: since
+    issue #35 the CR2 standard error the verdicts use (``method="CR1"`` gives the old one);
+    :func:`cluster_robust_mean` has the formulas and also returns the degrees of freedom."""
+    r = cluster_robust_mean(values, clusters, method)
+    return r.mean, r.se, r.n_clusters
 
 
 def holm(p_values: Sequence[float]) -> list[float]:
@@ -231,8 +315,11 @@ class PairedDifference:
     """``a - b`` of one metric at 100 % of the budget, over ``n`` shared missions in ``n_clusters`` scenes.
 
     ``se`` is the plain standard error over the missions (what the missions alone say; with one
-    scene, over ``unit``); ``se_clustered`` the CR1 standard error over scenes, which the verdict
-    uses. ``n_clusters`` / ``se_clustered`` left ``None`` mean "every mission its own scene".
+    scene, over ``unit``); ``se_clustered`` the CR2 standard error over scenes and ``df_clustered``
+    its Bell-McCaffrey degrees of freedom (:func:`cluster_robust_mean`), which the verdict uses.
+    ``n_clusters`` / ``se_clustered`` left ``None`` mean "every mission its own scene";
+    ``df_clustered`` left ``None`` means ``n_clusters - 1``, the df of equal-size scenes (true of
+    one mission per scene).
     ``p_holm`` is set by :func:`holm_adjust` for the table the comparison sits in; ``None``: a
     family of one (``p_value``).
     """
@@ -250,6 +337,7 @@ class PairedDifference:
     p_holm: float | None = None
     unit: str = "missions"
     per_scene: tuple[SceneStat, ...] = field(default=(), repr=False)
+    df_clustered: float | None = None
 
     def __post_init__(self) -> None:
         n_clusters = self.n if self.n_clusters is None else self.n_clusters
@@ -257,15 +345,21 @@ class PairedDifference:
             object.__setattr__(self, "n_clusters", n_clusters)
         if self.se_clustered is None:
             object.__setattr__(self, "se_clustered", self.se if n_clusters >= 2 else float("nan"))
+        if self.df_clustered is None:
+            object.__setattr__(self, "df_clustered", float(n_clusters - 1))
 
     @property
     def lower_is_better(self) -> bool:
         return METRICS.get(self.metric, False)
 
     @property
-    def df(self) -> int:
-        """Degrees of freedom of the t test: scenes - 1."""
-        return int(self.n_clusters) - 1  # type: ignore[arg-type]
+    def df(self) -> float:
+        """Degrees of freedom of the t test: Bell-McCaffrey's, a float in ``[1, scenes - 1]``;
+        ``scenes - 1`` (0) with one scene, where there is no test (every ``df < 1`` check)."""
+        n_clusters = int(self.n_clusters)  # type: ignore[arg-type]
+        if n_clusters < 2:
+            return float(n_clusters - 1)
+        return float(self.df_clustered)  # type: ignore[arg-type]
 
     @property
     def t(self) -> float:
@@ -395,7 +489,7 @@ def paired_difference(
 ) -> PairedDifference:
     """Per-mission ``a - b`` of ``metric`` at the last step for two ``EvaluationResult`` objects
     flown on the same missions under the same settings (:func:`check_same_missions`), with the
-    standard error clustered by scene.
+    standard error clustered by scene (CR2, Bell-McCaffrey df: :func:`cluster_robust_mean`).
 
     :param scenes: one scene label per mission; default: the results' own ``scenes``. Without
         labels every mission counts as its own scene (the caller vouches they are independent).
@@ -411,7 +505,8 @@ def paired_difference(
         raise ValueError(f"{len(labels)} scene labels for {len(d)} missions")
     se = float(d.std(ddof=1) / math.sqrt(len(d))) if len(d) > 1 else float("nan")
     clusters = labels if labels is not None else tuple(str(k) for k in range(len(d)))
-    _, se_clustered, g = clustered_mean_se(d, clusters)
+    clustered = cluster_robust_mean(d, clusters)
+    g = clustered.n_clusters
     fixed = _effective_options(a)["start"] == "fixed"
     return PairedDifference(
         a=str(a.method),
@@ -423,7 +518,8 @@ def paired_difference(
         diff=float(d.mean()),
         se=se,
         n_clusters=g,
-        se_clustered=se_clustered,
+        se_clustered=clustered.se,
+        df_clustered=clustered.df,
         unit="missions" if g >= 2 else (ONE_MISSION if fixed else ONE_SCENE),
         per_scene=() if labels is None else _per_scene(va, vb, labels),
     )
@@ -444,6 +540,12 @@ def _spread(d: PairedDifference, digits: int = 4) -> str:
     if d.df < 1:
         return f"{d.diff:+.{digits}f} ± {d.se:.{digits}f} over {d.unit}"
     return f"{d.diff:+.{digits}f} ± {d.se_clustered:.{digits}f}"
+
+
+def _scenes_text(d: PairedDifference) -> str:
+    """``"9 (df 4.3)"``: the scenes and the t test's Bell-McCaffrey df, which sets the p (below
+    ``scenes - 1`` when the scenes have unequal sizes); just ``"1"`` with one scene (no test)."""
+    return str(d.n_clusters) if d.df < 1 else f"{d.n_clusters} (df {d.df:.1f})"
 
 
 def cell(d: PairedDifference, digits: int = 4) -> str:
@@ -476,7 +578,7 @@ def paired_markdown(
         "mean b",
         "a - b (± s.e.)",
         "verdict",
-        "scenes",
+        "scenes (df)",
         "p (Holm)",
     ]
     lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * len(head)) + " |"]
@@ -490,7 +592,7 @@ def paired_markdown(
             f"{r.mean_b:.4f}",
             _spread(r),
             r.verdict,
-            str(r.n_clusters),
+            _scenes_text(r),
             p_text(r.p_adjusted),
         ]
         lines.append("| " + " | ".join(cells) + " |")

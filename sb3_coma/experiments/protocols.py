@@ -8,9 +8,10 @@ every method, so the results are shared missions. :class:`ProtocolResult` holds 
 * Table I style tables (mean ± std at 33 / 67 / 100 % of the budget) for the paper's metrics on the
   global map and for the team metrics on the UAVs' own beliefs (Markdown and CSV);
 * a compact table at 100 % with the planning time per UAV decision;
-* the verdicts: paired differences ``a - b`` at 100 % (± standard error clustered by scene; a t
-  test with scenes - 1 degrees of freedom, Holm-corrected over the whole verdict table; one scene
-  gives no verdict: ``sb3_coma.common.paired``, docs/statistics.md) for the comparisons of
+* the verdicts: paired differences ``a - b`` at 100 % (± the CR2 standard error clustered by
+  scene; a t test with Bell-McCaffrey degrees of freedom, at most scenes - 1, Holm-corrected over
+  the whole verdict table; one scene gives no verdict: ``sb3_coma.common.paired``,
+  docs/statistics.md) for the comparisons of
   :func:`default_pairs`, on all four metrics;
 * the per-scene breakdown of each map's first comparison (:meth:`ProtocolResult.scene_table`).
 
@@ -321,7 +322,7 @@ class ProtocolResult:
             if d.per_scene and all(s.n == 1 for s in d.per_scene):
                 parts.append(f"{env}, {c.a} vs {c.b}: every mission is its own scene ({d.n_clusters} scenes).\n")
                 continue
-            p = "" if d.df < 1 else f" (p {p_text(d.p_adjusted)}, Holm)"
+            p = "" if d.df < 1 else f" (p {p_text(d.p_adjusted)}, Holm; df {d.df:.1f})"
             title = f"{env}, {c.a} vs {c.b}, {metric} @100%: {d.verdict}{p}"
             parts.append(f"{title}\n\n{scene_markdown(d)}")
         return "\n".join(parts)
@@ -388,7 +389,7 @@ class ProtocolResult:
                             d.unit,
                             d.n_clusters,
                             f"{d.se_clustered:.6f}",
-                            d.df,
+                            f"{d.df:.1f}",  # Bell-McCaffrey's, a float (0.0: one scene, no test)
                             f"{d.p_value:.6g}",
                             f"{d.p_adjusted:.6g}",
                         ]

@@ -35,10 +35,10 @@ PLANNER_NAMES: tuple[str, ...] = ("ag", "lawnmower", "random")
 
 #: How every verdict on the page is reached (docs/statistics.md), for the sentences that say so.
 RULE = (
-    "± is the standard error clustered by scene (missions of one scene are not independent); the method named "
-    "is better when a two-sided t test with scenes − 1 degrees of freedom gives p < 0.05 after Holm's "
-    'correction over its table, "tie" otherwise, and "one scene: no verdict" when every mission shares one '
-    "scene (± is then over the noise draws of that one mission; docs/statistics.md)"
+    "± is the CR2 standard error clustered by scene (missions of one scene are not independent); the method "
+    "named is better when a two-sided t test with Bell-McCaffrey degrees of freedom (at most scenes − 1) gives "
+    'p < 0.05 after Holm\'s correction over its table, "tie" otherwise, and "one scene: no verdict" when '
+    "every mission shares one scene (± is then over the noise draws of that one mission; docs/statistics.md)"
 )
 
 
