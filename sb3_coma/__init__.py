@@ -4,27 +4,43 @@ multi-UAV informative path planning world (SenDFuse, CBAM) as its first user.
 The library: ``COMA`` and its policies for any env (``MlpPolicy``, ``CnnPolicy``,
 ``MultiInputPolicy``), ``make_marl_vec_env`` (any PettingZoo ``ParallelEnv`` -> the multi-agent
 VecEnv COMA reads), the features extractors, SenDFuse and ``training_options`` (the env options a
-saved model was trained with). Served lazily, so that ``import sb3_coma`` loads neither the UAV
-world nor rl_zoo3 nor the application: the UAV world's policies (``CBAMPolicy``,
-``UavCnnPolicy``) and two front doors of the application, ``evaluate`` (a model, a shipped name, a
-path or a baseline on seeded missions) and ``load_pretrained`` (a shipped trained model).
+saved model was trained with), the UAV world's policies (``CBAMPolicy``, ``UavCnnPolicy``) and two
+front doors of the application, ``evaluate`` (a model, a shipped name, a path or a baseline on
+seeded missions) and ``load_pretrained`` (a shipped trained model).
+
+Every name is served lazily (PEP 562), on first use: ``import sb3_coma`` loads neither the UAV
+world nor rl_zoo3 nor the application, and not even torch, because importing any submodule
+(``sb3_coma.cli`` for ``sb3-coma --help``, ``sb3_coma.common.shipped``) runs this file first;
+``from sb3_coma import COMA`` loads the algorithm then.
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from sb3_coma.coma import COMA, CnnPolicy, COMAPolicy, MlpPolicy, MultiInputPolicy
-from sb3_coma.common.checkpoints import training_options
-from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
-from sb3_coma.common.marl_vec_env import make_marl_vec_env
-from sb3_coma.sendfuse import SenDFuseNet
+if TYPE_CHECKING:  # the names as the type checker sees them; at run time __getattr__ serves them
+    from sb3_coma.coma import COMA, CnnPolicy, COMAPolicy, MlpPolicy, MultiInputPolicy
+    from sb3_coma.common.checkpoints import training_options
+    from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
+    from sb3_coma.common.marl_vec_env import make_marl_vec_env
+    from sb3_coma.sendfuse import SenDFuseNet
 
 __version__ = "0.3.0"
 
-#: Names served lazily (``name -> module``): the application's front doors and the UAV policies.
+#: Names served lazily (``name -> module``): the library, the application's front doors and the
+#: UAV policies. The application's modules are named here as data, never imported by a statement.
 _LAZY = {
+    "COMA": "sb3_coma.coma",
+    "COMAPolicy": "sb3_coma.coma",
+    "CnnPolicy": "sb3_coma.coma",
+    "MlpPolicy": "sb3_coma.coma",
+    "MultiInputPolicy": "sb3_coma.coma",
+    "training_options": "sb3_coma.common.checkpoints",
+    "CBAMExtractor": "sb3_coma.common.extractors",
+    "CnnExtractor": "sb3_coma.common.extractors",
+    "make_marl_vec_env": "sb3_coma.common.marl_vec_env",
+    "SenDFuseNet": "sb3_coma.sendfuse",
     "evaluate": "sb3_coma.app.evaluation",
     "load_pretrained": "sb3_coma.app.pretrained",
     "CBAMPolicy": "sb3_coma.uav.policies",
@@ -33,10 +49,18 @@ _LAZY = {
 
 
 def __getattr__(name: str) -> Any:
-    """PEP 562: the front doors import the application, the UAV policies the world, on first use."""
+    """PEP 562: each name imports its module on first use (the library torch, the front doors the
+    application, the UAV policies the world), so that the command line starts without them."""
     if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value  # later look-ups are plain attribute reads
+        return value
     raise AttributeError(f"module 'sb3_coma' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """``dir(sb3_coma)`` lists the lazy names too, as it did when they were imported eagerly."""
+    return sorted({*globals(), *_LAZY})
 
 
 __all__ = [

@@ -5,6 +5,11 @@ Each sub-command lives in its own module under :mod:`sb3_coma.cli.commands` and 
 at start-up, so adding a command never touches this file. Errors that users can fix (bad options,
 missing files) are printed as one line and exit with status 2, never as a traceback; a full disk
 while saving is one line with status 1.
+
+Building the parser imports the command modules, so they (and this file) import at module level
+only what their options need: ``sb3-coma --help`` and ``sb3-coma VERB --help`` load neither
+torch nor rl_zoo3, onnx or matplotlib (seconds of start-up), and each command imports its
+implementation inside ``run`` (tests/test_cli_lazy.py).
 """
 
 from __future__ import annotations
@@ -16,15 +21,7 @@ import pkgutil
 import sys
 from types import ModuleType
 
-import torch
-
-from sb3_coma.app.config import TrainingError
-from sb3_coma.app.evaluation import parallel_evaluation
 from sb3_coma.cli import commands
-from sb3_coma.common.checkpoints import CheckpointError, DiskFullError
-from sb3_coma.common.shipped import ShippedFileError
-from sb3_coma.sendfuse import SenDFuseWeightsError
-from uav_ipp import ConfigError, MapError
 
 
 class UserError(Exception):
@@ -42,24 +39,36 @@ def _command_modules() -> list[ModuleType]:
     return mods
 
 
-#: Exception types that mean "the user gave a bad value": printed as one line, exit 2.
-USER_ERRORS: tuple[type[BaseException], ...] = (
-    UserError,
-    FileNotFoundError,
-    FloatingPointError,
-    ConfigError,
-    MapError,
-    TrainingError,
-    CheckpointError,
-    SenDFuseWeightsError,
-    ShippedFileError,
-)
+def user_errors() -> tuple[type[BaseException], ...]:
+    """Exception types that mean "the user gave a bad value": printed as one line, exit 2.
+
+    A function, not a constant, because the classes live in modules that import torch: they are
+    looked up only once a command has failed, never for ``--help``."""
+    from sb3_coma.app.config import TrainingError
+    from sb3_coma.common.checkpoints import CheckpointError
+    from sb3_coma.common.shipped import ShippedFileError
+    from sb3_coma.sendfuse import SenDFuseWeightsError
+    from uav_ipp import ConfigError, MapError
+
+    return (
+        UserError,
+        FileNotFoundError,
+        FloatingPointError,
+        ConfigError,
+        MapError,
+        TrainingError,
+        CheckpointError,
+        SenDFuseWeightsError,
+        ShippedFileError,
+    )
 
 
 def set_threads(threads: int) -> None:
     """``--threads``: torch's CPU thread count for this command (must be >= 1)."""
     if not isinstance(threads, int) or threads < 1:
         raise UserError(f"--threads must be an integer >= 1, got {threads!r}")
+    import torch  # here, not at module level: the parser alone must not load torch
+
     torch.set_num_threads(threads)
 
 
@@ -82,17 +91,28 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        with parallel_evaluation(getattr(args, "eval_workers", 1)):
-            return int(table[args.command].run(args) or 0)
-    except USER_ERRORS as exc:
+        return _run(table[args.command], args)
+    except Exception as exc:  # the user-error classes are imported only now that one may be needed
+        if not isinstance(exc, user_errors()):
+            raise
         print(f"sb3-coma {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except DiskFullError as exc:  # the machine, not the input: one line, exit 1
-        print(f"sb3-coma {args.command}: error: {exc}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print(f"sb3-coma {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def _run(command: ModuleType, args: argparse.Namespace) -> int:
+    """Run one command inside its evaluation pool; a full disk is one line with exit status 1."""
+    from sb3_coma.app.evaluation import parallel_evaluation
+    from sb3_coma.common.checkpoints import DiskFullError
+
+    try:
+        with parallel_evaluation(getattr(args, "eval_workers", 1)):
+            return int(command.run(args) or 0)
+    except DiskFullError as exc:  # the machine, not the input: one line, exit 1
+        print(f"sb3-coma {args.command}: error: {exc}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -24,10 +24,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from sb3_coma.app.evaluation import evaluate as evaluate_method
-from sb3_coma.common.paired import paired_difference
-from uav_ipp.gain import WEIGHTINGS
-
 __all__ = ["VALIDATION_MISSIONS", "VALIDATION_SEED", "WeightingChoice", "pick_ag_weighting", "validation_options"]
 
 #: First env seed of the validation missions (seeds VALIDATION_SEED .. + n - 1 on split "train").
@@ -39,6 +35,9 @@ VALIDATION_MISSIONS = 60
 VALIDATION_SPLIT = "train"
 #: Keys of ``env_options`` the picker sets itself.
 _FIXED = ("split",)
+
+# The evaluation, the paired test and the world's gain module (torch, numba) are imported by
+# pick_ag_weighting: ``sb3-coma ag-weighting --help`` reads the constants above without them.
 
 
 def validation_options(noise: str = "moderate", **env_options: Any) -> dict[str, Any]:
@@ -128,8 +127,12 @@ def pick_ag_weighting(
         a recorder)
     :param env_options: other env options (``budget``, ``n_uavs`` ...); ``split`` is refused
     """
+    from sb3_coma.common.paired import paired_difference
+    from uav_ipp.gain import WEIGHTINGS
 
     if evaluate is None:
+        from sb3_coma.app.evaluation import evaluate as evaluate_method
+
         evaluate = evaluate_method
     if isinstance(n_missions, bool) or not isinstance(n_missions, int) or n_missions < 2:
         raise ValueError(f"n_missions={n_missions!r}: a paired test needs an integer >= 2")

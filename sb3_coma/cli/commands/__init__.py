@@ -5,6 +5,17 @@ from __future__ import annotations
 import argparse
 
 
+def default_map() -> str:
+    """The world's default map, for the options' defaults and help.
+
+    ``uav_ipp.DEFAULT_MAP`` is ``IppConfig.map_name``, but the world serves it from
+    ``uav_ipp.vec_env``, which imports Stable-Baselines3 and torch; ``uav_ipp.config`` holds the
+    same value and imports neither, so ``--help`` stays quick (tests/test_cli_lazy.py)."""
+    from uav_ipp.config import IppConfig
+
+    return str(IppConfig.map_name)
+
+
 def workers_value(text: str) -> int | str:
     """``--workers``: ``auto`` or an integer >= 1 (argparse turns the ValueError into one line)."""
     if text == "auto":

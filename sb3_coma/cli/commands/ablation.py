@@ -17,10 +17,7 @@ import argparse
 from pathlib import Path
 
 from sb3_coma.cli import UserError, set_threads
-from sb3_coma.cli.commands import add_workers_argument
-from sb3_coma.common.tables import write_per_step_csv, write_table_csv
-from sb3_coma.experiments import ablation, plots
-from uav_ipp import DEFAULT_MAP
+from sb3_coma.cli.commands import add_workers_argument, default_map
 
 NAME = "ablation"
 HELP = "evaluate the SenDFuse / CBAM ablation models at three noise levels"
@@ -43,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FUSION_EXTRACTOR=PATH",
         help="one model, e.g. sendfuse_cbam=runs/x/final.zip; repeatable",
     )
-    parser.add_argument("--env", default=DEFAULT_MAP, help=f"map name (default {DEFAULT_MAP}, as in the paper)")
+    parser.add_argument("--env", default=default_map(), help=f"map name (default {default_map()}, as in the paper)")
     parser.add_argument("--noises", default="none,moderate,loud", help="comma-separated noise levels")
     parser.add_argument("--trials", type=int, default=10, help="missions per model and noise level (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="base seed: trial k uses SEED+k (default 0)")
@@ -57,6 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # here, not at module level: the parser alone must load neither torch nor matplotlib
+    from sb3_coma.common.tables import write_per_step_csv, write_table_csv
+    from sb3_coma.experiments import ablation, plots
+
     set_threads(args.threads)
     if args.trials < 1 or args.seed < 0:
         raise UserError("--trials must be >= 1 and --seed >= 0")

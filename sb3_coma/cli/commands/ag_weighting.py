@@ -16,8 +16,6 @@ import argparse
 import json
 from pathlib import Path
 
-from sb3_coma.app.config import map_list
-from sb3_coma.baselines.adaptive_gain import WEIGHTING_BY_MAP
 from sb3_coma.cli import UserError
 from sb3_coma.cli.commands import add_workers_argument
 from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, pick_ag_weighting
@@ -49,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_coma.app.config import map_list  # here: the parser alone must not load torch
+    from sb3_coma.baselines.adaptive_gain import WEIGHTING_BY_MAP
+
     names = map_list(args.env)  # each map once (evaluate's rule): env1,env1 is one line, not two flights
     options = {k: v for k, v in (("n_uavs", args.uavs), ("budget", args.budget)) if v is not None}
     choices = []

@@ -7,6 +7,7 @@ import argparse
 import numpy as np
 
 import uav_ipp
+from sb3_coma.cli.commands import default_map
 from uav_ipp import layout
 
 NAME = "demo"
@@ -16,8 +17,8 @@ HELP = "fly one mission with random valid actions and print F1 / entropy per ste
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--env",
-        default=uav_ipp.DEFAULT_MAP,
-        help=f"map name (env1, env2, env3) or gymnasium id (default {uav_ipp.DEFAULT_MAP})",
+        default=default_map(),
+        help=f"map name (env1, env2, env3) or gymnasium id (default {default_map()})",
     )
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud")
     parser.add_argument("--uavs", type=int, default=4)

@@ -5,14 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-import torch
-from tqdm.auto import tqdm
-
 from sb3_coma.cli import UserError
-from sb3_coma.sendfuse.data import NOISE_PRESETS
-from sb3_coma.sendfuse.quality import evaluate_quality, format_table
-from sb3_coma.sendfuse.weights import load_weights
-from uav_ipp import DEFAULT_MAP
+from sb3_coma.cli.commands import default_map
 
 NAME = "eval-sendfuse"
 HELP = "compare SenDFuse with the naive mean fusion (MSE vs the noise-free fused map) on held-out maps"
@@ -25,7 +19,9 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--env", default=DEFAULT_MAP, help=f"map (default {DEFAULT_MAP}), or a label with --map-path")
+    parser.add_argument(
+        "--env", default=default_map(), help=f"map (default {default_map()}), or a label with --map-path"
+    )
     parser.add_argument("--map-path", default=None, help="your own image as the ground truth (with --valuable)")
     parser.add_argument(
         "--valuable", default=None, help="rule that marks valuable pixels of --map-path (e.g. hottest:0.3)"
@@ -46,6 +42,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # here, not at module level: the parser alone must not load torch
+    import torch
+    from tqdm.auto import tqdm
+
+    from sb3_coma.sendfuse.data import NOISE_PRESETS
+    from sb3_coma.sendfuse.quality import evaluate_quality, format_table
+    from sb3_coma.sendfuse.weights import load_weights
+
     if args.missions < 1:
         raise UserError(f"--missions must be >= 1, got {args.missions}")
     presets = tuple(args.noise) if args.noise else NOISE_PRESETS

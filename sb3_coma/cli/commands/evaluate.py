@@ -20,14 +20,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sb3_coma.app import evaluation as ev
-from sb3_coma.app.config import map_list, path_name_problem
 from sb3_coma.cli import UserError, set_threads
 from sb3_coma.cli.commands import add_workers_argument
-from sb3_coma.common import tables
-from sb3_coma.common.checkpoints import folder_write_problem
-from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
-from sb3_coma.experiments import plots
+
+# The evaluation, tables and figures are imported by the functions that use them, so that building
+# the parser (``--help``) loads neither torch nor matplotlib (sb3_coma/cli/__init__.py).
 
 NAME = "evaluate"
 HELP = "evaluate trained models and baselines (AG, lawnmower, random) as in the paper's Table I"
@@ -153,6 +150,8 @@ def _env_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _env_names(args: argparse.Namespace) -> list[str]:
+    """The maps of --env, each once (default env3, or the --map-path image's name)."""
+    from sb3_coma.app.config import map_list
 
     if args.env is None:
         return [Path(args.map_path).stem if args.map_path else "env3"]
@@ -176,6 +175,8 @@ def _check_args(args: argparse.Namespace) -> None:
 def _check_path_names(args: argparse.Namespace) -> None:
     """Paths this command prints and records: a name that is not valid text in the file system's
     encoding is refused before any mission is flown, not in a traceback after them."""
+    from sb3_coma.app.config import path_name_problem
+
     paths = [("--map-path", args.map_path)]
     paths += [("--model", _labelled(spec, "")[1]) for spec in args.model]
     paths += [("--training-log", _labelled(spec, "")[1]) for spec in args.training_log]
@@ -196,6 +197,8 @@ def _check_out(out: Path) -> None:
     """Refuse an --out the tables cannot be written into before any mission is flown, not after:
     a file (or a path below one), a read-only location, or a folder where a table file goes.
     Files already in --out are replaced, as every evaluation does."""
+    from sb3_coma.app.config import path_name_problem
+    from sb3_coma.common.checkpoints import folder_write_problem
 
     problem = path_name_problem(out)
     if problem is not None:
@@ -208,6 +211,8 @@ def _check_out(out: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_coma.app import evaluation as ev
+    from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
 
     set_threads(args.threads)
     if args.trials is None:
@@ -249,6 +254,9 @@ def _fly_and_write(
 ) -> list[Path]:
     """Fly every method on every map, write the tables and figures into ``out`` (the staging
     folder) and print the tables; the files written."""
+    from sb3_coma.app import evaluation as ev
+    from sb3_coma.common import tables
+
     results: list[ev.EvaluationResult] = []
     for env_name in env_names:
         for label, method in methods:
@@ -300,6 +308,8 @@ def _fly_and_write(
 def _plots(
     results: list[Any], env_names: list[str], logs: list[tuple[str, str]], args: argparse.Namespace, out: Path
 ) -> list[Path]:
+    """The curves, mission pictures (and GIFs) of each map and the training-reward figure."""
+    from sb3_coma.experiments import plots
 
     written = []
     for env_name in env_names:

@@ -6,26 +6,13 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from sb3_coma.app.export import (
-    ACTOR_FILE,
-    FUSION_FILE,
-    METADATA_FILE,
-    OPSET,
-    ExportError,
-    ModelSource,
-    check_fusion_matches,
-    check_opset,
-    check_out_dir,
-    export_onnx,
-    resolve_model_source,
-    settings_of_source,
-)
-from sb3_coma.app.pretrained import PretrainedError, load_pretrained
 from sb3_coma.cli import UserError
-from sb3_coma.coma import COMA
-from sb3_coma.common.checkpoints import CheckpointError, load_checkpoint, validate_checkpoint
-from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
+
+if TYPE_CHECKING:  # the export imports torch and onnx: run() imports it, --help never does
+    from sb3_coma.app.export import ModelSource
+    from sb3_coma.coma import COMA
 
 NAME = "export"
 HELP = "export a trained model's actor and its fusion network to ONNX (+ a JSON of inputs and env options)"
@@ -68,6 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _load(source: ModelSource) -> COMA:
     """Load the model the source names: a shipped one after its checksum, a zip after validation."""
+    from sb3_coma.app.pretrained import PretrainedError, load_pretrained
+    from sb3_coma.common.checkpoints import CheckpointError, load_checkpoint
+
     try:
         if source.shipped is not None:
             return load_pretrained(source.given)
@@ -77,6 +67,22 @@ def _load(source: ModelSource) -> COMA:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_coma.app.export import (
+        ACTOR_FILE,
+        FUSION_FILE,
+        METADATA_FILE,
+        OPSET,
+        ExportError,
+        check_fusion_matches,
+        check_opset,
+        check_out_dir,
+        export_onnx,
+        resolve_model_source,
+        settings_of_source,
+    )
+    from sb3_coma.common.checkpoints import validate_checkpoint
+    from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
+
     # Every check that needs no model comes first: a bad --opset, --model or --out costs nothing.
     try:
         opset = check_opset(OPSET if args.opset is None else args.opset, f"--opset {args.opset}")

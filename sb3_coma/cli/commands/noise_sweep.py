@@ -19,18 +19,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from sb3_coma.app.config import output_folder_problem
-from sb3_coma.app.pretrained import load_pretrained, read_manifest
 from sb3_coma.cli import UserError, set_threads
 from sb3_coma.cli.commands import add_workers_argument
-from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
-from sb3_coma.experiments import ablation as ab
-from sb3_coma.experiments import plots
-from sb3_coma.experiments.noise_sweep import run_noise_sweep
-from sb3_coma.experiments.protocols import Method
-from sb3_coma.experiments.report import sweep_sentence
+
+if TYPE_CHECKING:  # the sweep imports torch and matplotlib: the functions import it, --help never does
+    from sb3_coma.experiments.protocols import Method
 
 NAME = "noise-sweep"
 HELP = "AG and the trained ablation arms over sigma, a_low, drop probability and both decoders (shared missions)"
@@ -63,6 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def default_arms(env: str) -> list[str]:
     """AG plus the shipped models of ``env`` that are ablation arms or the map's own model."""
+    from sb3_coma.app.pretrained import read_manifest
+
     try:
         models = read_manifest()["models"]
     except (ImportError, ValueError):
@@ -76,7 +73,11 @@ def default_arms(env: str) -> list[str]:
     ]
 
 
-def _arm(name: str, env: str):
+def _arm(name: str, env: str) -> Method:
+    """The arm ``name`` names: AG, or a shipped model labelled as its ablation arm."""
+    from sb3_coma.app.pretrained import load_pretrained
+    from sb3_coma.experiments import ablation as ab
+    from sb3_coma.experiments.protocols import Method
 
     if name.strip().lower() in ("ag", "adaptive_gain", "adaptive-gain"):
         return Method("ag", "ag")
@@ -89,12 +90,16 @@ def _arm(name: str, env: str):
 
 def _check_out(out: str) -> None:
     """An --out the table cannot be written into is refused before the sweep, not after it."""
+    from sb3_coma.app.config import output_folder_problem
+
     problem = output_folder_problem(out)
     if problem is not None:
         raise UserError(f"--out {out!r} cannot take the results: {problem}")
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
+    from sb3_coma.experiments.report import sweep_sentence
 
     set_threads(args.threads)
     missions = args.missions if args.missions is not None else (2 if args.quick else 20)
@@ -136,6 +141,10 @@ def _sweep(
     args: argparse.Namespace, arms: list[Method], missions: int, options: dict[str, Any], out: Path
 ) -> tuple[Any, list[Path]]:
     """Fly the sweep and write its table, CSV and figure into ``out`` (the staging folder)."""
+    from sb3_coma.experiments import plots
+    from sb3_coma.experiments.noise_sweep import run_noise_sweep
+    from sb3_coma.experiments.report import sweep_sentence
+
     try:
         result = run_noise_sweep(
             arms,

@@ -11,13 +11,9 @@ import math
 import platform
 import sys
 from pathlib import Path
-
-import numpy as np
-import torch
+from types import SimpleNamespace
 
 from sb3_coma.cli import UserError
-from sb3_coma.sendfuse.pretrain import PretrainConfig, pretrain
-from sb3_coma.sendfuse.weights import default_weights_path, save_weights
 
 NAME = "pretrain-sendfuse"
 HELP = "pre-train the SenDFuse denoising autoencoder on env-generated data and save its weights"
@@ -28,9 +24,16 @@ DESCRIPTION = (
     "env3 are never used (they are held out for `sb3-coma eval-sendfuse`)."
 )
 
+#: ``sb3_coma.sendfuse.pretrain.PretrainConfig``'s defaults of the options below (the shipped
+#: weights' run), written out because that module imports torch and ``--help`` must not;
+#: tests/test_cli_lazy.py checks that they are the dataclass's own.
+PRETRAIN_DEFAULTS = SimpleNamespace(
+    samples=12_000, epochs=3, batch=32, lr=2e-3, seed=0, threads=1, calibration_fusions=240
+)
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    d = PretrainConfig()
+    d = PRETRAIN_DEFAULTS
     parser.add_argument(
         "--samples", type=int, default=d.samples, help=f"training pairs to generate (default {d.samples})"
     )
@@ -82,6 +85,13 @@ def canonical_command(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    # here, not at module level: the parser alone must not load torch
+    import numpy as np
+    import torch
+
+    from sb3_coma.sendfuse.pretrain import PretrainConfig, pretrain
+    from sb3_coma.sendfuse.weights import default_weights_path, save_weights
+
     try:
         config = PretrainConfig(
             samples=args.samples,

@@ -15,11 +15,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sb3_coma.app.config import map_list, output_file_problem, output_folder_problem
 from sb3_coma.cli import UserError, set_threads
 from sb3_coma.cli.commands import add_workers_argument
-from sb3_coma.common.outputs import OutputInterrupted
-from sb3_coma.experiments.reproduce import reproduce
+
+# The study and the config checks import torch, rl_zoo3 and matplotlib: the functions below import
+# them, so that building the parser (``--help``) does not.
 
 NAME = "reproduce"
 HELP = (
@@ -175,6 +175,8 @@ def _check_paired_counts(args: argparse.Namespace) -> None:
 
 def _check_outputs(args: argparse.Namespace) -> None:
     """--out and --docs, checked before minutes of missions rather than when the report is written."""
+    from sb3_coma.app.config import output_file_problem, output_folder_problem
+
     problem = output_folder_problem(args.out)
     if problem is not None:
         raise UserError(f"--out {args.out!r} cannot take the results: {problem}")
@@ -185,6 +187,8 @@ def _check_outputs(args: argparse.Namespace) -> None:
 
 def _env_names(args: argparse.Namespace) -> list[str]:
     """The maps of --env, each once."""
+    from sb3_coma.app.config import map_list
+
     return map_list(args.env)
 
 
@@ -238,6 +242,9 @@ def _given_counts(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_coma.common.outputs import OutputInterrupted
+    from sb3_coma.experiments.reproduce import reproduce
+
     set_threads(args.threads)
     envs = _env_names(args)
     _check_options(args)

@@ -9,20 +9,10 @@ from pathlib import Path
 
 import yaml
 
-from sb3_coma.app import training
-from sb3_coma.app.config import (
-    ALLOW_TEST_SPLIT,
-    TrainingError,
-    default_config_path,
-    list_variants,
-    path_name_problem,
-    written_number,
-)
-from sb3_coma.app.pretrained import PretrainedError, verify_shipped_file
-from sb3_coma.app.training import TrainingInterrupted
 from sb3_coma.cli import UserError, set_threads
-from sb3_coma.coma.validation import check_total_timesteps
-from sb3_coma.common.checkpoints import CheckpointError
+
+# The trainer, its config and the checks import torch and rl_zoo3: the functions below import
+# them, so that building the parser (``--help``) does not.
 
 NAME = "train"
 HELP = "train COMA on a map into a run folder (resume with --resume RUN_DIR)"
@@ -49,6 +39,9 @@ def _parse_set(text: str) -> tuple[str, object]:
 
 def _joint_steps(text: str) -> int:
     """argparse type of the joint-step counts: a whole number, also written ``3.6e4``."""
+    from sb3_coma.app.config import written_number
+    from sb3_coma.coma.validation import check_total_timesteps
+
     value = written_number(text.strip())
     try:
         number = value if isinstance(value, float) else int(value)
@@ -187,6 +180,9 @@ def _check_paths(args: argparse.Namespace) -> None:
     """Path names the run would print or record (config.yml) but could not, and a --resume zip that
     is a shipped model failing its SHA-256: refused before any work (the run folder's location is
     checked by train() before anything is built)."""
+    from sb3_coma.app.config import path_name_problem
+    from sb3_coma.app.pretrained import PretrainedError, verify_shipped_file
+
     for flag, value in (("--config", args.config), ("--resume", args.resume), ("--run-dir", args.run_dir)):
         problem = None if value is None else path_name_problem(value)
         if problem is not None:
@@ -200,6 +196,8 @@ def _check_paths(args: argparse.Namespace) -> None:
 
 def _overrides(args: argparse.Namespace) -> dict[str, object]:
     """``--set`` pairs plus ``--allow-test-split`` (the config loader checks the split against it)."""
+    from sb3_coma.app.config import ALLOW_TEST_SPLIT
+
     overrides = dict(args.overrides)
     if args.allow_test_split:
         if args.resume is not None:
@@ -212,6 +210,11 @@ def _overrides(args: argparse.Namespace) -> dict[str, object]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_coma.app import training
+    from sb3_coma.app.config import TrainingError, default_config_path, list_variants
+    from sb3_coma.app.training import TrainingInterrupted
+    from sb3_coma.common.checkpoints import CheckpointError
+
     set_threads(args.threads)
     _check_paths(args)
     try:
