@@ -1,7 +1,7 @@
 """Validated, typed options of the IPP environment.
 
-Every option a user can pass to :func:`uav_ipp.make_env` lives here with its default (DESIGN
-section 3). ``IppConfig.from_options(**options)`` is the single place where user input is
+Every option a user can pass to :func:`uav_ipp.make_env` lives here with its default
+(docs/design.md, "The world"). ``IppConfig.from_options(**options)`` is the single place where user input is
 checked, so a bad value fails at construction with a message naming the option, the value and
 what is allowed, instead of a traceback from deep inside a footprint kernel.
 """
@@ -87,6 +87,7 @@ class IppConfig:
     flip_probability: Mapping[float, float] = field(default_factory=lambda: dict(DEFAULT_FLIP_PROBABILITY))
     fov_deg: float = 60.0
     split: str = "paper"
+    mission_from_seed: bool = False
     start: str | None = None
     start_positions: tuple[tuple[float, float, float], ...] | None = None
     start_altitude: float = 15.0
@@ -134,7 +135,7 @@ class IppConfig:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_options(cls, name: str = "env1", **options: Any) -> IppConfig:
+    def from_options(cls, name: str = "env3", **options: Any) -> IppConfig:
         """Build a config from ``make_env`` keyword options, rejecting unknown or bad ones."""
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(options) - known)
@@ -237,7 +238,7 @@ class IppConfig:
                 )
 
     def _validate_starts(self) -> None:
-        """``fov_deg``, ``start``, ``split``, ``start_altitude`` and ``start_positions``."""
+        """``fov_deg``, ``start``, ``split``, ``mission_from_seed``, ``start_altitude`` and ``start_positions``."""
         if not (_is_number(self.fov_deg) and 0 < self.fov_deg < 180):
             _fail("fov_deg", self.fov_deg, "an angle in (0, 180) degrees")
         if self.start is not None and self.start not in STARTS:
@@ -251,6 +252,10 @@ class IppConfig:
                 "'paper' with map_path= (a user's image has no train / test scenes); "
                 "use start='random' for random starts on it",
             )
+        if not isinstance(self.mission_from_seed, bool):
+            _fail("mission_from_seed", self.mission_from_seed, "True or False")
+        if self.mission_from_seed and self.split == "paper":
+            _fail("mission_from_seed", True, "False with split='paper' (the paper's mission is fixed)")
         if self.start_altitude not in self.altitudes:
             _fail("start_altitude", self.start_altitude, f"one of the altitudes {list(self.altitudes)}")
         if self.start_positions is not None:

@@ -3,7 +3,7 @@
 One instance is one mission: ``n_uavs`` UAVs on an 11 x 11 lattice at three altitudes sample a
 binary ground truth with an altitude-dependent noisy camera, exchange their sensor maps over a
 noisy channel, and are rewarded together for reducing the class-weighted entropy of the global
-map (DESIGN section 3). All per-step work is bounded by the footprints' areas: the global belief
+map (docs/design.md, "The world"). All per-step work is bounded by the footprints' areas: the global belief
 and everything derived from it are updated incrementally by :mod:`uav_ipp.kernels`.
 
 Semantics worth knowing (also in ``docs/environment.md``):
@@ -96,6 +96,11 @@ class UavIppEnv(ParallelEnv):
         # Mission seed of the counter-based draws (sensor flips, channel noise, drops; kernels.stream_key):
         # the reset seed, so every draw is a function of (seed, step, ids, cell) and never of the plan.
         self._seed = kernels.mission_seed(0)
+        # mission_from_seed: the last reset seed, and how far an unseeded reset (a vec env's
+        # auto-reset) moves on from it: the vec env sets its copy count, so copy e of n flies
+        # missions s + e, s + e + n, ... and n copies fly the consecutive missions s, s + 1, ...
+        self._mission: int | None = None
+        self.mission_stride = 1
         self._build_spaces(n, cfg.comm_grid)
         self._steps = 0
 
@@ -272,13 +277,19 @@ class UavIppEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ reset / step
     def reset(self, seed: int | None = None, options: dict | None = None):
+        cfg, geo = self.config, self.geometry
+        if seed is None and cfg.mission_from_seed and self._mission is not None:
+            seed = self._mission + self.mission_stride  # the next mission of this copy's sequence
         if seed is not None:
             if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
                 raise ConfigError(f"invalid reset seed={seed!r}: an integer >= 0 or None")
             self._rng = np.random.default_rng(seed)
-        cfg, geo = self.config, self.geometry
+            self._mission = int(seed)
         if self._redraw_map:
-            self._set_truth(self._load_truth(int(self._rng.integers(0, 2**31 - 1))))
+            drawn = int(self._rng.integers(0, 2**31 - 1))  # drawn either way: start positions stay as they were
+            # mission_from_seed: the reset seed names the split's mission itself (scenes.pick), so
+            # consecutive seeds visit every scene equally (the validation protocol); else a drawn one.
+            self._set_truth(self._load_truth(seed if cfg.mission_from_seed and seed is not None else drawn))
         # Two draws as in the sequential-stream world, so maps and start positions of every seed are
         # unchanged; the first seeds the noise of a reset without seed (unseeded runs still vary).
         derived = int(self._rng.integers(1, 2**63 - 1))

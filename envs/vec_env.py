@@ -73,7 +73,14 @@ class IppVecEnv(VecEnv):
         if seed is None:
             seed = int(np.random.randint(0, 2**31 - 1))
         self._copy_seed = int(seed)
+        self.set_mission_stride(self.n_copies)
         return [self._copy_seed + i // self.n_agents for i in range(self.num_envs)]
+
+    def set_mission_stride(self, stride: int) -> None:
+        """How far each copy's unseeded resets move on in a ``mission_from_seed`` sequence: the
+        number of copies of the whole vec env (a worker's chunk is told the total, not its own)."""
+        for env in self.copies:
+            env.mission_stride = int(stride)
 
     def close(self) -> None:
         self.venv.close()
@@ -125,7 +132,7 @@ def make_vec_env(
     fusion_kwargs: dict[str, Any] | None = None,
     **options: Any,
 ) -> VecEnv:
-    """Build the SB3 vec env of ``n_envs`` copies of the named map (see DESIGN section 7).
+    """Build the SB3 vec env of ``n_envs`` copies of the named map (docs/design.md, "Public names").
 
     ``fusion`` is ``"sendfuse"`` (the paper's; provided by sb3-coma through the ``uav_ipp.fusion``
     entry point), ``"mean"`` (the ablation's naive average) or ``"none"`` (the raw observation,

@@ -175,6 +175,8 @@ class WorkerCore:
             return observations, venv.reset_infos
         if cmd == "seed":
             return list(venv.seed(data))
+        if cmd == "mission_stride":
+            return venv.set_mission_stride(data)
         if cmd == "get_attr":
             return venv.get_attr(data[0], indices=data[1])
         if cmd == "set_attr":
@@ -564,6 +566,7 @@ class WorkerVecEnv(VecEnv):
         if seed is None:
             seed = int(np.random.randint(0, 2**31 - 1))
         seeds = self._call_all("seed", [int(seed) + first for first in self._first_copy])
+        self._call_all("mission_stride", [self.n_copies] * self.n_workers)
         return [s for worker_seeds in seeds for s in worker_seeds]
 
     def close(self) -> None:

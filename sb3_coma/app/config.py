@@ -38,6 +38,7 @@ from sb3_coma.coma import COMA
 from sb3_coma.coma.plugins import plugin_policies
 from sb3_coma.coma.validation import check_total_timesteps
 from sb3_coma.common.checkpoints import folder_write_problem
+from sb3_coma.common.evaluation import PROTOCOLS
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 from uav_ipp import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
 
@@ -814,7 +815,14 @@ def make_training_env(
     copies on the config's ``workers`` (or ``workers``) processes."""
     copies = n_envs or cfg.n_envs
     layout = resolve_workers(cfg.entry.get("workers", 1), copies) if workers is None else workers
-    env = make_vec_env_from_kwargs(cfg.env_id, cfg.env_kwargs, copies, seed, layout, cfg.backend)
+    return _wrapped_vec_env(cfg, cfg.env_kwargs, copies, seed, layout)
+
+
+def _wrapped_vec_env(
+    cfg: TrainConfig, env_kwargs: Mapping[str, Any], copies: int, seed: int | None, workers: int
+) -> VecEnv:
+    """``uav_ipp.make_vec_env`` of ``env_kwargs`` inside the config's ``vec_env_wrapper`` entries."""
+    env = make_vec_env_from_kwargs(cfg.env_id, env_kwargs, copies, seed, workers, cfg.backend)
     try:
         for wrapper, wkwargs in named_objects(cfg.entry.get("vec_env_wrapper"), "vec_env_wrapper"):
             env = construct(wrapper, wkwargs, "vec_env_wrapper", env)
@@ -822,6 +830,23 @@ def make_training_env(
         env.close()
         raise
     return env
+
+
+def make_validation_env(cfg: TrainConfig, missions: int, seed: int) -> VecEnv:
+    """The vec env a run's checkpoints are validated on: the config's env flying the validation
+    protocol's missions (``sb3_coma.common.evaluation``: mission ``seed + k`` of the train split,
+    every train scene in turn), in one process; a config on the paper's fixed mission (a user's
+    map) has no scenes to visit and flies its own env with the validation seeds."""
+    options = dict(cfg.env_kwargs)
+    if options.get("split", "paper") == "train":
+        options.update(PROTOCOLS["validation"].env_options())
+    return _wrapped_vec_env(cfg, options, eval_copies(missions), seed, 1)
+
+
+def eval_copies(missions: int) -> int:
+    """Env copies for an evaluation of ``missions`` missions: a divisor of it (every copy flies the
+    same number), at most 5, so one forward pass acts for several missions."""
+    return next(c for c in (5, 4, 3, 2, 1) if missions % c == 0)
 
 
 def plain(value: Any) -> Any:

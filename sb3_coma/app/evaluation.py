@@ -363,11 +363,11 @@ def planner_options(policy_or_name: Any, config: Any, planner_kwargs: Mapping[st
 
 
 def _protocol_options(
-    protocol: str | None, n_trials: int | None, env_options: dict[str, Any]
-) -> tuple[str | None, int, dict[str, Any]]:
-    """(protocol name, missions, env options) after applying a protocol's rules."""
+    protocol: str | None, n_trials: int | None, seed: int | None, env: Any, env_options: dict[str, Any]
+) -> tuple[str | None, int, int, dict[str, Any]]:
+    """(protocol name, missions, first seed, env options) after applying a protocol's rules."""
     if protocol is None:
-        return None, DEFAULT_TRIALS if n_trials is None else n_trials, env_options
+        return None, DEFAULT_TRIALS if n_trials is None else n_trials, 0 if seed is None else seed, env_options
     proto = protocol_of(protocol)
     fixed = proto.env_options()
     for key, value in fixed.items():
@@ -376,14 +376,15 @@ def _protocol_options(
                 f"protocol {proto.name!r} flies {key}={value!r}; got {key}={env_options[key]!r} "
                 f"(drop protocol= to choose the missions yourself)"
             )
-    return proto.name, proto.n_trials if n_trials is None else n_trials, {**env_options, **fixed}
+    missions = proto.missions(str(env)) if n_trials is None else n_trials
+    return proto.name, missions, proto.first_seed if seed is None else seed, {**env_options, **fixed}
 
 
 def evaluate(
     policy_or_name: Any,
     env: str = "env3",
     n_trials: int | None = None,
-    seed: int = 0,
+    seed: int | None = None,
     fusion: str | None = None,
     deterministic: bool | None = None,
     n_envs: int | None = None,
@@ -402,7 +403,8 @@ def evaluate(
     :param env: map name or gymnasium id
     :param n_trials: missions; trial ``k`` uses env seed ``seed + k`` (default: the protocol's
         count, 10 without a protocol)
-    :param seed: base seed (env and the planner's own random stream)
+    :param seed: base seed (env and the planner's own random stream; default: the protocol's
+        first seed, :data:`~sb3_coma.common.evaluation.VALIDATION_SEED` for ``"validation"``, else 0)
     :param fusion: ``"mean"`` or ``"sendfuse"``; ``None``: ``"sendfuse"`` for models (the paper's
         method), ``"mean"`` for baselines (they do not read the fused channel)
     :param deterministic: passed to the model's ``predict``; ``None``: what a shipped model's
@@ -414,8 +416,8 @@ def evaluate(
     :param label: method name in tables (default: the baseline name, model file stem or "coma")
     :param planner_kwargs: options of the baseline (e.g. ``{"altitude": 5.0}`` for the lawnmower,
         ``{"lookahead": 2}`` for AG; AG's ``weighting`` defaults to the map family's, see module docstring)
-    :param protocol: ``"paper"`` or ``"unseen"`` (:data:`PROTOCOLS`): sets ``split`` / ``start`` and
-        the default ``n_trials``; ``None``: the env options as given
+    :param protocol: ``"paper"``, ``"unseen"`` or ``"validation"`` (:data:`PROTOCOLS`): sets
+        ``split`` / ``start``, the default ``n_trials`` and ``seed``; ``None``: the env options as given
     :param env_options: environment options (``noise``, ``n_uavs``, ``budget``, ``map_path``,
         ``valuable``, ...)
     :param workers: processes that fly the batches of ``n_envs`` missions side by side (``"auto"``:
@@ -424,7 +426,7 @@ def evaluate(
         COMA models fly on workers; other objects (a planner, a bare policy) in this process
     """
     given = dict(env_options)
-    protocol, n_trials, env_options = _protocol_options(protocol, n_trials, dict(env_options))
+    protocol, n_trials, seed, env_options = _protocol_options(protocol, n_trials, seed, env, dict(env_options))
     n_trials = _check_int("n_trials", n_trials, 1)
     check_policy(policy_or_name)
     n_envs = EVAL_BATCH if n_envs is None else _check_int("n_envs", n_envs, 1)

@@ -15,12 +15,18 @@ Besides the paper's metrics on the global map (``f1``, ``entropy``), every resul
 team metrics on each UAV's own local belief M_i, averaged over UAVs (``team_f1``,
 ``team_entropy``: what the team knows without a ground station), read at the same steps.
 
-Two protocols (``protocol=``, :data:`PROTOCOLS`):
+Three protocols (``protocol=``, :data:`PROTOCOLS`), one per role of the missions:
 
 * ``"paper"``: the paper's Table I: ``split="paper"`` (the fixed map and start corners), 10
-  seeded trials;
+  seeded trials (reporting);
 * ``"unseen"``: 50 missions on ``split="test"`` (scenes / stars never trained on, each with one of
-  8 flips / rotations) with random starts.
+  8 flips / rotations) with random starts (reporting only: no choice is made on them);
+* ``"validation"``: the missions every choice is made on (checkpoints, seeds, recipes, observation
+  versions, AG's weighting): train scenes with env seeds from :data:`VALIDATION_SEED` (apart from
+  the training runs' seeds and the reporting protocols' 0..49), random starts, and
+  ``mission_from_seed`` so that seed ``s`` flies mission ``s`` of the split: consecutive seeds
+  visit every train scene in turn, :data:`MISSIONS_PER_SCENE` times each
+  (:func:`validation_missions`).
 
 Either way trial ``k`` uses env seed ``seed + k`` for every method, so two results of one protocol
 are shared missions and ``sb3_coma.common.paired`` compares them mission by mission.
@@ -49,7 +55,7 @@ import torch as th
 
 from sb3_coma.baselines import Planner
 from sb3_coma.common.memory import release_freed_memory
-from uav_ipp.maps import TRANSFORMS
+from uav_ipp.maps import TRANSFORMS, split_scenes
 
 #: Budget fractions of the paper's Table I and their column labels.
 FRACTIONS: tuple[float, ...] = (1 / 3, 2 / 3, 1.0)
@@ -71,9 +77,34 @@ class Protocol:
     start: str | None
     n_trials: int
     description: str
+    first_seed: int = 0
+    mission_from_seed: bool = False
 
     def env_options(self) -> dict[str, Any]:
-        return {"split": self.split, **({} if self.start is None else {"start": self.start})}
+        options: dict[str, Any] = {"split": self.split}
+        if self.start is not None:
+            options["start"] = self.start
+        if self.mission_from_seed:
+            options["mission_from_seed"] = True
+        return options
+
+    def missions(self, env: str) -> int:
+        """The protocol's default mission count on map ``env`` (validation: every train scene equally)."""
+        return validation_missions(env) if self.name == "validation" else self.n_trials
+
+
+#: First env seed of the validation missions: apart from the reporting protocols' seeds (0..49)
+#: and from the seeds training runs reset their copies with (the run's seed plus the copy index).
+VALIDATION_SEED = 1000
+#: Validation missions per train scene (at least 4, so that no scene's luck decides a choice).
+MISSIONS_PER_SCENE = 4
+
+
+def validation_missions(env: str) -> int:
+    """Validation missions of map family ``env``: :data:`MISSIONS_PER_SCENE` per train scene
+    (env2: 9 scenes, 36 missions; env3: 12 scenes, 48); env1's stars are all distinct, 48 of them."""
+    scenes = split_scenes(env, "train") if env in ("env2", "env3") else ()
+    return MISSIONS_PER_SCENE * (len(scenes) or 12)
 
 
 #: ``evaluate(..., protocol=NAME)``: the paper's Table I and the unseen missions (module docstring).
@@ -87,6 +118,16 @@ PROTOCOLS: dict[str, Protocol] = {
         "random",
         50,
         "unseen missions: split `test` (held-out scenes / stars, each in one of 8 flips / rotations), random starts",
+    ),
+    "validation": Protocol(
+        "validation",
+        "train",
+        "random",
+        48,
+        "validation missions: split `train`, env seeds from 1000, every train scene in turn (4 missions each), "
+        "random starts",
+        first_seed=VALIDATION_SEED,
+        mission_from_seed=True,
     ),
 }
 #: Missions when neither ``n_trials`` nor a protocol says otherwise (Table I's count).

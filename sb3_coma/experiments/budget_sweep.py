@@ -1,10 +1,11 @@
-"""Budget sweep of the unseen protocol: where does learning pay?
+"""Budget sweep: where does learning pay?
 
     python -m sb3_coma.experiments.budget_sweep --env env3 --budgets 10,15,30 --missions 32
-    python -m sb3_coma.experiments.budget_sweep --env env1 --budgets 15 --missions 50 --noise loud
+    python -m sb3_coma.experiments.budget_sweep --env env1 --budgets 15 --split test --missions 50 --noise loud
 
-Flies the map's shipped COMA model, AG and AG with look-ahead 3 on the same unseen missions
-(``split="test"``, random starts) at each budget, and prints one Markdown table: final F1 and
+Flies the map's shipped COMA model, AG and AG with look-ahead 3 on the same missions at each
+budget (``--split``: the validation missions by default; ``--split test`` flies the unseen test
+scenes, for reporting only), and prints one Markdown table: final F1 and
 entropy per method and budget, and the paired differences COMA - AG and COMA - AG-k3 with
 scene-clustered standard errors and verdicts (Holm over the whole table, docs/statistics.md).
 The shipped models were trained with a budget of 15: at 10 and 30 they fly a world they were not
@@ -19,6 +20,7 @@ import warnings
 from typing import Any
 
 from sb3_coma.app.evaluation import evaluate, parallel_evaluation
+from sb3_coma.app.roles import add_split_argument, protocol_for_split
 from sb3_coma.common.evaluation import EvaluationResult
 from sb3_coma.common.paired import PairedDifference, holm_adjust, paired_difference
 
@@ -29,11 +31,16 @@ BASELINES: tuple[tuple[str, str, dict[str, Any]], ...] = (("ag", "ag", {}), ("ag
 
 
 def sweep(
-    env: str, budgets: list[int], missions: int, seed: int, noise: str = "moderate"
+    env: str,
+    budgets: list[int],
+    missions: int | None,
+    seed: int | None,
+    noise: str = "moderate",
+    protocol: str = "validation",
 ) -> dict[int, dict[str, EvaluationResult]]:
-    """Every method at every budget on the same unseen missions."""
+    """Every method at every budget on the same missions of ``protocol``."""
     out: dict[int, dict[str, EvaluationResult]] = {}
-    common: dict[str, Any] = {"env": env, "protocol": "unseen", "n_trials": missions, "seed": seed, "record": 0}
+    common: dict[str, Any] = {"env": env, "protocol": protocol, "n_trials": missions, "seed": seed, "record": 0}
     common["noise"] = noise
     for budget in budgets:
         with warnings.catch_warnings():
@@ -72,8 +79,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="env3")
     parser.add_argument("--budgets", default="10,15,30", help="comma-separated budgets (decisions per UAV)")
-    parser.add_argument("--missions", type=int, default=32, help="unseen missions per method and budget")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--missions", type=int, default=None, help="missions per method and budget (default: the protocol's)"
+    )
+    parser.add_argument("--seed", type=int, default=None, help="first env seed (default: the protocol's)")
+    add_split_argument(parser)
     parser.add_argument("--noise", default="moderate", help="channel noise of every mission (none, moderate, loud)")
     parser.add_argument(
         "--workers",
@@ -85,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     budgets = [int(b) for b in args.budgets.split(",")]
     with parallel_evaluation(args.eval_workers):
-        print(table(sweep(args.env, budgets, args.missions, args.seed, args.noise)))
+        protocol = protocol_for_split(args.split)
+        print(table(sweep(args.env, budgets, args.missions, args.seed, args.noise, protocol)))
     return 0
 
 

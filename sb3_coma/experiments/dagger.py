@@ -9,8 +9,8 @@ and settings as ``sb3-coma train``), clones the oracle into its actor with
 :func:`sb3_coma.uav.imitation.clone_teacher` (or loads a clone with ``--from``), optionally
 fine-tunes it with COMA for ``--finetune`` joint steps under a KL pull toward the clone that
 decays to zero over the first half (``kl_coef=--kl``), then flies the model, AG and the oracle on
-the same ``--missions-eval`` unseen missions (``split="test"``, random starts) and prints the
-paired verdicts (scene-clustered t test, Holm over the table). Writes ``clone.zip`` or
+the same ``--missions-eval`` missions (``--split``: the validation missions by default, on which
+recipes are chosen; ``--split test`` reports only) and prints the paired verdicts (scene-clustered t test, Holm over the table). Writes ``clone.zip`` or
 ``finetuned.zip`` and ``report.json`` into ``--out``.
 """
 
@@ -26,6 +26,7 @@ from typing import Any
 import torch as th
 
 from sb3_coma.app.evaluation import evaluate
+from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
 from sb3_coma.app.training import build_model, make_training_env, plan_run, record_env_options
 from sb3_coma.app.warm_start import actor_frozen_then
 from sb3_coma.baselines import make_planner
@@ -57,7 +58,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default=0.0,
         help="fraction of the fine-tuning during which only the critic learns (actor learning rate 0)",
     )
-    parser.add_argument("--missions-eval", type=int, default=32, help="unseen missions of the comparison")
+    parser.add_argument(
+        "--missions-eval", type=int, default=None, help="missions of the comparison (default: the protocol's)"
+    )
+    add_split_argument(parser)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--observation", choices=("v2", "v3"), default=None, help="env option observation (default: the config's)"
@@ -79,15 +83,18 @@ def _clone(args: argparse.Namespace, plan: Any, venv: Any) -> tuple[COMA, dict[s
     return model, {"dagger_rounds": report.rounds, "dagger_s": round(time.perf_counter() - tic, 1)}
 
 
-def _compare(path: Path, env: str, missions: int) -> dict[str, Any]:
-    """The model, AG and the oracle on the same unseen missions; paired verdicts against AG."""
+def _compare(path: Path, env: str, missions: int | None, split: str) -> dict[str, Any]:
+    """The model, AG and the oracle on the same missions of ``split``; paired verdicts against AG."""
+    protocol = protocol_for_split(split)
     results = {
-        name: evaluate(name, env=env, protocol="unseen", n_trials=missions, record=0)
+        name: evaluate(name, env=env, protocol=protocol, n_trials=missions, record=0)
         for name in (str(path), "ag", "oracle")
     }
     finals = {name: {m: float(getattr(r, m)[:, -1].mean()) for m in ("f1", "entropy")} for name, r in results.items()}
     diffs = holm_adjust([paired_difference(results[str(path)], results["ag"], m) for m in ("f1", "entropy")])
-    return {"finals": finals, "vs_ag": [{k: v for k, v in d.as_dict().items() if k != "per_scene"} for d in diffs]}
+    note = {"note": TEST_SPLIT_NOTE} if split == "test" else {}
+    verdicts = [{k: v for k, v in d.as_dict().items() if k != "per_scene"} for d in diffs]
+    return {"protocol": protocol, **note, "missions": results["ag"].n_trials, "finals": finals, "vs_ag": verdicts}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -111,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
         record["finetune_s"], name = round(time.perf_counter() - tic, 1), "finetuned.zip"
     model.save(out / name)
     venv.close()
-    record.update(vars(args), comparison=_compare(out / name, args.env, args.missions_eval))
+    record.update(vars(args), comparison=_compare(out / name, args.env, args.missions_eval, args.split))
     (out / "report.json").write_text(json.dumps(record, indent=2) + "\n")
     print(json.dumps(record["comparison"], indent=2))
     return 0

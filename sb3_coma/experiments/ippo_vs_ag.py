@@ -1,4 +1,4 @@
-"""COMA, IPPO or MAPPO (SB3 PPO, parameter sharing) against AG and random on unseen missions.
+"""COMA, IPPO or MAPPO (SB3 PPO, parameter sharing) against AG and random on shared missions.
 
 What it measures: how well one learner, trained for a given number of missions, plans on
 missions it never saw, next to AG and random on the very same missions (paired differences),
@@ -14,7 +14,8 @@ COMA uses its library defaults (the paper's actor: 8 local channels, no gain ter
 Trains on ``split="train"`` (env1: random stars, random starts) with one torch thread (``--threads``;
 with more, set ``OMP_WAIT_POLICY=PASSIVE`` in the shell on a shared machine: torch reads it when
 it loads, before this module runs), then flies the trained model (argmax actions), AG and random
-on the same ``--eval-missions`` seeded missions of ``split="test"`` (trial k = env seed
+on the same ``--eval-missions`` seeded missions of ``--split`` (the validation missions by
+default; ``--split test``, the unseen test scenes, reports only; trial k = env seed
 ``eval_seed + k`` for every method, ``sb3_coma.evaluate``) and prints final F1 / entropy (global
 map) and team F1 / entropy (the UAVs' own beliefs) as mean +- std over the missions, and the
 paired differences model - AG and model - random +- standard error (``sb3_coma.common.paired``).
@@ -24,7 +25,8 @@ of the repository).
 
 Selection is the one every shipped COMA model gets (``sb3-coma train --eval-freq 3000
 --eval-missions 10``): every ``--val-freq`` joint steps the model flies ``--val-missions``
-validation missions (split train, env seeds 1000+, the same missions each time), the best becomes
+validation missions (the validation protocol's: split train, env seeds 1000+, every train scene
+equally, the same missions each time), the best becomes
 ``best_model.zip`` (with ``eval/evaluations.npz``) and is the model compared; several seeds are
 then compared with ``python -m sb3_coma.experiments.learners_paired``, which keeps each learner's
 best seed by the same score. ``--workers`` steps the env copies in worker processes (same
@@ -49,10 +51,13 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import uav_ipp
 from sb3_coma import COMA, evaluate
-from sb3_coma.app.training import VALIDATION_SEED, eval_copies
+from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
+from sb3_coma.app.training import eval_copies
 from sb3_coma.common.callbacks import MissionEvalCallback
+from sb3_coma.common.evaluation import PROTOCOLS, VALIDATION_SEED, validation_missions
 from sb3_coma.common.marl_baselines import make_ippo, make_mappo, missions_of, timesteps_for_missions
 from sb3_coma.common.paired import paired_difference
+from uav_ipp import DEFAULT_MAP
 
 __all__ = ["METRICS", "Curve", "main", "parse_args"]
 
@@ -108,7 +113,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     """The command-line options (module docstring)."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--algo", default="ippo", choices=["ippo", "mappo", "coma"])
-    p.add_argument("--env", default="env1")
+    p.add_argument("--env", default=DEFAULT_MAP)
     p.add_argument("--missions", type=int, default=1000, help="training missions (SB3 timesteps / (n_uavs * budget))")
     p.add_argument("--n-envs", type=int, default=8, help="env copies (vec-env rows = n_envs * n_uavs)")
     p.add_argument("--uavs", type=int, default=4)
@@ -123,7 +128,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="the actor also reads the on-board action_gain as inputs (COMA, IPPO and MAPPO alike)",
     )
     p.add_argument("--seed", type=int, default=0, help="training seed (PPO and the training env)")
-    p.add_argument("--eval-missions", type=int, default=20, help="test missions of the comparison (0: none)")
+    p.add_argument(
+        "--eval-missions", type=int, default=None, help="missions of the comparison (default: the protocol's; 0: none)"
+    )
+    add_split_argument(p)
     p.add_argument(
         "--val-freq",
         type=int,
@@ -131,17 +139,23 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="joint steps between validations (split train, env seeds 1000+, as `sb3-coma train --eval-freq`); "
         "the best one is best_model.zip and is the model compared (0: none, the last model)",
     )
-    p.add_argument("--val-missions", type=int, default=10, help="missions per validation")
+    p.add_argument(
+        "--val-missions", type=int, default=None, help="missions per validation (default: 4 per train scene)"
+    )
     p.add_argument("--workers", type=int, default=1, help="worker processes stepping the env copies")
-    p.add_argument("--eval-seed", type=int, default=0, help="trial k of every method flies env seed eval_seed + k")
+    p.add_argument(
+        "--eval-seed", type=int, default=None, help="trial k flies env seed eval_seed + k (default: the protocol's)"
+    )
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--out", default="/tmp/marl_baselines")
     args = p.parse_args(argv)
+    if args.val_missions is None:
+        args.val_missions = validation_missions(args.env)
     for name in ("missions", "n_envs", "uavs", "budget", "val_missions", "workers", "threads"):
         if getattr(args, name) < 1:
             p.error(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 1")
     for name in ("eval_missions", "val_freq"):
-        if getattr(args, name) < 0:
+        if (getattr(args, name) or 0) < 0:
             p.error(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 0")
     if args.workers > args.n_envs:
         p.error(f"--workers {args.workers}: more worker processes than env copies ({args.n_envs})")
@@ -176,7 +190,10 @@ def _validation(args: argparse.Namespace, out: Path, train_options: dict[str, An
     from env seed ``VALIDATION_SEED`` (the same each time) every ``--val-freq`` joint steps; the
     best checkpoint becomes ``out/best_model.zip``."""
     val_env = uav_ipp.make_vec_env(
-        args.env, n_envs=eval_copies(args.val_missions), seed=VALIDATION_SEED, **train_options
+        args.env,
+        n_envs=eval_copies(args.val_missions),
+        seed=VALIDATION_SEED,
+        **{**train_options, **PROTOCOLS["validation"].env_options()},
     )
     return MissionEvalCallback(
         val_env,
@@ -223,10 +240,11 @@ def _train(args: argparse.Namespace, out: Path) -> tuple[BaseAlgorithm, dict[str
 
 
 def _compare(args: argparse.Namespace, model: BaseAlgorithm, report: dict[str, Any]) -> str:
-    """Fly the model, AG and random on the same test missions; fill ``report``, return the table."""
+    """Fly the model, AG and random on the same missions of ``--split``; fill ``report``, return the table."""
     options = _env_options(args)
+    protocol = protocol_for_split(args.split)
     eval_options = dict(
-        env=args.env, n_trials=args.eval_missions, seed=args.eval_seed, fusion=args.fusion, split="test", **options
+        env=args.env, n_trials=args.eval_missions, seed=args.eval_seed, fusion=args.fusion, protocol=protocol, **options
     )
     results = {
         args.algo: evaluate(model, deterministic=True, label=args.algo, **eval_options),
@@ -240,7 +258,7 @@ def _compare(args: argparse.Namespace, model: BaseAlgorithm, report: dict[str, A
         lines.append(f"| {name} | " + " | ".join(fmt(finals[m]) for m in METRICS) + " |")
     lines += [
         "",
-        f"| paired ({args.eval_missions} missions) | " + " | ".join(METRICS) + " |",
+        f"| paired ({results['ag'].n_trials} missions) | " + " | ".join(METRICS) + " |",
         "| --- | --- | --- | --- | --- |",
     ]
     for other in ("ag", "random"):
@@ -267,12 +285,13 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         "methods": {},
         "paired": [],
     }
-    if args.eval_missions < 1:
+    if args.eval_missions is not None and args.eval_missions < 1:
         (out / "report.json").write_text(json.dumps(report, indent=2))
         return report
     table = _compare(args, model, report)
     print(
-        f"\nfinal step ({args.budget}) on {args.eval_missions} missions of split=test, mean ± std over missions; "
+        f"\nfinal step ({args.budget}) on the {args.split} missions"
+        f"{' (' + TEST_SPLIT_NOTE + ')' if args.split == 'test' else ''}, mean ± std over missions; "
         f"paired: mean difference ± standard error\n\n{table}"
     )
     report["table"] = table

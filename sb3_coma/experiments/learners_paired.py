@@ -1,12 +1,14 @@
-"""Learned planners against each other (and AG, AG-k3) on the same unseen missions, each the
+"""Learned planners against each other (and AG, AG-k3) on the same missions, each the
 validation's choice among its seeds: scene-clustered paired verdicts, Holm-corrected.
 
 What it measures: whether one learner (e.g. COMA) beats another (IPPO, MAPPO) or the greedy
-planners on shared unseen missions (``protocol="unseen"``: ``split="test"``, random starts), with
-every learner selected by the same rule, and how much its seeds spread.
+planners on shared missions, with every learner selected by the same rule, and how much its seeds
+spread. It flies the validation missions by default (``--split validation``: a comparison that
+may choose); the reported verdicts fly the test scenes with ``--split test`` (the ``"unseen"`` protocol:
+random starts; the output says "test split: reporting only").
 
-    python -m sb3_coma.experiments.learners_paired --env env3 --missions 50 --fusion sendfuse \\
-        --out docs/LEARNERS.md \\
+    python -m sb3_coma.experiments.learners_paired --env env3 --split test --missions 50 --fusion sendfuse \\
+        --out docs/learners/shipped_env3.md \\
         coma=shipped:env3-sendfuse-cbam,runs/coma_s0,runs/coma_s2 \\
         ippo=runs/ippo_env3_s0,runs/ippo_env3_s1,runs/ippo_env3_s2 mappo=runs/mappo_env3_s0,...
 
@@ -43,8 +45,10 @@ from stable_baselines3 import PPO
 import sb3_coma.common.marl_baselines  # noqa: F401  (the IPPO / MAPPO policy classes PPO.load needs)
 from sb3_coma import COMA, evaluate
 from sb3_coma.app import pretrained as pt
+from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
 from sb3_coma.common.paired import PairedDifference, paired_difference, paired_markdown
 from sb3_coma.experiments.ship_models import run_command, validation_best, validation_return
+from uav_ipp import DEFAULT_MAP
 
 __all__ = ["METRICS", "Candidate", "Learner", "load", "main", "parse_learner", "select", "validation_score"]
 
@@ -194,10 +198,17 @@ def comparisons(learners: Sequence[Learner], greedy: dict[str, Any]) -> list[Pai
     return [paired_difference(first, other, m) for other in others for m in METRICS]
 
 
-def report_markdown(env: str, missions: int, fusion: str, learners: Sequence[Learner], greedy: dict[str, Any]) -> str:
+def report_markdown(
+    env: str, missions: int, fusion: str, learners: Sequence[Learner], greedy: dict[str, Any], split: str = "test"
+) -> str:
     """The three tables: learners (selected + seed spread), every seed, the paired verdicts."""
+    flown = (
+        "shared unseen missions (split test, random starts; " + TEST_SPLIT_NOTE + ")"
+        if split == "test"
+        else "shared validation missions (train scenes, env seeds 1000+, every scene equally, random starts)"
+    )
     return (
-        f"{env}, {missions} shared unseen missions (split test, random starts), moderate noise, fusion {fusion}, "
+        f"{env}, {missions} {flown}, moderate noise, fusion {fusion}, "
         "final step of the budget, argmax actions. Each learner's row is its best seed on the validation "
         "missions (split train, env seeds 1000+); the test missions chose nothing.\n\n"
         + _learner_rows(learners)
@@ -220,9 +231,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "learners", nargs="+", help="label=CANDIDATE[,CANDIDATE...]; the first is compared with the rest"
     )
-    parser.add_argument("--env", default="env1")
-    parser.add_argument("--missions", type=int, default=50)
+    parser.add_argument("--env", default=DEFAULT_MAP)
+    parser.add_argument("--missions", type=int, default=None, help="missions (default: the protocol's)")
     parser.add_argument("--fusion", default="mean", choices=["mean", "sendfuse"])
+    add_split_argument(parser)
     parser.add_argument("--out", help="also write the tables to this Markdown file")
     args = parser.parse_args(argv)
     try:
@@ -231,11 +243,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"learners_paired: {exc}", file=sys.stderr)
         return 2
     th.set_num_threads(1)
-    options = dict(env=args.env, n_trials=args.missions, seed=0, fusion=args.fusion, protocol="unseen")
+    protocol = protocol_for_split(args.split)
+    options = dict(env=args.env, n_trials=args.missions, fusion=args.fusion, protocol=protocol)
     for lrn in learners:
         _fly(lrn, options)
     greedy = {label: evaluate("ag", label=label, planner_kwargs=kw, **options) for label, kw in GREEDY}
-    text = report_markdown(args.env, args.missions, args.fusion, learners, greedy)
+    missions = next(iter(greedy.values())).n_trials
+    text = report_markdown(args.env, missions, args.fusion, learners, greedy, args.split)
     print(text)
     if args.out:
         command = "python -m sb3_coma.experiments.learners_paired " + " ".join(

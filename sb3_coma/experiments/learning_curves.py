@@ -76,6 +76,7 @@ from sb3_coma.app.evaluation import planner_options
 from sb3_coma.app.runs import CONFIG_FILE, TENSORBOARD_DIR, read_run_config
 from sb3_coma.app.training import VALIDATION_SEED, eval_copies
 from sb3_coma.baselines import make_planner
+from sb3_coma.common.evaluation import PROTOCOLS
 
 __all__ = [
     "BASELINES",
@@ -247,6 +248,8 @@ def read_run(run: str | Path, eval_seed: int | None = None) -> RunCurve:
     steps, missions = _evaluations(run, n_agents)
     scalars = _tensorboard_scalars(run, list(TAGS.values()))
     env_kwargs = {k: v for k, v in cfg.env_kwargs.items() if k not in ("fusion", "fusion_kwargs")}
+    if cfg.run.get("validation_protocol") == "validation" and env_kwargs.get("split", "paper") == "train":
+        env_kwargs.update(PROTOCOLS["validation"].env_options())  # as make_validation_env built it
     validation = Validation(
         env_id=cfg.env_id,
         options_json=json.dumps(plain(env_kwargs), sort_keys=True),

@@ -75,16 +75,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--trials",
         type=int,
         default=None,
-        help="missions per method (default 10; with --protocol the protocol's: paper 10, unseen 50)",
+        help="missions per method (default 10; with --protocol the protocol's: paper 10, unseen 50, "
+        "validation 4 per train scene)",
     )
     parser.add_argument(
         "--protocol",
         default=None,
-        choices=("paper", "unseen"),
-        help="the missions: 'paper' (split paper, Table I) or 'unseen' (split test, random starts); "
+        choices=("paper", "unseen", "validation"),
+        help="the missions: 'paper' (split paper, Table I), 'unseen' (split test, random starts; reporting "
+        "only) or 'validation' (train scenes, every scene equally, seeds from 1000: for choices); "
         "default: the env options as given (split paper)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="base seed: trial k uses SEED+k (default 0)")
+    parser.add_argument(
+        "--seed", type=int, default=None, help="base seed: trial k uses SEED+k (default 0; validation 1000)"
+    )
     parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
     parser.add_argument("--map-path", default=None, help="your own map image (with --valuable)")
@@ -158,10 +162,24 @@ def _env_names(args: argparse.Namespace) -> list[str]:
     return map_list(args.env)
 
 
+def _trials(args: argparse.Namespace, env_name: str) -> int:
+    """Missions per method on ``env_name``: ``--trials``, else the protocol's count for that map."""
+    from sb3_coma.app import evaluation as ev
+
+    return int(args.trials) if args.trials is not None else ev.PROTOCOLS[args.protocol].missions(env_name)
+
+
+def _trials_text(args: argparse.Namespace, env_names: list[str]) -> str:
+    counts = sorted({_trials(args, name) for name in env_names})
+    return (
+        f"{counts[0]} trials" if len(counts) == 1 else f"{'/'.join(map(str, counts))} trials ({', '.join(env_names)})"
+    )
+
+
 def _check_args(args: argparse.Namespace) -> None:
 
     for flag, value, low in (
-        ("--trials", args.trials, 1),
+        ("--trials", 1 if args.trials is None else args.trials, 1),
         ("--seed", args.seed, 0),
         ("--agents-per-episode", args.agents_per_episode, 1),
     ):
@@ -215,8 +233,10 @@ def run(args: argparse.Namespace) -> int:
     from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
 
     set_threads(args.threads)
-    if args.trials is None:
-        args.trials = ev.PROTOCOLS[args.protocol].n_trials if args.protocol else ev.DEFAULT_TRIALS
+    if args.seed is None:
+        args.seed = ev.PROTOCOLS[args.protocol].first_seed if args.protocol else 0
+    if args.trials is None and not args.protocol:
+        args.trials = ev.DEFAULT_TRIALS
     _check_args(args)
     methods = _methods(args)
     env_names = _env_names(args)
@@ -261,7 +281,8 @@ def _fly_and_write(
     for env_name in env_names:
         for label, method in methods:
             print(
-                f"evaluating {label or method} on {env_name} ({args.trials} trials, noise {args.noise}) ...", flush=True
+                f"evaluating {label or method} on {env_name} ({_trials(args, env_name)} trials, noise {args.noise}) ...",
+                flush=True,
             )
             fusion = args.fusion if ev.is_model(method) else None
             try:
@@ -269,7 +290,7 @@ def _fly_and_write(
                     ev.evaluate(
                         method,
                         env=env_name,
-                        n_trials=args.trials,
+                        n_trials=_trials(args, env_name),
                         seed=args.seed,
                         fusion=fusion,
                         n_envs=args.n_envs,
@@ -289,8 +310,8 @@ def _fly_and_write(
     markdown = tables.table_markdown(rows)
     timing = tables.planning_time_markdown(rows)
     (out / "table.md").write_text(
-        f"F1-score and entropy at 33/67/100 % of the budget, mean ± std over {args.trials} trials "
-        f"(seeds {args.seed}..{args.seed + args.trials - 1}), noise {args.noise}"
+        f"F1-score and entropy at 33/67/100 % of the budget, mean ± std over {_trials_text(args, env_names)} "
+        f"(env seeds from {args.seed}), noise {args.noise}"
         f"{f', protocol {args.protocol}' if args.protocol else ''}; best in bold.\n\n{markdown}\n"
         f"Team metrics (each UAV's own map):\n\n{tables.table_markdown(rows, metrics='team')}"
     )
