@@ -27,13 +27,13 @@ from typing import Any
 
 import torch as th
 
-from sb3_coma.app.config import TrainingError, env_options_of, load_config
 from sb3_coma.coma import COMA
 from sb3_coma.common.shipped import SHIPPED_DIR, sha256_of
 from uav_ipp import WORLD_VERSION
 
 __all__ = [
     "MANIFEST",
+    "WARM_START_TITLE",
     "PretrainedError",
     "available",
     "is_shipped",
@@ -51,6 +51,9 @@ __all__ = [
 
 #: File name of the manifest inside the pretrained folder.
 MANIFEST = "models.json"
+#: What a shipped model warm-started from the oracle is called in every generated table and text:
+#: its COMA training fine-tunes a behaviour clone of a clairvoyant teacher (docs/training.md).
+WARM_START_TITLE = "COMA (oracle warm start)"
 
 
 class PretrainedError(ValueError):
@@ -96,14 +99,16 @@ def save_for_shipping(model: Any, file: str, directory: str | os.PathLike[str] |
     """Save ``model`` as ``file`` in the shipped folder in compact form and return its manifest
     fields ``file``, ``sha256``, ``size_bytes``.
 
-    Compact: no Adam moments (only needed to continue training), no target critic (loading makes
-    it a copy of the critic, as after a synchronisation), weights in half precision (loading casts
-    them back to float32), deflate-compressed. That turns ~10.8 MB into ~1.4 MB; the argmax actions
+    Compact: no Adam moments and no KL reference actor of a warm start (only needed to continue
+    training), no target critic (loading makes it a copy of the critic, as after a
+    synchronisation), weights in half precision (loading casts them back to float32),
+    deflate-compressed. That turns ~10.8 MB into ~1.4 MB; the argmax actions
     are checked against the full-precision model by ``tests/test_pretrained.py``.
     """
     path = Path(directory or pretrained_dir()) / file
     model.policy.optimizer.state.clear()
     model.policy.critic_optimizer.state.clear()
+    model.reference_actor = None
     model.save(path)
     _compact_policy(path)
     return {"file": file, "sha256": sha256_file(path), "size_bytes": path.stat().st_size}
@@ -250,15 +255,6 @@ def shipped_env_options(name: str, directory: str | os.PathLike[str] | None = No
 def _manifest_env_options(info: dict[str, Any]) -> dict[str, Any] | None:
     """The env options a shipped model was trained with: the manifest's ``env_options`` (the
     model's own record, copied there when it was shipped, so a later change of the config cannot
-    change how it is flown); for an entry without them, its env and fusion with the options of
-    the config variant it names; ``None`` without that config."""
-    if isinstance(info.get("env_options"), dict):
-        return dict(info["env_options"])
-    try:
-        cfg = load_config(env=str(info["env"]), variant=info.get("variant"))
-    except (KeyError, TrainingError):
-        return None
-    env_kwargs = cfg.env_kwargs
-    if "fusion" in info:
-        env_kwargs["fusion"] = info["fusion"]
-    return env_options_of(cfg.map_name, env_kwargs)
+    change how it is flown); ``None`` for an entry without them."""
+    options = info.get("env_options")
+    return dict(options) if isinstance(options, dict) else None

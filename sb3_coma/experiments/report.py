@@ -8,10 +8,11 @@ Holm-corrected per table (``sb3_coma.common.paired``, docs/statistics.md), and n
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from sb3_coma.app.pretrained import WARM_START_TITLE
 from sb3_coma.common.paired import NO_VERDICT, PairedDifference, p_text, paired_markdown
 from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, VALIDATION_SPLIT
 
@@ -42,8 +43,25 @@ RULE = (
 )
 
 
-def _name(label: str) -> str:
-    return _NAMES.get(label, label)
+#: The title of the map's own model when it was warm-started from the oracle: the RL part is a
+#: fine-tuning of a behaviour clone, and every generated sentence and table says so.
+WARM_TITLE = WARM_START_TITLE
+
+
+def _name(label: str, titles: Mapping[str, str] | None = None) -> str:
+    return (titles or {}).get(label) or _NAMES.get(label, label)
+
+
+def teacher_missions(info: Mapping[str, Any]) -> int:
+    """Teacher-labelled missions a model saw before COMA (its DAgger warm start: rounds x missions)."""
+    spec = info.get("warm_start") or {}
+    return int(spec.get("rounds", 0) or 0) * int(spec.get("missions", 0) or 0) if isinstance(spec, Mapping) else 0
+
+
+def model_titles(run: Any) -> dict[str, str]:
+    """``{"coma": WARM_TITLE}`` when every map's own model was warm-started, else nothing."""
+    warm = [teacher_missions(src.info) > 0 for src in run.sources.values()]
+    return {"coma": WARM_TITLE} if warm and all(warm) else {}
 
 
 def _dict_cell(d: dict[str, Any]) -> str:
@@ -55,11 +73,11 @@ def _dict_cell(d: dict[str, Any]) -> str:
     return f"{d['diff']:+.4f} ± {se:.4f}, p {p_text(float(d.get('p_holm', d.get('p_value', 'nan'))))} ({d['verdict']})"
 
 
-def _verdict_word(d: PairedDifference) -> str:
+def _verdict_word(d: PairedDifference, titles: Mapping[str, str] | None = None) -> str:
     """The verdict in words: "AG better", "tie" or "no verdict" (one scene)."""
     if d.verdict == NO_VERDICT:
         return "no verdict"
-    return "tie" if d.winner is None else f"{_name(d.winner)} better"
+    return "tie" if d.winner is None else f"{_name(d.winner, titles)} better"
 
 
 def _has_verdicts(result: Any) -> bool:
@@ -156,10 +174,10 @@ _FAMILIES = {"global": ("f1", "entropy"), "team": ("team_f1", "team_entropy")}
 _PROTOCOL_NAMES = {"paper": "Table I", "unseen": "unseen missions"}
 
 
-def _short(c: Any, family: str) -> str:
+def _short(c: Any, family: str, titles: Mapping[str, str] | None = None) -> str:
     """What a comparison's two paired differences of one family say: "AG better on both",
     "tie on both", "F1 tie, entropy AG better", "no verdict on both" (one scene)."""
-    wf, we = (_verdict_word(c.diffs[m]) for m in _FAMILIES[family])
+    wf, we = (_verdict_word(c.diffs[m], titles) for m in _FAMILIES[family])
     return f"{wf} on both" if wf == we else f"F1 {wf}, entropy {we}"
 
 
@@ -228,16 +246,16 @@ def lookahead_sentence(results: Sequence[Any]) -> str:
     )
 
 
-def model_sentence(results: Sequence[Any], label: str) -> str:
+def model_sentence(results: Sequence[Any], label: str, titles: Mapping[str, str] | None = None) -> str:
     """A learned model's own rows vs AG, per protocol and map."""
     by_protocol: dict[str, list[str]] = {}
     for p, env, c in _cells(results, label, "ag"):
-        glob, team = _short(c, "global"), _short(c, "team")
+        glob, team = _short(c, "global", titles), _short(c, "team", titles)
         by_protocol.setdefault(p, []).append(f"{env} {glob}" + ("" if team == glob else f" (team metrics: {team})"))
     if not by_protocol:
         return ""
     return (
-        f"{_name(label)} vs AG: "
+        f"{_name(label, titles)} vs AG: "
         + "; ".join(f"{_PROTOCOL_NAMES.get(p, p)}: {', '.join(v)}" for p, v in by_protocol.items())
         + "."
     )
@@ -280,8 +298,9 @@ def readme_paragraph(run: Any) -> str:
     parts += [baseline_sentence(results), lookahead_sentence(results)]
     learned = list(dict.fromkeys(a for r in results for a, b in key_pairs(r) if b == "ag" and not a.startswith("ag")))
     outdated = sorted({m.note for ms in run.methods.values() for m in ms if m.learned and m.note})
+    titles = model_titles(run)
     for label in learned:
-        parts.append(model_sentence(results, label))
+        parts.append(model_sentence(results, label, titles))
     if outdated and learned:
         parts.append(
             "The COMA rows are the shipped models, which are outdated on this world ("
@@ -326,17 +345,19 @@ def _models_section(run: Any) -> list[str]:
     lines = [
         "## Models",
         "",
-        "| Env | method | source | fusion | actions | status | joint steps | training wall-clock (s) | retrain "
-        "command |",
-        "| --- | --- | --- | --- | --- | --- | ---: | ---: | --- |",
+        "| Env | method | source | fusion | actions | status | teacher-labelled missions | COMA joint steps | "
+        "training wall-clock (s) | retrain command |",
+        "| --- | --- | --- | --- | --- | --- | ---: | ---: | ---: | --- |",
     ]
     for env, src in run.sources.items():
         wall = "n/a" if src.train_wall_s is None else f"{float(src.train_wall_s):.1f}"
         acts = "argmax" if src.deterministic else "sampled (seeded)"
         note = next((m.note for m in run.methods.get(env, []) if m.label == "coma"), "")
+        taught = teacher_missions(src.info)
         lines.append(
-            f"| {env} | coma | {src.source if src.source == 'shipped' else 'trained by this run'} | "
-            f"{src.fusion} | {acts} | {note or 'current'} | {src.timesteps} | {wall} | `{src.command}` |"
+            f"| {env} | {WARM_TITLE if taught else 'coma'} | "
+            f"{src.source if src.source == 'shipped' else 'trained by this run'} | "
+            f"{src.fusion} | {acts} | {note or 'current'} | {taught} | {src.timesteps} | {wall} | `{src.command}` |"
         )
         for m in run.methods.get(env, []):
             if m.learned and m.label != "coma":
@@ -344,11 +365,11 @@ def _models_section(run: Any) -> list[str]:
                 lines.append(
                     f"| {env} | {m.label} | shipped | {m.fusion} | "
                     f"{'argmax' if m.deterministic in (None, True) else 'sampled (seeded)'} | "
-                    f"{m.note or 'current'} | {info.get('timesteps', 'n/a')} | "
+                    f"{m.note or 'current'} | {teacher_missions(info)} | {info.get('timesteps', 'n/a')} | "
                     f"{info.get('train_wall_s', 'n/a')} | `{info.get('command', '')}` |"
                 )
     if len(lines) == 4:
-        lines.append("| (none) | | | | | baseline rows only | | | |")
+        lines.append("| (none) | | | | | baseline rows only | | | | |")
     learned = {m.kind for ms in run.methods.values() for m in ms if m.learned}
     missing = [k.upper() for k in ("ippo", "mappo") if k not in learned]
     lines += [
@@ -470,6 +491,14 @@ def _protocol_section(result: Any, title: str, extra: Sequence[str] = (), scenes
     ]
 
 
+#: Said under Table I: its env2 / env3 map is the paper's scene, which our splits count as a train scene.
+TABLE_I_CAVEAT = (
+    "Caveat: Table I's env2 and env3 map is the paper's scene, which is a *train* scene of the splits the "
+    "models learn on (the shipped scene is never a test scene), and env1's paper star is one layout: these "
+    "rows compare with the paper, they are not an unseen test; the unseen protocol below is."
+)
+
+
 def _acceptance_verdict(acc: dict[str, dict[str, Any]]) -> str:
     """The bold line under the acceptance table: beats every baseline, does not, or (one scene per
     map, every paired verdict "no verdict") cannot be told on Table I's missions."""
@@ -494,6 +523,8 @@ def _paper_section(run: Any) -> list[str]:
         run.paper,
         "Table I (paper protocol)",
         [
+            TABLE_I_CAVEAT,
+            "",
             "### Acceptance: COMA vs every baseline at 100 % of the budget (paired)",
             "",
             acceptance_markdown(acc),
