@@ -263,3 +263,48 @@ def test_plain_names_are_accepted(tmp_path, monkeypatch):
     for name in ("runs/my-run", "runs/a.b", "runs/./x", "results/run1/"):
         check_run_dir(name)
     assert outputs.folder_name_problem("results/run.1") is None
+
+
+def test_a_second_writer_of_one_out_is_refused_up_front(tmp_path: Path) -> None:
+    """One writer per --out (#36): a command whose --out another process is writing stops before
+    any work, naming that process; the first one's results land untouched."""
+    import subprocess
+    import sys
+    import textwrap
+
+    target = tmp_path / "results"
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            textwrap.dedent(
+                f"""
+                import sys
+                from sb3_coma.common.outputs import staged_output
+                with staged_output({str(target)!r}, command="evaluate") as out:
+                    (out / "table.md").write_text("first")
+                    print("ready", flush=True)
+                    sys.stdin.readline()
+                """
+            ),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "ready"
+        refused = rf"--out .*results is being written by pid {holder.pid}"
+        with pytest.raises(OutputFolderError, match=refused), staged_output(target, command="evaluate") as out:
+            (out / "table.md").write_text("second")
+    finally:
+        assert holder.stdin is not None
+        holder.stdin.write("\n")
+        holder.stdin.close()
+        holder.wait(timeout=60)
+    assert holder.returncode == 0
+    assert (target / "table.md").read_text() == "first"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results"]  # the lock file went with its writer
+    with staged_output(target, command="evaluate") as out:  # free again
+        (out / "table.md").write_text("third")
+    assert (target / "table.md").read_text() == "third"

@@ -235,6 +235,49 @@ def lock_holder(folder: str | os.PathLike[str], name: str = LOCK_FILE) -> LockHo
 
 
 # =========================================================================== staged outputs
+class _TargetLock:
+    """One writer per ``--out``: an exclusive lock on ``.<name>.sb3-coma.lock`` beside the target,
+    held while a staged output is written and committed, so a second command given the same
+    ``--out`` is refused up front instead of replacing the first one's results as it commits.
+    The lock file is removed on release; a process that opened it just before then finds its
+    inode unlinked and counts the target as busy (no two holders)."""
+
+    def __init__(self, final: Path, shown: str | os.PathLike[str]) -> None:
+        self.lock: FolderLock | None = FolderLock(final.parent, f".{final.name}.sb3-coma.lock")
+        self.shown = shown
+
+    def __enter__(self) -> _TargetLock:
+        if self.lock is None:
+            return self
+        try:
+            self.lock.folder.mkdir(parents=True, exist_ok=True)
+            self.lock.acquire()
+        except FolderInUseError as exc:
+            raise OutputFolderError(
+                f"--out {self.shown} is being written by {exc.holder.describe()}; wait for it to finish or "
+                "choose another --out"
+            ) from None
+        except OSError:  # a parent that takes no files (read-only around a mounted --out): no lock there
+            self.lock = None
+            return self
+        fd = self.lock._fd
+        try:
+            same = fd is not None and os.fstat(fd).st_ino == os.stat(self.lock.path).st_ino
+        except FileNotFoundError:
+            same = False
+        if not same:  # the holder removed the file as it finished: count it as busy, once more later
+            self.lock.release()
+            raise OutputFolderError(f"--out {self.shown} was being written a moment ago; run the command again")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.lock is None:
+            return
+        with contextlib.suppress(OSError):
+            self.lock.path.unlink()
+        self.lock.release()
+
+
 class OutputFolderError(ValueError):
     """An ``--out`` that cannot take the output: a file, the current folder (or one holding it), a
     name sb3-coma does not make folders under, a folder holding files sb3-coma did not write, or a
@@ -875,6 +918,12 @@ def staged_output(
     """
     del own  # see above: kept so that callers need not change
     final = _checked_target(target, command)
+    with _TargetLock(final, target):
+        yield from _staged(final, target, command, say)
+
+
+def _staged(final: Path, target: str | os.PathLike[str], command: str, say: Callable[[str], None]) -> Iterator[Path]:
+    """:func:`staged_output` once ``final`` is this process's to write (:class:`_TargetLock`)."""
     _clean_stale(final, say)
     token = secrets.token_hex(8)
     staging = _make_staging(final)
