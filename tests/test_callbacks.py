@@ -15,6 +15,7 @@ from sb3_coma.common.callbacks import (
     EpisodeMetricsCallback,
     JointCheckpointCallback,
     MissionEvalCallback,
+    ProgressLinesCallback,
     StopOnTargetCallback,
     truncate_metrics_csv,
 )
@@ -179,6 +180,27 @@ def test_stop_on_target():
     assert not never.reached and model.num_timesteps == 12
     with pytest.raises(ValueError, match="metric"):
         StopOnTargetCallback("loss", 1.0)
+
+
+def test_progress_lines_say_steps_elapsed_and_time_left(capsys):
+    """A quiet run says how far it is every quarter (``every=0.25``), then once at the end: joint
+    steps (2 copies: 2 per step), elapsed time and the rate so far applied to the steps left."""
+    model = make_model(make_env())  # 6 joint steps per rollout
+    ticks = iter(range(0, 1000, 5))  # the clock advances 5 s at each reading
+    progress = ProgressLinesCallback(every=0.25, label="training env1", clock=lambda: float(next(ticks)))
+    model.learn(24, callback=progress)
+    assert capsys.readouterr().out.splitlines() == [
+        "training env1: 6/24 joint steps (25 %), 5 s elapsed, about 15 s left",
+        "training env1: 12/24 joint steps (50 %), 10 s elapsed, about 10 s left",
+        "training env1: 18/24 joint steps (75 %), 15 s elapsed, about 5 s left",
+        "training env1: done at 24/24 joint steps after 20 s",
+    ]
+    lines: list[str] = []  # a continued run counts from where it is, to learn's new total
+    model.learn(12, callback=ProgressLinesCallback(every=0.5, log=lines.append), reset_num_timesteps=False)
+    assert [line.split(" joint")[0] for line in lines] == ["training: 30/36", "training: done at 36/36"]
+    assert capsys.readouterr().out == ""
+    with pytest.raises(ValueError, match="every"):
+        ProgressLinesCallback(every=0)
 
 
 class _Partial:

@@ -117,6 +117,19 @@ def test_reproduce_quick_train(tmp_path):
     ] == "sb3-coma reproduce --train --quick"
 
 
+def test_reproduce_training_says_how_far_it_is(tmp_path):
+    """--train runs quiet (verbose 0, no bar): its training still says, every tenth of the run,
+    the joint steps done, the time elapsed and an estimate of the time left, then when it ends."""
+    from sb3_coma.experiments.reproduce import QUICK_TIMESTEPS, _train_model
+
+    lines: list[str] = []
+    _train_model("env1", "mean", tmp_path, True, None, lines.append)
+    progress = [line for line in lines if line.startswith("  training env1: ")]
+    assert len(progress) >= 5 and any(line.startswith("  Run folder: ") for line in lines), lines
+    assert all("elapsed, about" in line and "left" in line for line in progress[:-1]), progress
+    assert progress[-1].startswith(f"  training env1: done at {QUICK_TIMESTEPS}/{QUICK_TIMESTEPS} joint steps after")
+
+
 def test_fusion_latency_is_measured_for_both_fusions():
     from sb3_coma.experiments.reproduce import _time_fusion
 

@@ -12,6 +12,8 @@ so a mission is read once, from the row of its first agent.
 * :class:`StopOnTargetCallback` - stop when the windowed mean of a mission metric crosses a target
   (e.g. final entropy below 0.25);
 * :class:`SignalStopCallback` - turn SIGINT / SIGTERM into a clean stop at the next step;
+* :class:`ProgressLinesCallback` - a plain line every tenth of the run (joint steps, elapsed,
+  estimate left), for runs without a progress bar whose output goes to a log;
 * :class:`MissionEvalCallback` - SB3's ``EvalCallback`` counting missions, logging F1 and entropy.
 """
 
@@ -26,7 +28,7 @@ import signal
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -481,6 +483,85 @@ class SignalStopCallback(BaseCallback):
 
     def _on_training_end(self) -> None:
         self.restore()
+
+
+# --------------------------------------------------------------------------- progress lines
+def _duration(seconds: float) -> str:
+    """``42 s``, ``3 min 05 s``, ``1 h 02 min``: short enough for a log line, exact enough to plan by."""
+    seconds = max(0, round(seconds))
+    if seconds < 60:
+        return f"{seconds} s"
+    minutes, sec = divmod(seconds, 60)
+    if minutes < 60:
+        return f"{minutes} min {sec:02d} s"
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours} h {minutes:02d} min"
+
+
+class ProgressLinesCallback(BaseCallback):
+    """Say how far training is, one line every ``every`` of the run: joint steps done / total,
+    time elapsed and an estimate of the time left; and a last line when training ends.
+
+    A run with ``verbose=0`` and no progress bar (``sb3-coma reproduce --train``, whose output
+    often goes to a log file) is otherwise silent for as long as it trains; tqdm's bar redraws
+    one line with carriage returns, which a log file keeps as one unreadable line. The estimate
+    is the rate so far (validations included) applied to the steps left.
+
+    :param every: fraction of the run between lines, in (0, 1] (default 0.1: ten lines)
+    :param label: what the line starts with (e.g. ``"training env3"``)
+    :param log: where the lines go (default: ``print`` with a flush, so a log file shows them
+        as they come)
+    :param clock: seconds, monotonic (tests pass a fake)
+    """
+
+    def __init__(
+        self,
+        every: float = 0.1,
+        label: str = "training",
+        log: Callable[[str], None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(verbose)
+        if not (isinstance(every, (int, float)) and 0 < every <= 1):
+            raise ValueError(f"every must be a fraction in (0, 1], got {every!r}")
+        self.every = float(every)
+        self.label = label
+        self.log = log or (lambda line: print(line, flush=True))
+        self.clock = clock
+        self.lines: list[str] = []
+
+    def _on_training_start(self) -> None:
+        # learn() counts its total from the steps already done when it continues a run
+        self._first = int(self.model.num_timesteps)
+        self._total = int(self.model._total_timesteps)
+        self._tic = self.clock()
+        self._said = 0  # tenths (units of ``every``) already reported
+
+    def _say(self, text: str) -> None:
+        line = f"{self.label}: {text}"
+        self.lines.append(line)
+        self.log(line)
+
+    def _on_step(self) -> bool:
+        span = max(self._total - self._first, 1)
+        done = int(self.num_timesteps) - self._first
+        reached = int(done / span / self.every + 1e-9)  # whole units of ``every`` done
+        if reached > self._said and done < span:  # the end has its own line
+            self._said = reached
+            elapsed = self.clock() - self._tic
+            left = elapsed / done * (span - done)  # done > 0: a unit of ``every`` was reached
+            self._say(
+                f"{self.num_timesteps}/{self._total} joint steps ({100 * done / span:.0f} %), "
+                f"{_duration(elapsed)} elapsed, about {_duration(left)} left"
+            )
+        return True
+
+    def _on_training_end(self) -> None:
+        elapsed = _duration(self.clock() - self._tic)
+        finished = self.num_timesteps >= self._total
+        what = "done" if finished else "stopped"
+        self._say(f"{what} at {self.num_timesteps}/{self._total} joint steps after {elapsed}")
 
 
 # --------------------------------------------------------------------------- evaluation

@@ -56,6 +56,7 @@ from sb3_coma.app.pretrained import PretrainedError
 from sb3_coma.app.training import train
 from sb3_coma.baselines.adaptive_gain import default_weighting
 from sb3_coma.common import tables
+from sb3_coma.common.callbacks import ProgressLinesCallback
 from sb3_coma.common.outputs import staged_output
 from sb3_coma.common.paired import holm_adjust, paired_difference, paired_markdown
 from sb3_coma.experiments import ablation as ab
@@ -453,6 +454,13 @@ def _train_model(
     if run_dir.exists():
         shutil.rmtree(run_dir)
     log(f"training COMA on {env} (fusion {fusion}{', quick' if quick else ''}) ...")
+
+    def indented(line: str) -> None:
+        log(f"  {line}")
+
+    # Training runs with verbose 0 and no bar; its own lines (run folder, each warm-start round)
+    # and a line every tenth of the COMA run keep a long job from looking stuck.
+    progress = ProgressLinesCallback(every=0.1, label=f"training {env}", log=indented)
     tic = time.perf_counter()
     _, run_path = train(
         env=env,
@@ -463,6 +471,8 @@ def _train_model(
         overrides=overrides or None,
         progress_bar=False,
         verbose=0,
+        log=indented,
+        callbacks=[progress],
         handle_signals=False,
         save_freq=10**9,
         eval_freq=0 if quick else TRAIN_EVAL_FREQ,

@@ -271,6 +271,7 @@ def run(args: argparse.Namespace) -> int:
             ablation=not args.no_ablation,
             costs=not args.no_costs,
             baselines_only=args.baselines_only,
+            log=lambda line: print(line, flush=True),  # a log file shows each step as it comes
             **counts,
         )
     except ValueError as exc:  # unknown/missing/corrupt shipped model, bad env options, an --out it cannot replace
