@@ -238,7 +238,9 @@ def _normalise(img: np.ndarray, path: str) -> np.ndarray:
         return img.astype(np.float32) / 65535.0
     out = img.astype(np.float32)
     if not np.isfinite(out).all():
-        raise MapError(f"map_path {path!r} contains NaN or infinite pixel values")
+        raise MapError(
+            f"map_path {path!r} contains NaN or infinite pixel values (a NoData mark? save it as an alpha channel: transparent pixels are left out of the map)"
+        )
     if np.issubdtype(img.dtype, np.floating) and out.min() >= 0.0 and out.max() <= 1.0:
         return out
     # signed integers or floats outside [0, 1] (e.g. a float32 TIFF of temperatures): stretch
