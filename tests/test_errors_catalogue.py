@@ -1442,6 +1442,20 @@ CASES: list[Case | CliCase] = [
         None,
     ),
     Case(
+        "model-resume-warm-start-without-reference",
+        MF,
+        'train(resume=<a COMA zip without a KL reference>, env="env1", config=<an entry with warm_start>)',
+        lambda f: _train(
+            f,
+            resume=f.coma_zip,
+            env="env1",
+            config=f.config("warm.yml", {ENV_ID: {**TINY[ENV_ID], "warm_start": {"rounds": 1, "missions": 2}}}),
+        ),
+        TrainingError,
+        ("coma_2uavs.zip", "no KL reference actor"),
+        "start a new run",
+    ),
+    Case(
         "model-resume-not-a-run",
         MF,
         'train(resume="<tmp>/maps")  # a folder without config.yml',

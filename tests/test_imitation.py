@@ -80,6 +80,36 @@ def test_kl_weight_decays_to_zero_and_is_off_without_a_reference():
     assert model._kl_weight() == 0.0
 
 
+def _same_weights(a: th.nn.Module, b: th.nn.Module) -> bool:
+    return all(th.equal(p, q) for p, q in zip(a.state_dict().values(), b.state_dict().values()))
+
+
+def test_the_kl_reference_and_the_actor_hold_are_saved_with_the_model(tmp_path):
+    """Both are the recipe of a warm-started run: a model loaded to continue training keeps them (#35)."""
+    model = _model(kl_coef=1.0)
+    model.set_reference_actor()
+    with th.no_grad():
+        for p in model.policy.actor.parameters():
+            p.add_(0.1)  # the actor moves on, the reference stays
+    model.hold_actor(0.25)
+    model.save(tmp_path / "m.zip")
+    loaded = COMA.load(tmp_path / "m.zip", device="cpu")
+    assert loaded.reference_actor is not None and not any(p.requires_grad for p in loaded.reference_actor.parameters())
+    assert _same_weights(loaded.reference_actor, model.reference_actor)
+    assert not _same_weights(loaded.reference_actor, loaded.policy.actor)
+    assert loaded.critic_warmup == 0.25 and loaded.lr_schedule(0.8) == 0.0 and loaded.lr_schedule(0.7) == 3e-4
+    loaded._current_progress_remaining = 1.0
+    assert loaded._kl_weight() == 1.0
+    plain = _model()
+    plain.save(tmp_path / "plain.zip")
+    again = COMA.load(tmp_path / "plain.zip", device="cpu")
+    assert again.reference_actor is None and again.critic_warmup == 0.0
+    plain.set_parameters(str(tmp_path / "m.zip"))  # parameters with a reference give the model one
+    assert plain.reference_actor is not None and _same_weights(plain.reference_actor, model.reference_actor)
+    with pytest.raises(ValueError, match=r"critic_warmup=1\.0"):
+        model.hold_actor(1.0)
+
+
 def test_kl_pull_keeps_the_fine_tuned_actor_near_its_reference():
     def divergence(kl_coef: float) -> float:
         """Mean KL(reference || fine-tuned) over the last rollout's states."""

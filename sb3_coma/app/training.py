@@ -22,6 +22,7 @@ import math
 import os
 import sys
 import traceback
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +38,7 @@ from sb3_coma.app.config import (
     WARM_START_KEY,
     TrainConfig,
     TrainingError,
+    check_warm_start,
     coma_kwargs,
     construct,
     env_options_of,
@@ -59,9 +61,10 @@ from sb3_coma.app.runs import (
     newest_model,
     read_run_config,
     resolve_resume,
+    run_folder_of,
     write_run_config,
 )
-from sb3_coma.app.warm_start import warm_start_run
+from sb3_coma.app.warm_start import WARM_START_MODEL, warm_start_run
 from sb3_coma.coma import COMA
 from sb3_coma.coma.validation import check_device as validation_check_device
 from sb3_coma.common.callbacks import (
@@ -435,13 +438,47 @@ def _assertion_site(exc: BaseException) -> str:
     return f"AssertionError{where}" + (f": {text}" if text else "")
 
 
+def _restore_recipe(model: COMA, plan: RunPlan) -> None:
+    """Make sure a resumed warm-started run trains the same recipe: its checkpoint restores the KL
+    reference actor and the actor's hold (``COMA.load``). A checkpoint saved before they were saved
+    takes them from where they are still known, the run's ``warm_start.zip`` (the clone, which was
+    the reference) and the config's ``critic_warmup``, with a warning; without that file the resume
+    is refused, since it would train without the pull and the hold.
+
+    :raises TrainingError: a warm-started run's checkpoint without a reference, and no clone
+    """
+    spec = plan.cfg.entry.get(WARM_START_KEY)
+    if not spec or model.reference_actor is not None:
+        return
+    assert plan.resume_model is not None
+    folder = run_folder_of(plan.resume_model)
+    clone = folder / WARM_START_MODEL if folder is not None else None
+    if clone is None or not clone.is_file():
+        raise TrainingError(
+            f"--resume {plan.resume_model}: the checkpoint of this warm-started run holds no KL reference actor "
+            f"(saved by an older sb3-coma) and no {WARM_START_MODEL} of its run is there to take it from; resuming "
+            "would train without the KL pull and the actor's hold, another recipe: start a new run"
+        )
+    warnings.warn(
+        f"{plan.resume_model} holds no KL reference actor (saved by an older sb3-coma): the reference is taken "
+        f"from {clone} and the actor's hold from critic_warmup in config.yml",
+        stacklevel=2,
+    )
+    model.set_reference_actor()  # a frozen actor of the right shape, given the clone's weights
+    assert model.reference_actor is not None
+    model.reference_actor.load_state_dict(load_checkpoint(clone, device=model.device).policy.actor.state_dict())
+    model.hold_actor(float(check_warm_start(spec, plan.cfg.where)["critic_warmup"]))
+
+
 def build_model(plan: RunPlan, venv: VecEnv, device: str = "auto", verbose: int = 0) -> COMA:
-    """A new COMA model from the config, or the resumed checkpoint on the new env; either way it
-    records the env options it trains with (:func:`record_env_options`)."""
+    """A new COMA model from the config, or the resumed checkpoint on the new env (with its KL
+    reference and actor hold, :func:`_restore_recipe`); either way it records the env options it
+    trains with (:func:`record_env_options`)."""
     if plan.resume_model is not None:
         model = load_checkpoint(
             plan.resume_model, env=venv, device=device, tensorboard_log=None, verbose=verbose, seed=plan.seed
         )
+        _restore_recipe(model, plan)
     else:
         try:
             model = COMA(

@@ -12,10 +12,11 @@ Before ``learn()``, a new run clones the teacher into the actor
 (:func:`sb3_coma.uav.imitation.clone_teacher`) on copies of its own training world kept in this
 process (the oracle reads each copy's ground truth and global belief at every step), stores the
 clone as the KL reference (``COMA.set_reference_actor``), and holds the actor's learning rate at
-0 for the first ``critic_warmup`` of training: the critic is new to this policy, and advantages
-from an untrained critic would undo the clone before the pull can hold it. The clone and the
-DAgger record go into the run folder (``warm_start.zip``, ``warm_start.json``). A resumed run
-skips all of this: its checkpoint already holds the trained actor.
+0 for the first ``critic_warmup`` of training (``COMA.hold_actor``): the critic is new to this
+policy, and advantages from an untrained critic would undo the clone before the pull can hold it.
+Both are saved with the model (every checkpoint), so a resumed run keeps the same recipe. The
+clone and the DAgger record go into the run folder (``warm_start.zip``, ``warm_start.json``). A
+resumed run skips all of this: its checkpoint already holds the trained actor.
 """
 
 from __future__ import annotations
@@ -31,18 +32,13 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_coma.app.config import WARM_START_KEY, TrainConfig, check_warm_start, make_training_env
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma import COMA
+from sb3_coma.coma.coma import actor_frozen_then
 from sb3_coma.uav.imitation import clone_teacher
 
-__all__ = ["actor_frozen_then", "warm_start", "warm_start_run"]
+__all__ = ["WARM_START_MODEL", "actor_frozen_then", "warm_start", "warm_start_run"]
 
-
-def actor_frozen_then(schedule: Callable[[float], float], fraction: float) -> Callable[[float], float]:
-    """The actor's learning rate: 0 over the first ``fraction`` of ``learn()``, then ``schedule``."""
-
-    def rate(progress_remaining: float) -> float:
-        return 0.0 if progress_remaining > 1.0 - fraction else float(schedule(progress_remaining))
-
-    return rate
+#: The clone (with its KL reference and the actor's hold): a COMA model at 0 joint steps.
+WARM_START_MODEL = "warm_start.zip"
 
 
 def warm_start(
@@ -79,9 +75,8 @@ def warm_start(
         if training_env is not None:
             model.set_env(training_env)
     model.set_reference_actor()
-    if spec["critic_warmup"] > 0:
-        model.lr_schedule = actor_frozen_then(model.lr_schedule, float(spec["critic_warmup"]))
-    model.save(out_dir / "warm_start.zip")
+    model.hold_actor(float(spec["critic_warmup"]))
+    model.save(out_dir / WARM_START_MODEL)
     record = {**spec, "seconds": round(time.perf_counter() - tic, 1), "agreement": report.agreement}
     record["rounds_record"] = report.rounds
     (out_dir / "warm_start.json").write_text(json.dumps(record, indent=2) + "\n")

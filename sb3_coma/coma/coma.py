@@ -48,6 +48,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import HumanOutputFormat, Logger
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import (
     FloatSchedule,
@@ -85,13 +86,22 @@ SelfCOMA = TypeVar("SelfCOMA", bound="COMA")
 #: Steps per env copy per rollout when ``n_steps`` is not given (256 joint steps with 8 copies).
 DEFAULT_ROLLOUT_STEPS = 32
 
-__all__ = ["ADVANTAGES", "COMA"]
+__all__ = ["ADVANTAGES", "COMA", "actor_frozen_then"]
 
 #: Format of the models this version saves (see ``coma_format``).
 COMA_FORMAT = 2
 
 #: Joint steps per forward pass when the target critic scores a whole rollout (bounds memory).
 _SCORING_CHUNK = 1024
+
+
+def actor_frozen_then(schedule: Schedule, fraction: float) -> Schedule:
+    """The actor's learning rate: 0 over the first ``fraction`` of ``learn()``, then ``schedule``."""
+
+    def rate(progress_remaining: float) -> float:
+        return 0.0 if progress_remaining > 1.0 - fraction else float(schedule(progress_remaining))
+
+    return rate
 
 
 class COMA(OnPolicyAlgorithm):
@@ -134,6 +144,11 @@ class COMA(OnPolicyAlgorithm):
     :param seed: seed for torch, numpy, python and the env
     :param device: torch device
     :param _init_setup_model: build networks now (SB3's ``load`` passes ``False``)
+
+    ``reference_actor`` (``set_reference_actor``) and ``critic_warmup`` (``hold_actor``) are part
+    of the training recipe and saved with the model (``reference_actor.pth``, a ``data`` field), so
+    a model loaded to continue training pulls toward the same reference and holds the actor over
+    the same fraction of the run as the one that was saved.
 
     ``env_options`` (``None`` until a trainer sets it, saved with the model): the env the model
     was trained on (the UAV world's trainer records its map and options there;
@@ -246,9 +261,13 @@ class COMA(OnPolicyAlgorithm):
 
     def _init_run_state(self) -> None:
         """What a model holds besides its hyperparameters: KL reference, env options, counters."""
-        #: A frozen copy of the actor that the KL term pulls toward (``set_reference_actor``);
-        #: not saved: the pull decays to zero within the run that set it.
+        #: A frozen copy of the actor that the KL term pulls toward (``set_reference_actor``); saved
+        #: as ``reference_actor.pth`` so that a resumed run keeps the pull (a model saved before it
+        #: was saved loads without one).
         self.reference_actor: th.nn.Module | None = None
+        #: Fraction of ``learn()`` in which the actor's learning rate is 0 (``hold_actor``); a plain
+        #: attribute, so it is saved with the model and the schedule is rebuilt on load.
+        self.critic_warmup = 0.0
         self.env_options: dict[str, Any] | None = None
         #: The saved-model format: 2 since COMA became generic (a 0.2 zip has none and names its
         #: UAV policy by the class's old home, :func:`~sb3_coma.coma.plugins.saved_policy_class`).
@@ -321,14 +340,49 @@ class COMA(OnPolicyAlgorithm):
         )
         self.policy = self.policy.to(self.device)
 
+    def _setup_lr_schedule(self) -> None:
+        """SB3's actor schedule, held at 0 over the first ``critic_warmup`` of ``learn()``: rebuilt
+        from the saved fraction on load (the schedule itself is not restored by SB3's ``load``)."""
+        super()._setup_lr_schedule()
+        if self.critic_warmup > 0.0:
+            self.lr_schedule = actor_frozen_then(self.lr_schedule, self.critic_warmup)
+
     def _excluded_save_params(self) -> list[str]:
+        # the reference is a module: saved with the networks (_get_torch_save_params), not pickled
         return [*super()._excluded_save_params(), "reference_actor"]
 
     def set_reference_actor(self) -> None:
         """Freeze a copy of the current actor (e.g. after :func:`~sb3_coma.uav.imitation.clone_teacher`)
         as the policy that ``kl_coef`` pulls the fine-tuning toward, with a weight that falls linearly
-        from ``kl_coef`` to 0 over the first ``kl_fraction`` of ``learn()``."""
+        from ``kl_coef`` to 0 over the first ``kl_fraction`` of ``learn()``. Saved with the model."""
         self.reference_actor = copy.deepcopy(self.policy.actor).requires_grad_(False).eval()
+
+    def hold_actor(self, fraction: float) -> None:
+        """Hold the actor (learning rate 0) over the first ``fraction`` of ``learn()`` while the
+        critic learns, e.g. after a warm start: advantages from an untrained critic would undo the
+        clone. Saved with the model, so a resumed run holds it over the same part of the run."""
+        if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0.0 <= fraction < 1.0:
+            raise ValueError(f"critic_warmup={fraction!r}: a number in [0, 1)")
+        self.critic_warmup = float(fraction)
+        self._setup_lr_schedule()
+
+    def set_parameters(
+        self,
+        load_path_or_dict: str | dict[str, Any],
+        exact_match: bool = True,
+        device: th.device | str = "auto",
+    ) -> None:
+        """SB3's ``set_parameters``; parameters that hold a KL reference actor (``reference_actor``)
+        give this model one first (a frozen actor of the same shape), so ``load`` restores it."""
+        params: dict[str, Any]
+        if isinstance(load_path_or_dict, dict):
+            params = load_path_or_dict
+        else:
+            _, loaded, _ = load_from_zip_file(load_path_or_dict, device=device, load_data=False)
+            params = dict(loaded or {})
+        if "reference_actor" in params and self.reference_actor is None:
+            self.set_reference_actor()  # its weights are the saved ones once loaded below
+        super().set_parameters(params, exact_match=exact_match, device=device)  # type: ignore[arg-type]
 
     def _kl_weight(self) -> float:
         """The KL term's weight now: ``kl_coef`` at the start of ``learn()``, 0 after ``kl_fraction``."""
@@ -338,8 +392,10 @@ class COMA(OnPolicyAlgorithm):
         return self.kl_coef * max(0.0, 1.0 - elapsed / self.kl_fraction)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
-        """The policy holds actor, critic and target critic; both optimizers are saved too."""
-        return ["policy", "policy.optimizer", "policy.critic_optimizer"], []
+        """The policy holds actor, critic and target critic; both optimizers are saved too, and the
+        KL reference actor when there is one (a resumed run must pull toward the same policy)."""
+        names = ["policy", "policy.optimizer", "policy.critic_optimizer"]
+        return [*names, *(["reference_actor"] if self.reference_actor is not None else [])], []
 
     # ----------------------------------------------------------- helpers
     @property

@@ -61,6 +61,7 @@ _COMA_MEMBERS = frozenset(
         "policy.pth",
         "policy.optimizer.pth",
         "policy.critic_optimizer.pth",
+        "reference_actor.pth",  # the KL reference of a warm-started run (COMA.set_reference_actor)
         "_stable_baselines3_version",
         "system_info.txt",
     }
