@@ -9,7 +9,7 @@ import torch as th
 import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.baselines import make_planner
-from sb3_coma.uav.imitation import clone_teacher
+from sb3_coma.uav.imitation import DaggerCheckpoint, DaggerInterrupted, clone_teacher
 
 SMALL = {"features_extractor_kwargs": {"features_dim": 32, "channels": [8, 16, 16]}, "gain_inputs": True}
 
@@ -108,6 +108,46 @@ def test_the_kl_reference_and_the_actor_hold_are_saved_with_the_model(tmp_path):
     assert plain.reference_actor is not None and _same_weights(plain.reference_actor, model.reference_actor)
     with pytest.raises(ValueError, match=r"critic_warmup=1\.0"):
         model.hold_actor(1.0)
+
+
+def test_dagger_stopped_and_continued_from_its_checkpoint_gives_the_same_clone(tmp_path):
+    """Stopped after round 1 (the round in progress dropped), continued from the checkpoint by a
+    fresh model: the clone, the report and the optimiser's own rate are an unbroken run's (#36)."""
+    args = {"missions_per_round": 2, "rounds": 2, "epochs": 1, "batch_size": 64, "seed": 1}
+
+    def fresh() -> COMA:
+        return _model(learning_rate=1e-5)  # its own rate, restored after cloning at 3e-4
+
+    unbroken = fresh()
+    full = clone_teacher(
+        unbroken, make_planner("oracle", unbroken.env), checkpoint=DaggerCheckpoint(tmp_path / "a"), **args
+    )
+    stopped, done = fresh(), []
+    with pytest.raises(DaggerInterrupted) as info:
+        clone_teacher(
+            stopped,
+            make_planner("oracle", stopped.env),
+            checkpoint=DaggerCheckpoint(tmp_path / "b"),
+            on_round=done.append,
+            stop=lambda: bool(done),
+            **args,
+        )
+    assert info.value.rounds_done == 1
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["round_0.npz", "state.pt"]
+    resumed = fresh()
+    report = clone_teacher(
+        resumed, make_planner("oracle", resumed.env), checkpoint=DaggerCheckpoint(tmp_path / "b"), **args
+    )
+    assert report.rounds == full.rounds
+    assert _same_weights(resumed.policy.actor, unbroken.policy.actor)
+    assert all(g["lr"] == 1e-5 for g in resumed.policy.optimizer.param_groups)
+    with pytest.raises(ValueError, match=r"other settings.*missions_per_round"):
+        clone_teacher(
+            fresh(),
+            make_planner("oracle", unbroken.env),
+            checkpoint=DaggerCheckpoint(tmp_path / "b"),
+            **{**args, "missions_per_round": 4},
+        )
 
 
 def test_kl_pull_keeps_the_fine_tuned_actor_near_its_reference():

@@ -155,3 +155,35 @@ def test_a_checkpoint_without_its_reference_takes_it_from_the_clone_or_is_refuse
     shutil.copy(checkpoint, lonely)
     with pytest.raises(TrainingError, match=r"lonely\.zip: the checkpoint of this warm-started run holds no KL"):
         train(ENV, config=config, resume=lonely, runs_root=tmp_path / "runs", **QUIET)
+
+
+# ----------------------------------------------------------------------------- #36: the warm start resumes
+def test_a_warm_start_stopped_by_sigterm_resumes_after_its_last_round_with_the_same_clone(tmp_path):
+    config = _config(tmp_path, 8, critic_warmup=0.5)
+    _, unbroken = train(ENV, config=config, seed=SEED, run_dir=tmp_path / "unbroken", **QUIET)
+
+    def stop_after_round_1(line: str) -> None:
+        if line.strip().startswith("round 1/"):
+            os.kill(os.getpid(), signal.SIGTERM)  # arrives during round 2
+
+    with pytest.raises(TrainingInterrupted) as info:
+        train(ENV, config=config, seed=SEED, run_dir=tmp_path / "run", log=stop_after_round_1, **QUIET)
+    run = info.value.run_dir
+    assert info.value.signum == signal.SIGTERM and info.value.num_timesteps == 0
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored
+    state = run / "warm_start_state"
+    assert sorted(p.name for p in state.iterdir()) == ["progress.json", "round_0.npz", "state.pt"]
+    progress = json.loads((state / "progress.json").read_text())
+    assert (progress["rounds_done"], progress["rounds"], progress["stopped_by"]) == (1, 2, "SIGTERM")
+    assert not (run / "warm_start.zip").exists() and not list(run.glob("checkpoints/*.zip"))
+
+    lines: list[str] = []
+    train(resume=run, log=lines.append, **QUIET)
+    assert any("continuing after round 1/2" in line for line in lines), lines
+    assert [line.strip()[:9] for line in lines if line.strip().startswith("round ")] == ["round 2/2"]
+    assert not state.exists()  # the clone is saved: DAgger's progress is no longer needed
+    assert _same_networks(unbroken / "warm_start.zip", run / "warm_start.zip")
+    records = [json.loads((r / "warm_start.json").read_text())["rounds_record"] for r in (unbroken, run)]
+    assert records[0] == records[1]
+    assert _same_networks(unbroken / "model.zip", run / "model.zip")
+    assert yaml.safe_load((run / "config.yml").read_text())["run"]["resumes"][0]["from"] == str(state)

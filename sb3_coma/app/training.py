@@ -52,6 +52,7 @@ from sb3_coma.app.config import (
 )
 from sb3_coma.app.runs import (
     CHECKPOINT_DIR,
+    CONFIG_FILE,
     METRICS_FILE,
     MODEL_FILE,
     TENSORBOARD_DIR,
@@ -64,7 +65,13 @@ from sb3_coma.app.runs import (
     run_folder_of,
     write_run_config,
 )
-from sb3_coma.app.warm_start import WARM_START_MODEL, warm_start_run
+from sb3_coma.app.warm_start import (
+    WARM_START_MODEL,
+    WARM_START_STATE,
+    WarmStartInterrupted,
+    warm_start_pending,
+    warm_start_run,
+)
 from sb3_coma.coma import COMA
 from sb3_coma.coma.validation import check_device as validation_check_device
 from sb3_coma.common.callbacks import (
@@ -116,7 +123,9 @@ RESUME_FREE_KEYS = ("n_timesteps",)
 
 
 class TrainingInterrupted(KeyboardInterrupt):
-    """Training stopped on SIGINT/SIGTERM after saving a checkpoint; resume from :attr:`run_dir`."""
+    """Training stopped on SIGINT/SIGTERM after saving a checkpoint (during the warm start: after
+    its last finished round, :attr:`checkpoint` its progress folder, at 0 joint steps); resume
+    from :attr:`run_dir`."""
 
     def __init__(self, run_dir: Path, checkpoint: Path, num_timesteps: int, signum: int) -> None:
         super().__init__(f"interrupted at {num_timesteps} joint steps; checkpoint {checkpoint}")
@@ -286,7 +295,7 @@ def _differences(before: Mapping[str, Any], after: Mapping[str, Any], why: str) 
     return {k: (before.get(k), after.get(k), why) for k in keys if before.get(k) != after.get(k)}
 
 
-def _resume_changes(cfg: TrainConfig, resume_model: Path, n_envs: int | None) -> dict[str, tuple[Any, Any, str]]:
+def _resume_changes(cfg: TrainConfig, resume_model: Path | None, n_envs: int | None) -> dict[str, tuple[Any, Any, str]]:
     """``{key: (the run's value, the resumed run's value, why)}`` for every setting that differs.
 
     The run's values are the copy its record took at the start (or at the last allowed change);
@@ -301,7 +310,8 @@ def _resume_changes(cfg: TrainConfig, resume_model: Path, n_envs: int | None) ->
     changes = _differences(_spread(base, cfg.map_name), now, "config.yml was edited after the run started")
     if n_envs is not None and "n_envs" in changes:
         changes["n_envs"] = (changes["n_envs"][0], n_envs, "--n-envs")
-    trained = {f"env_kwargs.{k}": v for k, v in (training_options(resume_model) or {}).items() if k != "map"}
+    saved = training_options(resume_model) if resume_model is not None else None  # None: in its warm start
+    trained = {f"env_kwargs.{k}": v for k, v in (saved or {}).items() if k != "map"}
     seen = {k: now.get(k) for k in trained}
     for key, change in _differences(trained, seen, "the checkpoint recorded another env").items():
         changes.setdefault(key, change)
@@ -353,6 +363,22 @@ def _check_not_a_fork(run_dir: Path, model: Path, fork: bool) -> bool:
     return True
 
 
+def _resolve_resume(resume: str | os.PathLike[str]) -> tuple[Path | None, Path | None]:
+    """:func:`~sb3_coma.app.runs.resolve_resume`, plus a run folder stopped before its first
+    checkpoint: ``(folder, None)`` while its warm start is unfinished (the warm start continues),
+    ``(folder, warm_start.zip)`` once the clone was saved (a COMA model at 0 joint steps that holds
+    the KL reference and the actor's hold)."""
+    p = Path(resume)
+    if p.is_dir() and (p / CONFIG_FILE).is_file():
+        if warm_start_pending(p):
+            return p, None
+        clone = p / WARM_START_MODEL
+        if clone.is_file() and newest_model(p) is None:
+            validate_checkpoint(clone)
+            return p, clone
+    return resolve_resume(resume)
+
+
 def plan_run(
     env: str | None = None,
     config: str | os.PathLike[str] | None = None,
@@ -384,7 +410,7 @@ def plan_run(
     if eval_seed is not None and not is_int(eval_seed):
         raise TrainingError(f"eval_seed must be an integer, got {eval_seed!r}")
     check_device(device)
-    resume_run, resume_model = resolve_resume(resume) if resume is not None else (None, None)
+    resume_run, resume_model = _resolve_resume(resume) if resume is not None else (None, None)
     parent = None
     if resume_run is not None and resume_model is not None and _check_not_a_fork(resume_run, resume_model, fork):
         parent, resume_run = resume_run, None  # continue the parent's recipe in a new folder
@@ -392,7 +418,6 @@ def plan_run(
     try:
         changes: dict[str, dict[str, Any]] = {}
         if resume_run is not None or parent is not None:
-            assert resume_model is not None, "resolve_resume() gives a model with a run folder"
             source = resume_run or parent
             assert source is not None
             cfg = _resumed_config(source, resume, env, config, variant, overrides)
@@ -506,7 +531,9 @@ def _run_record(plan: RunPlan) -> dict[str, Any]:
     """The ``run`` block of ``config.yml``: where the run came from (or one more resume of it)."""
     now = _dt.datetime.now().isoformat(timespec="seconds")
     if plan.resumed_in_place:
-        resume: dict[str, Any] = {"from": str(plan.resume_model), "at": plan.done_steps, "seed": plan.seed, "when": now}
+        assert plan.run_path is not None  # resumed in place
+        origin = plan.resume_model or plan.run_path / WARM_START_STATE  # none: stopped in its warm start
+        resume: dict[str, Any] = {"from": str(origin), "at": plan.done_steps, "seed": plan.seed, "when": now}
         if plan.changes:
             resume["changes"] = plan.changes
         resumes = [*list(plan.cfg.run.get("resumes") or []), resume]
@@ -628,14 +655,53 @@ def learn(
         else:
             say(f"Nothing to train: the model is at {model.num_timesteps} >= {plan.cfg.n_timesteps} joint steps")
     finally:
-        if standard.stopper is not None:
-            standard.stopper.restore()
-        standard.metrics.close()
-        if standard.evaluation is not None:
-            standard.evaluation.eval_env.close()
-        if model.env is not None:
-            model.env.close()
-        release_freed_memory()  # the training envs' maps, before whatever the process does next
+        _close_run(model, standard)
+
+
+def _close_run(model: COMA, standard: MissionCallbacks) -> None:
+    """Restore the signal handlers, close the metrics file and the envs: the end of every run,
+    however it ends (trained, stopped, failed)."""
+    if standard.stopper is not None:
+        standard.stopper.restore()
+    standard.metrics.close()
+    if standard.evaluation is not None:
+        standard.evaluation.eval_env.close()
+    if model.env is not None:
+        model.env.close()
+    release_freed_memory()  # the training envs' maps, before whatever the process does next
+
+
+def _warm_start(
+    model: COMA,
+    plan: RunPlan,
+    run_path: Path,
+    standard: MissionCallbacks,
+    say: Callable[[str], None],
+    handle_signals: bool,
+) -> None:
+    """The warm start of a new run, or the rest of one stopped during it (a resume in place without
+    a checkpoint); a signal stops it after saving its progress (:class:`TrainingInterrupted`).
+    The run's envs are closed when it does not go on to :func:`learn`."""
+    try:
+        warm_start_run(
+            model,
+            plan.cfg,
+            plan.seed,
+            run_path,
+            say,
+            resume=plan.resumed_in_place,
+            stop_on_signal=handle_signals,
+        )
+    except WarmStartInterrupted as exc:
+        _close_run(model, standard)
+        say(
+            f"Interrupted during the warm start after round {exc.rounds_done}/{exc.rounds} (progress in "
+            f"{exc.state}); resume with: sb3-coma train --resume {run_path}"
+        )
+        raise TrainingInterrupted(run_path, exc.state, 0, exc.signum) from None
+    except BaseException:
+        _close_run(model, standard)
+        raise
 
 
 def _summary(history: list[dict[str, Any]], last: int = 20) -> str:
@@ -763,7 +829,7 @@ def train(
         if plan.resume_model is not None:
             say(f"Resuming from {plan.resume_model} at {plan.done_steps} joint steps")
         elif plan.cfg.entry.get(WARM_START_KEY) is not None:
-            warm_start_run(model, plan.cfg, plan.seed, run_path, say)
+            _warm_start(model, plan, run_path, standard, say, handle_signals)
         learn(model, plan, standard, callback_list, progress_bar=progress_bar, say=say)
         save_final(model, plan, run_path, standard, say=say)
     finally:

@@ -24,9 +24,10 @@ import tempfile
 import warnings
 import zipfile
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from sb3_coma.coma import COMA
 
@@ -36,6 +37,7 @@ __all__ = [
     "CheckpointInfo",
     "DiskFullError",
     "atomic_save",
+    "atomic_write",
     "atomic_write_text",
     "checkpoint_name",
     "find_checkpoints",
@@ -123,33 +125,31 @@ def fsync_path(path: str | os.PathLike[str]) -> None:
         os.close(fd)
 
 
-def atomic_save(model: Any, path: str | os.PathLike[str], validate: bool = True) -> Path:
-    """Save an SB3 model to ``path`` atomically; return the final path.
+def atomic_write(
+    path: str | os.PathLike[str],
+    write: Callable[[BinaryIO], Any],
+    check: Callable[[Path], Any] | None = None,
+) -> Path:
+    """Write a binary file atomically; return ``path``.
 
-    The model is written to a hidden temporary file next to ``path`` (same file system, so the
-    final :func:`os.replace` is atomic), flushed and fsynced, optionally re-opened as a zip to
-    check it, then moved into place. On any error the temporary file is removed and ``path``
-    keeps its previous content; a full disk (``ENOSPC``) is raised as :class:`DiskFullError`
-    naming ``path``.
-
-    :param model: anything with SB3's ``save(file_object)``
-    :param path: destination; ``.zip`` is appended when it has no suffix (as SB3 does)
-    :param validate: re-read the written zip before replacing ``path``
+    ``write(handle)`` fills a hidden temporary file next to ``path`` (same file system, so the
+    final :func:`os.replace` is atomic), which is flushed and fsynced, optionally checked
+    (``check(temporary path)``), then moved into place. On any error the temporary file is removed
+    and ``path`` keeps its previous content; a full disk (``ENOSPC``) is raised as
+    :class:`DiskFullError` naming ``path``.
     """
     final = Path(path)
-    if final.suffix == "":
-        final = final.with_suffix(".zip")
     final.parent.mkdir(parents=True, exist_ok=True)
     existed = final.exists()
     fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
     tmp = Path(tmp_name)
     try:
         with os.fdopen(fd, "wb") as handle:
-            model.save(handle)
+            write(handle)
             handle.flush()
             os.fsync(handle.fileno())
-        if validate:
-            _check_zip(tmp, display=final)
+        if check is not None:
+            check(tmp)
         os.replace(tmp, final)
     except BaseException as exc:
         tmp.unlink(missing_ok=True)
@@ -159,6 +159,19 @@ def atomic_save(model: Any, path: str | os.PathLike[str], validate: bool = True)
         raise
     fsync_path(final.parent)
     return final
+
+
+def atomic_save(model: Any, path: str | os.PathLike[str], validate: bool = True) -> Path:
+    """Save an SB3 model to ``path`` atomically (:func:`atomic_write`); return the final path.
+
+    :param model: anything with SB3's ``save(file_object)``
+    :param path: destination; ``.zip`` is appended when it has no suffix (as SB3 does)
+    :param validate: re-read the written zip before replacing ``path``
+    """
+    final = Path(path)
+    if final.suffix == "":
+        final = final.with_suffix(".zip")
+    return atomic_write(final, model.save, (lambda tmp: _check_zip(tmp, display=final)) if validate else None)
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
