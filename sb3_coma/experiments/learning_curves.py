@@ -77,6 +77,7 @@ from sb3_coma.app.runs import CONFIG_FILE, TENSORBOARD_DIR, read_run_config
 from sb3_coma.app.training import VALIDATION_SEED, eval_copies
 from sb3_coma.baselines import make_planner
 from sb3_coma.common.evaluation import PROTOCOLS
+from sb3_coma.experiments.figure_style import method_styles
 
 __all__ = [
     "BASELINES",
@@ -90,6 +91,7 @@ __all__ = [
     "baseline_levels_cache",
     "baseline_scores",
     "build_group",
+    "draw_groups",
     "fly_validation",
     "main",
     "parse_groups",
@@ -100,13 +102,14 @@ __all__ = [
 
 #: The TensorBoard scalars ``MissionEvalCallback`` logs at each evaluation.
 TAGS: dict[str, str] = {"f1": "eval/mean_f1", "entropy": "eval/mean_entropy"}
-#: The baselines whose levels are drawn: label -> (planner, its options, line colour). The oracle
-#: knows the ground truth: the headroom left, an upper reference, never a competitor.
-BASELINES: dict[str, tuple[str, dict[str, Any], str]] = {
-    "ag": ("ag", {}, "tab:red"),
-    "ag-k3": ("ag", {"lookahead": 3}, "tab:orange"),
-    "oracle": ("oracle", {}, "tab:green"),
-    "random": ("random", {}, "tab:gray"),
+#: The baselines whose levels are drawn: label -> (planner, its options); their looks come from
+#: ``figure_style.method_styles``, as in every figure. The oracle knows the ground truth: the
+#: headroom left, an upper reference, never a competitor.
+BASELINES: dict[str, tuple[str, dict[str, Any]]] = {
+    "ag": ("ag", {}),
+    "ag-k3": ("ag", {"lookahead": 3}),
+    "oracle": ("oracle", {}),
+    "random": ("random", {}),
 }
 EVALUATIONS = Path("eval") / "evaluations.npz"
 
@@ -318,7 +321,7 @@ def fly_validation(
 def baseline_scores(validation: Validation, name: str) -> MissionScores:
     """Baseline ``name`` (built as ``evaluate`` builds it) flown on the validation missions."""
 
-    kind, options, _ = BASELINES[name]
+    kind, options = BASELINES[name]
 
     def planner(venv: VecEnv) -> Any:
         config = venv.get_attr("config", indices=[0])[0]
@@ -402,37 +405,54 @@ def baseline_levels_cache() -> Callable[[Validation], dict[str, tuple[float, flo
 
 
 # ------------------------------------------------------------------------------------ output
-def plot_groups(groups: Sequence[GroupCurve], path: str | Path) -> Path:
-    """One row per group: validation F1 (left) and entropy (right) against missions trained."""
-    path = Path(path)
+def draw_groups(groups: Sequence[GroupCurve]) -> Figure:
+    """The figure of :func:`plot_groups`: one row per group, validation F1 (left) and entropy
+    (right) against missions trained; COMA's mean with a band of ±1 s.d. over seeds, each
+    baseline's level a flat line in its own colour, line style and marker, and the row's legend
+    (with the levels' values) right of its axes."""
     # A bare Figure (no pyplot): no backend to choose, nothing global to close, PNG through Agg.
-    fig = Figure(figsize=(10, 3.0 * len(groups)))
+    fig = Figure(figsize=(12.5, 3.0 * len(groups)), layout="constrained")
     axes = fig.subplots(len(groups), 2, squeeze=False)
+    styles = method_styles(["coma", *BASELINES])
     for row, group in zip(axes, groups):
+        seeds = f"{len(group.runs)} seed{'s' if len(group.runs) > 1 else ''}"
+        n = len(group.missions)
         for ax, metric, title in zip(row, ("f1", "entropy"), ("validation F1 ↑", "validation entropy ↓")):
             mean, std = group.mean_std(metric)
-            ax.plot(
-                group.missions,
-                mean,
-                color="tab:blue",
-                marker="o",
-                ms=3,
-                label=f"COMA ({len(group.runs)} seed{'s' if len(group.runs) > 1 else ''})",
+            coma = styles["coma"]
+            ax.plot(group.missions, mean, ms=4, label=f"COMA, mean of {seeds}", **coma.line())
+            ax.fill_between(
+                group.missions, mean - std, mean + std, color=coma.color, alpha=0.2, lw=0, label="±1 s.d. over seeds"
             )
-            ax.fill_between(group.missions, mean - std, mean + std, color="tab:blue", alpha=0.25, lw=0)
-            for k, (name, (_, _, colour)) in enumerate(BASELINES.items()):
-                level = group.levels[name][0 if metric == "f1" else 1]
-                ax.axhline(level, color=colour, ls="--", lw=1.2, label=f"{name} {level:.3f}", zorder=1 + k)
+            for k, name in enumerate(BASELINES):
+                f1, entropy = group.levels[name]
+                ax.plot(
+                    group.missions,
+                    np.full(n, f1 if metric == "f1" else entropy),
+                    lw=1.2,
+                    ms=5,
+                    markevery=(k % max(n, 1), max(n // 3, 1)),  # markers staggered, not stacked
+                    label=f"{name} (F1 {f1:.3f}, entropy {entropy:.3f})",
+                    zorder=1 + k,
+                    **styles[name].line(),
+                )
             ax.set_title(f"{group.name}: {title} ({group.validation.missions} missions)", fontsize=10)
-            ax.set_xlabel("missions trained")
+            ax.set_xlabel("missions trained (joint steps / budget)")
+            ax.set_ylabel("F1-score (0-1)" if metric == "f1" else "entropy (bits per valuable cell)")
             ax.grid(alpha=0.3)
-            ax.legend(fontsize=8, loc="best")
+        row[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
     fig.suptitle(
-        "COMA: mean ± std over seeds; dashed: AG, AG look-ahead 3, the oracle (upper reference) and random "
-        "on the same validation missions",
+        "COMA: mean and ±1 s.d. (population) over seeds; flat lines: AG, AG look-ahead 3, the oracle "
+        "(upper reference) and random on the same validation missions",
         fontsize=9,
     )
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.25 / len(groups)))
+    return fig
+
+
+def plot_groups(groups: Sequence[GroupCurve], path: str | Path) -> Path:
+    """Write :func:`draw_groups`' figure as a PNG."""
+    path = Path(path)
+    fig = draw_groups(groups)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     return path

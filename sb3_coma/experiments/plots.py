@@ -20,6 +20,12 @@ Training logs understood by :func:`load_training_log` (first match wins):
    else ``rollout/ep_rew_mean``, else the first tag containing "reward"; or name ``tag=``.
 
 A directory is searched for ``metrics.csv``, then ``*monitor.csv``, then event files.
+
+Every figure is meant to be read by anyone, printed in grey too: each method has a colour of
+Okabe and Ito's colour-blind-safe palette, a line style and a marker of its own
+(:mod:`sb3_coma.experiments.figure_style`), the legend sits outside the axes so that it never
+hides data, what a band or an error bar spans is said in the legend or the title, and every axis
+says its unit.
 """
 
 from __future__ import annotations
@@ -40,9 +46,11 @@ import numpy as np
 from matplotlib import cm, colors
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
+from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
+from sb3_coma.experiments.figure_style import OKABE_ITO, MethodStyle, method_styles, uav_colour
 from sb3_coma.experiments.noise_sweep import AXIS_TITLES
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -52,16 +60,13 @@ if TYPE_CHECKING:  # pragma: no cover
 PathLike = str | os.PathLike
 #: Preferred TensorBoard reward tags, in order.
 REWARD_TAGS = ("mission/reward", "episode/reward", "rollout/ep_rew_mean")
-ALTITUDE_CMAP = "viridis"
-UAV_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:grey")
-METHOD_COLOURS = {
-    "coma": "tab:red",
-    "ours": "tab:red",
-    "ag": "tab:blue",
-    "lawnmower": "tab:green",
-    "nl": "tab:green",
-    "random": "tab:grey",
-}
+ALTITUDE_CMAP = "viridis"  # perceptually uniform and colour-blind safe
+UAV_COLOURS = OKABE_ITO
+#: Axis labels with their units: F1 is a fraction; entropy is the mean binary entropy in bits over
+#: the truly valuable cells (1 at the start of a mission); a step is one decision of every UAV.
+F1_LABEL = "F1-score (0-1, higher is better)"
+ENTROPY_LABEL = "entropy (bits per valuable cell, lower is better)"
+STEP_LABEL = "step (decisions per UAV)"
 
 
 def _save(fig: plt.Figure, path: PathLike, **kwargs) -> Path:
@@ -72,22 +77,54 @@ def _save(fig: plt.Figure, path: PathLike, **kwargs) -> Path:
     return path
 
 
-def _colour(label: str, k: int) -> str:
-    return METHOD_COLOURS.get(label.lower(), f"C{k % 10}")
+def _legend_outside(fig: plt.Figure, axes: Sequence[plt.Axes], extra: Sequence[Patch] = (), **kwargs) -> None:
+    """One legend for the figure, right of the axes (constrained layout makes room): it never
+    covers a curve, whatever the data. Entries are taken from every axes, each label once."""
+    entries: dict[str, object] = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(label, handle)
+    for patch in extra:
+        entries.setdefault(str(patch.get_label()), patch)
+    fig.legend(
+        list(entries.values()),
+        list(entries),
+        loc="outside right upper",
+        fontsize=8,
+        title_fontsize=8,
+        alignment="left",
+        **kwargs,
+    )
+
+
+def _band_patch(results: Sequence[EvaluationResult]) -> Patch:
+    """Legend entry saying what the shaded bands are: the population s.d. (``ddof=0``) over the
+    trials of each method, the spread of single missions, not an error of the mean."""
+    counts = sorted({int(r.n_trials) for r in results})
+    n = f"{counts[0]}" if len(counts) == 1 else "each method's"
+    return Patch(facecolor="0.5", alpha=0.25, label=f"shaded: ±1 s.d. over {n} trials")
 
 
 # ---------------------------------------------------------------------------------------------
 # Figures 4 / 5: metrics vs step
 # ---------------------------------------------------------------------------------------------
-def _curves(ax: plt.Axes, results: Sequence[EvaluationResult], metric: str, labels: Sequence[str]) -> None:
-    for k, (res, label) in enumerate(zip(results, labels)):
+def _curves(
+    ax: plt.Axes,
+    results: Sequence[EvaluationResult],
+    metric: str,
+    labels: Sequence[str],
+    styles: Mapping[str, MethodStyle],
+) -> None:
+    """Mean over trials per step, one line per method (its colour, style and marker), with a
+    band of ±1 population s.d. in the line's colour."""
+    for res, label in zip(results, labels):
         values = res.metric(metric)
         steps = np.arange(values.shape[1])
         mean, std = values.mean(axis=0), values.std(axis=0)
-        colour = _colour(label, k)
-        ax.plot(steps, mean, color=colour, label=label, lw=1.8)
-        ax.fill_between(steps, mean - std, mean + std, color=colour, alpha=0.2, lw=0)
-    ax.set_xlabel("sampling step")
+        style = styles[label]
+        ax.plot(steps, mean, label=label, lw=1.6, ms=4, markevery=max(1, len(steps) // 8), **style.line())
+        ax.fill_between(steps, mean - std, mean + std, color=style.color, alpha=0.15, lw=0)
+    ax.set_xlabel(STEP_LABEL)
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.grid(alpha=0.3)
 
@@ -95,20 +132,20 @@ def _curves(ax: plt.Axes, results: Sequence[EvaluationResult], metric: str, labe
 def plot_metric_curves(
     results: Sequence[EvaluationResult], path: PathLike, title: str | None = None, labels: Sequence[str] | None = None
 ) -> Path:
-    """F1 (left) and entropy (right) vs step, mean +- std over trials, one line per result."""
+    """F1 (left) and entropy (right) vs step, mean ± s.d. over trials, one line per result."""
     if not results:
         raise ValueError("plot_metric_curves needs at least one result")
     labels = list(labels) if labels is not None else [r.method for r in results]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, metric, name in zip(axes, ("f1", "entropy"), ("F1-score", "Entropy (bits, valuable cells)")):
-        _curves(ax, results, metric, labels)
+    styles = method_styles(labels)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
+    for ax, metric, name in zip(axes, ("f1", "entropy"), (F1_LABEL, ENTROPY_LABEL)):
+        _curves(ax, results, metric, labels, styles)
         ax.set_ylabel(name)
     axes[0].set_ylim(0, 1)
     axes[1].set_ylim(0, 1.05)
-    axes[0].legend(loc="lower right")
+    _legend_outside(fig, axes, [_band_patch(results)])
     r = results[0]
-    fig.suptitle(title or f"{r.env}: F1 and entropy vs step ({r.n_trials} trials, mean ± std)")
-    fig.tight_layout()
+    fig.suptitle(title or f"{r.env}: F1 and entropy vs step ({r.n_trials} trials, mean ± 1 s.d.)")
     return _save(fig, path, dpi=120)
 
 
@@ -118,23 +155,24 @@ def plot_metric_grid(
     title: str | None = None,
     labels: Mapping[str, Sequence[str]] | None = None,
 ) -> Path:
-    """F1 (top) and entropy (bottom) vs step, one column per group (e.g. noise level)."""
+    """F1 (top) and entropy (bottom) vs step, one column per group (e.g. noise level); a method
+    keeps its style in every column, and the one legend lists every method."""
     groups = [g for g in results if results[g]]
     if not groups:
         raise ValueError("plot_metric_grid needs at least one non-empty group")
-    fig, axes = plt.subplots(2, len(groups), figsize=(4.2 * len(groups), 7), squeeze=False)
+    labs = {g: list(labels[g]) if labels and g in labels else [r.method for r in results[g]] for g in groups}
+    styles = method_styles(label for g in groups for label in labs[g])
+    fig, axes = plt.subplots(2, len(groups), figsize=(4.2 * len(groups) + 2.2, 7), squeeze=False, layout="constrained")
     for j, group in enumerate(groups):
-        labs = list(labels[group]) if labels and group in labels else [r.method for r in results[group]]
         for i, metric in enumerate(("f1", "entropy")):
-            _curves(axes[i, j], results[group], metric, labs)
+            _curves(axes[i, j], results[group], metric, labs[group], styles)
             axes[i, j].set_ylim(0, 1.05)
         axes[0, j].set_title(group)
-    axes[0, 0].set_ylabel("F1-score")
-    axes[1, 0].set_ylabel("Entropy")
-    axes[0, 0].legend(loc="lower right", fontsize=8)
+    axes[0, 0].set_ylabel(F1_LABEL)
+    axes[1, 0].set_ylabel(ENTROPY_LABEL)
+    _legend_outside(fig, list(axes.flat), [_band_patch([r for g in groups for r in results[g]])])
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
     return _save(fig, path, dpi=110)
 
 
@@ -232,20 +270,22 @@ def plot_training_reward(
         logs = {"reward": logs}
     if not logs:
         raise ValueError("plot_training_reward needs at least one log")
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for k, (label, log) in enumerate(logs.items()):
+    styles = method_styles(logs)
+    fig, ax = plt.subplots(figsize=(8.5, 4), layout="constrained")
+    for label, log in logs.items():
         curve = log if isinstance(log, TrainingCurve) else load_training_log(log, agents_per_episode)
         if len(curve.rewards) == 0:
             raise ValueError(f"training log {curve.source} has no episodes")
-        colour = f"C{k % 10}"
-        ax.plot(curve.episodes, curve.rewards, color=colour, alpha=0.2, lw=0.8)
-        ax.plot(curve.episodes, _rolling_mean(curve.rewards, max(int(window), 1)), color=colour, lw=1.8, label=label)
-    ax.set_xlabel("training episode")
-    ax.set_ylabel("team reward")
+        style = styles[label]
+        ax.plot(curve.episodes, curve.rewards, color=style.color, alpha=0.2, lw=0.8)
+        mean = _rolling_mean(curve.rewards, max(int(window), 1))
+        ax.plot(curve.episodes, mean, lw=1.8, ms=4, markevery=max(1, len(mean) // 8), label=label, **style.line())
+    ax.set_xlabel("training episode (one mission of the team)")
+    ax.set_ylabel("team reward (sum over the mission)")
     ax.grid(alpha=0.3)
-    ax.legend(loc="lower right")
+    faint = Patch(facecolor="0.5", alpha=0.2, label="faint: each episode")
+    _legend_outside(fig, [ax], [faint], title=f"bold: trailing mean of {window}")
     ax.set_title(title or f"Training reward (trailing mean over {window} episodes)")
-    fig.tight_layout()
     return _save(fig, path, dpi=120)
 
 
@@ -283,8 +323,8 @@ def _trail_2d(ax: plt.Axes, traj: np.ndarray, norm: colors.Normalize, upto: int 
         if len(pts) > 1:
             segs = np.stack([pts[:-1, :2], pts[1:, :2]], axis=1)
             ax.add_collection(LineCollection(list(segs), colors=cmap(norm(pts[1:, 2])), lw=2.5))
-        ax.plot(pts[0, 0], pts[0, 1], "o", ms=5, mfc="none", mec=UAV_COLOURS[u % len(UAV_COLOURS)])
-        ax.plot(pts[-1, 0], pts[-1, 1], "^", ms=8, color=UAV_COLOURS[u % len(UAV_COLOURS)], mec="k")
+        ax.plot(pts[0, 0], pts[0, 1], "o", ms=5, mfc="none", mec=uav_colour(u))
+        ax.plot(pts[-1, 0], pts[-1, 1], "^", ms=8, color=uav_colour(u), mec="k")
 
 
 def _check_recorded(result: EvaluationResult, trial: int) -> None:
@@ -341,8 +381,8 @@ def plot_mission(result: EvaluationResult, path: PathLike, trial: int = 0) -> Pa
         pts = traj[:, u]
         segs = np.stack([pts[:-1], pts[1:]], axis=1)
         ax3.add_collection3d(Line3DCollection(segs, colors=cmap(norm(pts[1:, 2])), lw=2.5))
-        ax3.scatter(*pts[0], marker="o", s=25, color=UAV_COLOURS[u % len(UAV_COLOURS)])
-        ax3.scatter(*pts[-1], marker="^", s=45, color=UAV_COLOURS[u % len(UAV_COLOURS)], edgecolor="k")
+        ax3.scatter(*pts[0], marker="o", s=25, color=uav_colour(u))
+        ax3.scatter(*pts[-1], marker="^", s=45, color=uav_colour(u), edgecolor="k")
         ax3.text(*pts[0], f" {u}", fontsize=8)
     ax3.set_xlim(0, size)
     ax3.set_ylim(0, size)
@@ -429,7 +469,8 @@ def animate_mission(result: EvaluationResult, path: PathLike, fps: float = 2.0, 
 def plot_ablation(
     results: Mapping[tuple[str, str], EvaluationResult], path: PathLike, title: str | None = None
 ) -> Path:
-    """Grouped bars: final F1 (left) and entropy (right) +- std per noise level and variant.
+    """Grouped bars: final F1 (left) and entropy (right) ± s.d. per noise level and variant; each
+    variant a colour and a hatch of its own, the whiskers' meaning in the legend's title.
 
     ``results`` maps (variant label, noise level) to its result.
     """
@@ -437,9 +478,11 @@ def plot_ablation(
         raise ValueError("plot_ablation needs at least one result")
     variants = list(dict.fromkeys(v for v, _ in results))
     noises = list(dict.fromkeys(n for _, n in results))
+    styles = method_styles(variants)
     width = 0.8 / len(variants)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, metric, name in zip(axes, ("f1", "entropy"), ("F1-score at 100 %", "Entropy at 100 %")):
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
+    names = ("F1-score at 100 % of the budget (0-1)", "entropy at 100 % (bits per valuable cell)")
+    for ax, metric, name in zip(axes, ("f1", "entropy"), names):
         for k, variant in enumerate(variants):
             xs, means, stds = [], [], []
             for j, noise in enumerate(noises):
@@ -450,81 +493,105 @@ def plot_ablation(
                 xs.append(j + (k - (len(variants) - 1) / 2) * width)
                 means.append(m)
                 stds.append(s)
-            ax.bar(xs, means, width * 0.95, yerr=stds, capsize=3, label=variant, color=f"C{k % 10}")
+            style = styles[variant]
+            ax.bar(xs, means, width * 0.95, yerr=stds, capsize=3, label=variant, color=style.color, hatch=style.hatch)
         ax.set_xticks(range(len(noises)), noises)
-        ax.set_xlabel("channel noise")
+        ax.set_xlabel("channel noise (preset)")
         ax.set_ylabel(name)
         ax.set_ylim(0, 1.05)
         ax.grid(axis="y", alpha=0.3)
-    axes[0].legend(loc="lower left", fontsize=8)
+    counts = sorted({int(r.n_trials) for r in results.values()})
+    n = f"{counts[0]}" if len(counts) == 1 else "each variant's"
+    _legend_outside(fig, axes, title=f"bars: mean; whiskers:\n±1 s.d. over {n} trials")
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
     return _save(fig, path, dpi=120)
 
 
 # ---------------------------------------------------------------------------------------------
 # noise sweep
 # ---------------------------------------------------------------------------------------------
+#: The swept channel axes with what they measure (I_r = a I + n per received cell, a ~ U(a_low, 1),
+#: n ~ N(0, sigma^2); docs/environment.md), for the x labels.
+SWEEP_AXIS_LABELS = {
+    "sigma": "sigma (s.d. of the added noise, in map units 0-1)",
+    "alpha_low": "a_low (lowest channel gain a, fraction)",
+    "drop_probability": "drop p (probability a message is lost)",
+}
+#: Line style of each decoder in the noise sweep (an arm has its colour and marker).
+DECODER_LINESTYLES = {"soft": "-", "threshold": "--"}
+
+
+def _sweep_curve(
+    result: NoiseSweepResult, axis: str, arm: str, decoder: str, metric: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(axis values, means, standard errors or None) of one arm and decoder: along the axis of a
+    one-axis sweep, or, in a grid, averaged over the other axes (no error bar then)."""
+    if not any(p.axis == "grid" for p in result.points):
+        return result.curves(axis, arm, decoder, metric)
+    xs = sorted({p.value(axis) for p in result.points})
+    ys = [
+        np.mean(
+            [
+                result.final(arm, p, metric).mean()
+                for p in result.points
+                if p.decoder == decoder and p.value(axis) == x and (arm, p) in result.results
+            ]
+        )
+        for x in xs
+    ]
+    return np.array(xs), np.array(ys), None
+
+
 def plot_noise_sweep(result: NoiseSweepResult, path: PathLike, title: str | None = None) -> Path:
-    """Entropy at 100 % vs each swept channel axis, one line per arm (solid: soft decoder, dashed:
-    threshold), error bars = standard error over the shared missions; top row the global map's
-    entropy (the paper's), bottom row the team entropy on the UAVs' own maps.
+    """Entropy at 100 % vs each swept channel axis, one line per arm and decoder (the arm's colour
+    and marker; solid: soft decoder, dashed: threshold), error bars = ±1 standard error of the
+    mean over the shared missions; top row the global map's entropy (the paper's), bottom row the
+    team entropy on the UAVs' own maps.
 
     ``result`` is a ``sb3_coma.experiments.noise_sweep.NoiseSweepResult``.
     """
-
     axes_swept = [a for a in AXIS_TITLES if any(p.axis == a or p.axis == "grid" for p in result.points)] or ["sigma"]
     decoders = list(dict.fromkeys(p.decoder for p in result.points))
     if not result.results:
         raise ValueError("plot_noise_sweep needs at least one result")
-    fig, grid = plt.subplots(2, len(axes_swept), figsize=(4.2 * len(axes_swept), 6.4), squeeze=False, sharey="row")
-    styles = {"soft": "-", "threshold": "--"}
+    styles = method_styles(result.arms)
+    fig, grid = plt.subplots(
+        2,
+        len(axes_swept),
+        figsize=(4.2 * len(axes_swept) + 2.4, 6.4),
+        squeeze=False,
+        sharey="row",
+        layout="constrained",
+    )
+    rows = (("entropy", "entropy of the global map"), ("team_entropy", "team entropy (own maps)"))
     for col, axis in enumerate(axes_swept):
-        for row, (metric, name) in enumerate((("entropy", "entropy (global map)"), ("team_entropy", "team entropy"))):
+        for row, (metric, name) in enumerate(rows):
             ax = grid[row][col]
-            for k, arm in enumerate(result.arms):
+            for arm in result.arms:
                 for decoder in decoders:
-                    if any(p.axis == "grid" for p in result.points):  # a grid: average over the other axes
-                        xs = sorted({p.value(axis) for p in result.points})
-                        ys = [
-                            np.mean(
-                                [
-                                    result.final(arm, p, metric).mean()
-                                    for p in result.points
-                                    if p.decoder == decoder and p.value(axis) == x and (arm, p) in result.results
-                                ]
-                            )
-                            for x in xs
-                        ]
-                        x, mean, se = np.array(xs), np.array(ys), None
-                    else:
-                        x, mean, se = result.curves(axis, arm, decoder, metric)
+                    x, mean, se = _sweep_curve(result, axis, arm, decoder, metric)
                     if len(x) == 0:
                         continue
+                    style = styles[arm]
                     ax.errorbar(
                         x,
                         mean,
                         yerr=se,
-                        color=_colour(arm, k),
-                        ls=styles.get(decoder, ":"),
-                        marker="o",
-                        ms=3,
+                        color=style.color,
+                        marker=style.marker,
+                        ls=DECODER_LINESTYLES.get(decoder, ":"),
+                        ms=4,
                         lw=1.4,
                         capsize=2,
                         label=f"{arm} ({decoder})",
                     )
-            ax.set_xlabel(AXIS_TITLES[axis])
+            ax.set_xlabel(SWEEP_AXIS_LABELS.get(axis, AXIS_TITLES[axis]))
             if col == 0:
-                ax.set_ylabel(f"{name} at 100 %")
+                ax.set_ylabel(f"{name} at 100 %\n(bits per valuable cell)")
             ax.grid(alpha=0.3)
-    handles, labels = grid[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 5), fontsize=8, frameon=False)
-    fig.suptitle(
-        title
-        or f"{result.env}: entropy vs channel noise ({result.n_missions} shared missions; "
-        "solid: soft decoder, dashed: threshold)"
-    )
-    rows_of_legend = -(-len(labels) // 5)
-    fig.tight_layout(rect=(0, 0.035 * rows_of_legend + 0.01, 1, 1))
+    grid_sweep = any(p.axis == "grid" for p in result.points)
+    bars = "mean over the other axes, no error bars" if grid_sweep else "error bars: ±1 s.e. of the mean"
+    _legend_outside(fig, list(grid.flat), title=f"{bars}\nsolid: soft decoder\ndashed: threshold")
+    fig.suptitle(title or f"{result.env}: entropy vs channel noise ({result.n_missions} shared missions)")
     return _save(fig, path, dpi=120)
