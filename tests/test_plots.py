@@ -273,3 +273,26 @@ def test_learning_curves_are_readable(tmp_path):
     _check_readable(fig, 1 + len(lc.BASELINES))
     assert "±1 s.d. over seeds" in _legend_texts(fig)
     assert lc.plot_groups(groups, tmp_path / "curves.png").read_bytes().startswith(PNG)
+
+
+def test_learning_curves_count_the_teacher_labelled_missions(tmp_path):
+    """A warm-started run's curve starts after its DAgger missions, with the clone's phase marked (#35)."""
+    import json
+
+    from sb3_coma.experiments import learning_curves as lc
+
+    run = tmp_path / "warm"
+    run.mkdir()
+    (run / "warm_start.json").write_text(json.dumps({"teacher": "oracle", "rounds": 8, "missions": 128}))
+    assert lc._teacher_missions(run) == 1024 and lc._teacher_missions(tmp_path) == 0
+    validation = lc.Validation("UavIpp-Env3-v0", "{}", 4, 1000, 4)
+    steps = np.arange(1, 5) * 3000.0
+    warm = [lc.RunCurve(run, k, 15, validation, steps, steps, steps, teacher_missions=1024) for k in range(2)]
+    group = lc.build_group("env3", warm, lambda _v: {name: (0.7, 0.4) for name in lc.BASELINES})
+    assert group.teacher_missions == 1024 and list(group.missions) == [1224.0, 1424.0, 1624.0, 1824.0]
+    fig = lc.draw_groups([group])
+    assert "DAgger: teacher-labelled missions" in _legend_texts(fig)
+    assert fig.axes[0].get_xlim()[0] == 0
+    cold = lc.RunCurve(run, 2, 15, validation, steps, steps, steps)
+    with pytest.raises(lc.RunDirError, match="teacher-labelled missions"):
+        lc.build_group("mixed", [*warm, cold], lambda _v: {})

@@ -160,6 +160,17 @@ class RunCurve:
     steps: np.ndarray
     f1: np.ndarray
     entropy: np.ndarray
+    #: missions the teacher labelled before COMA (a DAgger warm start: rounds x missions), 0 without
+    teacher_missions: int = 0
+
+
+def _teacher_missions(run: Path) -> int:
+    """Teacher-labelled missions of a warm-started run (its ``warm_start.json``), else 0."""
+    record = run / "warm_start.json"
+    if not record.is_file():
+        return 0
+    spec = json.loads(record.read_text())
+    return int(spec.get("rounds", 0) or 0) * int(spec.get("missions", 0) or 0)
 
 
 def _run_config(run: Path) -> TrainConfig:
@@ -269,6 +280,7 @@ def read_run(run: str | Path, eval_seed: int | None = None) -> RunCurve:
         steps=steps,
         f1=_at_steps(run, TAGS["f1"], scalars[TAGS["f1"]], steps),
         entropy=_at_steps(run, TAGS["entropy"], scalars[TAGS["entropy"]], steps),
+        teacher_missions=_teacher_missions(run),
     )
 
 
@@ -347,10 +359,12 @@ class GroupCurve:
     name: str
     runs: list[RunCurve]
     steps: np.ndarray
+    #: missions seen at each evaluation: the teacher-labelled ones first, then COMA's
     missions: np.ndarray
     f1: np.ndarray  # (runs, evaluations)
     entropy: np.ndarray
     levels: dict[str, tuple[float, float]]
+    teacher_missions: int = 0
 
     @property
     def validation(self) -> Validation:
@@ -377,6 +391,7 @@ def build_group(
         raise RunDirError(f"group {name}: no run folder")
     _check_same(name, runs, "validation missions", lambda r: r.validation)
     _check_same(name, runs, "budget", lambda r: r.budget)
+    _check_same(name, runs, "teacher-labelled missions", lambda r: r.teacher_missions)
     n = min(len(r.steps) for r in runs)
     _check_same(name, runs, f"evaluation steps (first {n})", lambda r: tuple(int(s) for s in r.steps[:n]))
     steps = runs[0].steps[:n]
@@ -384,10 +399,11 @@ def build_group(
         name=name,
         runs=list(runs),
         steps=steps,
-        missions=steps / runs[0].budget,
+        missions=runs[0].teacher_missions + steps / runs[0].budget,
         f1=np.stack([r.f1[:n] for r in runs]),
         entropy=np.stack([r.entropy[:n] for r in runs]),
         levels=levels(runs[0].validation),
+        teacher_missions=runs[0].teacher_missions,
     )
 
 
@@ -436,8 +452,13 @@ def draw_groups(groups: Sequence[GroupCurve]) -> Figure:
                     zorder=1 + k,
                     **styles[name].line(),
                 )
+            if group.teacher_missions:  # the clone's phase: the teacher labelled these, COMA did not learn
+                ax.axvspan(
+                    0, group.teacher_missions, color="0.85", lw=0, zorder=0, label="DAgger: teacher-labelled missions"
+                )
+            ax.set_xlim(left=0)
             ax.set_title(f"{group.name}: {title} ({group.validation.missions} missions)", fontsize=10)
-            ax.set_xlabel("missions trained (joint steps / budget)")
+            ax.set_xlabel("missions trained (teacher-labelled, then COMA's joint steps / budget)")
             ax.set_ylabel("F1-score (0-1)" if metric == "f1" else "entropy (bits per valuable cell)")
             ax.grid(alpha=0.3)
         row[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)

@@ -428,9 +428,11 @@ def _seeds_section(run: Any) -> list[str]:
         "Every shipped model is the best of its seeds on the validation missions (split train, env seeds 1000+; "
         "the test split chose nothing). The unseen-protocol result of each seed's selected checkpoint "
         f"({missions} test missions, final F1 / entropy of the global belief, argmax) is recorded when the model "
-        "ships (`python -m sb3_coma.experiments.ship_models`, models.json `seeds_unseen`); ± is the sample "
-        "standard deviation over seeds. A model trained with one seed has no spread: its verdicts carry no "
-        "seed-to-seed variance.",
+        "ships (`python -m sb3_coma.experiments.ship_models`, models.json `seeds_unseen`); the shipped seed's "
+        "column is flown from the shipped file itself (half precision), as every other table flies it "
+        "(`ship_models --rescore`; the other seeds' full-precision checkpoints are as recorded, their run folders "
+        "being gone); ± is the sample standard deviation over seeds. A model trained with one seed has no "
+        "spread: its verdicts carry no seed-to-seed variance.",
         "",
         seeds_markdown(rows),
         "",
