@@ -261,3 +261,56 @@ def test_warm_up_decision_changes_no_mission(monkeypatch):
     for a, b in zip(warm, cold):
         np.testing.assert_array_equal(a.f1, b.f1)
         np.testing.assert_array_equal(a.trajectories, b.trajectories)
+
+
+# --------------------------------------------------------------------------- table rows by name (#34, #37)
+def test_every_baseline_row_of_the_tables_resolves_by_its_name():
+    """Each baseline row the protocols write (docs/RESULTS.md) is a name ``evaluate`` and
+    ``sb3-coma evaluate --methods`` take, meaning the same planner and options as the row."""
+    from sb3_coma.app import evaluation as ev
+    from sb3_coma.experiments.protocols import BASELINE_METHODS
+
+    for method in BASELINE_METHODS:
+        ev.check_policy(method.label)
+        assert not ev.is_model(method.label)
+        planner, options = ev.PLANNER_ALIASES.get(method.label, (method.label, {}))
+        assert (planner, options) == (method.policy, dict(method.planner_kwargs)), method.label
+    assert {"ag-k2", "ag-k3", "ag-comm", "ag-central", "oracle"} <= set(ev.baseline_names())
+
+
+def test_a_row_name_flies_what_the_protocols_fly():
+    """``evaluate("ag-k3")`` is ``evaluate("ag", planner_kwargs={"lookahead": 3})`` labelled ag-k3."""
+    by_name = evaluate("ag-k3", n_trials=2, seed=0, n_uavs=2, **SMALL)
+    by_options = evaluate("ag", n_trials=2, seed=0, n_uavs=2, planner_kwargs={"lookahead": 3}, **SMALL)
+    assert by_name.method == "ag-k3" and by_options.method == "ag"
+    assert np.array_equal(by_name.f1, by_options.f1) and np.array_equal(by_name.entropy, by_options.entropy)
+    assert by_name.planner_kwargs == by_options.planner_kwargs
+
+
+def test_every_shipped_model_row_resolves_by_its_name():
+    """``coma``, ``coma[mean-cnn]``, ``coma[paper-actor]`` ...: the row label of a shipped model on
+    its map leads back to that model."""
+    from sb3_coma.app.pretrained import read_manifest
+    from sb3_coma.experiments.protocols import shipped_label, shipped_name_of_label
+
+    models = read_manifest()["models"]
+    assert models
+    for name, info in models.items():
+        assert shipped_name_of_label(shipped_label(name, info, info["env"]), info["env"]) == name
+    assert shipped_name_of_label("coma", "env3") == "env3"
+    assert shipped_name_of_label("coma[mean-cnn]", "env3") == "env3-mean-cnn"
+    assert shipped_name_of_label("coma[mean-cnn]", "env1") is None and shipped_name_of_label("ag", "env1") is None
+
+
+@pytest.mark.filterwarnings("ignore:model 'env1' flies in another world")  # budget 2 keeps it short
+def test_cli_evaluates_table_rows_by_name(tmp_path, capsys):
+    """``sb3-coma evaluate --methods`` with the rows' names; each comes back under its name."""
+    out = tmp_path / "out"
+    names = ["ag-k2", "ag-comm", "ag-central", "oracle", "coma"]
+    argv = ["evaluate", "--env", "env1", "--methods", ",".join(names), "--trials", "1", "--budget", "2"]
+    assert main([*argv, "--no-plots", "--out", str(out)]) == 0
+    with open(out / "table.csv") as handle:
+        rows = {row["method"] for row in csv.DictReader(handle)}
+    assert set(names) <= rows, rows
+    assert main(["evaluate", "--env", "env1", "--methods", "coma[mean-cnn]", "--out", str(out)]) == 2
+    assert "unknown method 'coma[mean-cnn]'" in capsys.readouterr().err  # an env3 model only

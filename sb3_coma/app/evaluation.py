@@ -9,7 +9,9 @@ library's :func:`sb3_coma.common.evaluation.evaluate_policy`, which takes object
 
 AG's entropy weighting defaults to the one chosen per map family on validation missions
 (``sb3_coma.baselines.adaptive_gain.WEIGHTING_BY_MAP``, measured by ``sb3-coma ag-weighting``)
-unless ``planner_kwargs`` names one.
+unless ``planner_kwargs`` names one. The baselines' rows of the generated tables are names too
+(:data:`PLANNER_ALIASES`: ``"ag-k3"`` is AG with ``lookahead=3``), so every row can be flown again
+by its name.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ from uav_ipp import NOISE_PRESETS, IppConfig
 
 __all__ = [
     "OBSERVATION_OPTIONS",
+    "PLANNER_ALIASES",
     "PROTOCOLS",
     "WORLD_OPTIONS",
     "WorldMismatchWarning",
@@ -68,11 +71,44 @@ __all__ = [
 ]
 
 
+#: The baseline rows of the generated tables (``sb3_coma.experiments.protocols.BASELINE_METHODS``)
+#: that are a planner with options: ``evaluate("ag-k3")`` and ``sb3-coma evaluate --methods ag-k3``
+#: fly the row ``ag-k3`` of docs/RESULTS.md, labelled so. ``planner_kwargs`` given with one of
+#: them override its options.
+PLANNER_ALIASES: dict[str, tuple[str, dict[str, Any]]] = {
+    "ag-k2": ("ag", {"lookahead": 2}),
+    "ag-k3": ("ag", {"lookahead": 3}),
+    "ag-comm": ("ag", {"knowledge": "comm"}),
+    "ag-central": ("ag", {"knowledge": "central"}),
+}
+
+
 def baseline_names() -> list[str]:
-    return sorted(PLANNERS)
+    """Every name of a baseline: the planners and the table rows of :data:`PLANNER_ALIASES`."""
+    return sorted([*PLANNERS, *PLANNER_ALIASES])
+
+
+def _alias(name: Any) -> str | None:
+    """The :data:`PLANNER_ALIASES` key ``name`` spells (any case), or None."""
+    key = name.strip().lower() if isinstance(name, str) else None
+    return key if key in PLANNER_ALIASES else None
+
+
+def _named_planner(
+    policy_or_name: Any, planner_kwargs: Mapping[str, Any] | None, label: str | None
+) -> tuple[Any, Mapping[str, Any] | None, str | None]:
+    """A table row's name -> (its planner, its options under the caller's, the row's name as the
+    default label); anything else unchanged. Done first, so the rest sees a plain planner."""
+    alias = _alias(policy_or_name)
+    if alias is None:
+        return policy_or_name, planner_kwargs, label
+    planner, options = PLANNER_ALIASES[alias]
+    return planner, {**options, **dict(planner_kwargs or {})}, label or alias
 
 
 def _is_baseline(name: str) -> bool:
+    if _alias(name) is not None:
+        return True
     try:
         planner_class(name)
         return True
@@ -136,7 +172,8 @@ def check_policy(policy_or_name: Any) -> None:
         if isinstance(policy_or_name, os.PathLike) or _looks_like_path(text):
             raise FileNotFoundError(f"model file not found: {text!r}")
         raise ValueError(
-            f"unknown method {text!r}: not a baseline ({', '.join(baseline_names())}), not a model file, and not "
+            f"unknown method {text!r}: not a baseline ({', '.join(sorted(PLANNERS))}; table rows: "
+            f"{', '.join(sorted(PLANNER_ALIASES))}), not a model file, and not "
             f"a shipped model (available: {', '.join(pretrained.available()) or 'none'})"
         )
     if not callable(getattr(policy_or_name, "predict", None)):
@@ -150,10 +187,11 @@ def resolve_policy(
     policy_or_name: Any, venv: Any, seed: int | None, planner_kwargs: Mapping[str, Any] | None = None
 ) -> tuple[Any, str]:
     """(predictor with SB3's ``predict``, label) for a baseline name, model path/name or object."""
+    policy_or_name, planner_kwargs, row = _named_planner(policy_or_name, planner_kwargs, None)
     check_policy(policy_or_name)
     if isinstance(policy_or_name, str) and _is_baseline(policy_or_name):
         cls = planner_class(policy_or_name)
-        return make_planner(cls.name, venv, seed=seed, **dict(planner_kwargs or {})), cls.name
+        return make_planner(cls.name, venv, seed=seed, **dict(planner_kwargs or {})), row or cls.name
     if _is_shipped_name(policy_or_name):
         return _load_pretrained(policy_or_name, venv), policy_or_name
     if isinstance(policy_or_name, (str, os.PathLike)):
@@ -350,7 +388,8 @@ def _shipped_info(policy_or_name: Any) -> dict[str, Any]:
 def _is_ag(policy_or_name: Any) -> bool:
     if not isinstance(policy_or_name, str) or not _is_baseline(policy_or_name):
         return False
-    return planner_class(policy_or_name).name == "ag"
+    alias = _alias(policy_or_name)
+    return planner_class(PLANNER_ALIASES[alias][0] if alias else policy_or_name).name == "ag"
 
 
 def planner_options(policy_or_name: Any, config: Any, planner_kwargs: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -397,7 +436,8 @@ def evaluate(
 ) -> EvaluationResult:
     """Run a trained model or a baseline for ``n_trials`` seeded missions (see module docstring).
 
-    :param policy_or_name: ``"random"``, ``"lawnmower"``, ``"ag"`` (or ``"nl"``); a COMA model
+    :param policy_or_name: ``"random"``, ``"lawnmower"``, ``"ag"`` (or ``"nl"``), ``"oracle"``, a
+        baseline row of the tables (:data:`PLANNER_ALIASES`: ``"ag-k3"``, ``"ag-comm"`` ...); a COMA model
         object, a path to a saved ``.zip``, or a shipped model name (``"env1"`` ...,
         via ``sb3_coma.load_pretrained``); or any object with SB3's ``predict``
     :param env: map name or gymnasium id
@@ -425,6 +465,7 @@ def evaluate(
         is the one process's, planning times aside (measured on shared cores). Names, paths and
         COMA models fly on workers; other objects (a planner, a bare policy) in this process
     """
+    policy_or_name, planner_kwargs, label = _named_planner(policy_or_name, planner_kwargs, label)
     given = dict(env_options)
     protocol, n_trials, seed, env_options = _protocol_options(protocol, n_trials, seed, env, dict(env_options))
     n_trials = _check_int("n_trials", n_trials, 1)
@@ -602,6 +643,8 @@ def _predictor_maker(
 def policy_label(policy_or_name: Any) -> str:
     """The name a method gets in tables: the baseline's name, the model file's stem, the shipped
     model's name, a planner's name, or :data:`MODEL_LABEL`."""
+    if _alias(policy_or_name) is not None:
+        return str(_alias(policy_or_name))
     if isinstance(policy_or_name, str) and _is_baseline(policy_or_name):
         return planner_class(policy_or_name).name
     if _is_shipped_name(policy_or_name):

@@ -50,6 +50,7 @@ __all__ = [
     "holm_comparisons",
     "run_protocol",
     "shipped_methods",
+    "shipped_name_of_label",
 ]
 
 #: Kinds of learned methods besides COMA that get rows when their models exist (the hook: a
@@ -122,6 +123,17 @@ def shipped_label(name: str, info: Mapping[str, Any], env: str) -> str:
     if algo != "coma":
         return algo + (f"[{suffix}]" if suffix and suffix != algo else "")
     return "coma" + (f"[{suffix}]" if suffix else "")
+
+
+def shipped_name_of_label(label: str, env: str) -> str | None:
+    """The shipped model a table row names on map ``env``, the inverse of :func:`shipped_label`:
+    ``"coma"`` -> ``"env3"``, ``"coma[mean-cnn]"`` -> ``"env3-mean-cnn"``; None when no shipped
+    model of that map has this row. So a row of docs/RESULTS.md can be flown again by its name."""
+    models = _manifest_models()
+    return next(
+        (name for name, info in models.items() if info.get("env") == env and shipped_label(name, info, env) == label),
+        None,
+    )
 
 
 def shipped_methods(

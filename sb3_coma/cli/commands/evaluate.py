@@ -16,6 +16,7 @@ staged in a folder next to ``--out`` and moved into place together when all are 
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 from pathlib import Path
 from typing import Any
@@ -53,8 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--methods",
         default="ag,lawnmower,random",
-        help="comma-separated baselines (ag, lawnmower, random) and/or model paths "
-        "(default: ag,lawnmower,random; '' for models only)",
+        help="comma-separated methods: baselines (ag, ag-k2, ag-k3, ag-comm, ag-central, lawnmower, oracle, "
+        "random), a row of the generated tables naming a shipped model of the map (coma, coma[mean-cnn], "
+        "coma[paper-actor] ...), shipped model names and/or model paths (default: ag,lawnmower,random; '' for "
+        "models only)",
     )
     parser.add_argument(
         "--model",
@@ -136,6 +139,17 @@ def _methods(args: argparse.Namespace) -> list[tuple[str | None, str]]:
     if len(set(labels)) != len(labels):
         raise UserError(f"duplicate method labels {labels}; name models with --model LABEL=PATH")
     return out
+
+
+def _for_map(label: str | None, method: str, env_name: str) -> tuple[str | None, str]:
+    """A row of the generated tables that names a shipped model of the map (``coma`` is the map's
+    own model, ``coma[mean-cnn]`` its ``<map>-mean-cnn``: the labels ``reproduce`` gives them) ->
+    (the row as label, that shipped model); any other method as given, so that every row of
+    docs/RESULTS.md can be flown again by its name."""
+    from sb3_coma.experiments.protocols import shipped_name_of_label
+
+    shipped = shipped_name_of_label(method, env_name)
+    return (label or method, shipped) if shipped is not None else (label, method)
 
 
 def _env_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -241,7 +255,8 @@ def run(args: argparse.Namespace) -> int:
     methods = _methods(args)
     env_names = _env_names(args)
     options = _env_options(args)
-    for _, method in methods:  # fail on a typo before minutes of missions
+    flown = dict.fromkeys(_for_map(lab, name, env)[1] for env, (lab, name) in itertools.product(env_names, methods))
+    for method in flown:  # fail on a typo before minutes of missions
         try:
             ev.check_policy(method)
         except (ValueError, TypeError) as exc:
@@ -279,7 +294,7 @@ def _fly_and_write(
 
     results: list[ev.EvaluationResult] = []
     for env_name in env_names:
-        for label, method in methods:
+        for label, method in (_for_map(lab, name, env_name) for lab, name in methods):
             print(
                 f"evaluating {label or method} on {env_name} ({_trials(args, env_name)} trials, noise {args.noise}) ...",
                 flush=True,
