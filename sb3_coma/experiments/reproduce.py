@@ -98,7 +98,6 @@ MEAN_FUSION_VARIANT = "mean-cbam"
 #: (split train, env seeds 1000..1009, never the test split), scored every 3000 joint steps
 #: (``best_model.zip``)
 TRAIN_EVAL_FREQ = 3000
-TRAIN_EVAL_MISSIONS = 10
 #: the map of the paper's ablation and the shipped models of its four arms, all trained by COMA from
 #: scratch with one recipe (the main env3 model is warm-started, so it would compare the warm start,
 #: not SenDFuse and CBAM; it is the full arm only where no shipped arm exists)
@@ -400,7 +399,7 @@ def train_command(env: str, fusion: str, seed: int = TRAIN_SEED, validate: bool 
     """The command that retrains a shipped model (with ``validate``, its ``best_model.zip`` is the model)."""
     variant = _variant_for(env, fusion)
     command = f"sb3-coma train --env {env}" + (f" --variant {variant}" if variant else "") + f" --seed {seed}"
-    return command + (f" --eval-freq {TRAIN_EVAL_FREQ} --eval-missions {TRAIN_EVAL_MISSIONS}" if validate else "")
+    return command + (f" --eval-freq {TRAIN_EVAL_FREQ}" if validate else "")
 
 
 def curve_from_metrics(path: Path) -> list[float]:
@@ -476,7 +475,6 @@ def _train_model(
         handle_signals=False,
         save_freq=10**9,
         eval_freq=0 if quick else TRAIN_EVAL_FREQ,
-        eval_missions=TRAIN_EVAL_MISSIONS,
     )
     wall = time.perf_counter() - tic
     model = COMA.load(str(_chosen_model(Path(run_path))), env=None, device="cpu")
@@ -668,7 +666,7 @@ def ablation_step(run: Run) -> None:
         [paired_difference(run.ablation.results[(full, n)], run.ablation.results[(lb, n)], "entropy") for n, lb in keys]
     )
     paired = [(noise, d) for (noise, _), d in zip(keys, adjusted)]
-    run.sections["ablation_paired"] = _report().paired_table(paired, "noise")
+    run.sections["ablation_paired"] = report.paired_table(paired, "noise")
     run.arms = {v: m for v, m in run.arms.items() if ab.LABELS[v] not in run.ablation.skipped}  # flown above
     run.summary["ablation"] = {
         **ablation_acceptance(run.ablation),
@@ -761,7 +759,11 @@ def _paired_check(
 
     missions = f"{trials} unseen missions (split `test`, random starts, env seeds {seed}..{seed + trials - 1})"
     parts = [
-        f"COMA vs AG on the same {missions} per env, noise `{noise}`:\n",
+        f"COMA vs AG on the same {missions} per env, noise `{noise}`. Holm family: the "
+        f"{len(table1)} comparisons of this table (COMA − AG, per map and metric). The unseen protocol's "
+        "tables (`unseen_verdicts.md`, `acceptance.md`) fly the same missions and correct over every pair of "
+        "methods of their table: where they say tie and this table says better, the family differs, not the "
+        "data (docs/statistics.md).\n",
         paired_markdown([d for _, d in table1], [env for env, _ in table1]),
     ]
     if diffs:
@@ -802,7 +804,7 @@ def unseen_protocol(run: Run) -> None:
     unseen_results = [row.result for row in run.unseen.rows()]
     table = {(c.env, c.b): c.diffs for c in run.unseen.comparisons() if c.a == "coma"}
     accept = acceptance(unseen_results, baselines=_competitors(run), verdicts=table)
-    (run.out / "acceptance.md").write_text(_report().acceptance_markdown(accept))
+    (run.out / "acceptance.md").write_text(report.acceptance_markdown(accept))
     run.summary["acceptance"] = accept
 
 
@@ -837,7 +839,7 @@ def generalisation_step(run: Run) -> None:
     for r in run.results:  # own-map numbers for reference
         if r.method == "coma":
             gen.append({"model": r.env, "target": r.env, **_final(r)})
-    (run.out / "generalisation.md").write_text(_report().generalisation_markdown(gen))
+    (run.out / "generalisation.md").write_text(report.generalisation_markdown(gen))
     run.summary["generalisation"] = gen
     if o.generalisation and not o.quick and USER_MAP_MODEL in run.sources:
         user_map_step(run, run.sources[USER_MAP_MODEL])
@@ -1063,11 +1065,6 @@ def _ship(sources: dict[str, ModelSource], results: Sequence[Any], say: Callable
     pt.write_manifest(manifest)
 
 
-def _report() -> Any:
-
-    return report
-
-
 def figures_step(run: Run) -> None:
     """Metric curves per protocol, training reward, ablation, noise sweep."""
     if not run.opts.plots:
@@ -1131,7 +1128,6 @@ def seed_spread_rows() -> list[dict[str, Any]]:
 def write_results(run: Run) -> None:
     """summary.json, RESULTS.md (and the docs copy with its figures)."""
     o = run.opts
-    report = _report()
     run.summary.update(
         command=" ".join(
             ["sb3-coma reproduce"]
