@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 __all__ = ["HATCHES", "LINESTYLES", "MARKERS", "OKABE_ITO", "MethodStyle", "method_styles", "uav_colour"]
 
@@ -61,7 +62,7 @@ class MethodStyle:
     marker: str
     hatch: str
 
-    def line(self) -> dict[str, object]:
+    def line(self) -> dict[str, Any]:
         """Keyword arguments of ``Axes.plot`` / ``Axes.errorbar`` for this style."""
         return {"color": self.color, "linestyle": self.linestyle, "marker": self.marker}
 

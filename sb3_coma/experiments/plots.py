@@ -44,6 +44,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib import cm, colors
+from matplotlib.artist import Artist
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.patches import Patch
@@ -80,7 +81,7 @@ def _save(fig: plt.Figure, path: PathLike, **kwargs) -> Path:
 def _legend_outside(fig: plt.Figure, axes: Sequence[plt.Axes], extra: Sequence[Patch] = (), **kwargs) -> None:
     """One legend for the figure, right of the axes (constrained layout makes room): it never
     covers a curve, whatever the data. Entries are taken from every axes, each label once."""
-    entries: dict[str, object] = {}
+    entries: dict[str, Artist] = {}
     for ax in axes:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             entries.setdefault(label, handle)
