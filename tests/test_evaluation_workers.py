@@ -89,6 +89,8 @@ def test_worker_warnings_reach_the_caller_once():
     model = COMA("UavCnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=kwargs)
     record_env_options(model, "env1", {"fusion": "mean", "n_uavs": 2, "budget": 4})
     with pytest.warns(WorldMismatchWarning) as caught:
-        evaluate(model, fusion="mean", record=0, workers=2, **{**SMALL, "noise": "loud"})
-    assert len([w for w in caught if issubclass(w.category, WorldMismatchWarning)]) == 1
+        evaluate(model, fusion="mean", record=0, workers=2, label="my-arm", **{**SMALL, "noise": "loud"})
+    mismatches = [str(w.message) for w in caught if issubclass(w.category, WorldMismatchWarning)]
+    assert len(mismatches) == 1
+    assert "model 'my-arm'" in mismatches[0] and "sb3-coma-eval" not in mismatches[0]  # the arm, not a temp copy
     venv.close()

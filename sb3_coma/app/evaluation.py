@@ -578,6 +578,8 @@ def _evaluate_on_workers(chunk: dict[str, Any], n_trials: int, n_workers: int) -
             _close_pool()
             raise RuntimeError("an evaluation worker process died (out of memory?); rerun with workers=1") from None
     for message, category in dict.fromkeys(w for _, caught in done for w in caught):  # once each, in order
+        if isinstance(policy, COMA):  # name the model the caller gave, not its temporary copy
+            message = message.replace(f"model {str(Path(tmp) / 'model.zip')!r}", f"model {chunk['label']!r}")
         warnings.warn(message, category, stacklevel=3)
     return merge_results([result for result, _ in done])
 
