@@ -42,9 +42,11 @@ from sb3_coma.app.config import (
     coma_kwargs,
     construct,
     env_options_of,
+    eval_copies,
     is_int,
     load_config,
     make_training_env,
+    make_validation_env,
     named_objects,
     plain,
     positive_int,
@@ -82,6 +84,8 @@ from sb3_coma.common.callbacks import (
     truncate_metrics_csv,
 )
 from sb3_coma.common.checkpoints import atomic_save, load_checkpoint, training_options, validate_checkpoint
+from sb3_coma.common.evaluation import VALIDATION_SEED as _VALIDATION_SEED
+from sb3_coma.common.evaluation import validation_missions
 from sb3_coma.common.memory import release_freed_memory
 from sb3_coma.common.outputs import FolderLock
 
@@ -112,7 +116,7 @@ TB_LOG_NAME = "COMA"
 #: Env seed of the validation missions that ``--eval-freq`` flies (seeds 1000, 1001, ...): far
 #: from the seeds 0..n-1 that ``evaluate`` and ``reproduce`` report, so picking the best
 #: checkpoint never looks at the test missions.
-VALIDATION_SEED = 1000
+VALIDATION_SEED = _VALIDATION_SEED
 #: Config keys whose change a resumed run applies (its world and its parallel layout: the env
 #: options, fusion and team included): a resume refuses such a change unless ``allow_change``.
 #: Every other key but the run length the checkpoint keeps as it was saved, so a change of it is
@@ -547,6 +551,9 @@ def _run_record(plan: RunPlan) -> dict[str, Any]:
         "created": now,
         "sb3_coma": __version__,
         "command": " ".join(getattr(sys, "orig_argv", sys.argv)),
+        # its checkpoints are validated on the validation protocol's missions (make_validation_env);
+        # runs without this key flew the drawn train missions of their env seeds
+        "validation_protocol": "validation",
     }
     if plan.resume_model is not None:
         run["resumed_from"] = str(plan.resume_model)
@@ -581,18 +588,12 @@ def prepare_run_folder(
     return run_path
 
 
-def eval_copies(missions: int) -> int:
-    """Env copies for an evaluation of ``missions`` missions: a divisor of it (every copy flies the
-    same number), at most 5, so one forward pass acts for several missions."""
-    return next(c for c in (5, 4, 3, 2, 1) if missions % c == 0)
-
-
 def attach_callbacks(
     plan: RunPlan,
     run_path: Path,
     save_freq: int | None = None,
     eval_freq: int = 0,
-    eval_missions: int = 5,
+    eval_missions: int | None = None,
     extra: list[BaseCallback] | None = None,
     handle_signals: bool = True,
     verbose: int = 1,
@@ -602,16 +603,17 @@ def attach_callbacks(
     # one rule for save_freq, checked once in _check_counts: an integer >= 0, 0 = no checkpoints
     every = max(plan.cfg.n_timesteps // 10, 1) if save_freq is None else int(save_freq)
     eval_env = None
+    missions = validation_missions(plan.cfg.map_name) if eval_missions is None else eval_missions
     if eval_freq and eval_freq > 0:
-        eval_missions = positive_int("train()", "eval_missions", eval_missions)
-        eval_env = make_training_env(plan.cfg, n_envs=eval_copies(eval_missions), seed=plan.eval_seed, workers=1)
+        missions = positive_int("train()", "eval_missions", missions)
+        eval_env = make_validation_env(plan.cfg, missions, plan.eval_seed)
     standard = mission_callbacks(
         run_path,
         every,
         checkpoint_dir=run_path / CHECKPOINT_DIR,
         eval_env=eval_env,
         eval_freq=eval_freq,
-        eval_missions=eval_missions,
+        eval_missions=missions,
         eval_seed=plan.eval_seed,
         eval_log_path=run_path / "eval",
         stop_on_signal=handle_signals,
@@ -763,7 +765,7 @@ def train(
     n_envs: int | None = None,
     save_freq: int | None = None,
     eval_freq: int = 0,
-    eval_missions: int = 5,
+    eval_missions: int | None = None,
     eval_seed: int | None = None,
     callbacks: list[BaseCallback] | None = None,
     progress_bar: bool = True,
@@ -798,7 +800,8 @@ def train(
     :param n_envs: env copies (default: the config's ``n_envs``)
     :param save_freq: joint steps between checkpoints (default: a tenth of the run)
     :param eval_freq: joint steps between evaluations (0: none); best model -> ``best_model.zip``
-    :param eval_missions: missions per evaluation
+    :param eval_missions: missions per evaluation (default: the validation protocol's, 4 per train
+        scene: env3 48, env2 36, env1 48)
     :param eval_seed: env seed of the validation missions, the same at every evaluation (default
         :data:`VALIDATION_SEED`, disjoint from the seeds ``evaluate`` and ``reproduce`` test on)
     :param callbacks: extra SB3 callbacks
@@ -843,7 +846,7 @@ def _set_up(
     runs_root: str | os.PathLike[str],
     device: str,
     verbose: int,
-    callback_args: tuple[int | None, int, int, list[BaseCallback] | None, bool],
+    callback_args: tuple[int | None, int, int | None, list[BaseCallback] | None, bool],
 ) -> tuple[COMA, Path, MissionCallbacks, list[BaseCallback]]:
     """Steps 2-5 of :func:`train`: envs, model, run folder, callbacks (``callback_args``: the
     arguments of :func:`attach_callbacks` after the run folder). Nothing is written before the

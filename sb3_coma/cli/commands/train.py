@@ -149,7 +149,12 @@ def _add_schedule_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="joint steps between evaluations (0: none; best model -> best_model.zip)",
     )
-    parser.add_argument("--eval-missions", type=int, default=5, help="missions per evaluation")
+    parser.add_argument(
+        "--eval-missions",
+        type=int,
+        default=None,
+        help="missions per evaluation (default: the validation protocol's, 4 per train scene: env3 48, env2 36)",
+    )
     parser.add_argument(
         "--eval-seed",
         type=int,
