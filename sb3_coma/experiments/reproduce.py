@@ -1081,7 +1081,9 @@ def figures_step(run: Run) -> None:
             for env, ms in run.methods.items()
         }
         title = f"{name} protocol: F1 and entropy vs step, noise {o.noise}, {count}"
-        run.figures.append(pl.plot_metric_grid(results, fig_dir / file, title=title))
+        titles = report.model_titles(run)  # "COMA (oracle warm start)" where the map's models were warm-started
+        labels = {env: [titles.get(r.method, r.method) for r in rs] for env, rs in results.items()}
+        run.figures.append(pl.plot_metric_grid(results, fig_dir / file, title=title, labels=labels))
     curves = {
         env: pl.TrainingCurve(np.arange(1, len(s.training_curve) + 1), np.asarray(s.training_curve), s.source)
         for env, s in run.sources.items()
