@@ -28,11 +28,11 @@ from .registration import ENV_IDS, map_name_of, register_envs
 
 if TYPE_CHECKING:
     from .api import make_env, make_vec_env
-    from .config import NOISE_PRESETS, WORLD_VERSION, ConfigError, IppConfig
+    from .config import DEFAULT_MAP, NOISE_PRESETS, WORLD_VERSION, ConfigError, IppConfig
     from .fusion import DEFAULT_FUSION, available_fusions
     from .ipp_env import UavIppEnv
     from .maps import GroundTruth, MapError, available_maps, load_ground_truth
-    from .vec_env import DEFAULT_MAP, IppVecEnv
+    from .vec_env import IppVecEnv
     from .workers import BACKENDS, EnvWorkerError, WorkerVecEnv
 
 #: Public name -> the submodule that defines it (imported on first use).
@@ -50,7 +50,7 @@ _LAZY = {
     "MapError": "maps",
     "available_maps": "maps",
     "load_ground_truth": "maps",
-    "DEFAULT_MAP": "vec_env",
+    "DEFAULT_MAP": "config",
     "IppVecEnv": "vec_env",
     "BACKENDS": "workers",
     "EnvWorkerError": "workers",

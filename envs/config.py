@@ -359,3 +359,9 @@ class IppConfig:
             if col in columns:
                 _fail("start_positions", p, "distinct (x, y) columns: two UAVs cannot share a column")
             columns.add(col)
+
+
+#: The default map of every entry point that builds an env (``make_env``, ``make_vec_env``, the
+#: gymnasium ids, ``sb3-coma train``, the studies): ``IppConfig``'s own, the paper's Env3. Defined
+#: here, beside the options, so that reading it imports neither Stable-Baselines3 nor torch.
+DEFAULT_MAP: str = IppConfig.map_name

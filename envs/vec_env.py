@@ -17,13 +17,9 @@ import supersuit
 from gymnasium.vector import VectorEnv
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-from .config import ConfigError, IppConfig
+from .config import DEFAULT_MAP, ConfigError, IppConfig
 from .fusion import DEFAULT_FUSION, wrap_fusion
 from .ipp_env import UavIppEnv
-
-#: The default map of every entry point that builds an env (``make_env``, ``make_vec_env``, the
-#: gymnasium ids, ``sb3-coma train``): ``IppConfig``'s own, the paper's Env3.
-DEFAULT_MAP: str = IppConfig.map_name
 
 
 class IppVecEnv(VecEnv):

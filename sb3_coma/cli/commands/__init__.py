@@ -6,14 +6,12 @@ import argparse
 
 
 def default_map() -> str:
-    """The world's default map, for the options' defaults and help.
+    """The world's default map (``uav_ipp.DEFAULT_MAP``), for the options' defaults and help; it
+    lives in ``uav_ipp.config``, which imports neither Stable-Baselines3 nor torch, so ``--help``
+    stays quick (tests/test_cli_lazy.py)."""
+    from uav_ipp import DEFAULT_MAP
 
-    ``uav_ipp.DEFAULT_MAP`` is ``IppConfig.map_name``, but the world serves it from
-    ``uav_ipp.vec_env``, which imports Stable-Baselines3 and torch; ``uav_ipp.config`` holds the
-    same value and imports neither, so ``--help`` stays quick (tests/test_cli_lazy.py)."""
-    from uav_ipp.config import IppConfig
-
-    return str(IppConfig.map_name)
+    return DEFAULT_MAP
 
 
 def workers_value(text: str) -> int | str:
