@@ -106,7 +106,9 @@ def _named_planner(
     return planner, {**options, **dict(planner_kwargs or {})}, label or alias
 
 
-def _is_baseline(name: str) -> bool:
+def is_baseline(name: str) -> bool:
+    """Whether ``name`` names a baseline planner or a table row of one (``ag-k3`` ...); the one
+    test every front door (evaluate, export) uses."""
     if _alias(name) is not None:
         return True
     try:
@@ -116,7 +118,8 @@ def _is_baseline(name: str) -> bool:
         return False
 
 
-def _looks_like_path(name: str) -> bool:
+def looks_like_path(name: str) -> bool:
+    """Whether a model name is spelt as a file path (a typo there is "not found", not "unknown")."""
     return name.endswith(".zip") or os.sep in name or "/" in name or name.startswith(".")
 
 
@@ -151,13 +154,13 @@ def _load_pretrained(name: str, venv: Any) -> Any:
 def is_model(policy_or_name: Any) -> bool:
     """Whether this names/is a learned model (not a baseline): decides the default fusion."""
     if isinstance(policy_or_name, (str, os.PathLike)):
-        return not (isinstance(policy_or_name, str) and _is_baseline(policy_or_name))
+        return not (isinstance(policy_or_name, str) and is_baseline(policy_or_name))
     return not isinstance(policy_or_name, Planner)
 
 
 def check_policy(policy_or_name: Any) -> None:
     """Fail early, before any env is built, on names and paths that cannot resolve."""
-    if _is_shipped_name(policy_or_name) or (isinstance(policy_or_name, str) and _is_baseline(policy_or_name)):
+    if _is_shipped_name(policy_or_name) or (isinstance(policy_or_name, str) and is_baseline(policy_or_name)):
         return
     if isinstance(policy_or_name, (str, os.PathLike)):
         text = os.fspath(policy_or_name)
@@ -169,7 +172,7 @@ def check_policy(policy_or_name: Any) -> None:
             return
         if Path(text).is_dir():
             raise ValueError(f"model {text!r} is a folder: pass the model .zip inside it (e.g. {text}/model.zip)")
-        if isinstance(policy_or_name, os.PathLike) or _looks_like_path(text):
+        if isinstance(policy_or_name, os.PathLike) or looks_like_path(text):
             raise FileNotFoundError(f"model file not found: {text!r}")
         raise ValueError(
             f"unknown method {text!r}: not a baseline ({', '.join(sorted(PLANNERS))}; table rows: "
@@ -189,7 +192,7 @@ def resolve_policy(
     """(predictor with SB3's ``predict``, label) for a baseline name, model path/name or object."""
     policy_or_name, planner_kwargs, row = _named_planner(policy_or_name, planner_kwargs, None)
     check_policy(policy_or_name)
-    if isinstance(policy_or_name, str) and _is_baseline(policy_or_name):
+    if isinstance(policy_or_name, str) and is_baseline(policy_or_name):
         cls = planner_class(policy_or_name)
         return make_planner(cls.name, venv, seed=seed, **dict(planner_kwargs or {})), row or cls.name
     if _is_shipped_name(policy_or_name):
@@ -386,7 +389,7 @@ def _shipped_info(policy_or_name: Any) -> dict[str, Any]:
 
 
 def _is_ag(policy_or_name: Any) -> bool:
-    if not isinstance(policy_or_name, str) or not _is_baseline(policy_or_name):
+    if not isinstance(policy_or_name, str) or not is_baseline(policy_or_name):
         return False
     alias = _alias(policy_or_name)
     return planner_class(PLANNER_ALIASES[alias][0] if alias else policy_or_name).name == "ag"
@@ -497,14 +500,14 @@ def evaluate(
         record=record,
         label=label or policy_label(policy_or_name),
     )
-    is_baseline = isinstance(policy_or_name, str) and _is_baseline(policy_or_name)
+    baseline = isinstance(policy_or_name, str) and is_baseline(policy_or_name)
     return relabel(
         result,
         env=str(env),
         fusion=flown_fusion,
         env_options=dict(env_options),
         protocol=protocol,
-        planner_kwargs=dict(flown_kwargs) if is_baseline else {},
+        planner_kwargs=dict(flown_kwargs) if baseline else {},
     )
 
 
@@ -647,7 +650,7 @@ def policy_label(policy_or_name: Any) -> str:
     model's name, a planner's name, or :data:`MODEL_LABEL`."""
     if _alias(policy_or_name) is not None:
         return str(_alias(policy_or_name))
-    if isinstance(policy_or_name, str) and _is_baseline(policy_or_name):
+    if isinstance(policy_or_name, str) and is_baseline(policy_or_name):
         return planner_class(policy_or_name).name
     if _is_shipped_name(policy_or_name):
         return str(policy_or_name)

@@ -58,10 +58,9 @@ from torch import nn
 
 from sb3_coma import __version__
 from sb3_coma.app.config import TrainingError, load_config, path_name_problem, split_env_kwargs
-from sb3_coma.app.evaluation import _looks_like_path
+from sb3_coma.app.evaluation import is_baseline, looks_like_path
 from sb3_coma.app.pretrained import PretrainedError, model_info, pretrained_dir, sha256_file, verify_shipped_file
 from sb3_coma.app.runs import read_run_config, run_folder_of
-from sb3_coma.baselines import planner_class
 from sb3_coma.coma.masking import MASKED_LOGIT, mask_logits
 from sb3_coma.common.checkpoints import training_options
 from sb3_coma.sendfuse.network import UNKNOWN, SenDFuseNet
@@ -225,9 +224,9 @@ def resolve_model_source(name_or_path: str | os.PathLike[str]) -> ModelSource:
             return ModelSource(text, candidate, None, run_folder_of(candidate))
     if Path(text).is_dir():
         raise ExportError(f"model {text!r} is a folder: pass the model .zip inside it (e.g. {text}/model.zip)")
-    if _looks_like_path(text):
+    if looks_like_path(text):
         raise ExportError(f"model file not found: {text!r}")
-    if _is_baseline(text):
+    if is_baseline(text):
         raise ExportError(
             f"model {text!r} is a baseline planner, not a trained model: pass a COMA model .zip or a shipped model name"
         )
@@ -236,15 +235,6 @@ def resolve_model_source(name_or_path: str | os.PathLike[str]) -> ModelSource:
     except PretrainedError as exc:
         raise ExportError(f"unknown model {text!r}: not a model file and {exc}") from None
     return ModelSource(text, pretrained_dir() / info["file"], info, None)
-
-
-def _is_baseline(name: str) -> bool:
-    """Whether ``name`` is a baseline planner (for a clearer message)."""
-    try:
-        planner_class(name)
-    except ValueError:
-        return False
-    return True
 
 
 def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
