@@ -17,6 +17,12 @@ world nor rl_zoo3 nor the application, and not even torch, because importing any
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import importlib.util
+import sys
+from collections.abc import Sequence
+from functools import partial
+from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the names as the type checker sees them; at run time __getattr__ serves them
@@ -46,6 +52,35 @@ _LAZY = {
     "CBAMPolicy": "sb3_coma.uav.policies",
     "UavCnnPolicy": "sb3_coma.uav.policies",
 }
+
+
+#: Modules that moved, old dotted name -> new. IPPO / MAPPO zips saved while they lived in
+#: ``sb3_coma.common`` name their policy classes there (``PPO.load`` unpickles them by name), and
+#: ``sb3_coma.common.marl_baselines.make_ippo`` was a public name: an old name imports as a module
+#: that serves the new module's names (the same functions and classes).
+_MOVED = {
+    "sb3_coma.common.marl_baselines": "sb3_coma.mappo.mappo",
+    "sb3_coma.common.central_value": "sb3_coma.mappo.central_value",
+}
+
+
+class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Serves each old name of :data:`_MOVED` as a module whose every name is the new module's
+    (PEP 562 ``__getattr__``): the same functions and classes, imported on first use."""
+
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None = None, target: ModuleType | None = None
+    ) -> importlib.machinery.ModuleSpec | None:
+        return importlib.util.spec_from_loader(fullname, self) if fullname in _MOVED else None
+
+    def exec_module(self, module: ModuleType) -> None:
+        home = importlib.import_module(_MOVED[module.__name__])
+        module.__doc__ = f"Moved to :mod:`{home.__name__}`; the old name serves saved models and old imports."
+        vars(module).update(__all__=list(getattr(home, "__all__", ())), __getattr__=partial(getattr, home))
+
+
+if not any(isinstance(finder, _MovedModules) for finder in sys.meta_path):
+    sys.meta_path.append(_MovedModules())
 
 
 def __getattr__(name: str) -> Any:

@@ -9,8 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from sb3_coma.common import outputs
-from sb3_coma.common.outputs import manifest_name
+from sb3_coma.app import outputs
+from sb3_coma.app.outputs import manifest_name
 
 
 def snapshot(folder: Path) -> dict[str, str]:

@@ -5,10 +5,14 @@ Layers, by folder; each imports only from its own layer and the layers below it:
 0. ``uav_ipp`` (the world, source folder ``envs/``): imports nothing from ``sb3_coma``. Fusion wrappers that live on the
    algorithm side (SenDFuse) reach ``uav_ipp.make_vec_env`` through the ``uav_ipp.fusion`` entry
    point, looked up when an env is wrapped.
-1. the library: ``sb3_coma/coma/`` (the algorithm), ``sb3_coma/sendfuse/``, ``sb3_coma/baselines/``,
-   ``sb3_coma/common/`` (evaluation of objects, tables, extractors, callbacks, checkpoints, paired
-   statistics, IPPO/MAPPO) and the package's ``__init__`` (whose two front doors load the
-   application lazily, by a name held in data, never by an import statement).
+1. the library: ``sb3_coma/coma/`` (the algorithm), ``sb3_coma/mappo/`` (IPPO/MAPPO),
+   ``sb3_coma/sendfuse/``, ``sb3_coma/baselines/``, ``sb3_coma/common/`` (what the algorithms
+   share: the multi-agent vec env and its contract, masking, extractors, callbacks, checkpoint
+   files, evaluation of objects), ``sb3_coma/stats/`` (paired statistics, tables),
+   ``sb3_coma/uav/`` and the package's ``__init__`` (whose two front doors load the application
+   lazily, by a name held in data, never by an import statement). Inside the library the folders
+   stand on floors of their own (``LIBRARY_FLOORS``): ``common`` imports no algorithm, the
+   algorithms and ``stats`` import nothing of one another nor of ``uav``.
 2. the application: ``sb3_coma/app/`` (training runs, config, zoo, pretrained, export, the
    evaluation front door) and the top-level shims that keep public names (``sb3_coma/training.py``,
    ``sb3_coma/zoo.py``).
@@ -39,6 +43,8 @@ LAYERS: dict[str, int] = {
     "sb3_coma.sendfuse": 1,
     "sb3_coma.baselines": 1,
     "sb3_coma.common": 1,
+    "sb3_coma.mappo": 1,
+    "sb3_coma.stats": 1,
     "sb3_coma.uav": 1,
     "sb3_coma.app": 2,
     "sb3_coma.training": 2,
@@ -48,6 +54,19 @@ LAYERS: dict[str, int] = {
     "sb3_coma.__main__": 4,
 }
 LAYER_NAMES = {0: "uav_ipp", 1: "library", 2: "application", 3: "experiments", 4: "cli"}
+
+#: Floors of the library's folders (docs/design.md §2): a folder imports from itself and from the
+#: floors below it only, never from a folder beside it on its own floor.
+LIBRARY_FLOORS: dict[str, int] = {
+    "sb3_coma.baselines": 0,  # planners: the world only
+    "sb3_coma.sendfuse": 0,
+    "sb3_coma.common": 1,  # what the algorithms share
+    "sb3_coma.coma": 2,  # the two algorithms, side by side
+    "sb3_coma.mappo": 2,
+    "sb3_coma.stats": 2,  # reads evaluation results
+    "sb3_coma.uav": 3,  # the UAV world's COMA policies and DAgger warm start
+    "sb3_coma": 4,  # the package __init__
+}
 
 
 def layer_of(module: str) -> int | None:
@@ -183,12 +202,35 @@ def test_imports_point_only_down_the_layers() -> None:
     assert not bad, "imports that point up the layers (docs/design.md):\n" + "\n".join(bad)
 
 
+def _library_folder(module: str) -> str:
+    return ".".join(module.split(".")[:2])
+
+
+def test_every_library_folder_stands_on_a_floor() -> None:
+    assert set(LIBRARY_FLOORS) == {folder for folder, layer in LAYERS.items() if layer == 1}
+
+
+def test_library_folders_import_only_down_their_floors() -> None:
+    """``common`` imports nothing of ``coma``, ``mappo``, ``stats`` or ``uav``; ``coma``, ``mappo``
+    and ``stats`` nothing of one another nor of ``uav`` (the layers above: the test before)."""
+    bad = []
+    for imp in _all_imports("sb3_coma"):
+        if layer_of(imp.module) != 1 or layer_of(imp.target) != 1:
+            continue
+        own, target = _library_folder(imp.module), _library_folder(imp.target)
+        if own != target and LIBRARY_FLOORS[target] >= LIBRARY_FLOORS[own]:
+            bad.append(f"{imp} (floor {LIBRARY_FLOORS[own]} -> {LIBRARY_FLOORS[target]})")
+    assert not bad, "library imports that point up or sideways (docs/design.md §2):\n" + "\n".join(bad)
+
+
 @pytest.mark.parametrize(
     ("module", "layer"),
     [
         ("sb3_coma.coma.coma", 1),
         ("sb3_coma.common.evaluation", 1),
-        ("sb3_coma.common.paired", 1),
+        ("sb3_coma.stats.paired", 1),
+        ("sb3_coma.mappo.mappo", 1),
+        ("sb3_coma.common.joint", 1),
         ("sb3_coma.app.training", 2),
         ("sb3_coma.app.evaluation", 2),
         ("sb3_coma.experiments.reproduce", 3),

@@ -10,8 +10,8 @@ from pettingzoo import ParallelEnv
 from stable_baselines3 import PPO
 
 from sb3_coma import make_marl_vec_env
-from sb3_coma.common.central_value import KEY_AGENT_ID, CentralStateVecEnv, CentralValuePolicy
-from sb3_coma.common.marl_baselines import make_ippo, make_mappo
+from sb3_coma.mappo.central_value import KEY_AGENT_ID, CentralStateVecEnv, CentralValuePolicy
+from sb3_coma.mappo.mappo import make_ippo, make_mappo
 
 
 def _spread() -> ParallelEnv:

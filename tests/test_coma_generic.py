@@ -19,8 +19,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from test_architecture import ROOT, imports_of
 
 from sb3_coma import COMA, make_marl_vec_env
-from sb3_coma.coma.joint import actor_observation_space
 from sb3_coma.coma.policies import one_hot_others
+from sb3_coma.common.joint import actor_observation_space
 
 FAST = {"n_steps": 16, "batch_size": 16, "n_epochs": 1, "n_critic_epochs": 1}
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch as th
 
-from sb3_coma.coma.masking import MASKED_LOGIT, behaviour_probs, mask_logits, sample_actions
+from sb3_coma.common.masking import MASKED_LOGIT, behaviour_probs, mask_logits, sample_actions
 
 
 def random_masks(n: int, seed: int = 0) -> th.Tensor:

@@ -17,7 +17,7 @@ from stable_baselines3.common.logger import KVWriter, Logger
 
 import uav_ipp
 from sb3_coma import COMA, evaluate
-from sb3_coma.common.tables import rows_for, table_markdown
+from sb3_coma.stats.tables import rows_for, table_markdown
 
 JOINT_STEPS = 96
 SMALL_CNN = {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}}

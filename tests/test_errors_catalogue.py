@@ -393,7 +393,7 @@ def _validate(path: Path):
 
 
 def _load_checkpoint(path: Path, files: Files):
-    from sb3_coma.common.checkpoints import load_checkpoint
+    from sb3_coma.app.runs import load_checkpoint
 
     return load_checkpoint(path, env=files.venv, device="cpu")
 

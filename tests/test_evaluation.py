@@ -15,8 +15,8 @@ from sb3_coma import evaluate as evaluate_export
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.cli import main
 from sb3_coma.common.evaluation import FRACTIONS
-from sb3_coma.common.tables import rows_for, table_markdown, write_table_csv
 from sb3_coma.experiments import ablation
+from sb3_coma.stats.tables import rows_for, table_markdown, write_table_csv
 from uav_ipp.config import ConfigError
 
 SMALL = dict(env="env1", budget=3, noise="moderate")

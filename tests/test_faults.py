@@ -258,7 +258,7 @@ def test_crash_before_replace_keeps_the_final_model(tmp_path, tiny_model, monkey
 
 
 def test_truncated_checkpoint_is_refused_with_a_clear_error(tmp_path, tiny_model, capsys):
-    from sb3_coma.common.checkpoints import load_checkpoint
+    from sb3_coma.app.runs import load_checkpoint
 
     path = atomic_save(tiny_model, tmp_path / "rl_model_8_steps.zip")
     data = path.read_bytes()

@@ -1,8 +1,15 @@
-"""IPPO / MAPPO (sb3_coma.common.marl_baselines): masking, what the actor reads, save/load, a short run."""
+"""IPPO / MAPPO (sb3_coma.mappo.mappo): masking, what the actor reads, save/load, a short run."""
 
 from __future__ import annotations
 
+import base64
+import json
+import pickle
+import subprocess
+import sys
 import time
+import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +19,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import obs_as_tensor
 
 import uav_ipp
-from sb3_coma.common.marl_baselines import (
+from sb3_coma.mappo.mappo import (
     DEFAULT_PPO_KWARGS,
     IPPOPolicy,
     MAPPOPolicy,
@@ -150,7 +157,7 @@ def test_actor_never_reads_state_or_gain(kind):
 @pytest.mark.parametrize("kind", ["ippo", "mappo"])
 def test_gain_inputs_make_the_actor_read_the_gains(kind):
     """``gain_inputs=True``: the same on-board gains COMA's ``gain_inputs`` actor reads."""
-    from sb3_coma.uav.policies import GAIN_ENCODER_DIM
+    from sb3_coma.common.extractors import GAIN_ENCODER_DIM
 
     venv = tiny_venv()
     model = tiny_model(kind, venv, policy_kwargs=dict(features_extractor_kwargs=dict(gain_inputs=True)))
@@ -228,6 +235,66 @@ def test_save_load_round_trip(kind, tmp_path):
         assert loaded.policy.vf_features_extractor.keys == ("local", "state")
     loaded.learn(total_timesteps=128)  # the loaded model keeps training
     venv.close()
+
+
+def _as_saved_from_common(path: Path, module: str) -> None:
+    """Rewrite a saved zip so that its policy class is pickled under ``module``, as zips saved while
+    IPPO / MAPPO lived in ``sb3_coma.common`` (``marl_baselines``, ``central_value``) name it."""
+    with zipfile.ZipFile(path) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    data = json.loads(members["data"])
+    name = pickle.loads(base64.b64decode(data["policy_class"][":serialized:"])).__name__
+    data["policy_class"][":serialized:"] = base64.b64encode(f"c{module}\n{name}\n.".encode()).decode()
+    data["policy_class"]["__module__"] = module
+    members["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(path, "w") as archive:
+        for member, content in members.items():
+            archive.writestr(member, content)
+
+
+def _load_in_a_fresh_interpreter(path: Path) -> str:
+    """``module.Class`` of the policy that SB3's own ``PPO.load`` gives, nothing of ours imported first."""
+    code = (
+        "from stable_baselines3 import PPO\n"
+        f"policy = type(PPO.load({str(path)!r}, device='cpu').policy)\n"
+        "print(f'{policy.__module__}.{policy.__name__}')\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    return result.stdout.strip().splitlines()[-1]
+
+
+def test_zips_saved_from_common_load_with_their_policy_class_moved(tmp_path):
+    """Older zips pickle the policies under ``sb3_coma.common.marl_baselines``; ``sb3_coma.mappo``
+    holds them now, and a plain ``PPO.load`` of such a zip still gives the same policy and actions."""
+    venv = tiny_venv(n_envs=1)
+    model = tiny_model("mappo", venv)
+    obs = collect_observations(venv, 2, seed=1)
+    path = tmp_path / "mappo_from_common.zip"
+    model.save(path)
+    _as_saved_from_common(path, "sb3_coma.common.marl_baselines")
+    assert _load_in_a_fresh_interpreter(path) == "sb3_coma.mappo.mappo.MAPPOPolicy"
+    loaded = PPO.load(path, env=venv, device="cpu")
+    np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
+    import sb3_coma.common.marl_baselines as old  # the old public name (docs/design.md §7)
+
+    assert old.make_ippo is make_ippo and old.MAPPOPolicy is MAPPOPolicy
+    venv.close()
+
+
+def test_zips_saved_from_common_load_with_the_central_value_policy_moved(tmp_path):
+    """MAPPO on any env: older zips pickle ``CentralValuePolicy`` under ``sb3_coma.common.central_value``."""
+    pytest.importorskip("mpe2")
+    from mpe2 import simple_spread_v3
+
+    from sb3_coma import make_marl_vec_env
+
+    venv = make_marl_vec_env(lambda: simple_spread_v3.parallel_env(N=2, max_cycles=5), n_envs=1, seed=0)
+    model = make_mappo(venv, n_steps=8, batch_size=16, seed=0)
+    path = tmp_path / "mappo_any_env_from_common.zip"
+    model.save(path)
+    _as_saved_from_common(path, "sb3_coma.common.central_value")
+    assert _load_in_a_fresh_interpreter(path) == "sb3_coma.mappo.central_value.CentralValuePolicy"
 
 
 @pytest.mark.parametrize("kind", ["ippo", "mappo"])

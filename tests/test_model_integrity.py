@@ -11,9 +11,10 @@ import pytest
 import torch as th
 
 from sb3_coma import COMA
+from sb3_coma.app.runs import load_checkpoint
 from sb3_coma.cli import main
 from sb3_coma.common import shipped
-from sb3_coma.common.checkpoints import CheckpointError, load_checkpoint, validate_checkpoint
+from sb3_coma.common.checkpoints import CheckpointError, validate_checkpoint
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""What a staged output may touch (``sb3_coma.common.outputs.staged_output``, 0.3.0): only what an
+"""What a staged output may touch (``sb3_coma.app.outputs.staged_output``, 0.3.0): only what an
 sb3-coma run wrote.
 
 * a folder next to ``--out`` that is merely *named* like a staging folder (no marker inside) is
@@ -24,10 +24,10 @@ import pytest
 from staging_helpers import dead_pid, siblings, snapshot, write_run
 
 from sb3_coma import cli
+from sb3_coma.app import outputs
 from sb3_coma.app.config import TrainingError
+from sb3_coma.app.outputs import OutputFolderError, manifest_name, staged_output
 from sb3_coma.app.runs import check_run_dir, claim_run_dir
-from sb3_coma.common import outputs
-from sb3_coma.common.outputs import OutputFolderError, manifest_name, staged_output
 
 #: The patterns ``evaluate`` passes as ``own=`` (they used to decide what was deleted).
 EVALUATE_PATTERNS = ("table.*", "per_step.csv", "planning_time.*", "curves_*.png", "mission_*", "training_reward.png")
@@ -280,7 +280,7 @@ def test_a_second_writer_of_one_out_is_refused_up_front(tmp_path: Path) -> None:
             textwrap.dedent(
                 f"""
                 import sys
-                from sb3_coma.common.outputs import staged_output
+                from sb3_coma.app.outputs import staged_output
                 with staged_output({str(target)!r}, command="evaluate") as out:
                     (out / "table.md").write_text("first")
                     print("ready", flush=True)

@@ -1,4 +1,4 @@
-"""Paired comparisons on shared missions (sb3_coma.common.paired): differences, standard errors, verdicts."""
+"""Paired comparisons on shared missions (sb3_coma.stats.paired): differences, standard errors, verdicts."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from sb3_coma.common.paired import NO_VERDICT, PairedDifference, paired_difference, paired_markdown
+from sb3_coma.stats.paired import NO_VERDICT, PairedDifference, paired_difference, paired_markdown
 
 
 def _result(

@@ -1,4 +1,4 @@
-"""Clustered paired statistics (sb3_coma.common.paired): scenes, CR2 (and the old CR1) standard
+"""Clustered paired statistics (sb3_coma.stats.paired): scenes, CR2 (and the old CR1) standard
 errors, the t test, Holm's correction, the one-scene case, refusals and the per-scene table, on
 hand-made examples (tests/test_paired_cr2.py checks CR2 against an outside reference)."""
 
@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from sb3_coma.common.evaluation import PROTOCOLS, scene_label
-from sb3_coma.common.paired import (
+from sb3_coma.experiments.protocols import Method, ProtocolResult
+from sb3_coma.stats.paired import (
     NO_VERDICT,
     PairedDifference,
     cell,
@@ -25,7 +26,6 @@ from sb3_coma.common.paired import (
     t_ppf,
     t_two_sided_p,
 )
-from sb3_coma.experiments.protocols import Method, ProtocolResult
 
 
 def _result(method, f1, scenes=None, seed=0, **env_options):

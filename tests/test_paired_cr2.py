@@ -1,5 +1,5 @@
 """The verdicts' small-sample cluster-robust statistics (issue #35): CR2 with Bell-McCaffrey degrees
-of freedom for the mean of paired differences (sb3_coma.common.paired.cluster_robust_mean).
+of freedom for the mean of paired differences (sb3_coma.stats.paired.cluster_robust_mean).
 
 Three checks of the closed form the module uses for a regression on 1:
 * against an independent general-matrix implementation written here (any design X; the
@@ -22,7 +22,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from sb3_coma.common.paired import (
+from sb3_coma.stats.paired import (
     NO_VERDICT,
     SE_METHOD,
     bell_mccaffrey_df,

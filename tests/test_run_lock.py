@@ -22,9 +22,9 @@ import yaml
 from tiny_runs import ENV, tiny_entry
 
 from sb3_coma import cli
+from sb3_coma.app.outputs import LOCK_FILE, FolderInUseError, FolderLock, lock_holder
 from sb3_coma.app.training import TrainingError, train
 from sb3_coma.common.checkpoints import find_checkpoints, validate_checkpoint
-from sb3_coma.common.outputs import LOCK_FILE, FolderInUseError, FolderLock, lock_holder
 
 REPO = Path(__file__).resolve().parent.parent
 TOTAL = 64  # joint steps: 8 rollouts of 8

@@ -1,4 +1,4 @@
-"""Staged outputs (``sb3_coma.common.outputs.staged_output``): a multi-file output replaces its
+"""Staged outputs (``sb3_coma.app.outputs.staged_output``): a multi-file output replaces its
 ``--out`` as a whole or not at all.
 
 Unit tests of the context manager (an exception or SIGTERM inside leaves the target untouched;
@@ -24,8 +24,8 @@ import pytest
 from staging_helpers import dead_pid, mark, siblings, snapshot, write_run
 
 from sb3_coma import cli
-from sb3_coma.common import outputs
-from sb3_coma.common.outputs import (
+from sb3_coma.app import outputs
+from sb3_coma.app.outputs import (
     FolderLock,
     OutputFolderError,
     OutputInterrupted,
@@ -250,8 +250,8 @@ def test_full_disk_inside_a_staged_output_is_one_line_and_leaves_nothing(tmp_pat
     gone and the previous output untouched."""
     import errno
 
+    from sb3_coma.app.outputs import staged_output
     from sb3_coma.common.checkpoints import DiskFullError
-    from sb3_coma.common.outputs import staged_output
 
     target = tmp_path / "out"
     write_run(target, "evaluate", {"old.txt": "old"})  # 0.3.0: a folder without a manifest is refused up front

@@ -21,7 +21,7 @@ communication grid, noise, fusion). Deployment, per UAV and step::
 
 **The argmax is inside the actor graph** (output ``action``, int64), next to the masked logits
 (output ``logits``: invalid actions set to ``MASKED_LOGIT``, as in
-:func:`sb3_coma.coma.masking.mask_logits`), so ``action`` is what
+:func:`sb3_coma.common.masking.mask_logits`), so ``action`` is what
 ``model.predict(obs, deterministic=True)`` returns and a caller that wants to sample takes
 ``softmax(logits)`` itself. The graphs are built from the model's own modules and masking
 functions (not re-implementations), which is why the two agree; ``tests/test_export.py`` checks
@@ -61,8 +61,8 @@ from sb3_coma.app.config import TrainingError, load_config, path_name_problem, s
 from sb3_coma.app.evaluation import is_baseline, looks_like_path
 from sb3_coma.app.pretrained import PretrainedError, model_info, pretrained_dir, sha256_file, verify_shipped_file
 from sb3_coma.app.runs import read_run_config, run_folder_of
-from sb3_coma.coma.masking import MASKED_LOGIT, mask_logits
 from sb3_coma.common.checkpoints import training_options
+from sb3_coma.common.masking import MASKED_LOGIT, mask_logits
 from sb3_coma.sendfuse.network import UNKNOWN, SenDFuseNet
 from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 from uav_ipp import IppConfig, layout

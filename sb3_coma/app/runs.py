@@ -11,7 +11,8 @@
         best_model.zip     with --eval-freq: the best checkpoint on the validation missions
         .lock              held (flock) by the process training in the folder; names its pid
 
-The layout is a data format: the trainer writes it, ``--resume`` and ``sb3-coma export`` read it.
+The layout is a data format: the trainer writes it, ``--resume`` and ``sb3-coma export`` read it
+(:func:`load_checkpoint`: a checkpoint validated, then loaded as ``COMA``).
 One process writes a run folder at a time (:func:`lock_run_folder`): a second ``train`` into it
 (a resume, or a new run with that ``--run-dir``) is refused while the first runs.
 """
@@ -19,9 +20,12 @@ One process writes a run folder at a time (:func:`lock_run_folder`): a second ``
 from __future__ import annotations
 
 import os
+import pickle
 import re
 import warnings
+import zipfile
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -34,20 +38,21 @@ from sb3_coma.app.config import (
     read_config_file,
     resolve_env_id,
 )
-from sb3_coma.common.checkpoints import (
-    CheckpointError,
-    atomic_write_text,
-    find_checkpoints,
-    folder_write_problem,
-    validate_checkpoint,
-)
-from sb3_coma.common.outputs import (
+from sb3_coma.app.outputs import (
     LOCK_FILE,
     FolderInUseError,
     FolderLock,
     LockHolder,
     folder_name_problem,
     lock_holder,
+)
+from sb3_coma.coma import COMA
+from sb3_coma.common.checkpoints import (
+    CheckpointError,
+    atomic_write_text,
+    find_checkpoints,
+    folder_write_problem,
+    validate_checkpoint,
 )
 
 __all__ = [
@@ -58,6 +63,7 @@ __all__ = [
     "TENSORBOARD_DIR",
     "check_run_dir",
     "claim_run_dir",
+    "load_checkpoint",
     "lock_run_folder",
     "new_run_dir",
     "newest_model",
@@ -237,3 +243,16 @@ def resolve_resume(resume: str | os.PathLike[str]) -> tuple[Path | None, Path]:
         return p, model
     validate_checkpoint(p)
     return run_folder_of(p), p
+
+
+def load_checkpoint(path: str | os.PathLike[str], env: Any = None, **kwargs: Any) -> COMA:
+    """Validate, then ``COMA.load(path, env=env, **kwargs)``; errors name the file."""
+    validate_checkpoint(path)
+    try:
+        return COMA.load(str(path), env=env, **kwargs)
+    except pickle.UnpicklingError as exc:  # torch's "Weights only load failed ..." on a damaged member
+        raise CheckpointError(
+            f"checkpoint {path} is corrupt: a network or optimizer member is not a readable PyTorch file"
+        ) from exc
+    except (KeyError, ValueError, RuntimeError, zipfile.BadZipFile, EOFError) as exc:
+        raise CheckpointError(f"checkpoint {path} could not be loaded: {exc}") from exc

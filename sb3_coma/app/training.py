@@ -52,6 +52,7 @@ from sb3_coma.app.config import (
     positive_int,
     resolve_env_id,
 )
+from sb3_coma.app.outputs import FolderLock
 from sb3_coma.app.runs import (
     CHECKPOINT_DIR,
     CONFIG_FILE,
@@ -60,6 +61,7 @@ from sb3_coma.app.runs import (
     TENSORBOARD_DIR,
     check_run_dir,
     claim_run_dir,
+    load_checkpoint,
     lock_run_folder,
     newest_model,
     read_run_config,
@@ -83,11 +85,10 @@ from sb3_coma.common.callbacks import (
     SignalStopCallback,
     truncate_metrics_csv,
 )
-from sb3_coma.common.checkpoints import atomic_save, load_checkpoint, training_options, validate_checkpoint
+from sb3_coma.common.checkpoints import atomic_save, training_options, validate_checkpoint
 from sb3_coma.common.evaluation import VALIDATION_SEED as _VALIDATION_SEED
 from sb3_coma.common.evaluation import validation_missions
 from sb3_coma.common.memory import release_freed_memory
-from sb3_coma.common.outputs import FolderLock
 
 # the trainer
 __all__ = [

@@ -63,6 +63,7 @@ from sb3_coma.app.config import (
     split_env_kwargs,
     validate_entry,
 )
+from sb3_coma.app.runs import load_checkpoint
 from sb3_coma.app.training import check_device, mission_callbacks, record_env_options, selection_end
 from sb3_coma.app.warm_start import warm_start
 from sb3_coma.app.zoo_sampler import register as register_sampler
@@ -73,7 +74,6 @@ from sb3_coma.common.checkpoints import (
     CheckpointError,
     DiskFullError,
     atomic_save,
-    load_checkpoint,
     validate_checkpoint,
 )
 from uav_ipp import ENV_IDS, ConfigError, IppConfig

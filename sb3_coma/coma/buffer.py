@@ -16,7 +16,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 
-from sb3_coma.coma.joint import map_obs
+from sb3_coma.common.joint import map_obs
 
 __all__ = ["JointBatch", "JointRolloutBuffer"]
 

@@ -61,7 +61,6 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
 from sb3_coma.coma.buffer import JointRolloutBuffer
-from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, concat_state, map_obs, state_space_of
 from sb3_coma.coma.plugins import resolve_policy, saved_policy_class
 from sb3_coma.coma.policies import CnnPolicy, COMAPolicy, MlpPolicy, MultiInputPolicy
 from sb3_coma.coma.progress import JointStepProgressBar
@@ -76,8 +75,15 @@ from sb3_coma.coma.validation import (
     check_observation,
     check_spaces,
     check_total_timesteps,
+)
+from sb3_coma.common.joint import (
+    KEY_MASK,
+    KEY_STATE,
+    concat_state,
+    map_obs,
     resolve_n_agents,
     resolve_state_source,
+    state_space_of,
 )
 from sb3_coma.common.shipped import check_shipped_file
 

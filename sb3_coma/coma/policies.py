@@ -37,8 +37,8 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_coma.coma.joint import KEY_MASK, actor_observation_space, actor_view, map_obs
-from sb3_coma.coma.masking import behaviour_probs, mask_logits, sample_actions
+from sb3_coma.common.joint import KEY_MASK, actor_observation_space, actor_view, map_obs
+from sb3_coma.common.masking import behaviour_probs, mask_logits, sample_actions
 
 __all__ = ["COMAPolicy", "CnnPolicy", "MlpPolicy", "MultiInputPolicy"]
 

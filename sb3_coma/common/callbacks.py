@@ -36,7 +36,6 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from stable_baselines3.common.logger import TensorBoardOutputFormat
 
-from sb3_coma.coma.validation import resolve_n_agents
 from sb3_coma.common.checkpoints import (
     CHECKPOINT_PREFIX,
     atomic_save,
@@ -44,6 +43,7 @@ from sb3_coma.common.checkpoints import (
     checkpoint_name,
     find_checkpoints,
 )
+from sb3_coma.common.joint import resolve_n_agents
 
 __all__ = [
     "METRIC_COLUMNS",

@@ -18,7 +18,6 @@ from __future__ import annotations
 import errno
 import json
 import os
-import pickle
 import re
 import tempfile
 import warnings
@@ -28,8 +27,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
-
-from sb3_coma.coma import COMA
 
 __all__ = [
     "CHECKPOINT_PREFIX",
@@ -44,7 +41,6 @@ __all__ = [
     "folder_write_problem",
     "fsync_path",
     "last_checkpoint",
-    "load_checkpoint",
     "training_options",
     "validate_checkpoint",
 ]
@@ -337,19 +333,6 @@ def last_checkpoint(folder: str | os.PathLike[str], prefix: str = CHECKPOINT_PRE
             continue
         return path
     return None
-
-
-def load_checkpoint(path: str | os.PathLike[str], env: Any = None, **kwargs: Any) -> COMA:
-    """Validate, then ``COMA.load(path, env=env, **kwargs)``; errors name the file."""
-    validate_checkpoint(path)
-    try:
-        return COMA.load(str(path), env=env, **kwargs)
-    except pickle.UnpicklingError as exc:  # torch's "Weights only load failed ..." on a damaged member
-        raise CheckpointError(
-            f"checkpoint {path} is corrupt: a network or optimizer member is not a readable PyTorch file"
-        ) from exc
-    except (KeyError, ValueError, RuntimeError, zipfile.BadZipFile, EOFError) as exc:
-        raise CheckpointError(f"checkpoint {path} could not be loaded: {exc}") from exc
 
 
 # --------------------------------------------------------------------------- training settings

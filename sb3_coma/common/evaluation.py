@@ -29,7 +29,7 @@ Three protocols (``protocol=``, :data:`PROTOCOLS`), one per role of the missions
   (:func:`validation_missions`).
 
 Either way trial ``k`` uses env seed ``seed + k`` for every method, so two results of one protocol
-are shared missions and ``sb3_coma.common.paired`` compares them mission by mission.
+are shared missions and ``sb3_coma.stats.paired`` compares them mission by mission.
 
 AG's entropy weighting defaults to the one chosen per map family on validation missions
 (``sb3_coma.baselines.adaptive_gain.WEIGHTING_BY_MAP``, measured by ``sb3-coma ag-weighting``)
@@ -190,7 +190,7 @@ class EvaluationResult:
     #: the planner's options (AG: weighting, lookahead) as flown
     planner_kwargs: dict[str, Any] = field(default_factory=dict)
     #: one scene label per trial (:func:`scene_label`): missions of one scene are not independent,
-    #: so ``sb3_coma.common.paired`` clusters its standard errors by them (``None``: unknown)
+    #: so ``sb3_coma.stats.paired`` clusters its standard errors by them (``None``: unknown)
     scenes: tuple[str, ...] | None = None
 
     def step_of(self, fraction: float) -> int:

@@ -1,4 +1,5 @@
-"""The multi-agent VecEnv contract as COMA reads it: observation keys, state sources, joint tensors.
+"""The multi-agent VecEnv contract as the algorithms read it (COMA, MAPPO's value function, the
+mission callbacks): observation keys, agents per copy, state sources, joint tensors.
 
 An observation is a tensor or a dict of tensors (SB3's ``PyTorchObs``). Rows are agents; COMA
 regroups them into joint steps ``(B, N, ...)`` and back. Two keys of a ``Dict`` observation have a
@@ -16,6 +17,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.preprocessing import get_flattened_obs_dim, preprocess_obs
 from stable_baselines3.common.type_aliases import PyTorchObs
+from stable_baselines3.common.vec_env import VecEnv
 
 __all__ = [
     "KEY_MASK",
@@ -26,6 +28,8 @@ __all__ = [
     "concat_state",
     "concat_state_space",
     "map_obs",
+    "resolve_n_agents",
+    "resolve_state_source",
     "state_space_of",
 ]
 
@@ -121,3 +125,66 @@ def state_space_of(
         assert env_state_space is not None
         return env_state_space
     return concat_state_space(observation_space, n_agents)
+
+
+def resolve_n_agents(env: VecEnv) -> int:
+    """Agents per env copy, read from the vec env (wrappers forward the attribute).
+
+    :raises TypeError: ``env`` is not an SB3 ``VecEnv``
+    :raises ValueError: no usable ``n_agents``, or ``num_envs`` not a multiple of it
+    """
+    if not isinstance(env, VecEnv):
+        raise TypeError(
+            "COMA needs an SB3 VecEnv whose rows are agents (sb3_coma.make_marl_vec_env(parallel_env)), "
+            f"got {type(env).__name__}"
+        )
+    n_agents: Any = getattr(env, "n_agents", None)
+    if n_agents is None:
+        try:
+            values = env.get_attr("n_agents")
+            n_agents = values[0] if values else None
+        except Exception:  # any failure means "the env does not say"
+            n_agents = None
+    if n_agents is None:
+        raise ValueError(
+            "the vec env does not expose `n_agents` (agents per env copy); COMA cannot regroup its "
+            "rows into joint steps. Build it with sb3_coma.make_marl_vec_env(parallel_env) or set `n_agents` on it."
+        )
+    if isinstance(n_agents, bool) or not isinstance(n_agents, int) or n_agents < 1:
+        raise ValueError(f"`n_agents` must be a positive int, got {n_agents!r}")
+    if env.num_envs % n_agents != 0:
+        raise ValueError(
+            f"num_envs={env.num_envs} is not a multiple of n_agents={n_agents}: the vec env must hold "
+            "whole env copies (agent a of copy e at index e * n_agents + a)"
+        )
+    return n_agents
+
+
+def resolve_state_source(env: VecEnv, n_agents: int) -> tuple[str, spaces.Space]:
+    """Where the global state of a joint step comes from: the env's ``state_source`` attribute
+    (``sb3_coma.make_marl_vec_env`` sets it), else a ``state`` observation key, else the env's
+    ``get_state()`` with its ``state_space``, else the concatenation of the agents' observations.
+
+    :return: the source and the state's space
+    :raises ValueError: an unknown source, or ``"env"`` without ``state_space``
+    """
+    source = getattr(env, "state_source", None)
+    state_space = getattr(env, "state_space", None)
+    if source is None:
+        has_key = isinstance(env.observation_space, spaces.Dict) and KEY_STATE in env.observation_space.spaces
+        source = "obs" if has_key else "env" if state_space is not None and hasattr(env, "get_state") else "concat"
+    if source not in STATE_SOURCES:
+        raise ValueError(f"the vec env's state_source {source!r} is not one of {STATE_SOURCES}")
+    if source == "env" and not isinstance(state_space, spaces.Box):
+        raise ValueError(f"state_source 'env' needs a Box state_space on the vec env, got {state_space!r}")
+    if source == "obs" and not (
+        isinstance(env.observation_space, spaces.Dict) and KEY_STATE in env.observation_space.spaces
+    ):
+        raise ValueError(
+            f"state_source 'obs' needs a {KEY_STATE!r} key in the observation, got {env.observation_space}"
+        )
+    return source, state_space_of(source, env.observation_space, n_agents, state_space)
+
+
+#: The most joint steps one ``learn()`` may be asked for: 10^10 is weeks of the fastest collection
+#: measured here; a larger number is a typo (``1e100``), and floats lose whole steps past 2^53.

@@ -31,7 +31,7 @@ from pettingzoo.utils.wrappers import BaseParallelWrapper
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
-from sb3_coma.coma.joint import STATE_SOURCES
+from sb3_coma.common.joint import STATE_SOURCES
 
 __all__ = ["STATE_SOURCES", "MarlVecEnv", "make_marl_vec_env"]
 

@@ -19,7 +19,7 @@ from typing import Any
 import uav_ipp
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.common.evaluation import EvaluationResult
-from sb3_coma.common.tables import TableRow, table_markdown, table_text
+from sb3_coma.stats.tables import TableRow, table_markdown, table_text
 
 FUSIONS: tuple[str, ...] = ("mean", "sendfuse")
 EXTRACTORS: tuple[str, ...] = ("cnn", "cbam")

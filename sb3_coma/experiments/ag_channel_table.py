@@ -24,7 +24,7 @@ import numpy as np
 
 import uav_ipp
 from sb3_coma.baselines import make_planner
-from sb3_coma.coma.validation import resolve_n_agents
+from sb3_coma.common.joint import resolve_n_agents
 
 __all__ = ["KEYS", "fly", "main"]
 

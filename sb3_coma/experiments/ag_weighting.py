@@ -7,7 +7,7 @@ family, the way a user tuning AG would: on *validation* missions. :func:`pick_ag
 both weightings on the same ``split="train"`` missions with env seeds from
 :data:`VALIDATION_SEED` (disjoint from the seeds 0..49 that the paper and unseen protocols report
 and from the training runs' checkpoint-validation seeds 1000..1019), never on ``split="test"`` nor
-on the paper's fixed mission, and picks by a paired test (``sb3_coma.common.paired``):
+on the paper's fixed mission, and picks by a paired test (``sb3_coma.stats.paired``):
 
 1. the weighting with the lower valuable-cell entropy of the global map at 100 % of the budget,
    when the paired difference is significant by the scene-clustered t test (docs/statistics.md);
@@ -65,7 +65,7 @@ class WeightingChoice:
     env_options: dict[str, Any]
     #: weighting -> {"f1": mean, "entropy": mean, "team_f1": mean, "team_entropy": mean} at 100 %
     means: dict[str, dict[str, float]] = field(default_factory=dict)
-    #: metric -> paired difference "plain" - "class" (``sb3_coma.common.paired.PairedDifference.as_dict()``)
+    #: metric -> paired difference "plain" - "class" (``sb3_coma.stats.paired.PairedDifference.as_dict()``)
     paired: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def comment(self) -> str:
@@ -127,7 +127,7 @@ def pick_ag_weighting(
         a recorder)
     :param env_options: other env options (``budget``, ``n_uavs`` ...); ``split`` is refused
     """
-    from sb3_coma.common.paired import paired_difference
+    from sb3_coma.stats.paired import paired_difference
     from uav_ipp.gain import WEIGHTINGS
 
     if evaluate is None:

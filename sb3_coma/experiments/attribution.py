@@ -11,7 +11,7 @@ agreement is compared with the one ``models.json`` recorded, to say whether it i
 Rows per map: "COMA (oracle warm start)" (the shipped model), "oracle clone (DAgger)" (that clone),
 AG, and for env3 "COMA from scratch" (the shipped ``env3-sendfuse-cbam`` arm: same inputs, no
 teacher). Verdicts: paired differences on shared missions, the standard error clustered by scene,
-Holm over the whole table (``sb3_coma.common.paired``). These are test missions: the output
+Holm over the whole table (``sb3_coma.stats.paired``). These are test missions: the output
 reports and chooses nothing. ``--out`` gets the Markdown (atomically) and a JSON twin.
 """
 
@@ -29,7 +29,7 @@ from sb3_coma.app import pretrained as pt
 from sb3_coma.app.evaluation import evaluate, parallel_evaluation
 from sb3_coma.app.roles import TEST_SPLIT_NOTE
 from sb3_coma.common.evaluation import EvaluationResult
-from sb3_coma.common.paired import PairedDifference, holm_adjust, paired_difference, paired_markdown
+from sb3_coma.stats.paired import PairedDifference, holm_adjust, paired_difference, paired_markdown
 
 __all__ = ["CLONE_LABEL", "SCRATCH_LABEL", "WARM_LABEL", "main"]
 

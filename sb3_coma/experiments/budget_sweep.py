@@ -22,7 +22,7 @@ from typing import Any
 from sb3_coma.app.evaluation import evaluate, parallel_evaluation
 from sb3_coma.app.roles import add_split_argument, protocol_for_split
 from sb3_coma.common.evaluation import EvaluationResult
-from sb3_coma.common.paired import PairedDifference, holm_adjust, paired_difference
+from sb3_coma.stats.paired import PairedDifference, holm_adjust, paired_difference
 
 __all__ = ["main", "sweep"]
 

@@ -31,7 +31,7 @@ from sb3_coma.app.training import build_model, make_training_env, plan_run, reco
 from sb3_coma.app.warm_start import actor_frozen_then
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma import COMA
-from sb3_coma.common.paired import holm_adjust, paired_difference
+from sb3_coma.stats.paired import holm_adjust, paired_difference
 from sb3_coma.uav.imitation import clone_teacher
 
 __all__ = ["main"]

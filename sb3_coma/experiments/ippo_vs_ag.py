@@ -18,7 +18,7 @@ on the same ``--eval-missions`` seeded missions of ``--split`` (the validation m
 default; ``--split test``, the unseen test scenes, reports only; trial k = env seed
 ``eval_seed + k`` for every method, ``sb3_coma.evaluate``) and prints final F1 / entropy (global
 map) and team F1 / entropy (the UAVs' own beliefs) as mean +- std over the missions, and the
-paired differences model - AG and model - random +- standard error (``sb3_coma.common.paired``).
+paired differences model - AG and model - random +- standard error (``sb3_coma.stats.paired``).
 Missions are counted honestly: SB3 counts agent-steps, so ``total_timesteps = missions * n_uavs *
 budget``. The model zip, a metrics JSON and the learning curve CSV go to ``--out`` (keep them out
 of the repository).
@@ -55,8 +55,8 @@ from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for
 from sb3_coma.app.training import eval_copies
 from sb3_coma.common.callbacks import MissionEvalCallback
 from sb3_coma.common.evaluation import PROTOCOLS, VALIDATION_SEED, validation_missions
-from sb3_coma.common.marl_baselines import make_ippo, make_mappo, missions_of, timesteps_for_missions
-from sb3_coma.common.paired import paired_difference
+from sb3_coma.mappo.mappo import make_ippo, make_mappo, missions_of, timesteps_for_missions
+from sb3_coma.stats.paired import paired_difference
 from uav_ipp import DEFAULT_MAP
 
 __all__ = ["METRICS", "Curve", "main", "parse_args"]

@@ -23,7 +23,7 @@ The learner's row is the candidate with the highest validation return (split tra
 Every candidate is flown on the same unseen missions (trial k = env seed k) for the seed spread;
 the selected one enters the paired table: the first learner minus every other learner, AG and
 AG-k3, per metric, the standard error clustered by scene and the t verdict Holm-corrected over
-the whole table (``sb3_coma.common.paired``). A model's observation options (``action_gain``)
+the whole table (``sb3_coma.stats.paired``). A model's observation options (``action_gain``)
 follow what it was trained with. ``--out`` writes the tables as Markdown (atomically).
 """
 
@@ -42,12 +42,12 @@ import numpy as np
 import torch as th
 from stable_baselines3 import PPO
 
-import sb3_coma.common.marl_baselines  # noqa: F401  (the IPPO / MAPPO policy classes PPO.load needs)
+import sb3_coma.mappo.mappo  # noqa: F401  (the IPPO / MAPPO policy classes PPO.load needs)
 from sb3_coma import COMA, evaluate
 from sb3_coma.app import pretrained as pt
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
-from sb3_coma.common.paired import PairedDifference, paired_difference, paired_markdown
 from sb3_coma.experiments.ship_models import run_command, validation_best, validation_return
+from sb3_coma.stats.paired import PairedDifference, paired_difference, paired_markdown
 from uav_ipp import DEFAULT_MAP
 
 __all__ = ["METRICS", "Candidate", "Learner", "load", "main", "parse_learner", "select", "validation_score"]

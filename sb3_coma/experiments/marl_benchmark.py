@@ -103,7 +103,7 @@ class TeamReturns(VecEnvWrapper):
 def _vec_env(task: Task, seed: int, learner: str) -> tuple[VecEnv, TeamReturns]:
     """The task's vec env for ``learner`` and the recorder inside it."""
     from sb3_coma import make_marl_vec_env
-    from sb3_coma.common.central_value import CentralStateVecEnv
+    from sb3_coma.mappo.central_value import CentralStateVecEnv
 
     base = make_marl_vec_env(task.make, n_envs=N_ENVS, seed=seed)
     recorder = TeamReturns(base, base.n_agents)  # type: ignore[attr-defined]
@@ -114,7 +114,7 @@ def _model(learner: str, venv: VecEnv, seed: int) -> Any:
     from stable_baselines3 import PPO
 
     from sb3_coma import COMA
-    from sb3_coma.common.central_value import CentralValuePolicy
+    from sb3_coma.mappo.central_value import CentralValuePolicy
 
     if learner == "coma":
         return COMA("MlpPolicy", venv, seed=seed, device="cpu")

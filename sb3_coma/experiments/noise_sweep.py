@@ -13,7 +13,7 @@ alpha_low 0.8, no drops), each under both decoders: :data:`SIGMAS`, :data:`ALPHA
 :data:`DROP_PROBABILITIES`; ``grid=True`` flies the full product instead (96 settings).
 Every setting flies the same missions (env seeds ``seed .. seed + n - 1`` of ``split``, default
 the unseen protocol's ``"test"`` with random starts), so each arm is compared with AG mission by
-mission (``sb3_coma.common.paired``: standard errors clustered by scene, and the p-values of the
+mission (``sb3_coma.stats.paired``: standard errors clustered by scene, and the p-values of the
 whole table Holm-adjusted together, :meth:`NoiseSweepResult.paired`).
 """
 
@@ -40,8 +40,8 @@ from sb3_coma.app.evaluation import (
     world_differences,
 )
 from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult
-from sb3_coma.common.paired import PairedDifference, cell, holm_adjust, paired_difference
 from sb3_coma.experiments.protocols import Method
+from sb3_coma.stats.paired import PairedDifference, cell, holm_adjust, paired_difference
 from uav_ipp import ENV_IDS, IppConfig
 
 __all__ = [

@@ -17,7 +17,7 @@ import sys
 from typing import Any
 
 from sb3_coma.app.evaluation import evaluate
-from sb3_coma.common.paired import paired_difference
+from sb3_coma.stats.paired import paired_difference
 
 __all__ = ["main"]
 

@@ -10,7 +10,7 @@ every method, so the results are shared missions. :class:`ProtocolResult` holds 
 * a compact table at 100 % with the planning time per UAV decision;
 * the verdicts: paired differences ``a - b`` at 100 % (± the CR2 standard error clustered by
   scene; a t test with Bell-McCaffrey degrees of freedom, at most scenes - 1, Holm-corrected over
-  the whole verdict table; one scene gives no verdict: ``sb3_coma.common.paired``,
+  the whole verdict table; one scene gives no verdict: ``sb3_coma.stats.paired``,
   docs/statistics.md) for the comparisons of
   :func:`default_pairs`, on all four metrics;
 * the per-scene breakdown of each map's first comparison (:meth:`ProtocolResult.scene_table`).
@@ -36,8 +36,8 @@ import torch as th
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.app.pretrained import load_pretrained, read_manifest
 from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult, Protocol, protocol_of
-from sb3_coma.common.paired import PairedDifference, cell, holm_adjust, p_text, paired_difference, scene_markdown
-from sb3_coma.common.tables import TableRow, table_markdown, write_per_step_csv, write_table_csv
+from sb3_coma.stats.paired import PairedDifference, cell, holm_adjust, p_text, paired_difference, scene_markdown
+from sb3_coma.stats.tables import TableRow, table_markdown, write_per_step_csv, write_table_csv
 from uav_ipp import WORLD_VERSION
 
 __all__ = [
@@ -181,7 +181,7 @@ def shipped_methods(
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Comparison:
-    """``a - b`` on one map, on every metric (``sb3_coma.common.paired.PairedDifference`` each)."""
+    """``a - b`` on one map, on every metric (``sb3_coma.stats.paired.PairedDifference`` each)."""
 
     env: str
     a: str
@@ -194,7 +194,7 @@ class Comparison:
 
 def holm_comparisons(comparisons: Sequence[Comparison]) -> list[Comparison]:
     """The comparisons with every metric's p-value Holm-adjusted over all of them: one verdict
-    table is one family (``sb3_coma.common.paired.holm``)."""
+    table is one family (``sb3_coma.stats.paired.holm``)."""
     flat = [(i, m, d) for i, c in enumerate(comparisons) for m, d in c.diffs.items()]
     adjusted = holm_adjust([d for _, _, d in flat])
     diffs: list[dict[str, PairedDifference]] = [{} for _ in comparisons]

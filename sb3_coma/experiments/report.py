@@ -2,7 +2,7 @@
 
 Nothing here measures anything: it formats what the run measured. Verdicts ("A beats B", "tie",
 "one scene: no verdict") are read from paired differences on shared missions, clustered by scene and
-Holm-corrected per table (``sb3_coma.common.paired``, docs/statistics.md), and never from means.
+Holm-corrected per table (``sb3_coma.stats.paired``, docs/statistics.md), and never from means.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from sb3_coma.app.pretrained import WARM_START_TITLE
-from sb3_coma.common.paired import NO_VERDICT, PairedDifference, p_text, paired_markdown
 from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, VALIDATION_SPLIT
+from sb3_coma.stats.paired import NO_VERDICT, PairedDifference, p_text, paired_markdown
 
 #: The comparisons the README paragraph states, when both methods were flown.
 _KEY_BASELINE_PAIRS = (("ag-k2", "ag"), ("ag-k3", "ag"), ("ag", "lawnmower"), ("ag", "random"))
@@ -566,7 +566,7 @@ def _paired_check_section(run: Any) -> list[str]:
         "## A paired check on more missions",
         "",
         "Each pair of methods flies the same paper-split missions, more of them than Table I, and the "
-        f"per-mission difference is averaged ({RULE}; `sb3_coma.common.paired`; `--wide-trials`). The paper "
+        f"per-mission difference is averaged ({RULE}; `sb3_coma.stats.paired`; `--wide-trials`). The paper "
         "split is one scene per map, so these are noise draws of one mission: the numbers describe that "
         "mission, and no verdict can generalise beyond it.",
         "",

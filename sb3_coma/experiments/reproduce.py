@@ -21,12 +21,12 @@ when such models are shipped) in named steps (:data:`STEPS`), writing into ``out
 * ``summary.json`` -- every number above; ``figures/``; ``RESULTS.md`` (``sb3_coma.experiments.report``),
   with ``docs=...`` also written there (figures next to it)
 
-``out`` is written as one staged output (``sb3_coma.common.outputs.staged_output``): everything goes
+``out`` is written as one staged output (``sb3_coma.app.outputs.staged_output``): everything goes
 into ``<out>.partial-<pid>`` and replaces ``out`` only when the run is complete, so an interrupted
 run (SIGKILL, SIGTERM, an error) leaves the previous results as they were. The ``docs`` copy is
 written at the end of the run, just before that swap.
 
-Every "A beats B" in the report is a paired test on shared missions (``sb3_coma.common.paired``);
+Every "A beats B" in the report is a paired test on shared missions (``sb3_coma.stats.paired``);
 everything in it is measured by the run that writes it; nothing is copied in.
 """
 
@@ -52,13 +52,11 @@ import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.app import evaluation as ev
 from sb3_coma.app import pretrained as pt
+from sb3_coma.app.outputs import staged_output
 from sb3_coma.app.pretrained import PretrainedError
 from sb3_coma.app.training import train
 from sb3_coma.baselines.adaptive_gain import default_weighting
-from sb3_coma.common import tables
 from sb3_coma.common.callbacks import ProgressLinesCallback
-from sb3_coma.common.outputs import staged_output
-from sb3_coma.common.paired import holm_adjust, paired_difference, paired_markdown
 from sb3_coma.experiments import ablation as ab
 from sb3_coma.experiments import plots as pl
 from sb3_coma.experiments import report
@@ -74,6 +72,8 @@ from sb3_coma.experiments.protocols import (
     run_protocol,
     shipped_methods,
 )
+from sb3_coma.stats import tables
+from sb3_coma.stats.paired import holm_adjust, paired_difference, paired_markdown
 from uav_ipp import WORLD_VERSION
 from uav_ipp.maps.ground_truth import available_maps
 
@@ -571,7 +571,7 @@ def acceptance(
     verdicts: Mapping[tuple[str, str], Mapping[str, Any]] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Per env: does ``model_label`` beat every baseline on F1 and on entropy at 100 %, each by a
-    paired test on the shared missions (``sb3_coma.common.paired``: a tie is not a win)?
+    paired test on the shared missions (``sb3_coma.stats.paired``: a tie is not a win)?
 
     :param baselines: the methods to beat (default: every other method whose label does not start
         with ``model_label``, i.e. not another COMA model)

@@ -34,7 +34,7 @@ import numpy as np
 
 from sb3_coma.app.evaluation import evaluate, parallel_evaluation
 from sb3_coma.common.evaluation import EvaluationResult, merge_results
-from sb3_coma.common.paired import PairedDifference, holm_adjust, paired_difference, paired_markdown
+from sb3_coma.stats.paired import PairedDifference, holm_adjust, paired_difference, paired_markdown
 from uav_ipp.maps.build_shipped_maps import source_dir
 
 __all__ = ["CROPS", "IMAGE_DIR", "RULE", "build", "fly", "images", "main", "table_markdown", "verdicts"]

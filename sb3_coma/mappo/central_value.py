@@ -28,8 +28,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from torch import nn
 
-from sb3_coma.coma.joint import KEY_MASK, KEY_STATE, concat_state, map_obs
-from sb3_coma.coma.validation import resolve_n_agents, resolve_state_source
+from sb3_coma.common.joint import KEY_MASK, KEY_STATE, concat_state, map_obs, resolve_n_agents, resolve_state_source
 
 __all__ = ["KEY_AGENT_ID", "CentralStateVecEnv", "CentralValuePolicy", "KeysExtractor"]
 

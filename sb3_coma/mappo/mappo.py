@@ -16,7 +16,7 @@ global map, critic only). With ``features_extractor_kwargs=dict(gain_inputs=True
   for), i.e. SB3's ``share_features_extractor=False`` with a critic extractor that reads
   ``state`` and an actor extractor that does not.
 
-Masking: invalid actions get the logit :data:`sb3_coma.coma.masking.MASKED_LOGIT` before SB3's
+Masking: invalid actions get the logit :data:`sb3_coma.common.masking.MASKED_LOGIT` before SB3's
 categorical distribution is built (:class:`MaskedActorCriticPolicy` overrides ``forward``,
 ``evaluate_actions`` and ``get_distribution``), so they have probability exactly 0 in rollouts,
 in PPO's ratio and entropy terms and in ``predict`` (argmax or sampled).
@@ -24,7 +24,7 @@ in PPO's ratio and entropy terms and in ``predict`` (argmax or sampled).
 Counting: SB3 counts agent-steps, one per vec-env row per step, so ``total_timesteps`` of
 ``learn`` is ``missions * n_agents * budget`` (:func:`timesteps_for_missions`, :func:`missions_of`).
 Models save and load with ``PPO.save`` / ``PPO.load``; every class here is importable by its dotted
-path (``sb3_coma.common.marl_baselines.IPPOPolicy`` ...), which is what the saved zip names.
+path (``sb3_coma.mappo.mappo.IPPOPolicy`` ...), which is what the saved zip names.
 """
 
 from __future__ import annotations
@@ -43,10 +43,9 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
-from sb3_coma.coma.masking import mask_logits
-from sb3_coma.common.central_value import CentralStateVecEnv, CentralValuePolicy
-from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
-from sb3_coma.uav.policies import GAIN_ENCODER_DIM
+from sb3_coma.common.extractors import GAIN_ENCODER_DIM, CBAMExtractor, CnnExtractor
+from sb3_coma.common.masking import mask_logits
+from sb3_coma.mappo.central_value import CentralStateVecEnv, CentralValuePolicy
 from uav_ipp import layout
 
 __all__ = [
@@ -354,8 +353,8 @@ def make_mappo(venv: VecEnv, **ppo_kwargs: Any) -> PPO:
     """MAPPO on ``venv``: SB3 ``PPO`` with the IPPO actor and a centralised value function.
 
     On the UAV world, :class:`MAPPOPolicy` (value function over ``local`` + ``state``); on any other
-    multi-agent vec env, :class:`~sb3_coma.common.central_value.CentralValuePolicy` over
-    :class:`~sb3_coma.common.central_value.CentralStateVecEnv` (value function over the global
+    multi-agent vec env, :class:`~sb3_coma.mappo.central_value.CentralValuePolicy` over
+    :class:`~sb3_coma.mappo.central_value.CentralStateVecEnv` (value function over the global
     state COMA's critic reads + the agent's one-hot id). Arguments as :func:`make_ippo`.
     """
     if not _is_uav(venv):

@@ -22,16 +22,12 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_coma.coma.masking import mask_logits
 from sb3_coma.coma.policies import COMAPolicy
-from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
+from sb3_coma.common.extractors import GAIN_ENCODER_DIM, CBAMExtractor, CnnExtractor
+from sb3_coma.common.masking import mask_logits
 from uav_ipp import layout
 
 __all__ = ["CBAMPolicy", "UavCOMAPolicy", "UavCnnPolicy", "check_uav_spaces", "critic_input", "other_actions_map"]
-
-#: Width of the actor's gain encoder (``gain_inputs=True``): the per-action gains are mapped to
-#: this many features before they join the trunk's features in the head.
-GAIN_ENCODER_DIM = 64
 
 #: FOOTPRINT marks the current cell with 1.0 and earlier visits with 0.5; anything above this
 #: threshold is "here" (equivalent to ``== 1`` for those values, but immune to float round-off).

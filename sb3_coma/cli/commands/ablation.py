@@ -55,8 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # here, not at module level: the parser alone must load neither torch nor matplotlib
-    from sb3_coma.common.tables import write_per_step_csv, write_table_csv
     from sb3_coma.experiments import ablation, plots
+    from sb3_coma.stats.tables import write_per_step_csv, write_table_csv
 
     set_threads(args.threads)
     if args.trials < 1 or args.seed < 0:

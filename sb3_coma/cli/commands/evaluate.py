@@ -10,7 +10,7 @@ mean +- std over trials, best in bold), ``per_step.csv``, ``planning_time.md`` /
 ms per UAV decision), ``curves_<env>.png`` (Figures 4/5), ``mission_<env>_<method>.png`` and
 ``.gif``, and ``training_reward.png`` (Figure 3) when ``--training-log`` is given. The files are
 staged in a folder next to ``--out`` and moved into place together when all are written
-(``sb3_coma.common.outputs``); files of other commands in ``--out`` are kept.
+(``sb3_coma.app.outputs``); files of other commands in ``--out`` are kept.
 """
 
 from __future__ import annotations
@@ -244,7 +244,7 @@ def _check_out(out: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from sb3_coma.app import evaluation as ev
-    from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
+    from sb3_coma.app.outputs import OutputFolderError, OutputInterrupted, staged_output
 
     set_threads(args.threads)
     if args.seed is None:
@@ -290,7 +290,7 @@ def _fly_and_write(
     """Fly every method on every map, write the tables and figures into ``out`` (the staging
     folder) and print the tables; the files written."""
     from sb3_coma.app import evaluation as ev
-    from sb3_coma.common import tables
+    from sb3_coma.stats import tables
 
     results: list[ev.EvaluationResult] = []
     for env_name in env_names:

@@ -56,7 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _load(source: ModelSource) -> COMA:
     """Load the model the source names: a shipped one after its checksum, a zip after validation."""
     from sb3_coma.app.pretrained import PretrainedError, load_pretrained
-    from sb3_coma.common.checkpoints import CheckpointError, load_checkpoint
+    from sb3_coma.app.runs import load_checkpoint
+    from sb3_coma.common.checkpoints import CheckpointError
 
     try:
         if source.shipped is not None:
@@ -80,8 +81,8 @@ def run(args: argparse.Namespace) -> int:
         resolve_model_source,
         settings_of_source,
     )
+    from sb3_coma.app.outputs import OutputFolderError, OutputInterrupted, staged_output
     from sb3_coma.common.checkpoints import validate_checkpoint
-    from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
 
     # Every check that needs no model comes first: a bad --opset, --model or --out costs nothing.
     try:

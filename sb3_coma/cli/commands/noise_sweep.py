@@ -98,7 +98,7 @@ def _check_out(out: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma.common.outputs import OutputFolderError, OutputInterrupted, staged_output
+    from sb3_coma.app.outputs import OutputFolderError, OutputInterrupted, staged_output
     from sb3_coma.experiments.report import sweep_sentence
 
     set_threads(args.threads)

@@ -242,7 +242,7 @@ def _given_counts(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma.common.outputs import OutputInterrupted
+    from sb3_coma.app.outputs import OutputInterrupted
     from sb3_coma.experiments.reproduce import reproduce
 
     set_threads(args.threads)
