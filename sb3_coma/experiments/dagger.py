@@ -28,7 +28,6 @@ import torch as th
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
 from sb3_coma.app.training import build_model, make_training_env, plan_run, record_env_options
-from sb3_coma.app.warm_start import actor_frozen_then
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma import COMA
 from sb3_coma.stats.paired import holm_adjust, paired_difference
@@ -111,8 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     name = "clone.zip"
     if args.finetune > 0:
         model.set_reference_actor()
-        if args.critic_warmup > 0:
-            model.lr_schedule = actor_frozen_then(model.lr_schedule, args.critic_warmup)
+        model.hold_actor(args.critic_warmup)  # saved with the model, as train() does
         tic = time.perf_counter()
         model.learn(args.finetune)
         record["finetune_s"], name = round(time.perf_counter() - tic, 1), "finetuned.zip"
