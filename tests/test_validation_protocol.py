@@ -126,3 +126,19 @@ def test_comparing_studies_fly_validation_missions_by_default(study: str) -> Non
     source = Path(str(module.__file__)).read_text(encoding="utf-8")
     assert "add_split_argument(" in source, f"{study} has no --split (validation by default)"
     assert 'protocol="unseen"' not in source and 'split="test"' not in source, f"{study} hard-codes the test split"
+
+
+def test_checkpoint_validation_flies_the_validation_protocols_missions() -> None:
+    """``sb3-coma train --eval-freq``'s eval env is the validation protocol's: mission_from_seed on
+    the config's train split, so checkpoints are chosen on the missions evaluate(protocol="validation") flies."""
+    from sb3_coma.app.config import eval_copies, load_config, make_validation_env
+
+    cfg = load_config("env1", overrides={"env_kwargs.n_uavs": 2, "env_kwargs.budget": 2})
+    assert cfg.env_kwargs.get("split") == "train"
+    venv = make_validation_env(cfg, 8, VALIDATION_SEED)
+    try:
+        assert venv.num_envs == eval_copies(8) * 2
+        config = venv.get_attr("config")[0]
+        assert config.mission_from_seed and config.split == "train" and config.start_rule == "random"
+    finally:
+        venv.close()
