@@ -292,3 +292,15 @@ def test_recorded_metrics_go_to_the_model_a_row_flew():
     assert _manifest_name("env1", "coma[paper-actor]") == "env1-paper-actor"
     assert _manifest_name("env3", "coma[sendfuse-cnn]") == "env3-sendfuse-cnn"
     assert _manifest_name("env3", "ag-k3") is None
+
+
+def test_quiet_turns_the_progress_lines_off(monkeypatch, tmp_path, capsys):
+    """``reproduce --quiet`` passes no log (no step, round or training lines); without it every line is flushed."""
+    import sb3_coma.experiments.reproduce as rep
+
+    seen = []
+    monkeypatch.setattr(rep, "reproduce", lambda **kwargs: seen.append(kwargs["log"]))
+    assert main(["reproduce", "--quick", "--env", "env1", "--out", str(tmp_path / "a"), "--no-docs", "--quiet"]) == 0
+    assert main(["reproduce", "--quick", "--env", "env1", "--out", str(tmp_path / "b"), "--no-docs"]) == 0
+    assert seen[0] is None and callable(seen[1])
+    assert capsys.readouterr().out == ""

@@ -135,6 +135,9 @@ def _add_section_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/RESULTS.md")
     parser.add_argument("--no-plots", action="store_true", help="skip the figures")
+    parser.add_argument(
+        "--quiet", action="store_true", help="no progress lines (steps, warm-start rounds, training); errors still show"
+    )
     parser.add_argument("--no-generalisation", action="store_true", help="skip the generalisation section")
     parser.add_argument(
         "--no-ablation", action="store_true", help="skip the env3 ablation (SenDFuse x CBAM arms at three noise levels)"
@@ -271,7 +274,7 @@ def run(args: argparse.Namespace) -> int:
             ablation=not args.no_ablation,
             costs=not args.no_costs,
             baselines_only=args.baselines_only,
-            log=lambda line: print(line, flush=True),  # a log file shows each step as it comes
+            log=None if args.quiet else lambda line: print(line, flush=True),  # a log shows each step as it comes
             **counts,
         )
     except ValueError as exc:  # unknown/missing/corrupt shipped model, bad env options, an --out it cannot replace
