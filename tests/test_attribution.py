@@ -57,6 +57,8 @@ def test_the_report_has_every_row_and_each_pair_once() -> None:
 def test_without_a_scratch_model_the_map_has_three_pairs() -> None:
     flown = {attribution.WARM_LABEL: None, attribution.CLONE_LABEL: None, "ag": None}
     assert len(attribution.comparisons(flown)) == 3  # type: ignore[arg-type]
+    flown.update(dict.fromkeys(attribution.PAIR_LABELS))
+    assert attribution.comparisons(flown)[-1] == attribution.PAIR_LABELS  # type: ignore[arg-type]
 
 
 def test_teacher_missions_and_titles() -> None:

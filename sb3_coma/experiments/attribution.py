@@ -2,7 +2,8 @@
 (where shipped) COMA from scratch, on the same unseen test missions.
 
     python -m sb3_coma.experiments.attribution --out docs/learners/attribution.md \\
-        env1=runs/clones/env1_s2 env2=runs/clones/env2_s2 env3=runs/clones/env3_s1
+        env1=runs/clones/env1_s2 env2=runs/clones/env2_s2 env3=runs/clones/env3_s1 \\
+        --pair env3=runs/recipe/ft_A/finetuned.zip,runs/recipe/clone_v2/clone.zip
 
 Each ``MAP=RUN`` names the run folder of the map's shipped command re-run up to its warm start
 (``sb3-coma train --env MAP --seed S --timesteps 1 --run-dir RUN``, S the shipped seed): its
@@ -10,7 +11,8 @@ Each ``MAP=RUN`` names the run folder of the map's shipped command re-run up to 
 agreement is compared with the one ``models.json`` recorded, to say whether it is the same clone).
 Rows per map: "COMA (oracle warm start)" (the shipped model), "oracle clone (DAgger)" (that clone),
 AG, and for env3 "COMA from scratch" (the shipped ``env3-sendfuse-cbam`` arm: same inputs, no
-teacher). Verdicts: paired differences on shared missions, the standard error clustered by scene,
+teacher), and with ``--pair`` a fine-tuned model next to the exact clone it started from (a
+re-run warm start need not give the shipped run's clone bit for bit: the note says). Verdicts: paired differences on shared missions, the standard error clustered by scene,
 Holm over the whole table (``sb3_coma.stats.paired``). These are test missions: the output
 reports and chooses nothing. ``--out`` gets the Markdown (atomically) and a JSON twin.
 """
@@ -31,7 +33,7 @@ from sb3_coma.app.roles import TEST_SPLIT_NOTE
 from sb3_coma.common.evaluation import EvaluationResult
 from sb3_coma.stats.paired import PairedDifference, holm_adjust, paired_difference, paired_markdown
 
-__all__ = ["CLONE_LABEL", "SCRATCH_LABEL", "WARM_LABEL", "main"]
+__all__ = ["CLONE_LABEL", "PAIR_LABELS", "SCRATCH_LABEL", "WARM_LABEL", "main"]
 
 #: Row names of the three learners, as every generated table spells them.
 WARM_LABEL = pt.WARM_START_TITLE
@@ -39,6 +41,8 @@ CLONE_LABEL = "oracle clone (DAgger)"
 SCRATCH_LABEL = "COMA from scratch"
 #: The shipped model without a teacher that has the same inputs as the map's own model.
 SCRATCH_MODELS = {"env3": "env3-sendfuse-cbam"}
+#: Rows of ``--pair``: a fine-tuned model and its own clone, bit for bit the one it started from.
+PAIR_LABELS = ("recipe run: COMA (oracle warm start)", "recipe run: its own clone")
 METRICS = ("f1", "entropy")
 MISSIONS = 50
 
@@ -54,8 +58,9 @@ def _clone_record(run: Path, name: str) -> str:
     return f"{name}: DAgger agreement {float(today):.6f} here, {float(recorded):.6f} recorded: {verdict}"
 
 
-def fly_map(name: str, run: Path, missions: int) -> dict[str, EvaluationResult]:
-    """Every row of one map on the same ``missions`` unseen missions."""
+def fly_map(name: str, run: Path, missions: int, pair: tuple[str, str] | None = None) -> dict[str, EvaluationResult]:
+    """Every row of one map on the same ``missions`` unseen missions (``pair``: a fine-tuned model
+    and the very clone it was fine-tuned from, e.g. a recipe run of ``sb3-coma study dagger``)."""
     common: dict[str, Any] = {"env": name, "protocol": "unseen", "n_trials": missions, "record": 0}
     flown = {
         WARM_LABEL: evaluate(name, label=WARM_LABEL, **common),
@@ -64,6 +69,9 @@ def fly_map(name: str, run: Path, missions: int) -> dict[str, EvaluationResult]:
     }
     if name in SCRATCH_MODELS:
         flown[SCRATCH_LABEL] = evaluate(SCRATCH_MODELS[name], label=SCRATCH_LABEL, **common)
+    if pair is not None:
+        flown[PAIR_LABELS[0]] = evaluate(pair[0], label=PAIR_LABELS[0], fusion="sendfuse", **common)
+        flown[PAIR_LABELS[1]] = evaluate(pair[1], label=PAIR_LABELS[1], fusion="sendfuse", **common)
     return flown
 
 
@@ -73,6 +81,8 @@ def comparisons(flown: dict[str, EvaluationResult]) -> list[tuple[str, str]]:
     pairs = [(WARM_LABEL, CLONE_LABEL), (WARM_LABEL, "ag"), (CLONE_LABEL, "ag")]
     if SCRATCH_LABEL in flown:
         pairs += [(WARM_LABEL, SCRATCH_LABEL), (SCRATCH_LABEL, "ag")]
+    if PAIR_LABELS[0] in flown:
+        pairs += [PAIR_LABELS]
     return pairs
 
 
@@ -116,6 +126,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", help="MAP=RUN: the run folder holding the map's warm_start.zip")
     parser.add_argument("--missions", type=int, default=MISSIONS)
+    parser.add_argument(
+        "--pair",
+        action="append",
+        default=[],
+        metavar="MAP=FINETUNED.zip,CLONE.zip",
+        help="also a fine-tuned model and the exact clone it started from (rows and a paired verdict)",
+    )
     parser.add_argument("--out", help="also write the Markdown here (and the verdicts as JSON beside it)")
     args = parser.parse_args(argv)
     specs = [spec.split("=", 1) for spec in args.runs]
@@ -124,8 +141,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"attribution: {'='.join(bad)!r} is not MAP=RUN with RUN/warm_start.zip", file=sys.stderr)
         return 2
     notes = [_clone_record(Path(run), name) for name, run in specs]
+    pairs = {key: tuple(value.split(",", 1)) for key, value in (p.split("=", 1) for p in args.pair)}
     with parallel_evaluation("auto"):
-        results = {name: fly_map(name, Path(run), args.missions) for name, run in specs}
+        results = {name: fly_map(name, Path(run), args.missions, pairs.get(name)) for name, run in specs}  # type: ignore[arg-type]
     text, rows = report(results, notes)
     print(text)
     if args.out:
