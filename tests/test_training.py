@@ -233,6 +233,7 @@ def test_run_folder_checkpoints_resume_and_no_overwrite(tmp_path):
 
 def test_interrupt_saves_checkpoint_and_resume_reaches_same_count(tmp_path):
     config = write_config(tmp_path)
+    handler = signal.getsignal(signal.SIGTERM)  # SIG_DFL, or Ray's if a Ray test ran in this worker first
     with pytest.raises(TrainingInterrupted) as info:
         train(env="env1", config=config, seed=0, run_dir=tmp_path / "run", callbacks=[_Signal(after=20)], **quiet())
     stop = info.value
@@ -241,7 +242,7 @@ def test_interrupt_saves_checkpoint_and_resume_reaches_same_count(tmp_path):
     assert stop.checkpoint == run / "checkpoints" / "rl_model_16_steps.zip"
     assert validate_checkpoint(stop.checkpoint).num_timesteps == 16
     assert not (run / "model.zip").exists()
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored
+    assert signal.getsignal(signal.SIGTERM) is handler  # handlers restored
 
     # The checkpoint holds both optimisers after 2 rollouts (one actor and one critic step each).
     from sb3_coma.coma import COMA

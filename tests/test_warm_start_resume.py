@@ -160,6 +160,7 @@ def test_a_checkpoint_without_its_reference_takes_it_from_the_clone_or_is_refuse
 # ----------------------------------------------------------------------------- #36: the warm start resumes
 def test_a_warm_start_stopped_by_sigterm_resumes_after_its_last_round_with_the_same_clone(tmp_path):
     config = _config(tmp_path, 8, critic_warmup=0.5)
+    handler = signal.getsignal(signal.SIGTERM)  # SIG_DFL, or Ray's if a Ray test ran in this worker first
     _, unbroken = train(ENV, config=config, seed=SEED, run_dir=tmp_path / "unbroken", **QUIET)
 
     def stop_after_round_1(line: str) -> None:
@@ -170,7 +171,7 @@ def test_a_warm_start_stopped_by_sigterm_resumes_after_its_last_round_with_the_s
         train(ENV, config=config, seed=SEED, run_dir=tmp_path / "run", log=stop_after_round_1, **QUIET)
     run = info.value.run_dir
     assert info.value.signum == signal.SIGTERM and info.value.num_timesteps == 0
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored
+    assert signal.getsignal(signal.SIGTERM) is handler  # handlers restored
     state = run / "warm_start_state"
     assert sorted(p.name for p in state.iterdir()) == ["progress.json", "round_0.npz", "state.pt"]
     progress = json.loads((state / "progress.json").read_text())
