@@ -6,27 +6,11 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+from result_fakes import fake_result
 
 from sb3_coma.app.pretrained import WARM_START_TITLE
 from sb3_coma.experiments import attribution, report
 from sb3_coma.experiments.ship_models import model_title
-
-
-def _result(method: str, f1: list[float], scenes: list[str]) -> SimpleNamespace:
-    """A stand-in for an EvaluationResult (entropy = 1 - F1), test missions of the scenes given."""
-    values = np.column_stack([np.zeros(len(f1)), np.asarray(f1, dtype=float)])
-    return SimpleNamespace(
-        method=method,
-        env="env3",
-        seed=0,
-        n_trials=len(f1),
-        env_options={"split": "test", "start": "random"},
-        f1=values,
-        entropy=1.0 - values,
-        team_f1=values,
-        team_entropy=1.0 - values,
-        scenes=tuple(scenes),
-    )
 
 
 def test_the_report_has_every_row_and_each_pair_once() -> None:
@@ -34,10 +18,10 @@ def test_the_report_has_every_row_and_each_pair_once() -> None:
     scenes = [f"s{i % 4}" for i in range(16)]
     base = rng.uniform(0.6, 0.8, 16)
     flown = {
-        attribution.WARM_LABEL: _result(attribution.WARM_LABEL, list(base + 0.02), scenes),
-        attribution.CLONE_LABEL: _result(attribution.CLONE_LABEL, list(base + 0.019), scenes),
-        "ag": _result("ag", list(base), scenes),
-        attribution.SCRATCH_LABEL: _result(attribution.SCRATCH_LABEL, list(base - 0.01), scenes),
+        attribution.WARM_LABEL: fake_result(attribution.WARM_LABEL, list(base + 0.02), scenes),
+        attribution.CLONE_LABEL: fake_result(attribution.CLONE_LABEL, list(base + 0.019), scenes),
+        "ag": fake_result("ag", list(base), scenes),
+        attribution.SCRATCH_LABEL: fake_result(attribution.SCRATCH_LABEL, list(base - 0.01), scenes),
     }
     text, rows = attribution.report({"env3": flown}, ["env3: a note"])
     assert attribution.WARM_LABEL == WARM_START_TITLE == "COMA (oracle warm start)"

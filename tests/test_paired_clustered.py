@@ -5,10 +5,10 @@ hand-made examples (tests/test_paired_cr2.py checks CR2 against an outside refer
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from result_fakes import fake_result
 
 from sb3_coma.common.evaluation import PROTOCOLS, scene_label
 from sb3_coma.experiments.protocols import Method, ProtocolResult
@@ -28,31 +28,13 @@ from sb3_coma.stats.paired import (
 )
 
 
-def _result(method, f1, scenes=None, seed=0, **env_options):
-    """A stand-in for an EvaluationResult: final F1 per mission (entropy = 1 - F1)."""
-    f1 = np.asarray(f1, dtype=float)
-    values = np.column_stack([np.zeros_like(f1), f1])
-    return SimpleNamespace(
-        method=method,
-        env="env3",
-        seed=seed,
-        n_trials=len(f1),
-        env_options={"split": "test", "start": "random", **env_options},
-        f1=values,
-        entropy=1.0 - values,
-        team_f1=values,
-        team_entropy=1.0 - values,
-        scenes=None if scenes is None else tuple(scenes),
-    )
-
-
 def _one_scene_effect():
     """3 scenes x 10 missions; scene s1 carries the whole effect (a is 0.05 better there, equal elsewhere)."""
     jitter = np.tile([-0.004, -0.002, 0.0, 0.002, 0.004], 2)  # the same small spread in every scene
     d = np.concatenate([0.05 + jitter, jitter, -jitter])
     scenes = ["s1"] * 10 + ["s2"] * 10 + ["s3"] * 10
     base = np.linspace(0.5, 0.7, 30)
-    return _result("a", base + d, scenes), _result("b", base, scenes), d, scenes
+    return fake_result("a", base + d, scenes), fake_result("b", base, scenes), d, scenes
 
 
 # ------------------------------------------------------------------ Student's t
@@ -139,8 +121,8 @@ def test_one_scene_carrying_the_effect_wins_naively_but_ties_clustered():
 
 def test_one_scene_gives_no_verdict_and_labels_the_noise_draws():
     values = [0.60, 0.61, 0.62, 0.60, 0.61, 0.63, 0.60, 0.62, 0.61, 0.60]
-    a = _result("coma", np.array(values) + 0.05, ["env3"] * 10, split="paper", start=None)
-    b = _result("ag", values, ["env3"] * 10, split="paper", start=None)
+    a = fake_result("coma", np.array(values) + 0.05, ["env3"] * 10, split="paper", start=None)
+    b = fake_result("ag", values, ["env3"] * 10, split="paper", start=None)
     d = paired_difference(a, b, "f1")
     assert d.n == 10 and d.n_clusters == 1 and d.df == 0 and d.verdict == NO_VERDICT and d.winner is None
     assert d.unit == "noise draws of one mission" and d.se == pytest.approx(0.0, abs=1e-12)
@@ -149,13 +131,13 @@ def test_one_scene_gives_no_verdict_and_labels_the_noise_draws():
     text = paired_markdown([d])
     assert "| coma | ag | f1 | 10 |" in text and f"| {NO_VERDICT} | 1 | n/a |" in text
     # random starts on one scene are missions of that scene, still no verdict
-    r = paired_difference(_result("x", [0.1, 0.2], ["s", "s"]), _result("y", [0.0, 0.1], ["s", "s"]), "f1")
+    r = paired_difference(fake_result("x", [0.1, 0.2], ["s", "s"]), fake_result("y", [0.0, 0.1], ["s", "s"]), "f1")
     assert r.unit == "missions of one scene" and r.verdict == NO_VERDICT
 
 
 # ------------------------------------------------------------------ refusals
 def test_refuses_results_flown_under_different_settings():
-    base = _result("a", [0.5, 0.6], ["s", "t"], noise="moderate")
+    base = fake_result("a", [0.5, 0.6], ["s", "t"], noise="moderate")
     for option, mine, theirs in (
         ("noise", "moderate", "loud"),
         ("comm_range", 25.0, 10.0),
@@ -165,29 +147,29 @@ def test_refuses_results_flown_under_different_settings():
         ("lattice", 11, 9),
         ("comm_grid", 44, 40),
     ):
-        other = _result("b", [0.5, 0.6], ["s", "t"], **{**base.env_options, option: theirs})
-        mine_r = _result("a", [0.5, 0.6], ["s", "t"], **{**base.env_options, option: mine})
+        other = fake_result("b", [0.5, 0.6], ["s", "t"], **{**base.env_options, option: theirs})
+        mine_r = fake_result("a", [0.5, 0.6], ["s", "t"], **{**base.env_options, option: mine})
         with pytest.raises(ValueError, match=f"not flown under the same settings: {option} {mine!r} vs {theirs!r}"):
             paired_difference(mine_r, other, "f1")
     with pytest.raises(ValueError, match="not the same missions: budget 15 vs 10"):
-        paired_difference(base, _result("b", [0.5, 0.6], ["s", "t"], budget=10), "f1")
+        paired_difference(base, fake_result("b", [0.5, 0.6], ["s", "t"], budget=10), "f1")
     with pytest.raises(ValueError, match="not the same missions: n_uavs 4 vs 3"):
-        paired_difference(base, _result("b", [0.5, 0.6], ["s", "t"], n_uavs=3), "f1")
+        paired_difference(base, fake_result("b", [0.5, 0.6], ["s", "t"], n_uavs=3), "f1")
     with pytest.raises(ValueError, match="not the same missions: start 'random' vs 'fixed'"):
-        paired_difference(base, _result("b", [0.5, 0.6], ["s", "t"], start="fixed"), "f1")
+        paired_difference(base, fake_result("b", [0.5, 0.6], ["s", "t"], start="fixed"), "f1")
     with pytest.raises(ValueError, match="not the same missions: scene of mission 1 't' vs 'u'"):
-        paired_difference(base, _result("b", [0.5, 0.6], ["s", "u"]), "f1")
+        paired_difference(base, fake_result("b", [0.5, 0.6], ["s", "u"]), "f1")
     with pytest.raises(ValueError, match="not the same missions: seed 0 vs 1"):
-        paired_difference(base, _result("b", [0.5, 0.6], ["s", "t"], seed=1), "f1")
+        paired_difference(base, fake_result("b", [0.5, 0.6], ["s", "t"], seed=1), "f1")
 
 
 def test_pairs_what_only_changes_a_models_observation_or_is_spelled_differently():
-    a = _result("coma", [0.5, 0.7], ["s", "t"], noise="moderate", action_gain=False, altitudes=[5, 10, 15])
-    b = _result("ag", [0.4, 0.6], ["s", "t"])  # defaults: moderate noise, action_gain True, (5.0, 10.0, 15.0)
+    a = fake_result("coma", [0.5, 0.7], ["s", "t"], noise="moderate", action_gain=False, altitudes=[5, 10, 15])
+    b = fake_result("ag", [0.4, 0.6], ["s", "t"])  # defaults: moderate noise, action_gain True, (5.0, 10.0, 15.0)
     assert paired_difference(a, b, "f1").n == 2
-    c = _result("c", [0.4, 0.6], ["s", "t"], start=None)  # split test: None means random starts
+    c = fake_result("c", [0.4, 0.6], ["s", "t"], start=None)  # split test: None means random starts
     assert paired_difference(a, c, "f1").n == 2
-    unlabelled = _result("d", [0.4, 0.6])  # no scene labels: the other result's are used
+    unlabelled = fake_result("d", [0.4, 0.6])  # no scene labels: the other result's are used
     assert paired_difference(a, unlabelled, "f1").n_clusters == 2
 
 
@@ -216,8 +198,8 @@ def test_scene_table_shows_which_scene_carries_the_difference():
         results={
             ("env3", "a"): a,
             ("env3", "b"): b,
-            ("env1", "a"): _result("a", a.f1[:, -1], stars),
-            ("env1", "b"): _result("b", b.f1[:, -1], stars),
+            ("env1", "a"): fake_result("a", a.f1[:, -1], stars),
+            ("env1", "b"): fake_result("b", b.f1[:, -1], stars),
         },
     )
     table = result.scene_table(

@@ -17,10 +17,10 @@ Three checks of the closed form the module uses for a regression on 1:
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from result_fakes import fake_result
 
 from sb3_coma.stats.paired import (
     NO_VERDICT,
@@ -190,27 +190,10 @@ def test_t_distribution_takes_a_float_df():
 
 
 # ------------------------------------------------------------------ the verdicts use it
-def _result(method, f1, scenes):
-    f1 = np.asarray(f1, dtype=float)
-    values = np.column_stack([np.zeros_like(f1), f1])
-    return SimpleNamespace(
-        method=method,
-        env="env3",
-        seed=0,
-        n_trials=len(f1),
-        env_options={"split": "test", "start": "random"},
-        f1=values,
-        entropy=1.0 - values,
-        team_f1=values,
-        team_entropy=1.0 - values,
-        scenes=tuple(scenes),
-    )
-
-
 def test_paired_difference_reads_cr2_and_the_bell_mccaffrey_df():
     d, labels = _clustered_data((2, 3, 4, 5, 5, 6, 7, 8, 10), seed=35)
     base = np.linspace(0.5, 0.7, len(d))
-    diff = paired_difference(_result("a", base + d, labels), _result("b", base, labels), "f1")
+    diff = paired_difference(fake_result("a", base + d, labels), fake_result("b", base, labels), "f1")
     cr2, cr1 = cluster_robust_mean(d, labels), cluster_robust_mean(d, labels, "CR1")
     assert diff.se_clustered == pytest.approx(cr2.se) and diff.df == pytest.approx(cr2.df)
     assert diff.df == pytest.approx(bell_mccaffrey_df([2, 3, 4, 5, 5, 6, 7, 8, 10])) and 6 < diff.df < 7
@@ -219,7 +202,7 @@ def test_paired_difference_reads_cr2_and_the_bell_mccaffrey_df():
     row = diff.as_dict()
     assert row["df"] == pytest.approx(cr2.df) and row["se_clustered"] == pytest.approx(cr2.se)
     assert f"| 9 (df {cr2.df:.1f}) |" in paired_markdown([diff])
-    one = paired_difference(_result("a", [0.6, 0.7], ["s", "s"]), _result("b", [0.5, 0.6], ["s", "s"]), "f1")
+    one = paired_difference(fake_result("a", [0.6, 0.7], ["s", "s"]), fake_result("b", [0.5, 0.6], ["s", "s"]), "f1")
     assert one.df == 0 and one.verdict == NO_VERDICT and "| 1 | n/a |" in paired_markdown([one])
 
 
@@ -233,7 +216,7 @@ def test_a_win_that_cr1_calls_is_a_tie_under_cr2():
     cr1 = cluster_robust_mean(d, labels, "CR1")
     assert t_two_sided_p(cr1.mean / cr1.se, cr1.df) < 0.05
     base = np.full(50, 0.5)
-    diff = paired_difference(_result("a", base + d, labels), _result("b", base, labels), "f1")
+    diff = paired_difference(fake_result("a", base + d, labels), fake_result("b", base, labels), "f1")
     assert diff.verdict == "tie" and 0.05 <= diff.p_value < 0.06 and diff.df < 8
 
 

@@ -172,6 +172,14 @@ class FolderLock:
     def held(self) -> bool:
         return self._fd is not None
 
+    def still_the_file(self) -> bool:
+        """Whether the held lock is on the file now at :attr:`path` (a holder that removes its lock
+        file as it finishes leaves a late opener locking an unlinked inode)."""
+        try:
+            return self._fd is not None and os.fstat(self._fd).st_ino == os.stat(self.path).st_ino
+        except FileNotFoundError:
+            return False
+
     def acquire(self) -> FolderLock:
         """Take the lock and write this process's record into the file.
 
@@ -260,12 +268,7 @@ class _TargetLock:
         except OSError:  # a parent that takes no files (read-only around a mounted --out): no lock there
             self.lock = None
             return self
-        fd = self.lock._fd
-        try:
-            same = fd is not None and os.fstat(fd).st_ino == os.stat(self.lock.path).st_ino
-        except FileNotFoundError:
-            same = False
-        if not same:  # the holder removed the file as it finished: count it as busy, once more later
+        if not self.lock.still_the_file():  # the holder removed the file as it finished: count it as busy, once more later
             self.lock.release()
             raise OutputFolderError(f"--out {self.shown} was being written a moment ago; run the command again")
         return self
