@@ -268,7 +268,9 @@ class _TargetLock:
         except OSError:  # a parent that takes no files (read-only around a mounted --out): no lock there
             self.lock = None
             return self
-        if not self.lock.still_the_file():  # the holder removed the file as it finished: count it as busy, once more later
+        if (
+            not self.lock.still_the_file()
+        ):  # the holder removed the file as it finished: count it as busy, once more later
             self.lock.release()
             raise OutputFolderError(f"--out {self.shown} was being written a moment ago; run the command again")
         return self
