@@ -58,8 +58,8 @@ from torch import nn
 
 from sb3_coma import __version__
 from sb3_coma.app.config import TrainingError, load_config, path_name_problem, split_env_kwargs
-from sb3_coma.app.evaluation import is_baseline, looks_like_path
-from sb3_coma.app.pretrained import PretrainedError, model_info, pretrained_dir, sha256_file, verify_shipped_file
+from sb3_coma.app.methods import is_unknown_name, resolve_method
+from sb3_coma.app.pretrained import available, pretrained_dir, sha256_file
 from sb3_coma.app.runs import read_run_config, run_folder_of
 from sb3_coma.common.checkpoints import training_options
 from sb3_coma.common.masking import MASKED_LOGIT, mask_logits
@@ -215,26 +215,23 @@ def resolve_model_source(name_or_path: str | os.PathLike[str]) -> ModelSource:
     problem = path_name_problem(text)
     if problem is not None:
         raise ExportError(f"--model {text!r}: {problem}")
-    for candidate in (Path(text), Path(text + ".zip")):
-        if candidate.is_file():
-            try:
-                verify_shipped_file(candidate)  # a shipped zip reached by its path is verified all the same
-            except PretrainedError as exc:
-                raise ExportError(str(exc)) from None
-            return ModelSource(text, candidate, None, run_folder_of(candidate))
-    if Path(text).is_dir():
-        raise ExportError(f"model {text!r} is a folder: pass the model .zip inside it (e.g. {text}/model.zip)")
-    if looks_like_path(text):
-        raise ExportError(f"model file not found: {text!r}")
-    if is_baseline(text):
+    try:  # the evaluation's resolver: a shipped name means the verified package file, as there
+        method = resolve_method(text)
+    except (ValueError, OSError) as exc:  # a folder, a missing file, a checksum mismatch, not a COMA zip
+        if not is_unknown_name(text):
+            raise ExportError(str(exc)) from None
+        available_models = ", ".join(available()) or "none"
+        raise ExportError(
+            f"unknown model {text!r}: not a model file and not a shipped model (available: {available_models})"
+        ) from None
+    if method.source == "planner":
         raise ExportError(
             f"model {text!r} is a baseline planner, not a trained model: pass a COMA model .zip or a shipped model name"
         )
-    try:
-        info = model_info(text)
-    except PretrainedError as exc:
-        raise ExportError(f"unknown model {text!r}: not a model file and {exc}") from None
-    return ModelSource(text, pretrained_dir() / info["file"], info, None)
+    assert method.path is not None  # a name or a path resolves to a file
+    if method.source == "shipped":
+        return ModelSource(text, method.path, dict(method.shipped), None)
+    return ModelSource(text, method.path, None, run_folder_of(method.path))
 
 
 def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:

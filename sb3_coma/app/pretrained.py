@@ -38,15 +38,16 @@ __all__ = [
     "available",
     "is_shipped",
     "load_pretrained",
+    "load_verified",
     "model_info",
     "model_path",
+    "outdated_message",
     "pretrained_dir",
     "read_manifest",
     "sha256_file",
     "shipped_env_options",
     "shipped_name_of",
     "verify_shipped_file",
-    "write_manifest",
 ]
 
 #: File name of the manifest inside the pretrained folder.
@@ -70,7 +71,8 @@ sha256_file = sha256_of
 
 
 def read_manifest(directory: str | os.PathLike[str] | None = None) -> dict[str, Any]:
-    """The parsed ``models.json`` (``{"format": 1, "models": {name: entry}}``)."""
+    """The parsed ``models.json`` (``{"format": 1, "models": {name: entry}}``); it is written by
+    ``sb3_coma.app.model_manifest.update_models`` alone (the entry's schema is there)."""
     path = Path(directory or pretrained_dir()) / MANIFEST
     if not path.is_file():
         raise PretrainedError(
@@ -84,15 +86,6 @@ def read_manifest(directory: str | os.PathLike[str] | None = None) -> dict[str, 
     if not isinstance(data, dict) or not isinstance(data.get("models"), dict):
         raise PretrainedError(f"{path} has no 'models' mapping")
     return data
-
-
-def write_manifest(data: dict[str, Any], directory: str | os.PathLike[str] | None = None) -> Path:
-    """Write ``models.json`` atomically (temporary file + ``os.replace``)."""
-    path = Path(directory or pretrained_dir()) / MANIFEST
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
-    os.replace(tmp, path)
-    return path
 
 
 def save_for_shipping(model: Any, file: str, directory: str | os.PathLike[str] | None = None) -> dict[str, Any]:
@@ -234,12 +227,24 @@ def load_pretrained(
     info = model_info(name, directory)
     path = model_path(name, directory, verify=True)
     if info.get("world", 1) != WORLD_VERSION:
-        warnings.warn(
-            f"shipped model {name!r} was trained on world v{info.get('world', 1)} (local beliefs on the "
-            f"comm grid); this env is world v{WORLD_VERSION} (per-cell local beliefs, cell-level messages): "
-            f"it is outdated and flies below its recorded numbers until retrained",
-            stacklevel=2,
-        )
+        warnings.warn(outdated_message(name, info), stacklevel=2)
+    return load_verified(path, info, env=env, device=device)
+
+
+def outdated_message(name: str, info: dict[str, Any]) -> str:
+    """The warning of a shipped model trained on another world version than this env's."""
+    return (
+        f"shipped model {name!r} was trained on world v{info.get('world', 1)} (local beliefs on the "
+        f"comm grid); this env is world v{WORLD_VERSION} (per-cell local beliefs, cell-level messages): "
+        f"it is outdated and flies below its recorded numbers until retrained"
+    )
+
+
+def load_verified(path: Path, info: dict[str, Any], env: Any = None, device: str = "cpu") -> Any:
+    """Load a shipped zip whose checksum the caller has just verified (``model_path``): an
+    evaluation resolves a shipped model once and loads it per batch without hashing it again.
+    The model carries ``pretrained_info`` and, when its zip does not record them, the manifest's
+    ``env_options``."""
     model = COMA.load(str(path), env=env, device=device)
     model.pretrained_info = info
     if model.env_options is None:

@@ -15,7 +15,7 @@ every method, so the results are shared missions. :class:`ProtocolResult` holds 
   :func:`default_pairs`, on all four metrics;
 * the per-scene breakdown of each map's first comparison (:meth:`ProtocolResult.scene_table`).
 
-Methods (:class:`Method`): the baselines of :data:`BASELINE_METHODS` (AG with the map's weighting,
+Methods (:class:`~sb3_coma.app.methods.Method`, the one type every front door resolves to): the baselines of :data:`BASELINE_METHODS` (AG with the map's weighting,
 AG with look-ahead 2 and 3, AG with communication-only knowledge, lawnmower, random, and the
 upper references centralised AG and the oracle) and whatever learned models exist: every shipped
 COMA model trained on the map (:func:`shipped_methods`) and, as a hook for when they are
@@ -33,7 +33,7 @@ from typing import Any
 
 import torch as th
 
-from sb3_coma.app.evaluation import evaluate
+from sb3_coma.app.evaluation import Method, evaluate
 from sb3_coma.app.pretrained import load_pretrained, read_manifest
 from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult, Protocol, protocol_of
 from sb3_coma.stats.paired import PairedDifference, cell, holm_adjust, p_text, paired_difference, scene_markdown
@@ -56,33 +56,6 @@ __all__ = [
 #: Kinds of learned methods besides COMA that get rows when their models exist (the hook: a
 #: manifest entry with ``"algo"`` one of these, loaded by ``sb3_coma.app.pretrained.load_pretrained``).
 LEARNED_BASELINES: tuple[str, ...] = ("ippo", "mappo")
-
-
-@dataclass(frozen=True)
-class Method:
-    """One row of a protocol: what to fly and how.
-
-    :param label: row label (unique per map)
-    :param policy: a baseline name, a model object, a ``.zip`` path or a shipped model name
-    :param kind: ``"baseline"``, ``"reference"`` (an upper reference that knows what no UAV knows:
-        shown, never compared), ``"coma"``, ``"ippo"`` or ``"mappo"``
-    :param fusion: fusion of received maps (models; ``None``: evaluate's default)
-    :param deterministic: argmax (``True``) or seeded draws (``False``); ``None``: evaluate's default
-    :param planner_kwargs: baseline options (AG: ``lookahead``, ``weighting``)
-    :param note: shown next to the label in the models list (e.g. "outdated: trained on world v1")
-    """
-
-    label: str
-    policy: Any
-    kind: str = "baseline"
-    fusion: str | None = None
-    deterministic: bool | None = None
-    planner_kwargs: Mapping[str, Any] = field(default_factory=dict)
-    note: str = ""
-
-    @property
-    def learned(self) -> bool:
-        return self.kind not in ("baseline", "reference")
 
 
 #: The baselines every protocol flies: AG (the map's weighting; every UAV knows every teammate's

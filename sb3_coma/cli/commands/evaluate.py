@@ -18,11 +18,15 @@ from __future__ import annotations
 import argparse
 import itertools
 import sys
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sb3_coma.cli import UserError, set_threads
 from sb3_coma.cli.commands import add_workers_argument
+
+if TYPE_CHECKING:
+    from sb3_coma.app.methods import Method
 
 # The evaluation, tables and figures are imported by the functions that use them, so that building
 # the parser (``--help``) loads neither torch nor matplotlib (sb3_coma/cli/__init__.py).
@@ -255,10 +259,11 @@ def run(args: argparse.Namespace) -> int:
     methods = _methods(args)
     env_names = _env_names(args)
     options = _env_options(args)
-    flown = dict.fromkeys(_for_map(lab, name, env)[1] for env, (lab, name) in itertools.product(env_names, methods))
-    for method in flown:  # fail on a typo before minutes of missions
+    resolved: dict[str, ev.Method] = {}
+    for env, (lab, name) in itertools.product(env_names, methods):  # fail on a typo before minutes of missions
+        method = _for_map(lab, name, env)[1]
         try:
-            ev.check_policy(method)
+            resolved[method] = resolved.get(method) or ev.resolve_method(method)  # once: a shipped zip is hashed once
         except (ValueError, TypeError) as exc:
             raise UserError(str(exc)) from None
     logs = [_labelled(spec, Path(_labelled(spec, "")[1]).stem or "reward") for spec in args.training_log]
@@ -269,7 +274,7 @@ def run(args: argparse.Namespace) -> int:
     _check_out(target)
     try:  # everything goes into a staging folder that replaces --out once complete
         with staged_output(target, command=NAME, own=OUTPUT_PATTERNS) as out:
-            written = _fly_and_write(args, methods, env_names, options, logs, out)
+            written = _fly_and_write(args, methods, resolved, env_names, options, logs, out)
     except OutputFolderError as exc:
         raise UserError(str(exc)) from None
     except OutputInterrupted as exc:  # SIGTERM: nothing was moved into --out
@@ -282,6 +287,7 @@ def run(args: argparse.Namespace) -> int:
 def _fly_and_write(
     args: argparse.Namespace,
     methods: list[tuple[str | None, str]],
+    resolved: Mapping[str, Method],
     env_names: list[str],
     options: dict[str, Any],
     logs: list[tuple[str, str]],
@@ -299,11 +305,11 @@ def _fly_and_write(
                 f"evaluating {label or method} on {env_name} ({_trials(args, env_name)} trials, noise {args.noise}) ...",
                 flush=True,
             )
-            fusion = args.fusion if ev.is_model(method) else None
+            fusion = args.fusion if resolved[method].learned else None
             try:
                 results.append(
                     ev.evaluate(
-                        method,
+                        resolved[method],
                         env=env_name,
                         n_trials=_trials(args, env_name),
                         seed=args.seed,
