@@ -107,6 +107,11 @@ class IppConfig:
     observation: str = "v2"
     render_mode: str | None = None
 
+    def __post_init__(self) -> None:
+        """Valid by construction: every ``IppConfig`` (direct, :meth:`from_options`, :meth:`replace`)
+        is checked once, here, so the env and the vec-env builders that receive one trust it."""
+        self.validate()
+
     # ------------------------------------------------------------------ derived values
     @property
     def spacing(self) -> float:
@@ -163,15 +168,11 @@ class IppConfig:
                 options["start_positions"] = tuple(tuple(float(c) for c in p) for p in options["start_positions"])
             except (TypeError, ValueError):
                 _fail("start_positions", options["start_positions"], "a list of (x, y, z) triples in metres")
-        config = cls(map_name=str(name), **options)
-        config.validate()
-        return config
+        return cls(map_name=str(name), **options)
 
     def replace(self, **changes: Any) -> IppConfig:
-        """A validated copy with some options changed."""
-        config = dataclasses.replace(self, **changes)
-        config.validate()
-        return config
+        """A copy with some options changed (validated by construction)."""
+        return dataclasses.replace(self, **changes)
 
     # ------------------------------------------------------------------ validation
     def validate(self) -> None:

@@ -66,8 +66,7 @@ class UavIppEnv(ParallelEnv):
     }
 
     def __init__(self, config: IppConfig | None = None) -> None:
-        self.config = config if config is not None else IppConfig()
-        self.config.validate()
+        self.config = config if config is not None else IppConfig()  # valid by construction
         cfg = self.config
         check_grid(cfg.grid, cfg.lattice)  # before the maps are allocated: a huge grid is one clear line
         self.render_mode = cfg.render_mode

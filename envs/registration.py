@@ -35,11 +35,14 @@ def vector_entry_point(name: str, num_envs: int = 1, fusion: str | None = None, 
     """gymnasium ``make_vec`` entry: the fused gymnasium vector env of ``num_envs`` copies
     (``fusion=None``: the world's default fusion). Imports the world when first called, so that
     registering the ids on ``import uav_ipp`` costs nothing."""
+    from .config import IppConfig
     from .fusion import DEFAULT_FUSION
     from .vec_env import IppVecEnv, make_vec_env
 
+    fusion_kwargs = options.pop("fusion_kwargs", None)
+    config = IppConfig.from_options(name, **options)
     sb3_env = make_vec_env(
-        name, n_envs=num_envs, fusion=DEFAULT_FUSION if fusion is None else fusion, monitor=False, **options
+        config, num_envs, DEFAULT_FUSION if fusion is None else fusion, monitor=False, fusion_kwargs=fusion_kwargs
     )
     assert isinstance(sb3_env, IppVecEnv)
     return sb3_env.venv

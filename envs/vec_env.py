@@ -17,7 +17,7 @@ import supersuit
 from gymnasium.vector import VectorEnv
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-from .config import DEFAULT_MAP, ConfigError, IppConfig
+from .config import ConfigError, IppConfig
 from .fusion import DEFAULT_FUSION, wrap_fusion
 from .ipp_env import UavIppEnv
 
@@ -120,23 +120,21 @@ def check_copies_and_seed(n_envs: Any, seed: Any) -> None:
 
 
 def make_vec_env(
-    name: str = DEFAULT_MAP,
+    config: IppConfig,
     n_envs: int = 1,
     fusion: str = DEFAULT_FUSION,
     seed: int | None = None,
     monitor: bool = True,
     fusion_kwargs: dict[str, Any] | None = None,
-    **options: Any,
 ) -> VecEnv:
-    """Build the SB3 vec env of ``n_envs`` copies of the named map (docs/design.md, "Public names").
+    """Build the SB3 vec env of ``n_envs`` copies of one resolved :class:`IppConfig` in this process.
 
-    ``fusion`` is ``"sendfuse"`` (the paper's; provided by sb3-coma through the ``uav_ipp.fusion``
-    entry point), ``"mean"`` (the ablation's naive average) or ``"none"`` (the raw observation,
-    for tools); ``fusion_kwargs`` are the fusion wrapper's options; ``options`` are environment
-    options (:class:`uav_ipp.config.IppConfig`).
+    ``uav_ipp.make_vec_env`` (docs/design.md, "Public names") resolves a map name and options into
+    the config once and calls this; ``fusion`` is ``"sendfuse"`` (the paper's; provided by sb3-coma
+    through the ``uav_ipp.fusion`` entry point), ``"mean"`` (the ablation's naive average) or
+    ``"none"`` (the raw observation, for tools); ``fusion_kwargs`` are the fusion wrapper's options.
     """
     check_copies_and_seed(n_envs, seed)
-    config = IppConfig.from_options(name, **options)
     base = UavIppEnv(config)
     markov = supersuit.pettingzoo_env_to_vec_env_v1(base)
     concat = supersuit.concat_vec_envs_v1(markov, int(n_envs), num_cpus=0, base_class="gymnasium")

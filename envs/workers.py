@@ -38,7 +38,7 @@ import traceback
 from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 from typing import Any
@@ -110,13 +110,12 @@ def check_workers(n_envs: int, workers: Any, backend: Any, ray_address: Any) -> 
 # ================================================================================= worker side
 @dataclass(frozen=True)
 class WorkerSpec:
-    """What one worker builds: ``n_envs`` copies of the named map, fused with ``fusion``."""
+    """What one worker builds: ``n_envs`` copies of one resolved config, fused with ``fusion``."""
 
-    name: str
+    config: IppConfig
     n_envs: int
     fusion: str
     fusion_kwargs: dict[str, Any] | None = None
-    options: dict[str, Any] = field(default_factory=dict)
 
 
 def _one_thread() -> None:
@@ -148,8 +147,8 @@ class WorkerCore:
         _one_thread()
         spec = self.spec
         venv = make_in_process_vec_env(
-            spec.name, n_envs=spec.n_envs, fusion=spec.fusion, seed=None, monitor=False,
-            fusion_kwargs=spec.fusion_kwargs, **spec.options,
+            spec.config, n_envs=spec.n_envs, fusion=spec.fusion, seed=None, monitor=False,
+            fusion_kwargs=spec.fusion_kwargs,
         )  # fmt: skip
         assert isinstance(venv, IppVecEnv)
         self.venv = venv
@@ -605,7 +604,7 @@ def concat_obs(parts: Sequence[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
 
 
 def make_worker_vec_env(
-    name: str,
+    config: IppConfig,
     n_envs: int = 1,
     fusion: str = "sendfuse",
     seed: int | None = None,
@@ -614,18 +613,16 @@ def make_worker_vec_env(
     ray_address: str | None = None,
     monitor: bool = True,
     fusion_kwargs: dict[str, Any] | None = None,
-    **options: Any,
 ) -> VecEnv:
-    """:class:`WorkerVecEnv` of ``n_envs`` copies on ``workers`` workers, seeded and wrapped in
-    VecMonitor like the in-process pipeline. Options are checked here first, so a bad one is one
-    line before any process or actor starts."""
+    """:class:`WorkerVecEnv` of ``n_envs`` copies of one resolved config on ``workers`` workers,
+    seeded and wrapped in VecMonitor like the in-process pipeline. Counts and the fusion are
+    checked here first, so a bad one is one line before any process or actor starts."""
     check_copies_and_seed(n_envs, seed)
     check_workers(int(n_envs), workers, backend, ray_address)
-    IppConfig.from_options(name, **options)
     if fusion != RAW_FUSION and (not isinstance(fusion, str) or fusion not in available_fusions()):
         fusion_factory(fusion)  # raises the usual "unknown fusion" error
     specs = [
-        WorkerSpec(name, len(block), fusion, dict(fusion_kwargs) if fusion_kwargs else None, dict(options))
+        WorkerSpec(config, len(block), fusion, dict(fusion_kwargs) if fusion_kwargs else None)
         for block in split_copies(int(n_envs), int(workers))
     ]
     venv: VecEnv = WorkerVecEnv(specs, backend=backend, ray_address=ray_address)

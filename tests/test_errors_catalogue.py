@@ -127,6 +127,7 @@ class Files:
     def trained_zip(self) -> Path:
         """A COMA zip that records its training env as ``sb3-coma train`` does (2 UAVs, mean fusion)."""
         from sb3_coma import COMA
+        from sb3_coma.app.config import resolve_world
         from sb3_coma.app.training import record_env_options
         from sb3_coma.common.checkpoints import atomic_save
 
@@ -137,7 +138,7 @@ class Files:
             seed=0,
             policy_kwargs={"features_extractor_kwargs": {"features_dim": 16}},
         )
-        record_env_options(model, "env1", {"fusion": "mean", "n_uavs": 2, "budget": 4})
+        record_env_options(model, resolve_world("UavIpp-Env1-v0", {"fusion": "mean", "n_uavs": 2, "budget": 4}, "test"))
         return atomic_save(model, self.path("models/coma_mean_2uavs.zip"))
 
     @functools.cached_property

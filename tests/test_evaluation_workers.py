@@ -7,6 +7,7 @@ import pytest
 
 import uav_ipp
 from sb3_coma import COMA
+from sb3_coma.app.config import resolve_world
 from sb3_coma.app.evaluation import WorldMismatchWarning, _chunks, evaluate, evaluation_workers, parallel_evaluation
 from sb3_coma.app.training import record_env_options
 from sb3_coma.cli import main as cli_main
@@ -87,7 +88,7 @@ def test_worker_warnings_reach_the_caller_once():
     venv = uav_ipp.make_vec_env("env1", n_envs=1, fusion="mean", seed=0, n_uavs=2, budget=4)
     kwargs = {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}}
     model = COMA("UavCnnPolicy", venv, n_steps=8, batch_size=8, seed=0, policy_kwargs=kwargs)
-    record_env_options(model, "env1", {"fusion": "mean", "n_uavs": 2, "budget": 4})
+    record_env_options(model, resolve_world("UavIpp-Env1-v0", {"fusion": "mean", "n_uavs": 2, "budget": 4}, "test"))
     with pytest.warns(WorldMismatchWarning) as caught:
         evaluate(model, fusion="mean", record=0, workers=2, label="my-arm", **{**SMALL, "noise": "loud"})
     mismatches = [str(w.message) for w in caught if issubclass(w.category, WorldMismatchWarning)]

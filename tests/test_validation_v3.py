@@ -28,7 +28,7 @@ import uav_ipp
 from sb3_coma import COMA, evaluate
 from sb3_coma.app import evaluation as ev
 from sb3_coma.app import pretrained
-from sb3_coma.app.config import TrainingError, load_config
+from sb3_coma.app.config import TrainingError, load_config, resolve_world
 from sb3_coma.app.training import record_env_options
 from sb3_coma.cli import main
 from sb3_coma.common.checkpoints import atomic_save
@@ -67,7 +67,7 @@ def mean_zip(tmp_path_factory) -> Path:
     model = COMA(
         "UavCnnPolicy", venv, batch_size=8, seed=0, policy_kwargs={"features_extractor_kwargs": {"features_dim": 16}}
     )
-    record_env_options(model, "env1", {"fusion": "mean", "n_uavs": 2, "budget": 4})
+    record_env_options(model, resolve_world("UavIpp-Env1-v0", {"fusion": "mean", "n_uavs": 2, "budget": 4}, "test"))
     path = atomic_save(model, tmp_path_factory.mktemp("models") / "coma_mean.zip")
     venv.close()
     return path

@@ -14,6 +14,7 @@ and ``python -m sb3_coma.zoo``) and ``sb3-coma export`` read configs through it.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import difflib
 import importlib
 import importlib.metadata
@@ -120,6 +121,8 @@ ALLOW_TEST_SPLIT = "allow_test_split"
 #: The gymnasium id of ``uav_ipp.DEFAULT_MAP``: what ``sb3-coma train`` trains without ``--env``.
 DEFAULT_ENV_ID = next(env_id for env_id, name in ENV_IDS.items() if name == DEFAULT_MAP)
 _SCHEDULE_KEYS = ("learning_rate", "critic_learning_rate")
+#: Every env option's default: an error message lists only the options a config changed.
+_DEFAULT_OPTIONS = {f.name: getattr(IppConfig(), f.name) for f in fields(IppConfig) if f.name != "map_name"}
 _SCHEDULE_RE = re.compile(r"^lin_(?P<value>[-+0-9.eE]+)$")
 #: Names a ``policy_kwargs`` expression string may use (rl-zoo3 evaluates such strings too).
 _POLICY_KWARGS_NAMES: dict[str, Any] = {
@@ -271,6 +274,59 @@ def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[str, dict[str, Any]
     return fusion, fusion_kwargs, options
 
 
+@dataclass(frozen=True)
+class WorldSpec:
+    """The world one config entry trains in, resolved once from its ``env_kwargs``.
+
+    The raw mapping is what a user writes and what a run's ``config.yml`` records; this typed
+    object is what travels below the config edge (the env builders, the model's record of its
+    world, the validation env), so the options are split and checked once per entry, not again in
+    every layer they pass through.
+    """
+
+    env_id: str
+    config: IppConfig
+    fusion: str = DEFAULT_FUSION
+    fusion_kwargs: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_agents(self) -> int:
+        return self.config.n_uavs
+
+    def with_options(self, **changes: Any) -> WorldSpec:
+        """The same world with some env options changed (the validation protocol's missions)."""
+        return dataclasses.replace(self, config=self.config.replace(**changes))
+
+    def record(self) -> dict[str, Any]:
+        """The record of this world as ``COMA.env_options`` keeps it (saved in the zip).
+
+        ``{"map": map_name, "fusion": ..., "fusion_kwargs": {...}}`` plus every
+        :class:`uav_ipp.IppConfig` option resolved (defaults included, so the record survives a
+        later change of a default); ``uav_ipp.make_vec_env(opts.pop("map"), **opts)`` rebuilds it.
+        """
+        resolved = {f.name: getattr(self.config, f.name) for f in fields(self.config) if f.name != "map_name"}
+        return {
+            "map": self.config.map_name,
+            "fusion": self.fusion,
+            "fusion_kwargs": plain(dict(self.fusion_kwargs)),
+            **plain(resolved),
+        }
+
+
+def resolve_world(env_id: str, env_kwargs: Mapping[str, Any], where: str) -> WorldSpec:
+    """The one place an ``env_kwargs`` mapping becomes a :class:`WorldSpec`; a bad option is a
+    :class:`TrainingError` naming ``where``. rl-zoo3's ``render_mode="human"`` (its default for
+    ``enjoy``) is dropped: the maps render headless."""
+    fusion, fusion_kwargs, options = split_env_kwargs(env_kwargs)
+    if options.get("render_mode") == "human":
+        options.pop("render_mode")
+    try:
+        config = IppConfig.from_options(ENV_IDS[env_id], **options)
+    except (ConfigError, TypeError) as exc:
+        raise TrainingError(f"{where}: env_kwargs: {exc}") from exc
+    return WorldSpec(env_id, config, fusion, dict(fusion_kwargs))
+
+
 def _trainable_fusions() -> list[str]:
     """Fusions a COMA model can train on: every available one but the raw observation."""
     return [name for name in uav_ipp.available_fusions() if name != "none"]
@@ -321,21 +377,19 @@ def _check_zoo_values(entry: Mapping[str, Any], where: str) -> None:
             _fail(where, f"{key} must be a number or 'lin_<initial value>', got {value!r}")
 
 
-def _check_env_kwargs(entry: Mapping[str, Any], where: str, map_name: str | None) -> None:
+def _check_env_kwargs(entry: Mapping[str, Any], where: str, env_id: str | None) -> WorldSpec | None:
+    """The entry's ``env_kwargs`` checked (fusion, the test-split permission) and, with the env id
+    known, resolved into the :class:`WorldSpec` everything below the config edge trusts."""
     env_kwargs = entry.get("env_kwargs", {}) or {}
     if not isinstance(env_kwargs, dict):
         _fail(where, f"env_kwargs must be a mapping of environment options, got {env_kwargs!r}")
-    fusion, fusion_kwargs, options = split_env_kwargs(env_kwargs)
+    fusion = env_kwargs.get("fusion", DEFAULT_FUSION)
     if fusion not in _trainable_fusions():
         _fail(where, f"env_kwargs.fusion must be one of {tuple(_trainable_fusions())}, got {fusion!r}")
-    if not isinstance(fusion_kwargs, dict):
-        _fail(where, f"env_kwargs.fusion_kwargs must be a mapping, got {fusion_kwargs!r}")
+    if not isinstance(env_kwargs.get("fusion_kwargs") or {}, dict):
+        _fail(where, f"env_kwargs.fusion_kwargs must be a mapping, got {env_kwargs['fusion_kwargs']!r}")
     _check_test_split(env_kwargs, where)
-    if map_name is not None:
-        try:
-            IppConfig.from_options(map_name, **options)
-        except (ConfigError, TypeError) as exc:
-            _fail(where, f"env_kwargs: {exc}")
+    return None if env_id is None else resolve_world(env_id, env_kwargs, where)
 
 
 def _check_test_split(env_kwargs: Mapping[str, Any], where: str) -> None:
@@ -363,18 +417,19 @@ def _check_test_split(env_kwargs: Mapping[str, Any], where: str) -> None:
         )
 
 
-def validate_entry(entry: Mapping[str, Any], where: str, map_name: str | None = None) -> None:
+def validate_entry(entry: Mapping[str, Any], where: str, env_id: str | None = None) -> WorldSpec | None:
     """Check one resolved config entry; raise :class:`TrainingError` naming ``where`` and the key.
 
     Checks key names (COMA's arguments + rl-zoo3's keys), the zoo keys' values, schedule
-    strings, and the environment options (through ``uav_ipp.IppConfig``). COMA's own value checks
+    strings, and the environment options, which with ``env_id`` become the entry's
+    :class:`WorldSpec` (returned: the one time they are resolved). COMA's own value checks
     (ranges, batch vs rollout) run when the model is built.
     """
     _check_keys(entry, where)
     _check_zoo_values(entry, where)
     if entry.get(WARM_START_KEY) is not None:  # null: none (a variant's way to drop the map entry's)
         check_warm_start(entry[WARM_START_KEY], where)
-    _check_env_kwargs(entry, where, map_name)
+    return _check_env_kwargs(entry, where, env_id)
 
 
 _WARM_START_DEFAULTS: dict[str, Any] = {"teacher": "oracle", "rounds": 8, "missions": 128, "critic_warmup": 0.2}
@@ -585,17 +640,11 @@ def _variant_overrides(data: Mapping[str, Any], path: Path, variant: str) -> dic
     return extra
 
 
-def config_entry(
-    path: str | os.PathLike[str],
-    env_id: str,
-    variant: str | None = None,
-    overrides: Mapping[str, Any] | None = None,
-    data: dict[str, Any] | None = None,
-    validate: bool = True,
-) -> dict[str, Any]:
-    """The env's entry of a config file, with a variant and overrides merged in, validated."""
-    p = Path(path)
-    data = read_config_file(p) if data is None else data
+def _entry_and_where(
+    p: Path, env_id: str, variant: str | None, overrides: Mapping[str, Any] | None, data: dict[str, Any]
+) -> tuple[dict[str, Any], str]:
+    """The env's entry of a config file with a variant and overrides merged in, and how error
+    messages name it."""
     entry = data.get(env_id)
     if entry is None:
         present = [k for k in data if k in ENV_IDS] or [k for k in data if k not in (VARIANTS_KEY, RUN_KEY)]
@@ -611,18 +660,55 @@ def config_entry(
     if overrides:
         entry = _apply_overrides(entry, overrides)
         where += " with overrides"
-    entry = read_numbers(entry, where)
+    return read_numbers(entry, where), where
+
+
+def config_entry(
+    path: str | os.PathLike[str],
+    env_id: str,
+    variant: str | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    data: dict[str, Any] | None = None,
+    validate: bool = True,
+) -> dict[str, Any]:
+    """The env's entry of a config file, with a variant and overrides merged in, validated (its
+    env options resolved only by :func:`train_config`, the one that keeps them)."""
+    p = Path(path)
+    entry, where = _entry_and_where(p, env_id, variant, overrides, read_config_file(p) if data is None else data)
     if validate:
-        validate_entry(entry, where, ENV_IDS[env_id])
+        validate_entry(entry, where)
     return entry
+
+
+def train_config(
+    path: str | os.PathLike[str],
+    env_id: str,
+    variant: str | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    data: dict[str, Any] | None = None,
+    run: Mapping[str, Any] | None = None,
+) -> TrainConfig:
+    """A config file's entry for ``env_id`` as a :class:`TrainConfig`: validated, its world resolved
+    once into a :class:`WorldSpec`."""
+    p = Path(path)
+    entry, where = _entry_and_where(p, env_id, variant, overrides, read_config_file(p) if data is None else data)
+    world = validate_entry(entry, where, env_id)
+    assert world is not None  # an env id was given
+    return TrainConfig(env_id=env_id, entry=entry, world=world, source=p, variant=variant, run=dict(run or {}))
 
 
 @dataclass
 class TrainConfig:
-    """A resolved training config: where it came from and the entry to train with."""
+    """A resolved training config: where it came from, the entry to train with and its world.
+
+    ``entry["env_kwargs"]`` is the record (what ``config.yml`` keeps); ``world`` is the same
+    options resolved, which is what builds envs. A change of the env options means a new
+    :class:`TrainConfig` (:func:`train_config`), never an edit of ``entry["env_kwargs"]``.
+    """
 
     env_id: str
     entry: dict[str, Any]
+    world: WorldSpec
     source: Path | None = None
     variant: str | None = None
     run: dict[str, Any] = field(default_factory=dict)
@@ -654,8 +740,7 @@ class TrainConfig:
 
     @property
     def n_agents(self) -> int:
-        _, _, options = split_env_kwargs(self.env_kwargs)
-        return IppConfig.from_options(self.map_name, **options).n_uavs
+        return self.world.n_agents
 
     @property
     def where(self) -> str:
@@ -673,8 +758,7 @@ def load_config(
     :func:`default_config_path`) and variant into a :class:`TrainConfig`."""
     env_id = resolve_env_id(env if env is not None else DEFAULT_ENV_ID)
     path = Path(config) if config is not None else default_config_path()
-    entry = config_entry(path, env_id, variant, overrides)
-    return TrainConfig(env_id=env_id, entry=entry, source=path, variant=variant)
+    return train_config(path, env_id, variant, overrides)
 
 
 # =========================================================================== building
@@ -779,6 +863,28 @@ def resolve_workers(value: Any, n_envs: int) -> int:
     return int(value)
 
 
+def make_world_vec_env(
+    world: WorldSpec, n_envs: int, seed: int | None, workers: int = 1, backend: str = "subprocess"
+) -> VecEnv:
+    """``uav_ipp.make_vec_env`` of a resolved world on ``workers`` processes; what the world
+    refuses at build time (an unavailable fusion, fusion options it does not take) becomes a
+    :class:`TrainingError` naming the env and its options."""
+    try:
+        return uav_ipp.make_vec_env(
+            world.config,
+            n_envs=n_envs,
+            fusion=world.fusion,
+            seed=seed,
+            fusion_kwargs=dict(world.fusion_kwargs) or None,
+            workers=min(workers, n_envs),
+            backend=backend,
+        )
+    except ValueError as exc:  # uav_ipp.ConfigError, an unavailable fusion, ...
+        options = {k: v for k, v in world.record().items() if k not in ("map", "fusion", "fusion_kwargs")}
+        changed = {k: v for k, v in options.items() if v != _DEFAULT_OPTIONS.get(k, v)}
+        raise TrainingError(f"cannot build {world.env_id} (fusion={world.fusion!r}, options {changed}): {exc}") from exc
+
+
 def make_vec_env_from_kwargs(
     env_id: str,
     env_kwargs: Mapping[str, Any] | None,
@@ -787,25 +893,11 @@ def make_vec_env_from_kwargs(
     workers: int = 1,
     backend: str = "subprocess",
 ) -> VecEnv:
-    """``uav_ipp.make_vec_env`` of a gymnasium id and a config's ``env_kwargs`` (``fusion``,
-    ``fusion_kwargs`` and env options) on ``workers`` processes; a bad option becomes a
-    :class:`TrainingError`."""
-    fusion, fusion_kwargs, options = split_env_kwargs(env_kwargs or {})
-    if options.get("render_mode") == "human":  # rl-zoo3's default for enjoy; maps render headless
-        options.pop("render_mode")
-    try:
-        return uav_ipp.make_vec_env(
-            ENV_IDS[env_id],
-            n_envs=n_envs,
-            fusion=fusion,
-            seed=seed,
-            fusion_kwargs=fusion_kwargs or None,
-            workers=min(workers, n_envs),
-            backend=backend,
-            **options,
-        )
-    except ValueError as exc:  # uav_ipp.ConfigError, an unavailable fusion, ...
-        raise TrainingError(f"cannot build {env_id} (fusion={fusion!r}, options {options}): {exc}") from exc
+    """:func:`make_world_vec_env` of a raw ``env_kwargs`` mapping (rl-zoo3's ``--env-kwargs``, a
+    run's recorded options): resolved here, at the edge, once."""
+    return make_world_vec_env(
+        resolve_world(env_id, env_kwargs or {}, f"cannot build {env_id}"), n_envs, seed, workers, backend
+    )
 
 
 def make_training_env(
@@ -815,14 +907,12 @@ def make_training_env(
     copies on the config's ``workers`` (or ``workers``) processes."""
     copies = n_envs or cfg.n_envs
     layout = resolve_workers(cfg.entry.get("workers", 1), copies) if workers is None else workers
-    return _wrapped_vec_env(cfg, cfg.env_kwargs, copies, seed, layout)
+    return _wrapped_vec_env(cfg, cfg.world, copies, seed, layout)
 
 
-def _wrapped_vec_env(
-    cfg: TrainConfig, env_kwargs: Mapping[str, Any], copies: int, seed: int | None, workers: int
-) -> VecEnv:
-    """``uav_ipp.make_vec_env`` of ``env_kwargs`` inside the config's ``vec_env_wrapper`` entries."""
-    env = make_vec_env_from_kwargs(cfg.env_id, env_kwargs, copies, seed, workers, cfg.backend)
+def _wrapped_vec_env(cfg: TrainConfig, world: WorldSpec, copies: int, seed: int | None, workers: int) -> VecEnv:
+    """``uav_ipp.make_vec_env`` of ``world`` inside the config's ``vec_env_wrapper`` entries."""
+    env = make_world_vec_env(world, copies, seed, workers, cfg.backend)
     try:
         for wrapper, wkwargs in named_objects(cfg.entry.get("vec_env_wrapper"), "vec_env_wrapper"):
             env = construct(wrapper, wkwargs, "vec_env_wrapper", env)
@@ -832,15 +922,19 @@ def _wrapped_vec_env(
     return env
 
 
+def validation_world(world: WorldSpec) -> WorldSpec:
+    """The world a run's checkpoints are validated in: ``world`` flying the validation protocol's
+    missions (``sb3_coma.common.evaluation``: mission ``seed + k`` of the train split, every train
+    scene in turn); a world on the paper's fixed mission (a user's map) has no scenes to visit and
+    flies as it is, with the validation seeds."""
+    if world.config.split != "train":
+        return world
+    return world.with_options(**PROTOCOLS["validation"].env_options())
+
+
 def make_validation_env(cfg: TrainConfig, missions: int, seed: int) -> VecEnv:
-    """The vec env a run's checkpoints are validated on: the config's env flying the validation
-    protocol's missions (``sb3_coma.common.evaluation``: mission ``seed + k`` of the train split,
-    every train scene in turn), in one process; a config on the paper's fixed mission (a user's
-    map) has no scenes to visit and flies its own env with the validation seeds."""
-    options = dict(cfg.env_kwargs)
-    if options.get("split", "paper") == "train":
-        options.update(PROTOCOLS["validation"].env_options())
-    return _wrapped_vec_env(cfg, options, eval_copies(missions), seed, 1)
+    """The vec env a run's checkpoints are validated on (:func:`validation_world`), in one process."""
+    return _wrapped_vec_env(cfg, validation_world(cfg.world), eval_copies(missions), seed, 1)
 
 
 def eval_copies(missions: int) -> int:
@@ -868,14 +962,6 @@ def plain(value: Any) -> Any:
     return str(value)
 
 
-def env_options_of(map_name: str, env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
-    """The record of the env a model trains on, as ``COMA.env_options`` keeps it (saved in the zip).
-
-    ``{"map": map_name, "fusion": ..., "fusion_kwargs": {...}}`` plus every :class:`uav_ipp.IppConfig`
-    option resolved (defaults included, so the record survives a later change of a default);
-    ``uav_ipp.make_vec_env(opts.pop("map"), **opts)`` rebuilds that env.
-    """
-    fusion, fusion_kwargs, options = split_env_kwargs(env_kwargs)
-    config = IppConfig.from_options(map_name, **options)
-    resolved = {f.name: getattr(config, f.name) for f in fields(config) if f.name != "map_name"}
-    return {"map": map_name, "fusion": fusion, "fusion_kwargs": plain(fusion_kwargs), **plain(resolved)}
+def env_options_of(env_id: str, env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """:meth:`WorldSpec.record` of a raw ``env_kwargs`` mapping (a run's recorded settings)."""
+    return resolve_world(env_id, env_kwargs, f"env_kwargs of {env_id}").record()

@@ -33,10 +33,10 @@ from sb3_coma.app.config import (
     RUN_KEY,
     TrainConfig,
     TrainingError,
-    config_entry,
     plain,
     read_config_file,
     resolve_env_id,
+    train_config,
 )
 from sb3_coma.app.outputs import (
     LOCK_FILE,
@@ -188,8 +188,9 @@ def read_run_config(run_dir: Path) -> TrainConfig:
     if not isinstance(run, dict) or "env" not in run:
         raise TrainingError(f"{path} is not an sb3-coma run config (no '{RUN_KEY}.env')")
     env_id = resolve_env_id(run["env"])
-    entry = config_entry(path, env_id, data=data)
-    return TrainConfig(env_id=env_id, entry=entry, source=path, variant=run.get("variant"), run=dict(run))
+    cfg = train_config(path, env_id, data=data, run=run)  # the entry as recorded: its variant already merged
+    cfg.variant = run.get("variant")
+    return cfg
 
 
 def newest_model(run_dir: Path) -> Path | None:

@@ -38,6 +38,7 @@ from sb3_coma.app.config import (
     WARM_START_KEY,
     TrainConfig,
     TrainingError,
+    WorldSpec,
     check_warm_start,
     coma_kwargs,
     construct,
@@ -141,9 +142,9 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 
 # =========================================================================== shared trainer core
-def record_env_options(model: COMA, map_name: str, env_kwargs: Mapping[str, Any]) -> None:
+def record_env_options(model: COMA, world: WorldSpec) -> None:
     """Record on the model (and so in every zip saved from it) the env it trains on."""
-    model.env_options = env_options_of(map_name, env_kwargs)
+    model.env_options = world.record()
 
 
 @dataclass
@@ -280,14 +281,14 @@ def run_settings(entry: Mapping[str, Any]) -> dict[str, Any]:
     return {str(k): plain(v) for k, v in entry.items() if k not in RESUME_FREE_KEYS}
 
 
-def _spread(entry: Mapping[str, Any], map_name: str) -> dict[str, Any]:
+def _spread(entry: Mapping[str, Any], env_id: str) -> dict[str, Any]:
     """An entry as comparable settings: ``env_kwargs`` spread into ``env_kwargs.<option>`` and
     resolved (an option written out equals the same default left out), ``n_envs`` filled in."""
     flat = {str(k): plain(v) for k, v in entry.items() if k != "env_kwargs" and k not in RESUME_FREE_KEYS}
     flat.setdefault("n_envs", 1)
     env_kwargs = dict(entry.get("env_kwargs") or {})
     try:
-        options = env_options_of(map_name, env_kwargs)
+        options = env_options_of(env_id, env_kwargs)
         options.pop("map", None)
     except (ValueError, TypeError):  # an option this version does not know: compare as written
         options = plain(env_kwargs)
@@ -309,10 +310,10 @@ def _resume_changes(cfg: TrainConfig, resume_model: Path | None, n_envs: int | N
     too: they are what the model actually trained on.
     """
     entry = {**cfg.entry, **({"n_envs": n_envs} if n_envs is not None else {})}
-    now = _spread(entry, cfg.map_name)
+    now = _spread(entry, cfg.env_id)
     recorded = cfg.run.get("settings")
     base = recorded if isinstance(recorded, Mapping) else cfg.entry
-    changes = _differences(_spread(base, cfg.map_name), now, "config.yml was edited after the run started")
+    changes = _differences(_spread(base, cfg.env_id), now, "config.yml was edited after the run started")
     if n_envs is not None and "n_envs" in changes:
         changes["n_envs"] = (changes["n_envs"][0], n_envs, "--n-envs")
     saved = training_options(resume_model) if resume_model is not None else None  # None: in its warm start
@@ -528,7 +529,7 @@ def build_model(plan: RunPlan, venv: VecEnv, device: str = "auto", verbose: int 
             ) from exc
         except (TypeError, ValueError) as exc:
             raise TrainingError(f"{plan.cfg.where}: {exc}") from exc
-    record_env_options(model, plan.cfg.map_name, plan.cfg.env_kwargs)
+    record_env_options(model, plan.cfg.world)
     return model
 
 

@@ -31,7 +31,7 @@ import os
 import sys
 import uuid
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from pprint import pprint
 from typing import Any, cast
@@ -52,15 +52,17 @@ from sb3_coma.app.config import (
     DEFAULT_ENV_ID,
     WARM_START_KEY,
     TrainingError,
+    WorldSpec,
     check_warm_start,
     config_entry,
     default_config_path,
     make_vec_env_from_kwargs,
+    make_world_vec_env,
     parse_schedule,
     read_config_file,
     resolve_policy_kwargs,
     resolve_workers,
-    split_env_kwargs,
+    resolve_world,
     validate_entry,
 )
 from sb3_coma.app.runs import load_checkpoint
@@ -76,7 +78,7 @@ from sb3_coma.common.checkpoints import (
     atomic_save,
     validate_checkpoint,
 )
-from uav_ipp import ENV_IDS, ConfigError, IppConfig
+from uav_ipp import ENV_IDS, ConfigError
 
 __all__ = ["ComaExperimentManager", "enjoy_parser", "main", "register", "train_parser"]
 
@@ -90,6 +92,11 @@ def register() -> None:
 
 
 # =========================================================================== experiment manager
+def _kwargs_key(env_kwargs: Mapping[str, Any] | None) -> str:
+    """A comparable key of an ``env_kwargs`` mapping (the zoo's world is resolved once per key)."""
+    return repr(sorted((env_kwargs or {}).items()))
+
+
 class ComaExperimentManager(ExperimentManager):
     """rl-zoo3's ``ExperimentManager`` for COMA on the multi-agent UavIpp envs.
 
@@ -129,7 +136,10 @@ class ComaExperimentManager(ExperimentManager):
             if self._eval_env_kwargs_args is None:
                 self.eval_env_kwargs = hyperparams["env_kwargs"]
         variant = f", variant {self.variant}" if self.variant else ""
-        validate_entry(hyperparams, f"{self.config} [{env_id}{variant}] with command-line overrides", self.map_name)
+        world = validate_entry(hyperparams, f"{self.config} [{env_id}{variant}] with command-line overrides", env_id)
+        assert world is not None  # an env id was given
+        # rl-zoo3 moves these env_kwargs to self.env_kwargs: the world resolved here serves them
+        self._world_spec, self._world_key = world, _kwargs_key(hyperparams.get("env_kwargs"))
         saved_hyperparams = OrderedDict([(key, hyperparams[key]) for key in sorted(hyperparams)])
         print("Default hyperparameters for environment (ones being tuned will be overridden):")
         pprint(saved_hyperparams)
@@ -155,9 +165,17 @@ class ComaExperimentManager(ExperimentManager):
         return super()._preprocess_hyperparams(hyperparams)
 
     # ------------------------------------------------------------------ envs
+    def _world(self) -> WorldSpec:
+        """The training world of ``self.env_kwargs`` (rl-zoo3 settles them from the config and
+        ``--env-kwargs`` after the hyperparameters are read), resolved once per distinct mapping."""
+        key = _kwargs_key(self.env_kwargs)
+        if getattr(self, "_world_key", None) != key:
+            where = f"{self.config} [{self.env_name.gym_id}]"
+            self._world_spec, self._world_key = resolve_world(self.env_name.gym_id, self.env_kwargs or {}, where), key
+        return self._world_spec
+
     def _agents(self) -> int:
-        _, _, options = split_env_kwargs(self.env_kwargs or {})
-        return IppConfig.from_options(self.map_name, **options).n_uavs
+        return self._world().n_agents
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
         if self.vec_env_class is not DummyVecEnv and not getattr(self, "_told_vec_env", False):
@@ -167,7 +185,10 @@ class ComaExperimentManager(ExperimentManager):
         kwargs = self.eval_env_kwargs if eval_env and self._eval_env_kwargs_args is not None else self.env_kwargs
         workers = 1 if eval_env else getattr(self, "workers", 1)
         backend = getattr(self, "backend", "subprocess")
-        env = make_vec_env_from_kwargs(self.env_name.gym_id, kwargs, n_envs, self.seed, workers, backend)
+        if kwargs is self.env_kwargs:
+            env = make_world_vec_env(self._world(), n_envs, self.seed, workers, backend)
+        else:
+            env = make_vec_env_from_kwargs(self.env_name.gym_id, kwargs, n_envs, self.seed, workers, backend)
         if self.vec_env_wrapper is not None:
             env = self.vec_env_wrapper(env)
         return env
@@ -195,7 +216,7 @@ class ComaExperimentManager(ExperimentManager):
 
     # ------------------------------------------------------------------ learning, saving, loading
     def learn(self, model: Any) -> None:
-        record_env_options(model, self.map_name, self.env_kwargs)  # saved in checkpoints and the final zip
+        record_env_options(model, self._world())  # saved in checkpoints and the final zip
         spec = getattr(self, "warm_start", None)
         if spec is not None and not self.trained_agent:
             Path(self.save_path).mkdir(parents=True, exist_ok=True)
@@ -204,7 +225,7 @@ class ComaExperimentManager(ExperimentManager):
 
     def _clone_env(self) -> VecEnv:
         """In-process copies of the training world for the warm start's teacher."""
-        env = make_vec_env_from_kwargs(self.env_name.gym_id, self.env_kwargs, self.n_envs, self.seed, 1, "subprocess")
+        env = make_world_vec_env(self._world(), self.n_envs, self.seed, 1, "subprocess")
         return self.vec_env_wrapper(env) if self.vec_env_wrapper is not None else env
 
     def save_trained_model(self, model: Any) -> None:

@@ -106,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     plan = plan_run(env=args.env, seed=args.seed, device="cpu", overrides=overrides)
     venv = make_training_env(plan.cfg, seed=args.seed, workers=1)  # the oracle reads the env's state
     model, record = _clone(args, plan, venv)
-    record_env_options(model, plan.cfg.map_name, plan.cfg.env_kwargs)
+    record_env_options(model, plan.cfg.world)
     name = "clone.zip"
     if args.finetune > 0:
         model.set_reference_actor()

@@ -71,7 +71,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from sb3_coma.app.config import TrainConfig, TrainingError, env_options_of, make_vec_env_from_kwargs, plain
+from sb3_coma.app.config import TrainConfig, TrainingError, make_vec_env_from_kwargs, plain
 from sb3_coma.app.evaluation import planner_options
 from sb3_coma.app.runs import CONFIG_FILE, TENSORBOARD_DIR, read_run_config
 from sb3_coma.app.training import VALIDATION_SEED, eval_copies
@@ -275,7 +275,7 @@ def read_run(run: str | Path, eval_seed: int | None = None) -> RunCurve:
     return RunCurve(
         path=run,
         seed=int(seed) if isinstance(seed, int) else None,
-        budget=int(env_options_of(cfg.map_name, cfg.env_kwargs)["budget"]),
+        budget=int(cfg.world.config.budget),
         validation=validation,
         steps=steps,
         f1=_at_steps(run, TAGS["f1"], scalars[TAGS["f1"]], steps),
