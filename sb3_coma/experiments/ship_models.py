@@ -6,10 +6,11 @@ validation missions (split train, env seeds 1000+, re-seeded at every evaluation
 split). This tool reads each run's ``eval/evaluations.npz``, keeps the run whose best validation
 return is highest, re-saves that ``best_model.zip`` into ``sb3_coma/pretrained/`` in compact form
 (no Adam moments, no target critic, half precision: ~1.4 MB) and writes its ``models.json``
-entry: checksum, the exact command, the validation scores of every candidate, training
-wall-clock and curve, and the seed spread: every candidate's selected checkpoint flown on the
-unseen protocol (the same 50 test missions as ``sb3-coma reproduce``), so tables can give the
-shipped seed's result next to the mean +- std over seeds. Those test metrics are recorded after the
+entry (through ``sb3_coma.app.model_manifest``, the manifest's one writer): checksum, the exact
+command, the validation scores of every candidate, training wall-clock and curve, and the seed
+spread: every candidate's selected checkpoint flown on the unseen protocol (the same 50 test
+missions as ``sb3-coma reproduce``), so tables can give the shipped seed's result next to the
+mean +- std over seeds. Those test metrics are recorded after the
 choice and never enter it. Test metrics of the shipped model itself are added afterwards by
 ``sb3-coma reproduce --record``.
 
@@ -45,6 +46,7 @@ from sb3_coma import COMA, training_options
 from sb3_coma.app import pretrained as pt
 from sb3_coma.app.config import resolve_env_id
 from sb3_coma.app.evaluation import evaluate
+from sb3_coma.app.model_manifest import ModelEntry, ModelFields, as_entry, update_models
 from sb3_coma.app.training import VALIDATION_SEED, selection_end
 from sb3_coma.common.evaluation import PROTOCOLS, validation_missions
 from sb3_coma.experiments.learning_curves import Validation, fly_validation
@@ -369,22 +371,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     manifest = pt.read_manifest()
     if argv[0] == "--rescore":  # the shipped seeds' numbers from the shipped files themselves
+        rescored: dict[str, ModelFields] = {}
         for name in argv[1:]:
-            manifest["models"][name]["seeds_unseen"] = rescore_shipped_seed(name)
-            manifest["models"][name]["title"] = model_title(manifest["models"][name])
-            print(f"{name}: {manifest['models'][name]['seeds_unseen']['metrics']}")
-        pt.write_manifest(manifest)
+            spread = rescore_shipped_seed(name)
+            rescored[name] = {"seeds_unseen": spread, "title": model_title(manifest["models"][name])}
+            print(f"{name}: {spread['metrics']}")
+        update_models(rescored)
         return 0
+    shipped: dict[str, ModelEntry] = {}
     for spec in argv:
         name, runs = spec.split("=", 1)
-        entry = ship(name, runs.split(","))
+        entry = as_entry(name, ship(name, runs.split(",")))
         old = manifest["models"].get(name, {})
-        manifest["models"][name] = entry
+        shipped[name] = entry
         print(
             f"{name}: {entry['command']} -> {entry['file']} ({entry['size_bytes']} bytes); "
             f"candidates {entry['selection']['candidates']}" + (" (replaced)" if old else "")
         )
-    pt.write_manifest(manifest)
+    update_models(shipped, replace=True)
     return 0
 
 
