@@ -309,7 +309,8 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         (["train", "--env", "env1", "--config", config, "--variant", "x"], "unknown variant 'x'"),
         (["train", "--env", "env1", "--config", config, "--set", "batch_sise=8"], "COMA does not take 'batch_sise'"),
         (["train", "--resume", str(tmp_path / "nope")], "no such file or folder"),
-        (["train", "--env", "env1", "--timesteps", "0"], "--timesteps must be >= 1"),
+        (["train", "--env", "env1", "--timesteps", "0"], "--timesteps must be a positive integer, got 0"),
+        (["train", "--env", "env1", "--eval-freq", "-5"], "--eval-freq must be an integer >= 0 (0: none)"),
     ]
     for argv, message in cases:
         assert cli.main(argv) == 2
@@ -512,3 +513,16 @@ def test_resume_from_an_older_checkpoint_is_refused_in_place_and_forks_with_fork
     # the newest checkpoint itself is no fork: it resumes in place as before
     _, again = train(resume=run / "model.zip", total_timesteps=48, **quiet())
     assert again == run
+
+
+def test_one_rule_per_count_for_train_and_the_cli(tmp_path, capsys):
+    """``sb3-coma train --save-freq 0`` means what ``train(save_freq=0)`` means (no checkpoints),
+    and a bad count is refused by the same rule, naming the flag or the argument."""
+    config = str(write_config(tmp_path))
+    argv = ["train", "--env", "env1", "--config", config, "--timesteps", "8", "--seed", "1", "--no-progress"]
+    assert cli.main([*argv, "--save-freq", "0", "--run-dir", str(tmp_path / "cli")]) == 0
+    assert not find_checkpoints(tmp_path / "cli" / "checkpoints")
+    assert cli.main([*argv, "--save-freq", "-1", "--run-dir", str(tmp_path / "bad")]) == 2
+    assert "--save-freq must be an integer >= 0 (0: none) in joint steps, got -1" in capsys.readouterr().err
+    with pytest.raises(TrainingError, match=r"^save_freq must be an integer >= 0 \(0: none\) in joint steps, got -1$"):
+        train(env="env1", config=config, seed=0, run_dir=tmp_path / "py", save_freq=-1, **quiet())

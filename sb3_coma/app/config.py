@@ -264,6 +264,23 @@ def positive_int(where: str, key: str, value: Any) -> int:
     return int(value)
 
 
+#: The least value each count of a run takes (the frequencies: 0 means none). One rule per count,
+#: which ``train()`` applies to its arguments and ``sb3-coma train`` to its flags.
+COUNT_MINIMUMS: dict[str, int] = {"total_timesteps": 1, "n_envs": 1, "eval_missions": 1, "save_freq": 0, "eval_freq": 0}
+
+
+def checked_count(key: str, value: Any, label: str | None = None) -> int:
+    """``value`` as the count ``key`` of :data:`COUNT_MINIMUMS` (``2.0`` passes); a
+    :class:`TrainingError` naming ``label`` (default: the key) and the value otherwise."""
+    minimum = COUNT_MINIMUMS[key]
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not is_int(value) or value < minimum:
+        rule = "a positive integer" if minimum == 1 else "an integer >= 0 (0: none) in joint steps"
+        raise TrainingError(f"{label or key} must be {rule}, got {value!r}")
+    return int(value)
+
+
 def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[str, dict[str, Any], dict[str, Any]]:
     """``(fusion, fusion_kwargs, env options)`` from an ``env_kwargs`` mapping (fusion default:
     ``uav_ipp.DEFAULT_FUSION``, the same as ``uav_ipp.make_vec_env``'s)."""

@@ -40,6 +40,7 @@ from sb3_coma.app.config import (
     TrainingError,
     WorldSpec,
     check_warm_start,
+    checked_count,
     coma_kwargs,
     construct,
     env_options_of,
@@ -50,7 +51,6 @@ from sb3_coma.app.config import (
     make_validation_env,
     named_objects,
     plain,
-    positive_int,
     resolve_env_id,
 )
 from sb3_coma.app.outputs import FolderLock
@@ -408,9 +408,9 @@ def plan_run(
     run's config, recorded as ``forked_from``.
     """
     if total_timesteps is not None:
-        total_timesteps = positive_int("train()", "total_timesteps", total_timesteps)
+        total_timesteps = checked_count("total_timesteps", total_timesteps)
     if n_envs is not None:
-        n_envs = positive_int("train()", "n_envs", n_envs)
+        n_envs = checked_count("n_envs", n_envs)
     if seed is not None and not is_int(seed):
         raise TrainingError(f"seed must be an integer, got {seed!r}")
     if eval_seed is not None and not is_int(eval_seed):
@@ -602,12 +602,12 @@ def attach_callbacks(
 ) -> tuple[MissionCallbacks, list[BaseCallback]]:
     """The run's callbacks: :func:`mission_callbacks`, the config's ``callback`` entries, ``extra``,
     and the signal stop last. Returns the standard set and the list to pass to ``learn``."""
-    # one rule for save_freq, checked once in _check_counts: an integer >= 0, 0 = no checkpoints
+    # save_freq and eval_freq were checked once, in _check_counts (app.config.checked_count)
     every = max(plan.cfg.n_timesteps // 10, 1) if save_freq is None else int(save_freq)
     eval_env = None
     missions = validation_missions(plan.cfg.map_name) if eval_missions is None else eval_missions
     if eval_freq and eval_freq > 0:
-        missions = positive_int("train()", "eval_missions", missions)
+        missions = checked_count("eval_missions", missions)
         eval_env = make_validation_env(plan.cfg, missions, plan.eval_seed)
     standard = mission_callbacks(
         run_path,
@@ -748,8 +748,8 @@ def save_final(
 def _check_counts(eval_freq: Any, save_freq: Any, eval_seed: Any) -> None:
     """Frequencies and the validation seed, refused before anything is built."""
     for name, value in (("eval_freq", eval_freq), ("save_freq", save_freq)):
-        if value is not None and (not is_int(value) or value < 0):
-            raise TrainingError(f"{name} must be an integer >= 0 (0: none) in joint steps, got {value!r}")
+        if value is not None:
+            checked_count(name, value)
     if eval_seed is not None and is_int(eval_seed) and eval_seed < 0:
         raise TrainingError(f"eval_seed must be an integer >= 0, got {eval_seed!r}")
 

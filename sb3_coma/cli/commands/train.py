@@ -50,11 +50,21 @@ def _joint_steps(text: str) -> int:
     if isinstance(number, float) and not number.is_integer():
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of joint steps")
     if number < 1:
-        return int(number)  # "must be >= 1", said once for every count below
+        return int(number)  # the count's own rule (app.config.checked_count) names the flag
     try:
         return check_total_timesteps(number, "the value")
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+#: The count flags and the ``train()`` argument whose rule each follows.
+_COUNT_FLAGS = (
+    ("timesteps", "total_timesteps"),
+    ("n_envs", "n_envs"),
+    ("save_freq", "save_freq"),
+    ("eval_freq", "eval_freq"),
+    ("eval_missions", "eval_missions"),
+)
 
 
 def _add_change_option(parser: argparse.ArgumentParser) -> None:
@@ -216,7 +226,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     from sb3_coma.app import training
-    from sb3_coma.app.config import TrainingError, default_config_path, list_variants
+    from sb3_coma.app.config import TrainingError, checked_count, default_config_path, list_variants
     from sb3_coma.app.training import TrainingInterrupted
     from sb3_coma.common.checkpoints import CheckpointError
 
@@ -230,10 +240,9 @@ def run(args: argparse.Namespace) -> int:
             for name, overrides in variants.items():
                 print(f"{name}: {overrides or '(the config as it is)'}")
             return 0
-        for name in ("timesteps", "n_envs", "save_freq", "eval_missions"):
-            value = getattr(args, name)
-            if value is not None and value < 1:
-                raise UserError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+        for flag, key in _COUNT_FLAGS:
+            if getattr(args, flag) is not None:  # train()'s rule, naming the flag
+                checked_count(key, getattr(args, flag), f"--{flag.replace('_', '-')}")
         training.train(
             env=args.env,
             config=args.config,
