@@ -309,7 +309,7 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         (["train", "--env", "env1", "--config", config, "--variant", "x"], "unknown variant 'x'"),
         (["train", "--env", "env1", "--config", config, "--set", "batch_sise=8"], "COMA does not take 'batch_sise'"),
         (["train", "--resume", str(tmp_path / "nope")], "no such file or folder"),
-        (["train", "--env", "env1", "--timesteps", "0"], "--timesteps must be a positive integer, got 0"),
+        (["train", "--env", "env1", "--timesteps", "0"], "--timesteps must be an integer >= 1, got 0"),
         (["train", "--env", "env1", "--eval-freq", "-5"], "--eval-freq must be an integer >= 0 (0: none)"),
     ]
     for argv, message in cases:
@@ -379,7 +379,7 @@ def test_validation_picks_best_model_on_seeded_missions(tmp_path):
     best = validate_checkpoint(run / "best_model.zip").num_timesteps
     assert best == int(data["timesteps"][int(np.argmax(data["results"].mean(axis=1)))])
     assert VALIDATION_SEED == 1000
-    with pytest.raises(TrainingError, match="eval_missions must be a positive integer, got 0"):
+    with pytest.raises(TrainingError, match="eval_missions must be an integer >= 1, got 0"):
         train(env="env1", config=config, seed=0, run_dir=tmp_path / "run2", eval_freq=16, eval_missions=0, **quiet())
 
 

@@ -276,7 +276,7 @@ def checked_count(key: str, value: Any, label: str | None = None) -> int:
     if isinstance(value, float) and value.is_integer():
         value = int(value)
     if not is_int(value) or value < minimum:
-        rule = "a positive integer" if minimum == 1 else "an integer >= 0 (0: none) in joint steps"
+        rule = f"an integer >= {minimum}" + (" (0: none) in joint steps" if minimum == 0 else "")
         raise TrainingError(f"{label or key} must be {rule}, got {value!r}")
     return int(value)
 
