@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import uav_ipp
-from sb3_coma.app.evaluation import evaluate
+from sb3_coma.app.evaluation import Method, Missions, fly, resolve_method
 from sb3_coma.common.evaluation import EvaluationResult
 from sb3_coma.stats.tables import TableRow, table_markdown, table_text
 
@@ -160,18 +160,12 @@ def run_ablation(
             if log:
                 log(f"skipping {label} ({variant[0]}_{variant[1]}): {out.skipped[label]}")
             continue
+        method = resolve_method(Method(label, model, fusion=variant[0]))  # once: a shipped zip is hashed once
         for noise in noises:
             if log:
                 log(f"evaluating {label} ({variant[0]}_{variant[1]}) on {env}, noise {noise} ...")
-            out.results[(label, noise)] = evaluate(
-                model,
-                env=env,
-                n_trials=n_trials,
-                seed=seed,
-                fusion=variant[0],
-                label=label,
-                noise=noise,
-                protocol=protocol,
-                **env_options,
+            missions = Missions(
+                env=env, protocol=protocol, count=n_trials, seed=seed, noise=noise, record=1, options=env_options
             )
+            out.results[(label, noise)] = fly(method, missions)
     return out

@@ -22,32 +22,22 @@ from typing import Any
 
 import numpy as np
 
-import uav_ipp
-from sb3_coma.baselines import make_planner
-from sb3_coma.common.joint import resolve_n_agents
+from sb3_coma.app.evaluation import Method, Missions
+from sb3_coma.app.evaluation import fly as fly_method
 
 __all__ = ["KEYS", "fly", "main"]
 
 #: The final metrics of one mission, in table order.
 KEYS = ("f1", "entropy", "team_f1", "team_entropy")
 
+#: AG as this table names it: ipp-marl's class weighting, greedy (not the map family's default).
+AG_CLASS = Method("ag", "ag", planner_kwargs={"weighting": "class"})
+
 
 def fly(name: str, trials: int, **options: Any) -> np.ndarray:
-    """(trials, 4) final metrics of AG on ``trials`` seeded paper missions (one env copy per trial)."""
-    venv = uav_ipp.make_vec_env(name, n_envs=trials, fusion="mean", seed=0, monitor=False, **options)
-    planner = make_planner("ag", venv, seed=0)
-    obs = venv.reset()
-    n = resolve_n_agents(venv)
-    final = np.zeros((trials, len(KEYS)))
-    for _ in range(venv.get_attr("config", indices=[0])[0].budget):
-        assert isinstance(obs, dict)  # the vec envs of uav_ipp.make_vec_env have Dict observations
-        actions, _ = planner.predict(obs)
-        obs, _, dones, infos = venv.step(actions)
-        for c in range(trials):
-            if dones[c * n]:
-                final[c] = [infos[c * n][k] for k in KEYS]
-    venv.close()
-    return final
+    """(trials, 4) final metrics of AG on ``trials`` seeded paper missions (one batch: one env copy per trial)."""
+    result = fly_method(AG_CLASS, Missions(env=name, count=trials, seed=0, n_envs=trials, options=options))
+    return np.column_stack([np.asarray(getattr(result, key))[:, -1] for key in KEYS])
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_coma.app import pretrained as pt
-from sb3_coma.app.evaluation import evaluate, parallel_evaluation
+from sb3_coma.app.evaluation import Method, Missions, fly, parallel_evaluation
 from sb3_coma.app.roles import TEST_SPLIT_NOTE
 from sb3_coma.common.checkpoints import atomic_write_text
 from sb3_coma.common.evaluation import EvaluationResult
@@ -61,18 +61,17 @@ def _clone_record(run: Path, name: str) -> str:
 def fly_map(name: str, run: Path, missions: int, pair: tuple[str, str] | None = None) -> dict[str, EvaluationResult]:
     """Every row of one map on the same ``missions`` unseen missions (``pair``: a fine-tuned model
     and the very clone it was fine-tuned from, e.g. a recipe run of ``sb3-coma study dagger``)."""
-    common: dict[str, Any] = {"env": name, "protocol": "unseen", "n_trials": missions, "record": 0}
-    flown = {
-        WARM_LABEL: evaluate(name, label=WARM_LABEL, **common),
-        CLONE_LABEL: evaluate(str(run / "warm_start.zip"), label=CLONE_LABEL, fusion="sendfuse", **common),
-        "ag": evaluate("ag", **common),
-    }
+    unseen = Missions(env=name, protocol="unseen", count=missions)
+    methods = [
+        Method(WARM_LABEL, name),
+        Method(CLONE_LABEL, str(run / "warm_start.zip"), fusion="sendfuse"),
+        Method("ag", "ag"),
+    ]
     if name in SCRATCH_MODELS:
-        flown[SCRATCH_LABEL] = evaluate(SCRATCH_MODELS[name], label=SCRATCH_LABEL, **common)
+        methods.append(Method(SCRATCH_LABEL, SCRATCH_MODELS[name]))
     if pair is not None:
-        flown[PAIR_LABELS[0]] = evaluate(pair[0], label=PAIR_LABELS[0], fusion="sendfuse", **common)
-        flown[PAIR_LABELS[1]] = evaluate(pair[1], label=PAIR_LABELS[1], fusion="sendfuse", **common)
-    return flown
+        methods += [Method(label, model, fusion="sendfuse") for label, model in zip(PAIR_LABELS, pair)]
+    return {method.label: fly(method, unseen) for method in methods}
 
 
 def comparisons(flown: dict[str, EvaluationResult]) -> list[tuple[str, str]]:

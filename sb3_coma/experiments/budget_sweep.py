@@ -19,7 +19,7 @@ import sys
 import warnings
 from typing import Any
 
-from sb3_coma.app.evaluation import evaluate, parallel_evaluation
+from sb3_coma.app.evaluation import Method, Missions, fly, parallel_evaluation, resolve_method
 from sb3_coma.app.roles import add_split_argument, protocol_for_split
 from sb3_coma.common.evaluation import EvaluationResult
 from sb3_coma.stats.paired import PairedDifference, holm_adjust, paired_difference
@@ -40,14 +40,17 @@ def sweep(
 ) -> dict[int, dict[str, EvaluationResult]]:
     """Every method at every budget on the same missions of ``protocol``."""
     out: dict[int, dict[str, EvaluationResult]] = {}
-    common: dict[str, Any] = {"env": env, "protocol": protocol, "n_trials": missions, "seed": seed, "record": 0}
-    common["noise"] = noise
+    coma = resolve_method(Method("coma", env))  # the map's shipped model, verified once
+    baselines = [Method(label, method, planner_kwargs=options) for label, method, options in BASELINES]
     for budget in budgets:
+        flights = Missions(
+            env=env, protocol=protocol, count=missions, seed=seed, noise=noise, options={"budget": budget}
+        )
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the model flies another budget than it trained with: the point
-            flown = {"coma": evaluate(env, label="coma", budget=budget, **common)}
-        for label, method, options in BASELINES:
-            flown[label] = evaluate(method, label=label, planner_kwargs=options, budget=budget, **common)
+            flown = {"coma": fly(coma, flights)}
+        for method in baselines:
+            flown[method.label] = fly(method, flights)
         out[budget] = flown
     return out
 

@@ -41,6 +41,7 @@ import json
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +51,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
 import uav_ipp
-from sb3_coma import COMA, evaluate
+from sb3_coma import COMA
+from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
 from sb3_coma.app.training import eval_copies
 from sb3_coma.common.callbacks import MissionEvalCallback
@@ -243,13 +245,14 @@ def _compare(args: argparse.Namespace, model: BaseAlgorithm, report: dict[str, A
     """Fly the model, AG and random on the same missions of ``--split``; fill ``report``, return the table."""
     options = _env_options(args)
     protocol = protocol_for_split(args.split)
-    eval_options = dict(
-        env=args.env, n_trials=args.eval_missions, seed=args.eval_seed, fusion=args.fusion, protocol=protocol, **options
+    missions = Missions(
+        env=args.env, protocol=protocol, count=args.eval_missions, seed=args.eval_seed, record=1, options=options
     )
+    planners = replace(missions, options={**options, "action_gain": True})
     results = {
-        args.algo: evaluate(model, deterministic=True, label=args.algo, **eval_options),
-        "ag": evaluate("ag", **{**eval_options, "action_gain": True}),
-        "random": evaluate("random", **{**eval_options, "action_gain": True}),
+        args.algo: fly(Method(args.algo, model, fusion=args.fusion, deterministic=True), missions),
+        "ag": fly(Method("ag", "ag", fusion=args.fusion), planners),
+        "random": fly(Method("random", "random", fusion=args.fusion), planners),
     }
     lines = ["| method | F1 | entropy | team F1 | team entropy |", "| --- | --- | --- | --- | --- |"]
     for name, res in results.items():

@@ -33,7 +33,7 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +42,9 @@ import torch as th
 from stable_baselines3 import PPO
 
 import sb3_coma.mappo.mappo  # noqa: F401  (the IPPO / MAPPO policy classes PPO.load needs)
-from sb3_coma import COMA, evaluate
+from sb3_coma import COMA
 from sb3_coma.app import pretrained as pt
+from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
 from sb3_coma.common.checkpoints import atomic_write_text
 from sb3_coma.experiments.ship_models import run_command, validation_best, validation_return
@@ -150,13 +151,12 @@ def select(candidates: Sequence[Candidate]) -> Candidate:
     return max(candidates, key=lambda c: float(c.validation))  # type: ignore[arg-type]
 
 
-def _fly(learner: Learner, options: dict[str, Any]) -> None:
+def _fly(learner: Learner, missions: Missions, fusion: str) -> None:
     for cand in learner.candidates:
         model = load(cand.path)
         gain = model.observation_space.spaces.get("action_gain") is not None  # flown as it was trained
-        learner.results[cand.label] = evaluate(
-            model, label=learner.label, deterministic=True, action_gain=gain, **options
-        )
+        method = Method(learner.label, model, fusion=fusion, deterministic=True)
+        learner.results[cand.label] = fly(method, replace(missions, options={"action_gain": gain}))
 
 
 def _final(result: Any, metric: str) -> float:
@@ -238,10 +238,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     th.set_num_threads(1)
     protocol = protocol_for_split(args.split)
-    options = dict(env=args.env, n_trials=args.missions, fusion=args.fusion, protocol=protocol)
+    flights = Missions(env=args.env, protocol=protocol, count=args.missions, record=1)
     for lrn in learners:
-        _fly(lrn, options)
-    greedy = {label: evaluate("ag", label=label, planner_kwargs=kw, **options) for label, kw in GREEDY}
+        _fly(lrn, flights, args.fusion)
+    greedy = {label: fly(Method(label, "ag", fusion=args.fusion, planner_kwargs=kw), flights) for label, kw in GREEDY}
     missions = next(iter(greedy.values())).n_trials
     text = report_markdown(args.env, missions, args.fusion, learners, greedy, args.split)
     print(text)

@@ -33,14 +33,15 @@ import torch as th
 
 from sb3_coma.app.config import map_key
 from sb3_coma.app.evaluation import (
+    Method,
+    Missions,
     WorldMismatchWarning,
     check_observation_options,
-    evaluate,
-    trained_options,
+    fly,
+    resolve_method,
     world_differences,
 )
 from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult
-from sb3_coma.experiments.protocols import Method
 from sb3_coma.stats.paired import PairedDifference, cell, holm_adjust, paired_difference
 from uav_ipp import ENV_IDS, IppConfig
 
@@ -294,7 +295,7 @@ def _check_arms(arms: Sequence[Method], env: str, n_missions: int, options: Mapp
             f"at least 2 (with 1 every verdict is nan)"
         )
     builtin = set(ENV_IDS.values())
-    trained = {a.label: trained_options(a.policy) for a in arms if a.learned}
+    trained = {a.label: dict(a.trained) for a in arms if a.learned}
     for label, own in trained.items():
         own_map = str(own.get("map", ""))
         if map_key(own_map) in builtin and map_key(env) in builtin and map_key(own_map) != map_key(env):
@@ -319,12 +320,12 @@ def _check_arms(arms: Sequence[Method], env: str, n_missions: int, options: Mapp
             )
 
 
-def _fly(policy: Any, **kwargs: Any) -> EvaluationResult:
-    """:func:`evaluate` without its :class:`WorldMismatchWarning`: every setting changes the
+def _fly(arm: Method, missions: Missions) -> EvaluationResult:
+    """:func:`fly` without its :class:`WorldMismatchWarning`: every setting changes the
     channel on purpose, and the rest was checked once by :func:`_check_arms`."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", WorldMismatchWarning)
-        return evaluate(policy, **kwargs)
+        return fly(arm, missions)
 
 
 def run_noise_sweep(
@@ -354,6 +355,7 @@ def run_noise_sweep(
     if points is None:
         points = sweep_points(QUICK_AXES if quick else AXES, grid=grid)
     options = {"split": split, **({"start": "random"} if split != "paper" else {}), **env_options}
+    arms = [resolve_method(a) for a in arms]  # once: every setting flies the same resolved arm
     _check_arms(arms, env, n_missions, options)
     reference = next(
         (
@@ -371,19 +373,8 @@ def run_noise_sweep(
             if arm.learned:
                 th.manual_seed(seed)
             try:
-                out.results[(arm.label, point)] = _fly(
-                    arm.policy,
-                    env=env,
-                    n_trials=n_missions,
-                    seed=seed,
-                    fusion=arm.fusion,
-                    deterministic=arm.deterministic,
-                    label=arm.label,
-                    record=0,
-                    planner_kwargs=dict(arm.planner_kwargs) or None,
-                    **options,
-                    **point.env_options(),
-                )
+                missions = Missions(env=env, count=n_missions, seed=seed, options={**options, **point.env_options()})
+                out.results[(arm.label, point)] = _fly(arm, missions)
             except (ValueError, RuntimeError, ImportError, FileNotFoundError) as exc:
                 if not arm.learned:
                     raise

@@ -16,7 +16,7 @@ import json
 import sys
 from typing import Any
 
-from sb3_coma.app.evaluation import evaluate
+from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.stats.paired import paired_difference
 
 __all__ = ["main"]
@@ -36,11 +36,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--missions", type=int, default=32)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    common = {"env": args.env, "protocol": "unseen", "n_trials": args.missions, "seed": args.seed, "record": 0}
-    ag = evaluate("ag", **common)
+    unseen = Missions(env=args.env, protocol="unseen", count=args.missions, seed=args.seed)
+    ag = fly(Method("ag", "ag"), unseen)
     for label, name, options in METHODS:
         try:
-            other = evaluate(name, planner_kwargs=options, label=label, **common)
+            other = fly(Method(label, name, planner_kwargs=options), unseen)
         except ValueError as exc:  # a planner option this version does not have
             print(json.dumps({"b": label, "skipped": str(exc)}))
             continue

@@ -33,7 +33,7 @@ from typing import Any
 
 import torch as th
 
-from sb3_coma.app.evaluation import Method, evaluate
+from sb3_coma.app.evaluation import Method, Missions, fly, resolve_method
 from sb3_coma.app.pretrained import load_pretrained, read_manifest
 from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult, Protocol, protocol_of
 from sb3_coma.stats.paired import PairedDifference, cell, holm_adjust, p_text, paired_difference, scene_markdown
@@ -428,30 +428,17 @@ def _warm_up(method: Method, env: str) -> None:
     key = (str(method.policy), repr(sorted(dict(method.planner_kwargs).items())))
     if method.learned or key in _WARM:
         return
-    evaluate(method.policy, env=env, n_trials=1, budget=1, record=0, planner_kwargs=dict(method.planner_kwargs) or None)
+    fly(method, Missions(env=env, count=1, options={"budget": 1}))
     _WARM.add(key)
 
 
-def _fly(
-    method: Method, env: str, protocol: str, n_trials: int, seed: int, noise: str, env_options: Mapping[str, Any]
-) -> EvaluationResult:
-    _warm_up(method, env)
+def _fly(method: Method, missions: Missions) -> EvaluationResult:
+    method = resolve_method(method)
+    _warm_up(method, missions.env)
     if method.learned:
-        th.manual_seed(seed)  # sampled actions (deterministic=False) come from torch's generator
-    return evaluate(
-        method.policy,
-        env=env,
-        n_trials=n_trials,
-        seed=seed,
-        protocol=protocol,
-        fusion=method.fusion,
-        deterministic=method.deterministic,
-        label=method.label,
-        record=0,
-        planner_kwargs=dict(method.planner_kwargs) or None,
-        noise=noise,
-        **env_options,
-    )
+        assert missions.seed is not None
+        th.manual_seed(missions.seed)  # sampled actions (deterministic=False) come from torch's generator
+    return fly(method, missions)
 
 
 def run_protocol(
@@ -483,7 +470,8 @@ def run_protocol(
             if log:
                 log(f"{proto.name} protocol: {m.label} on {env} ({n} missions) ...")
             try:
-                out.results[(env, m.label)] = _fly(m, env, proto.name, n, seed, noise, env_options)
+                missions = Missions(env=env, protocol=proto.name, count=n, seed=seed, noise=noise, options=env_options)
+                out.results[(env, m.label)] = _fly(m, missions)
             except (ValueError, RuntimeError, ImportError, FileNotFoundError) as exc:
                 if not m.learned:
                     raise

@@ -22,7 +22,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sb3_coma import evaluate, load_pretrained
+from sb3_coma import load_pretrained
+from sb3_coma.app.evaluation import Missions, fly, resolve_method
 
 __all__ = ["main"]
 
@@ -36,7 +37,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     # Flying the model with K != its 4 UAVs is the point here: silence evaluate's team-size warning.
     warnings.filterwarnings("ignore", message=r".* was trained with \d+ UAVs but flies with", category=UserWarning)
-    model = load_pretrained(args.env)
+    methods = [resolve_method(policy) for policy in (load_pretrained(args.env), "ag", "lawnmower")]
     print(
         f"{args.env}, split=test, {args.missions} missions, moderate noise, 100 % budget: F1 / entropy / team entropy"
     )
@@ -44,8 +45,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     print("| --- | --- | --- | --- |")
     for k in args.sizes:
         cells = []
-        for method in (model, "ag", "lawnmower"):
-            res = evaluate(method, env=args.env, n_trials=args.missions, split="test", n_uavs=k)
+        missions = Missions(env=args.env, count=args.missions, record=1, options={"split": "test", "n_uavs": k})
+        for method in methods:
+            res = fly(method, missions)
             f1, ent, team = (np.asarray(getattr(res, m))[:, -1].mean() for m in ("f1", "entropy", "team_entropy"))
             cells.append(f"{f1:.3f} / {ent:.3f} / {team:.3f}")
         print(f"| {k} | " + " | ".join(cells) + " |", flush=True)

@@ -32,7 +32,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from sb3_coma.app.evaluation import evaluate, parallel_evaluation
+from sb3_coma.app.evaluation import Missions, parallel_evaluation, resolve_method
+from sb3_coma.app.evaluation import fly as fly_method
 from sb3_coma.common.evaluation import EvaluationResult, merge_results
 from sb3_coma.stats.paired import PairedDifference, holm_adjust, paired_difference, paired_markdown
 from uav_ipp.maps.build_shipped_maps import source_dir
@@ -103,19 +104,18 @@ def fly(model: Any, paths: list[Path], missions: int, noise: str) -> dict[str, E
     """The model and every planner on the same missions of every image, one merged result each
     (mission ``k`` of image ``i`` is env seed ``i * missions + k``; scenes = the images)."""
     out: dict[str, EvaluationResult] = {}
-    methods = [("model", model, {}), *PLANNERS]
-    for label, method, options in methods:
+    for label, policy, options in [("model", model, {}), *PLANNERS]:
+        method = resolve_method(policy, label, options)
         parts = []
         for i, path in enumerate(paths):
+            image = {"map_path": str(path), "valuable": RULE, "start": "random"}
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # the model flies a map it never trained on: the point
                 parts.append(
-                    evaluate(
-                        method, env="env3", map_path=str(path), valuable=RULE, start="random", noise=noise,
-                        seed=i * missions, n_trials=missions, record=0, planner_kwargs=options or None,
-                        label=label,
+                    fly_method(
+                        method, Missions(env="env3", count=missions, seed=i * missions, noise=noise, options=image)
                     )
-                )  # fmt: skip
+                )
         out[label] = merge_results(parts)
     return out
 
