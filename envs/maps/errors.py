@@ -6,8 +6,6 @@ it without importing one another.
 
 from __future__ import annotations
 
-__all__ = ["MapError"]
-
 
 class MapError(ValueError):
     """A map name, file, rule or size that cannot give a ground truth.

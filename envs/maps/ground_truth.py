@@ -41,17 +41,6 @@ from .rules import DEFAULT_NDVI_THRESHOLD, MapImage, Rule, apply_rule, image_on_
 from .scenes import ENV1_SEED_RANGES, TRANSFORMS, Scene, check_split, dihedral, pick, split_scenes
 from .synthetic import star_map
 
-__all__ = [
-    "BUILTIN_MAPS",
-    "MAX_GRID",
-    "GroundTruth",
-    "available_maps",
-    "block_fraction",
-    "block_index",
-    "check_grid",
-    "load_ground_truth",
-]
-
 BUILTIN_MAPS: tuple[str, ...] = ("env1", "env2", "env3")
 #: Largest accepted grid: 8192^2 cells of float32 work arrays is already ~0.8 GB per copy.
 MAX_GRID = 8192

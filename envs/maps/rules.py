@@ -34,21 +34,6 @@ from PIL import Image
 
 from .errors import MapError
 
-__all__ = [
-    "OPAQUE",
-    "RULE_NAMES",
-    "ImageFile",
-    "MapImage",
-    "Rule",
-    "apply_rule",
-    "image_on_grid",
-    "orient",
-    "otsu_threshold",
-    "parse_rule",
-    "read_image",
-    "resize_to_grid",
-]
-
 #: Canonical rule names, in the order error messages list them.
 RULE_NAMES: tuple[str, ...] = ("threshold", "dark", "hottest", "coldest", "excess-green", "ndvi")
 _ALIASES = {"excess_green": "excess-green", "exg": "excess-green", "otsu": "threshold"}

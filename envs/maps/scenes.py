@@ -36,24 +36,6 @@ import numpy as np
 
 from .errors import MapError
 
-__all__ = [
-    "ENV1_SEED_RANGES",
-    "PIXEL_METRES",
-    "SCENES",
-    "SOURCE_SHAPES",
-    "SPLITS",
-    "SPLIT_GAP",
-    "SPLIT_ROLES",
-    "TRANSFORMS",
-    "VALIDATION_SPLIT",
-    "Scene",
-    "check_split",
-    "dihedral",
-    "pick",
-    "scene_count",
-    "split_scenes",
-]
-
 #: Every allowed ``split``; "paper" is the paper's fixed mission (today's maps).
 SPLITS: tuple[str, ...] = ("paper", "train", "test")
 

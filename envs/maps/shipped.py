@@ -16,26 +16,6 @@ import numpy as np
 from .errors import MapError
 from .rules import MapImage, resize_to_grid, rgb_to_gray
 
-__all__ = [
-    "DATA_DIR",
-    "ENV2_DEFAULT_RULE",
-    "ENV2_FILE",
-    "ENV3_BANDS",
-    "ENV3_BUILTUP_FILE",
-    "ENV3_DEFAULT_RULE",
-    "ENV3_NIR_FILE",
-    "ENV3_NO_FLY_FRACTION",
-    "ENV3_RGB_FILE",
-    "SHIPPED_SIZE",
-    "env2_image",
-    "env2_image_from_codes",
-    "env2_scene_image",
-    "env3_builtup",
-    "env3_image",
-    "env3_image_from_codes",
-    "env3_scene_masks",
-]
-
 DATA_DIR = Path(__file__).resolve().parent / "data"
 #: Side of every shipped PNG: the default belief grid, so the default load does no resampling.
 SHIPPED_SIZE = 493

@@ -22,8 +22,6 @@ import math
 import cv2
 import numpy as np
 
-__all__ = ["MAX_FRACTION", "MIN_FRACTION", "draw_star", "star_map"]
-
 #: Accepted valuable fraction of a star; draws outside are redrawn from the same generator
 #: (deterministic per seed). The brief asks for roughly 20-45 %.
 MIN_FRACTION = 0.20

@@ -43,48 +43,6 @@ from sb3_coma.common.evaluation import PROTOCOLS
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
 from uav_ipp import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
 
-__all__ = [
-    "ALLOW_TEST_SPLIT",
-    "DEFAULT_ENV_ID",
-    "LAYOUT_KEYS",
-    "RESERVED_KEYS",
-    "RUN_KEY",
-    "UNSUPPORTED_KEYS",
-    "VARIANTS_KEY",
-    "WARM_START_KEY",
-    "ZOO_KEYS",
-    "TrainConfig",
-    "TrainingError",
-    "check_warm_start",
-    "coma_kwargs",
-    "coma_parameter_names",
-    "config_entry",
-    "default_config_path",
-    "env_options_of",
-    "list_variants",
-    "load_config",
-    "make_training_env",
-    "make_vec_env_from_kwargs",
-    "map_key",
-    "map_list",
-    "named_objects",
-    "output_file_problem",
-    "output_folder_problem",
-    "parse_schedule",
-    "path_name_problem",
-    "plain",
-    "read_config_file",
-    "read_numbers",
-    "repeated",
-    "resolve_env_id",
-    "resolve_policy_kwargs",
-    "resolve_workers",
-    "split_env_kwargs",
-    "validate_entry",
-    "whole_number",
-    "written_number",
-]
-
 #: Top-level keys of a config file that are not gymnasium ids.
 VARIANTS_KEY = "variants"
 RUN_KEY = "run"

@@ -69,31 +69,6 @@ from uav_ipp import IppConfig, layout
 from uav_ipp.fusion import FusionWrapper, mean_fusion
 from uav_ipp.geometry import overlap_matrix
 
-__all__ = [
-    "ACTOR_FILE",
-    "FUSIONS",
-    "FUSION_FILE",
-    "METADATA_FILE",
-    "MIN_OPSET",
-    "OPSET",
-    "ActorGraph",
-    "ExportError",
-    "FusionGraph",
-    "ModelSource",
-    "check_fusion_matches",
-    "check_opset",
-    "check_out_dir",
-    "export_onnx",
-    "fusion_reference",
-    "fusion_wrapper",
-    "onnx_feeds",
-    "onnx_session",
-    "resolve_model_source",
-    "settings_of_model",
-    "settings_of_source",
-    "supported_opsets",
-]
-
 ACTOR_FILE = "actor.onnx"
 FUSION_FILE = "fusion.onnx"
 METADATA_FILE = "export.json"

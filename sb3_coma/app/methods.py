@@ -27,17 +27,6 @@ from sb3_coma.common.checkpoints import training_options
 from sb3_coma.common.evaluation import MODEL_LABEL
 from uav_ipp import WORLD_VERSION
 
-__all__ = [
-    "PLANNER_ALIASES",
-    "Method",
-    "Source",
-    "baseline_names",
-    "is_baseline",
-    "is_unknown_name",
-    "looks_like_path",
-    "resolve_method",
-]
-
 #: The baseline rows of the generated tables (``sb3_coma.experiments.protocols.BASELINE_METHODS``)
 #: that are a planner with options: ``evaluate("ag-k3")`` and ``sb3-coma evaluate --methods ag-k3``
 #: fly the row ``ag-k3`` of docs/RESULTS.md, labelled so. ``planner_kwargs`` given with one of

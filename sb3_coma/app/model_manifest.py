@@ -19,8 +19,6 @@ from typing import Any, TypedDict, cast
 
 from sb3_coma.app import pretrained as pt
 
-__all__ = ["FORMAT", "ModelEntry", "ModelFields", "as_entry", "entry_keys", "manifest_text", "update_models"]
-
 #: The manifest's ``format`` (written when a first entry makes the file).
 FORMAT = 1
 

@@ -75,21 +75,6 @@ try:  # POSIX only; without it folders are not locked (documented above)
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
-__all__ = [
-    "LOCK_FILE",
-    "STAGING_MARKER",
-    "FolderInUseError",
-    "FolderLock",
-    "LockHolder",
-    "OutputFolderError",
-    "OutputInterrupted",
-    "folder_name_problem",
-    "lock_holder",
-    "manifest_name",
-    "replace_problem",
-    "staged_output",
-]
-
 #: The lock file of a run folder.
 LOCK_FILE = ".lock"
 #: The lock file of a staging folder (removed once the folder is in place).

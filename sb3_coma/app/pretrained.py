@@ -31,25 +31,6 @@ from sb3_coma.coma import COMA
 from sb3_coma.common.shipped import SHIPPED_DIR, sha256_of
 from uav_ipp import WORLD_VERSION
 
-__all__ = [
-    "MANIFEST",
-    "WARM_START_TITLE",
-    "PretrainedError",
-    "available",
-    "is_shipped",
-    "load_pretrained",
-    "load_verified",
-    "model_info",
-    "model_path",
-    "outdated_message",
-    "pretrained_dir",
-    "read_manifest",
-    "sha256_file",
-    "shipped_env_options",
-    "shipped_name_of",
-    "verify_shipped_file",
-]
-
 #: File name of the manifest inside the pretrained folder.
 MANIFEST = "models.json"
 #: What a shipped model warm-started from the oracle is called in every generated table and text:

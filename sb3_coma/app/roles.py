@@ -13,8 +13,6 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
-__all__ = ["SPLIT_CHOICES", "TEST_SPLIT_NOTE", "add_split_argument", "protocol_for_split"]
-
 #: ``--split`` values: the missions a study flies; the first is the default.
 SPLIT_CHOICES: tuple[str, ...] = ("validation", "test")
 #: Printed (and written into reports) whenever a comparing study flies the test split.

@@ -55,24 +55,6 @@ from sb3_coma.common.checkpoints import (
     validate_checkpoint,
 )
 
-__all__ = [
-    "CHECKPOINT_DIR",
-    "CONFIG_FILE",
-    "METRICS_FILE",
-    "MODEL_FILE",
-    "TENSORBOARD_DIR",
-    "check_run_dir",
-    "claim_run_dir",
-    "load_checkpoint",
-    "lock_run_folder",
-    "new_run_dir",
-    "newest_model",
-    "read_run_config",
-    "resolve_resume",
-    "run_folder_of",
-    "write_run_config",
-]
-
 CONFIG_FILE = "config.yml"
 MODEL_FILE = "model.zip"
 METRICS_FILE = "metrics.csv"

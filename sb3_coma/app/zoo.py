@@ -80,8 +80,6 @@ from sb3_coma.common.checkpoints import (
 )
 from uav_ipp import ENV_IDS, ConfigError
 
-__all__ = ["ComaExperimentManager", "enjoy_parser", "main", "register", "train_parser"]
-
 ALGO = "coma"
 
 

@@ -20,8 +20,6 @@ from typing import Any
 import optuna
 from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER
 
-__all__ = ["convert_coma_params", "register", "sample_coma_params"]
-
 
 def convert_coma_params(sampled_params: dict[str, Any]) -> dict[str, Any]:
     """Trial parameters (Optuna's names) -> COMA constructor arguments."""

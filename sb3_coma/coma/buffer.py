@@ -18,8 +18,6 @@ from gymnasium import spaces
 
 from sb3_coma.common.joint import map_obs
 
-__all__ = ["JointBatch", "JointRolloutBuffer"]
-
 JointBatch = dict[str, Any]
 
 

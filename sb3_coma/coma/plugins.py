@@ -20,8 +20,6 @@ from typing import Any
 
 from stable_baselines3.common.policies import BasePolicy
 
-__all__ = ["POLICY_ENTRY_POINTS", "plugin_policies", "resolve_policy", "saved_policy_class"]
-
 #: Entry-point group of policy aliases brought by other packages.
 POLICY_ENTRY_POINTS = "sb3_coma.policies"
 

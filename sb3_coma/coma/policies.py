@@ -40,8 +40,6 @@ from torch.nn import functional as F
 from sb3_coma.common.joint import KEY_MASK, actor_observation_space, actor_view, map_obs
 from sb3_coma.common.masking import behaviour_probs, mask_logits, sample_actions
 
-__all__ = ["COMAPolicy", "CnnPolicy", "MlpPolicy", "MultiInputPolicy"]
-
 _CRITIC_PREFIX = "critic."
 _TARGET_PREFIX = "critic_target."
 

@@ -16,18 +16,6 @@ from gymnasium import spaces
 
 from sb3_coma.common.joint import KEY_MASK
 
-__all__ = [
-    "check_batch_fits_rollout",
-    "check_device",
-    "check_finite_weights",
-    "check_masks",
-    "check_positive_int",
-    "check_positive_rate",
-    "check_spaces",
-    "check_total_timesteps",
-    "check_unit_interval",
-]
-
 
 def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) -> None:
     """What COMA needs of one agent's spaces: ``Discrete(n)`` actions; an ``action_mask`` key, if

@@ -45,18 +45,6 @@ from sb3_coma.common.checkpoints import (
 )
 from sb3_coma.common.joint import resolve_n_agents
 
-__all__ = [
-    "METRIC_COLUMNS",
-    "EpisodeMetricsCallback",
-    "JointCheckpointCallback",
-    "MissionEvalCallback",
-    "SaveBestModelCallback",
-    "SignalStopCallback",
-    "StopOnTargetCallback",
-    "finished_missions",
-    "truncate_metrics_csv",
-]
-
 #: Columns of the per-mission metrics CSV.
 METRIC_COLUMNS = ("episode", "timesteps", "env_copy", "reward", "length", "f1", "entropy", "wall_time")
 

@@ -28,23 +28,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
-__all__ = [
-    "CHECKPOINT_PREFIX",
-    "CheckpointError",
-    "CheckpointInfo",
-    "DiskFullError",
-    "atomic_save",
-    "atomic_write",
-    "atomic_write_text",
-    "checkpoint_name",
-    "find_checkpoints",
-    "folder_write_problem",
-    "fsync_path",
-    "last_checkpoint",
-    "training_options",
-    "validate_checkpoint",
-]
-
 #: rl-zoo3's checkpoint prefix: ``rl_model_<steps>_steps.zip``.
 CHECKPOINT_PREFIX = "rl_model"
 _CHECKPOINT_RE = re.compile(r"^(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip$")

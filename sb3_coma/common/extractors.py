@@ -37,8 +37,6 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-__all__ = ["CBAM", "GAIN_ENCODER_DIM", "CBAMExtractor", "ChannelGate", "CnnExtractor", "SpatialGate"]
-
 #: Width of the learned encoder of the per-action gains (``gain_inputs=True``: COMA's UAV actor and
 #: the PPO baselines' ``MapsExtractor``): the gains are mapped to this many features before they
 #: join the trunk's features.

@@ -25,8 +25,6 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-__all__ = ["GymnasiumMultiAgentToParallel"]
-
 
 def _per_agent(value: Any, n_agents: int, what: str) -> list[Any]:
     """``value`` as one entry per agent: a scalar is shared, a sequence must have one per agent."""

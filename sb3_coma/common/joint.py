@@ -19,20 +19,6 @@ from stable_baselines3.common.preprocessing import get_flattened_obs_dim, prepro
 from stable_baselines3.common.type_aliases import PyTorchObs
 from stable_baselines3.common.vec_env import VecEnv
 
-__all__ = [
-    "KEY_MASK",
-    "KEY_STATE",
-    "STATE_SOURCES",
-    "actor_observation_space",
-    "actor_view",
-    "concat_state",
-    "concat_state_space",
-    "map_obs",
-    "resolve_n_agents",
-    "resolve_state_source",
-    "state_space_of",
-]
-
 #: Observation key of the global state an env provides to every agent (the critic's input).
 KEY_STATE = "state"
 #: Observation key of the valid-action mask (sb3-contrib's other convention is ``action_masks()``).

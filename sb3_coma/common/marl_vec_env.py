@@ -33,9 +33,6 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvO
 
 from sb3_coma.common.joint import STATE_SOURCES
 
-__all__ = ["STATE_SOURCES", "MarlVecEnv", "make_marl_vec_env"]
-
-
 # Private info keys of the channel between _InfoChannel (inside each copy) and MarlVecEnv.
 _RESET_KEY = "_marl_reset_info"
 _STATE_KEY = "_marl_state"

@@ -15,8 +15,6 @@ import functools
 import gc
 from collections.abc import Callable
 
-__all__ = ["release_freed_memory"]
-
 
 @functools.cache
 def _malloc_trim() -> Callable[[int], int] | None:

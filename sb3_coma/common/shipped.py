@@ -15,8 +15,6 @@ import json
 import os
 from pathlib import Path
 
-__all__ = ["SHIPPED_DIR", "ShippedFileError", "check_shipped_file", "sha256_of"]
-
 #: The folder of the shipped models and of their manifest ``models.json``.
 SHIPPED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
 

@@ -24,8 +24,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["VALIDATION_MISSIONS", "VALIDATION_SEED", "WeightingChoice", "pick_ag_weighting", "validation_options"]
-
 #: First env seed of the validation missions (seeds VALIDATION_SEED .. + n - 1 on split "train").
 VALIDATION_SEED = 2000
 #: Validation missions per weighting and map (the recorded choice used this many; 20 left env2 and

@@ -38,8 +38,6 @@ from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 from uav_ipp import layout
 from uav_ipp.geometry import overlap_matrix
 
-__all__ = ["CostRow", "ag_cost", "costs_markdown", "decision_costs", "model_costs", "time_call"]
-
 
 @dataclass(frozen=True)
 class CostRow:

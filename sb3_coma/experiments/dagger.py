@@ -33,8 +33,6 @@ from sb3_coma.coma import COMA
 from sb3_coma.stats.paired import holm_adjust, paired_difference
 from sb3_coma.uav.imitation import clone_teacher
 
-__all__ = ["main"]
-
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The command-line options (module docstring)."""

@@ -18,8 +18,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["HATCHES", "LINESTYLES", "MARKERS", "OKABE_ITO", "MethodStyle", "method_styles", "uav_colour"]
-
 #: Okabe & Ito's eight colours, ordered so that the first ones contrast most on white: blue,
 #: vermillion, bluish green, reddish purple, orange, sky blue, black, yellow (last: faint on white).
 OKABE_ITO: tuple[str, ...] = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000", "#F0E442")

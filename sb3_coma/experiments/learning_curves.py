@@ -79,27 +79,6 @@ from sb3_coma.baselines import make_planner
 from sb3_coma.common.evaluation import PROTOCOLS
 from sb3_coma.experiments.figure_style import method_styles
 
-__all__ = [
-    "BASELINES",
-    "TAGS",
-    "GroupCurve",
-    "MissionScores",
-    "RunCurve",
-    "RunDirError",
-    "Validation",
-    "baseline_level",
-    "baseline_levels_cache",
-    "baseline_scores",
-    "build_group",
-    "draw_groups",
-    "fly_validation",
-    "main",
-    "parse_groups",
-    "plot_groups",
-    "read_run",
-    "table_markdown",
-]
-
 #: The TensorBoard scalars ``MissionEvalCallback`` logs at each evaluation.
 TAGS: dict[str, str] = {"f1": "eval/mean_f1", "entropy": "eval/mean_entropy"}
 #: The baselines whose levels are drawn: label -> (planner, its options); their looks come from

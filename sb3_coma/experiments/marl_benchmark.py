@@ -36,8 +36,6 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
-__all__ = ["LEARNERS", "TASKS", "Task", "main", "run_one"]
-
 LEARNERS = ("coma", "mappo", "ippo", "random")
 #: PPO settings for IPPO and MAPPO (per row: 8 copies x N agents x 128 steps per rollout), close to
 #: the MAPPO paper's MPE settings; COMA runs with the library's defaults.

@@ -53,8 +53,6 @@ from sb3_coma.experiments.learning_curves import Validation, fly_validation
 from sb3_coma.experiments.reproduce import UNSEEN_MISSIONS, curve_from_metrics
 from uav_ipp import WORLD_VERSION
 
-__all__ = ["main", "run_command", "run_length", "seed_spread", "ship", "validation_best"]
-
 
 def validation_best(run: Path) -> tuple[float, int]:
     """(best mean validation return, joint steps of that evaluation) of a run, over the

@@ -30,8 +30,6 @@ from torch import nn
 
 from sb3_coma.common.joint import KEY_MASK, KEY_STATE, concat_state, map_obs, resolve_n_agents, resolve_state_source
 
-__all__ = ["KEY_AGENT_ID", "CentralStateVecEnv", "CentralValuePolicy", "KeysExtractor"]
-
 #: Observation key of the agent's one-hot id that :class:`CentralStateVecEnv` adds.
 KEY_AGENT_ID = "agent_id"
 #: Key of a non-``Dict`` observation once it sits in a ``Dict``.

@@ -48,20 +48,6 @@ from sb3_coma.common.masking import mask_logits
 from sb3_coma.mappo.central_value import CentralStateVecEnv, CentralValuePolicy
 from uav_ipp import layout
 
-__all__ = [
-    "ACTOR_KEYS",
-    "CRITIC_KEYS",
-    "DEFAULT_PPO_KWARGS",
-    "IPPOPolicy",
-    "MAPPOPolicy",
-    "MapsExtractor",
-    "MaskedActorCriticPolicy",
-    "make_ippo",
-    "make_mappo",
-    "missions_of",
-    "timesteps_for_missions",
-]
-
 #: What the actor reads (besides the mask): the decentralised observation.
 ACTOR_KEYS: tuple[str, ...] = (layout.KEY_LOCAL,)
 #: What MAPPO's centralised value function reads: ``local`` (8) + ``state`` (3).

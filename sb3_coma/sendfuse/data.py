@@ -44,20 +44,6 @@ import uav_ipp
 from uav_ipp import layout
 from uav_ipp.maps import GroundTruth, star_map
 
-__all__ = [
-    "MAP_KINDS",
-    "NOISE_PRESETS",
-    "STAR_SEED_OFFSET",
-    "FusionSet",
-    "LockstepPair",
-    "LockstepStep",
-    "PairConfig",
-    "PairDataset",
-    "collect_fusions",
-    "generate_pairs",
-    "random_truth",
-]
-
 #: Noise presets in the order used by :attr:`PairDataset.preset` (index into this tuple).
 NOISE_PRESETS: tuple[str, ...] = ("none", "moderate", "loud")
 #: Kinds of synthetic ground truth drawn by :func:`random_truth`.

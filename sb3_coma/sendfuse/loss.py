@@ -15,8 +15,6 @@ from typing import NamedTuple
 from pytorch_msssim import ssim
 from torch import Tensor, nn
 
-__all__ = ["DEFAULT_WEIGHTS", "SSIM_WIN_SIZE", "SenDFuseLoss", "SenDFuseLossTerms"]
-
 #: Default (w_mse, w_mae, w_ssim) = (10, 1, 0.5): each term contributes about a third of the loss
 #: on a *trained* reconstruction, i.e. w_i ~ 1 / E[term_i], normalised to w_mae = 1 and rounded.
 #: Balancing at convergence rather than at initialisation because that is where the weighting

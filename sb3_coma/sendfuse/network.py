@@ -54,18 +54,6 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-__all__ = [
-    "ARCHITECTURE",
-    "DEFAULT_CHANNELS",
-    "DEFAULT_FUSION_ALPHA",
-    "DEFAULT_GRID_SIZE",
-    "SenDFuseConfig",
-    "SenDFuseNet",
-    "fusion_strategy",
-    "fusion_weights",
-    "tune_cpu_allocator",
-]
-
 #: Name of the layer layout below; stored in weight files so a future layout change is detected.
 ARCHITECTURE = "nestfuse3-residual-v2"
 #: Side of the communication grid the shipped weights are trained for (docs/design.md §3).

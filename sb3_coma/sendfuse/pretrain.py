@@ -42,15 +42,6 @@ from .loss import SenDFuseLoss
 from .network import SenDFuseNet
 from .quality import fusion_set_errors
 
-__all__ = [
-    "EpochLog",
-    "PretrainConfig",
-    "PretrainResult",
-    "dihedral",
-    "pretrain",
-    "rescale_encoder",
-]
-
 
 @dataclass(frozen=True)
 class PretrainConfig:

@@ -32,8 +32,6 @@ from uav_ipp.geometry import overlap_matrix
 from .data import NOISE_PRESETS, FusionSet, LockstepPair
 from .network import SenDFuseNet
 
-__all__ = ["QualityRow", "evaluate_quality", "format_table", "fusion_set_errors"]
-
 
 @dataclass(frozen=True)
 class QualityRow:

@@ -26,19 +26,6 @@ from torch import Tensor
 
 from .network import ARCHITECTURE, DEFAULT_GRID_SIZE, SenDFuseConfig, SenDFuseNet
 
-__all__ = [
-    "FORMAT_NAME",
-    "FORMAT_VERSION",
-    "SenDFuseWeightsError",
-    "canonicalize_safetensors",
-    "default_weights_path",
-    "load_weights",
-    "read_metadata",
-    "save_weights",
-    "shipped_digest",
-    "shipped_weights_dir",
-]
-
 #: Value of the ``format`` metadata key: tells our files from other safetensors files.
 FORMAT_NAME = "sb3_coma.sendfuse"
 #: Bumped whenever the meaning of the stored tensors or metadata changes.

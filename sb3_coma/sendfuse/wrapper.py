@@ -19,8 +19,6 @@ from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 from uav_ipp.config import ConfigError
 from uav_ipp.fusion import FusionWrapper
 
-__all__ = ["FUSE_CHUNK", "SenDFuseFusionWrapper"]
-
 #: Agents fused per forward pass. Training batches (8 copies x 4 UAVs) fit in one; an evaluation
 #: flying 50 missions at once would otherwise hold ~230 MB of activations for its 200 agents.
 FUSE_CHUNK = 64

@@ -37,32 +37,6 @@ import numpy as np
 
 from uav_ipp import IppConfig
 
-__all__ = [
-    "ALPHA",
-    "CLUSTER_METHODS",
-    "MAY_DIFFER",
-    "METRICS",
-    "NO_VERDICT",
-    "SE_METHOD",
-    "ClusteredMean",
-    "PairedDifference",
-    "SceneStat",
-    "bell_mccaffrey_df",
-    "cell",
-    "check_same_missions",
-    "cluster_robust_mean",
-    "clustered_mean_se",
-    "holm",
-    "holm_adjust",
-    "p_text",
-    "paired_difference",
-    "paired_markdown",
-    "scene_markdown",
-    "t_cdf",
-    "t_ppf",
-    "t_two_sided_p",
-]
-
 #: Two-sided level of every verdict: "a better" / "b better" only when the Holm-adjusted p < ALPHA.
 ALPHA = 0.05
 #: The verdict when all missions share one scene: the clustered test has no degrees of freedom.

@@ -33,8 +33,6 @@ import torch.nn.functional as F
 from sb3_coma.common.checkpoints import atomic_write
 from uav_ipp import layout
 
-__all__ = ["DaggerCheckpoint", "DaggerInterrupted", "DaggerReport", "clone_teacher"]
-
 
 @dataclass
 class DaggerReport:

@@ -27,8 +27,6 @@ from sb3_coma.common.extractors import GAIN_ENCODER_DIM, CBAMExtractor, CnnExtra
 from sb3_coma.common.masking import mask_logits
 from uav_ipp import layout
 
-__all__ = ["CBAMPolicy", "UavCOMAPolicy", "UavCnnPolicy", "check_uav_spaces", "critic_input", "other_actions_map"]
-
 #: FOOTPRINT marks the current cell with 1.0 and earlier visits with 0.5; anything above this
 #: threshold is "here" (equivalent to ``== 1`` for those values, but immune to float round-off).
 _HERE_THRESHOLD = 0.75
