@@ -150,7 +150,7 @@ def _add_schedule_arguments(parser: argparse.ArgumentParser) -> None:
         type=_joint_steps,
         default=None,
         metavar="N",
-        help="joint steps between checkpoints (default: a tenth of the run)",
+        help="joint steps between checkpoints (default: a tenth of the run; 0: none)",
     )
     parser.add_argument(
         "--eval-freq",
