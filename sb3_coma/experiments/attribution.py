@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_coma.app import pretrained as pt
+from sb3_coma.app.arguments import add_missions_argument
 from sb3_coma.app.evaluation import Method, Missions, fly, parallel_evaluation
 from sb3_coma.app.roles import TEST_SPLIT_NOTE
 from sb3_coma.common.checkpoints import atomic_write_text
@@ -130,7 +131,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Fly every map's rows, print the tables, write them with ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", help="MAP=RUN: the run folder holding the map's warm_start.zip")
-    parser.add_argument("--missions", type=int, default=MISSIONS)
+    add_missions_argument(parser, MISSIONS, "row (unseen missions)")
     parser.add_argument(
         "--pair",
         action="append",

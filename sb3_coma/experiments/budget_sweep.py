@@ -19,6 +19,7 @@ import sys
 import warnings
 from typing import Any
 
+from sb3_coma.app.arguments import add_env_argument, add_missions_argument, add_seed_argument, add_workers_argument
 from sb3_coma.app.evaluation import Method, Missions, fly, parallel_evaluation, resolve_method
 from sb3_coma.app.roles import add_split_argument, protocol_for_split
 from sb3_coma.common.evaluation import EvaluationResult
@@ -80,21 +81,13 @@ def table(results: dict[int, dict[str, EvaluationResult]]) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run the sweep and print its table."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env", default="env3")
+    add_env_argument(parser)
     parser.add_argument("--budgets", default="10,15,30", help="comma-separated budgets (decisions per UAV)")
-    parser.add_argument(
-        "--missions", type=int, default=None, help="missions per method and budget (default: the protocol's)"
-    )
-    parser.add_argument("--seed", type=int, default=None, help="first env seed (default: the protocol's)")
+    add_missions_argument(parser, None, "method and budget")
+    add_seed_argument(parser, default=None)
     add_split_argument(parser)
     parser.add_argument("--noise", default="moderate", help="channel noise of every mission (none, moderate, loud)")
-    parser.add_argument(
-        "--workers",
-        dest="eval_workers",
-        default="auto",
-        type=lambda text: text if text == "auto" else int(text),
-        help="evaluation processes: auto (one per core) or a number",
-    )
+    add_workers_argument(parser)
     args = parser.parse_args(argv)
     budgets = [int(b) for b in args.budgets.split(",")]
     with parallel_evaluation(args.eval_workers):

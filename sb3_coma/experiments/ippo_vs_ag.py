@@ -52,6 +52,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import uav_ipp
 from sb3_coma import COMA
+from sb3_coma.app.arguments import add_env_argument, add_out_argument, add_threads_argument
 from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
 from sb3_coma.app.training import eval_copies
@@ -59,7 +60,6 @@ from sb3_coma.common.callbacks import MissionEvalCallback
 from sb3_coma.common.evaluation import PROTOCOLS, VALIDATION_SEED, validation_missions
 from sb3_coma.mappo.mappo import make_ippo, make_mappo, missions_of, timesteps_for_missions
 from sb3_coma.stats.paired import paired_difference
-from uav_ipp import DEFAULT_MAP
 
 __all__ = ["METRICS", "Curve", "main", "parse_args"]
 
@@ -115,7 +115,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     """The command-line options (module docstring)."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--algo", default="ippo", choices=["ippo", "mappo", "coma"])
-    p.add_argument("--env", default=DEFAULT_MAP)
+    add_env_argument(p)
     p.add_argument("--missions", type=int, default=1000, help="training missions (SB3 timesteps / (n_uavs * budget))")
     p.add_argument("--n-envs", type=int, default=8, help="env copies (vec-env rows = n_envs * n_uavs)")
     p.add_argument("--uavs", type=int, default=4)
@@ -148,8 +148,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument(
         "--eval-seed", type=int, default=None, help="trial k flies env seed eval_seed + k (default: the protocol's)"
     )
-    p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--out", default="/tmp/marl_baselines")
+    add_threads_argument(p)
+    add_out_argument(p, "/tmp/marl_baselines")
     args = p.parse_args(argv)
     if args.val_missions is None:
         args.val_missions = validation_missions(args.env)

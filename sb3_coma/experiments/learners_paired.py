@@ -44,12 +44,12 @@ from stable_baselines3 import PPO
 import sb3_coma.mappo.mappo  # noqa: F401  (the IPPO / MAPPO policy classes PPO.load needs)
 from sb3_coma import COMA
 from sb3_coma.app import pretrained as pt
+from sb3_coma.app.arguments import add_env_argument, add_missions_argument
 from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
 from sb3_coma.common.checkpoints import atomic_write_text
 from sb3_coma.experiments.ship_models import run_command, validation_best, validation_return
 from sb3_coma.stats.paired import PairedDifference, paired_difference, paired_markdown
-from uav_ipp import DEFAULT_MAP
 
 __all__ = ["METRICS", "Candidate", "Learner", "load", "main", "parse_learner", "select", "validation_score"]
 
@@ -225,8 +225,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "learners", nargs="+", help="label=CANDIDATE[,CANDIDATE...]; the first is compared with the rest"
     )
-    parser.add_argument("--env", default=DEFAULT_MAP)
-    parser.add_argument("--missions", type=int, default=None, help="missions (default: the protocol's)")
+    add_env_argument(parser)
+    add_missions_argument(parser, None, "learner and planner")
     parser.add_argument("--fusion", default="mean", choices=["mean", "sendfuse"])
     add_split_argument(parser)
     parser.add_argument("--out", help="also write the tables to this Markdown file")

@@ -16,6 +16,7 @@ import json
 import sys
 from typing import Any
 
+from sb3_coma.app.arguments import add_env_argument, add_missions_argument, add_seed_argument
 from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.stats.paired import paired_difference
 
@@ -32,9 +33,9 @@ METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
 def main(argv: list[str] | None = None) -> int:
     """Fly the methods, print one JSON line per comparison and metric."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env", default="env3")
-    parser.add_argument("--missions", type=int, default=32)
-    parser.add_argument("--seed", type=int, default=0)
+    add_env_argument(parser)
+    add_missions_argument(parser, 32, "method (unseen missions)")
+    add_seed_argument(parser)
     args = parser.parse_args(argv)
     unseen = Missions(env=args.env, protocol="unseen", count=args.missions, seed=args.seed)
     ag = fly(Method("ag", "ag"), unseen)

@@ -23,6 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from sb3_coma import load_pretrained
+from sb3_coma.app.arguments import add_env_argument, add_missions_argument
 from sb3_coma.app.evaluation import Missions, fly, resolve_method
 
 __all__ = ["main"]
@@ -31,8 +32,8 @@ __all__ = ["main"]
 def main(argv: Sequence[str] | None = None) -> int:
     """Print one table row per team size: the model, AG and the lawnmower on the same missions."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env", default="env3")
-    parser.add_argument("--missions", type=int, default=10)
+    add_env_argument(parser)
+    add_missions_argument(parser, 10, "method and team size")
     parser.add_argument("--sizes", type=int, nargs="+", default=[2, 3, 4, 5, 6, 8])
     args = parser.parse_args(argv)
     # Flying the model with K != its 4 UAVs is the point here: silence evaluate's team-size warning.

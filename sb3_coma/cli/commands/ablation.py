@@ -16,8 +16,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from sb3_coma.app.arguments import (
+    add_env_argument,
+    add_out_argument,
+    add_seed_argument,
+    add_threads_argument,
+    add_workers_argument,
+)
 from sb3_coma.cli import UserError, set_threads
-from sb3_coma.cli.commands import add_workers_argument, default_map
 
 NAME = "ablation"
 HELP = "evaluate the SenDFuse / CBAM ablation models at three noise levels"
@@ -25,13 +31,7 @@ HELP = "evaluate the SenDFuse / CBAM ablation models at three noise levels"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_workers_argument(parser)
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        help="torch CPU threads (default 1, as sb3-coma reproduce: float reductions differ with the "
-        "thread count, and a rare flipped argmax changes a whole mission)",
-    )
+    add_threads_argument(parser)
     parser.add_argument("--models", default=None, help="directory with {fusion}_{extractor}.zip models")
     parser.add_argument(
         "--model",
@@ -40,13 +40,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FUSION_EXTRACTOR=PATH",
         help="one model, e.g. sendfuse_cbam=runs/x/final.zip; repeatable",
     )
-    parser.add_argument("--env", default=default_map(), help=f"map name (default {default_map()}, as in the paper)")
+    add_env_argument(parser)
     parser.add_argument("--noises", default="none,moderate,loud", help="comma-separated noise levels")
     parser.add_argument("--trials", type=int, default=10, help="missions per model and noise level (default 10)")
-    parser.add_argument("--seed", type=int, default=0, help="base seed: trial k uses SEED+k (default 0)")
+    add_seed_argument(parser)
     parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
-    parser.add_argument("--out", default="results/ablation", help="output folder (default results/ablation)")
+    add_out_argument(parser, "results/ablation")
     parser.add_argument(
         "--training-logs", default=None, help="directory with {fusion}_{extractor} run dirs or CSVs for the reward plot"
     )

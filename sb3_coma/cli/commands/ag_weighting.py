@@ -16,8 +16,8 @@ import argparse
 import json
 from pathlib import Path
 
+from sb3_coma.app.arguments import add_env_argument, add_missions_argument, add_seed_argument, add_workers_argument
 from sb3_coma.cli import UserError
-from sb3_coma.cli.commands import add_workers_argument
 from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, pick_ag_weighting
 
 NAME = "ag-weighting"
@@ -27,19 +27,9 @@ HELP = "choose AG's entropy weighting (class / plain) per map on validation miss
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_workers_argument(parser)
 
-    parser.add_argument("--env", default="env1,env2,env3", help="comma-separated map families (default env1,env2,env3)")
-    parser.add_argument(
-        "--missions",
-        type=int,
-        default=VALIDATION_MISSIONS,
-        help=f"validation missions per weighting (default {VALIDATION_MISSIONS})",
-    )
-    parser.add_argument(
-        "--seed",
-        type=int,
-        default=VALIDATION_SEED,
-        help=f"first validation env seed (default {VALIDATION_SEED}; smaller seeds are refused)",
-    )
+    add_env_argument(parser, several=True)
+    add_missions_argument(parser, VALIDATION_MISSIONS, "weighting (validation missions)")
+    add_seed_argument(parser, VALIDATION_SEED, note="; smaller seeds are refused: they are the protocols'")
     parser.add_argument("--noise", default="moderate", help="channel noise (default moderate)")
     parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")

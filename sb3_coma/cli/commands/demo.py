@@ -7,7 +7,7 @@ import argparse
 import numpy as np
 
 import uav_ipp
-from sb3_coma.cli.commands import default_map
+from sb3_coma.app.arguments import add_env_argument, add_seed_argument
 from uav_ipp import layout
 
 NAME = "demo"
@@ -15,15 +15,11 @@ HELP = "fly one mission with random valid actions and print F1 / entropy per ste
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--env",
-        default=default_map(),
-        help=f"map name (env1, env2, env3) or gymnasium id (default {default_map()})",
-    )
+    add_env_argument(parser)
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud")
     parser.add_argument("--uavs", type=int, default=4)
     parser.add_argument("--budget", type=int, default=15)
-    parser.add_argument("--seed", type=int, default=0)
+    add_seed_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from sb3_coma.app.arguments import add_missions_argument, add_seed_argument, default_map
 from sb3_coma.cli import UserError
-from sb3_coma.cli.commands import default_map
 
 NAME = "eval-sendfuse"
 HELP = "compare SenDFuse with the naive mean fusion (MSE vs the noise-free fused map) on held-out maps"
@@ -26,8 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--valuable", default=None, help="rule that marks valuable pixels of --map-path (e.g. hottest:0.3)"
     )
-    parser.add_argument("--missions", type=int, default=20, help="missions per noise preset (default 20)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of mission m is seed + m (default 0)")
+    add_missions_argument(parser, 20, "noise preset")
+    add_seed_argument(parser)
     parser.add_argument("--uavs", type=int, default=4, help="number of UAVs (default 4)")
     parser.add_argument("--budget", type=int, default=15, help="decisions per UAV (default 15)")
     parser.add_argument(

@@ -22,8 +22,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sb3_coma.app.arguments import add_out_argument, add_seed_argument, add_threads_argument, add_workers_argument
 from sb3_coma.cli import UserError, set_threads
-from sb3_coma.cli.commands import add_workers_argument
 
 if TYPE_CHECKING:
     from sb3_coma.app.methods import Method
@@ -42,13 +42,7 @@ DESCRIPTION = (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_workers_argument(parser)
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        help="torch CPU threads (default 1, as sb3-coma reproduce: float reductions differ with the "
-        "thread count, and a rare flipped argmax changes a whole mission)",
-    )
+    add_threads_argument(parser)
     parser.add_argument(
         "--env",
         default=None,
@@ -93,15 +87,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "only) or 'validation' (train scenes, every scene equally, seeds from 1000: for choices); "
         "default: the env options as given (split paper)",
     )
-    parser.add_argument(
-        "--seed", type=int, default=None, help="base seed: trial k uses SEED+k (default 0; validation 1000)"
-    )
+    add_seed_argument(parser, default=None)
     parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
     parser.add_argument("--map-path", default=None, help="your own map image (with --valuable)")
     parser.add_argument("--valuable", default=None, help="rule that marks valuable pixels of --map-path")
     parser.add_argument("--n-envs", type=int, default=None, help="missions flown at once (default 10)")
-    parser.add_argument("--out", default="results", help="output folder (default results/)")
+    add_out_argument(parser, "results")
     parser.add_argument(
         "--training-log",
         action="append",

@@ -21,8 +21,15 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sb3_coma.app.arguments import (
+    add_env_argument,
+    add_missions_argument,
+    add_out_argument,
+    add_seed_argument,
+    add_threads_argument,
+    add_workers_argument,
+)
 from sb3_coma.cli import UserError, set_threads
-from sb3_coma.cli.commands import add_workers_argument
 
 if TYPE_CHECKING:  # the sweep imports torch and matplotlib: the functions import it, --help never does
     from sb3_coma.experiments.protocols import Method
@@ -33,16 +40,16 @@ HELP = "AG and the trained ablation arms over sigma, a_low, drop probability and
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_workers_argument(parser)
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
-    parser.add_argument("--env", default="env3", help="map (default env3, the ablation's)")
+    add_threads_argument(parser)
+    add_env_argument(parser)
     parser.add_argument(
         "--arms",
         default=None,
         help="comma-separated arms: 'ag' and/or shipped model names (default: ag and every shipped "
         "model of the map that is an ablation arm or the map's own model)",
     )
-    parser.add_argument("--missions", type=int, default=None, help="missions per setting (default 20; --quick: 2)")
-    parser.add_argument("--seed", type=int, default=0, help="base env seed: mission k uses SEED+k (default 0)")
+    add_missions_argument(parser, None, "setting", default_text="20; --quick: 2")
+    add_seed_argument(parser)
     parser.add_argument(
         "--split",
         default="test",
@@ -52,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
     parser.add_argument("--grid", action="store_true", help="the full grid (96 settings) instead of one axis at a time")
     parser.add_argument("--quick", action="store_true", help="smoke run: a few settings, 2 missions")
-    parser.add_argument("--out", default="results/noise_sweep", help="output folder (default results/noise_sweep)")
+    add_out_argument(parser, "results/noise_sweep")
     parser.add_argument("--no-plots", action="store_true", help="skip the figure")
 
 

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+from sb3_coma.app.arguments import add_threads_argument
 from sb3_coma.cli import UserError
 
 NAME = "pretrain-sendfuse"
@@ -27,9 +28,7 @@ DESCRIPTION = (
 #: ``sb3_coma.sendfuse.pretrain.PretrainConfig``'s defaults of the options below (the shipped
 #: weights' run), written out because that module imports torch and ``--help`` must not;
 #: tests/test_cli_lazy.py checks that they are the dataclass's own.
-PRETRAIN_DEFAULTS = SimpleNamespace(
-    samples=12_000, epochs=3, batch=32, lr=2e-3, seed=0, threads=1, calibration_fusions=240
-)
+PRETRAIN_DEFAULTS = SimpleNamespace(samples=12_000, epochs=3, batch=32, lr=2e-3, seed=0, calibration_fusions=240)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,12 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seed", type=int, default=d.seed, help=f"seed of data, initialisation and batches (default {d.seed})"
     )
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=d.threads,
-        help=f"torch threads; results are reproducible for a fixed count (default {d.threads})",
-    )
+    add_threads_argument(parser)
     parser.add_argument("--no-calibrate", action="store_true", help="skip the fusion-scale calibration")
     parser.add_argument(
         "--calibration-fusions",

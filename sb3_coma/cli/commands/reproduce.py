@@ -15,8 +15,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sb3_coma.app.arguments import (
+    add_env_argument,
+    add_out_argument,
+    add_seed_argument,
+    add_threads_argument,
+    add_workers_argument,
+)
 from sb3_coma.cli import UserError, set_threads
-from sb3_coma.cli.commands import add_workers_argument
 
 # The study and the config checks import torch, rl_zoo3 and matplotlib: the functions below import
 # them, so that building the parser (``--help``) does not.
@@ -53,15 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _add_protocol_arguments(parser: argparse.ArgumentParser) -> None:
     """Threads, output folder, maps, mission counts, seed and noise."""
     add_workers_argument(parser)
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        help="torch CPU threads (default 1: as fast as 2 for these small networks, and training "
-        "gives the same model on any machine; float reductions differ with the thread count)",
-    )
-    parser.add_argument("--out", default="results", help="output folder (default results/)")
-    parser.add_argument("--env", default="env1,env2,env3", help="comma-separated maps (default env1,env2,env3)")
+    add_threads_argument(parser)
+    add_out_argument(parser, "results")
+    add_env_argument(parser, several=True)
     parser.add_argument(
         "--trials",
         type=int,
@@ -83,7 +83,7 @@ def _add_protocol_arguments(parser: argparse.ArgumentParser) -> None:
         help="missions per setting of the noise sweep (default 50, the unseen protocol's missions; 0 skips "
         "it; --quick: 2)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="base evaluation seed: trial k uses SEED+k (default 0)")
+    add_seed_argument(parser)
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud (default moderate)")
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import yaml
 
+from sb3_coma.app.arguments import add_threads_argument
 from sb3_coma.cli import UserError, set_threads
 
 # The trainer, its config and the checks import torch and rl_zoo3: the functions below import
@@ -84,13 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     """What to train: threads, map, config and variant, length, seed, resume, run folder, copies, overrides."""
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        help="torch CPU threads (default 1: as fast as 2 for these small networks, and training "
-        "gives the same model on any machine; float reductions differ with the thread count)",
-    )
+    add_threads_argument(parser)
     parser.add_argument(
         "--env",
         default=None,
