@@ -13,18 +13,6 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = [
-    "ALL_MAPS",
-    "add_env_argument",
-    "add_missions_argument",
-    "add_out_argument",
-    "add_seed_argument",
-    "add_threads_argument",
-    "add_workers_argument",
-    "default_map",
-    "workers_value",
-]
-
 #: ``--env`` of the commands that fly several maps: all three families, comma separated.
 ALL_MAPS = "env1,env2,env3"
 

@@ -36,6 +36,14 @@ MANIFEST = "models.json"
 #: What a shipped model warm-started from the oracle is called in every generated table and text:
 #: its COMA training fine-tunes a behaviour clone of a clairvoyant teacher (docs/training.md).
 WARM_START_TITLE = "COMA (oracle warm start)"
+#: What the ablation's arms (fusion, extractor) are called in every table, figure and verdict:
+#: the ablation, the noise sweep and ``reproduce`` name the shipped arm models so.
+ABLATION_LABELS: dict[tuple[str, str], str] = {
+    ("mean", "cnn"): "Base",
+    ("mean", "cbam"): "CBAM",
+    ("sendfuse", "cnn"): "SenDFuse",
+    ("sendfuse", "cbam"): "SenDFuse+CBAM",
+}
 
 
 class PretrainedError(ValueError):

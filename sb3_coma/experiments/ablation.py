@@ -18,6 +18,7 @@ from typing import Any
 
 import uav_ipp
 from sb3_coma.app.evaluation import Method, Missions, fly, resolve_method
+from sb3_coma.app.pretrained import ABLATION_LABELS
 from sb3_coma.common.evaluation import EvaluationResult
 from sb3_coma.stats.tables import TableRow, table_markdown, table_text
 
@@ -25,12 +26,7 @@ FUSIONS: tuple[str, ...] = ("mean", "sendfuse")
 EXTRACTORS: tuple[str, ...] = ("cnn", "cbam")
 NOISES: tuple[str, ...] = ("none", "moderate", "loud")
 #: Labels of the paper's figures ("Base" has neither SenDFuse nor CBAM).
-LABELS: dict[tuple[str, str], str] = {
-    ("mean", "cnn"): "Base",
-    ("mean", "cbam"): "CBAM",
-    ("sendfuse", "cnn"): "SenDFuse",
-    ("sendfuse", "cbam"): "SenDFuse+CBAM",
-}
+LABELS = ABLATION_LABELS  # the arms' table names (sb3_coma.app.pretrained)
 Variant = tuple[str, str]
 
 

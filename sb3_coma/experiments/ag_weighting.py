@@ -24,13 +24,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-#: First env seed of the validation missions (seeds VALIDATION_SEED .. + n - 1 on split "train").
-VALIDATION_SEED = 2000
-#: Validation missions per weighting and map (the recorded choice used this many; 20 left env2 and
-#: env3 undecided, 60 take about 5 s per map).
-VALIDATION_MISSIONS = 60
-#: The split the missions come from: never "test" (the unseen protocol's) nor "paper" (Table I's).
-VALIDATION_SPLIT = "train"
+from sb3_coma.app.roles import AG_WEIGHTING_MISSIONS, AG_WEIGHTING_SEED, AG_WEIGHTING_SPLIT
+
+#: The picker's validation missions (``sb3_coma.app.roles``, where the report reads them too):
+#: first env seed (seeds VALIDATION_SEED .. + n - 1), missions per weighting and map, split.
+VALIDATION_SEED = AG_WEIGHTING_SEED
+VALIDATION_MISSIONS = AG_WEIGHTING_MISSIONS
+VALIDATION_SPLIT = AG_WEIGHTING_SPLIT
 #: Keys of ``env_options`` the picker sets itself.
 _FIXED = ("split",)
 

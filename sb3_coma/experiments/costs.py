@@ -17,26 +17,22 @@ stand-alone version of the model rows with a per-node ONNX profile.
 
 from __future__ import annotations
 
-import statistics
 import tempfile
-import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
-import torch as th
 
 import uav_ipp
 from sb3_coma.app.export import export_onnx, onnx_feeds, onnx_session
 from sb3_coma.baselines import make_planner
 from sb3_coma.baselines.adaptive_gain import default_weighting
-from sb3_coma.sendfuse.weights import default_weights_path, load_weights
+from sb3_coma.common.timing import one_thread, time_call, torch_fusion
 from uav_ipp import layout
-from uav_ipp.geometry import overlap_matrix
+
+_torch_fusion = torch_fusion  # until sb3_coma.experiments.reproduce imports it from sb3_coma.common.timing
 
 
 @dataclass(frozen=True)
@@ -52,30 +48,6 @@ class CostRow:
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
-
-
-def time_call(fn: Callable[[], Any], repeats: int, warmup: int = 5) -> tuple[float, float]:
-    """(median, 90th percentile) wall ms of ``fn()``."""
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(max(int(repeats), 1)):
-        tic = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - tic) * 1e3)
-    times.sort()
-    return statistics.median(times), times[min(len(times) - 1, int(0.9 * len(times)))]
-
-
-@contextmanager
-def one_thread() -> Iterator[None]:
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def _observation(
@@ -94,30 +66,6 @@ def _observation(
     return venv, obs
 
 
-def _torch_fusion(fusion: str, n_agents: int, comm: int, lattice: int) -> Callable[[], Any]:
-    """One UAV's fusion of ``n_agents`` maps (all valid) + the projection to the lattice, in PyTorch."""
-
-    rng = np.random.default_rng(0)
-    received = th.as_tensor(rng.random((1, n_agents, comm, comm), dtype=np.float32))
-    valid = th.ones((1, n_agents), dtype=th.bool)
-    a = th.as_tensor(overlap_matrix(comm, float(lattice - 1), lattice).astype(np.float32))
-    if fusion == "mean":
-
-        def fuse() -> Any:
-            return received.mean(dim=1)
-    else:
-        net = load_weights(default_weights_path(comm), expected_config={"grid_size": comm})
-
-        def fuse() -> Any:
-            return net.fuse(received, valid)
-
-    def run() -> Any:
-        with th.inference_mode():
-            return th.clamp(a @ fuse() @ a.T, 0.0, 1.0)
-
-    return run
-
-
 def model_costs(
     label: str, model: Any, env: str, fusion: str, repeats: int = 200, onnx: bool = True, **env_options: Any
 ) -> list[CostRow]:
@@ -131,7 +79,7 @@ def model_costs(
     n, comm, lattice = int(config.n_uavs), int(config.comm_grid), int(config.lattice)
     rows = []
     with one_thread():
-        fuse = _torch_fusion(fusion, n, comm, lattice)
+        fuse = torch_fusion(fusion, n, comm, lattice)
         fusion_ms = time_call(fuse, repeats)
         actor_ms = time_call(lambda: model.predict(one, deterministic=True), repeats)
 

@@ -18,6 +18,9 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
+#: Titles of the noise sweep's axes (the channel options it sweeps) in its figure.
+AXIS_TITLES: dict[str, str] = {"sigma": "sigma", "alpha_low": "a_low", "drop_probability": "drop p"}
+
 #: Okabe & Ito's eight colours, ordered so that the first ones contrast most on white: blue,
 #: vermillion, bluish green, reddish purple, orange, sky blue, black, yellow (last: faint on white).
 OKABE_ITO: tuple[str, ...] = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000", "#F0E442")

@@ -47,8 +47,9 @@ from sb3_coma.app import pretrained as pt
 from sb3_coma.app.arguments import add_env_argument, add_missions_argument
 from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
+from sb3_coma.app.selection import run_command, validation_best
 from sb3_coma.common.checkpoints import atomic_write_text
-from sb3_coma.experiments.ship_models import run_command, validation_best, validation_return
+from sb3_coma.experiments.ship_models import validation_return  # flies learning_curves.fly_validation
 from sb3_coma.stats.paired import PairedDifference, paired_difference, paired_markdown
 
 __all__ = ["METRICS", "Candidate", "Learner", "load", "main", "parse_learner", "select", "validation_score"]

@@ -68,8 +68,6 @@ AXES: dict[str, tuple[float, ...]] = {"sigma": SIGMAS, "alpha_low": ALPHA_LOWS, 
 CENTRE: dict[str, float] = {"sigma": 0.02, "alpha_low": 0.8, "drop_probability": 0.0}
 #: ``quick=True``: two sigmas, one a_low, drops on, both decoders (tests and smoke runs).
 QUICK_AXES: dict[str, tuple[float, ...]] = {"sigma": (0.02, 0.2), "alpha_low": (0.4,), "drop_probability": (0.3,)}
-#: Titles of the axes in tables and figures.
-AXIS_TITLES: dict[str, str] = {"sigma": "sigma", "alpha_low": "a_low", "drop_probability": "drop p"}
 
 
 @dataclass(frozen=True)

@@ -51,8 +51,7 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
-from sb3_coma.experiments.figure_style import OKABE_ITO, MethodStyle, method_styles, uav_colour
-from sb3_coma.experiments.noise_sweep import AXIS_TITLES
+from sb3_coma.experiments.figure_style import AXIS_TITLES, OKABE_ITO, MethodStyle, method_styles, uav_colour
 
 if TYPE_CHECKING:  # pragma: no cover
     from sb3_coma.common.evaluation import EvaluationResult

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_coma.app.pretrained import WARM_START_TITLE
-from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, VALIDATION_SPLIT
+from sb3_coma.app.roles import AG_WEIGHTING_MISSIONS, AG_WEIGHTING_SEED, AG_WEIGHTING_SPLIT
 from sb3_coma.stats.paired import NO_VERDICT, PairedDifference, p_text, paired_markdown
 
 #: The comparisons the README paragraph states, when both methods were flown.
@@ -446,9 +446,9 @@ def _ag_section(run: Any) -> list[str]:
         "## AG's entropy weighting (chosen on validation missions)",
         "",
         "AG scores moves by expected information gain under the class-weighted (`class`, ipp-marl's) or the plain "
-        f"binary entropy (`plain`). The default per map family is the one that won on {VALIDATION_MISSIONS} "
-        f"validation missions per weighting (split `{VALIDATION_SPLIT}`, env seeds {VALIDATION_SEED}.."
-        f"{VALIDATION_SEED + VALIDATION_MISSIONS - 1}, never the test split nor Table I's missions), measured "
+        f"binary entropy (`plain`). The default per map family is the one that won on {AG_WEIGHTING_MISSIONS} "
+        f"validation missions per weighting (split `{AG_WEIGHTING_SPLIT}`, env seeds {AG_WEIGHTING_SEED}.."
+        f"{AG_WEIGHTING_SEED + AG_WEIGHTING_MISSIONS - 1}, never the test split nor Table I's missions), measured "
         "by `sb3-coma ag-weighting` and recorded with its numbers in "
         "`sb3_coma.baselines.adaptive_gain.WEIGHTING_BY_MAP`: "
         + ", ".join(f"{e} `{v}`" for e, v in w.items())
