@@ -37,7 +37,7 @@ import socket
 import traceback
 from abc import ABC, abstractmethod
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
@@ -55,7 +55,7 @@ from stable_baselines3.common.vec_env.base_vec_env import (
 
 from .config import ConfigError, IppConfig
 from .fusion import RAW_FUSION, available_fusions, fusion_factory
-from .vec_env import IppVecEnv, check_copies_and_seed
+from .vec_env import IppVecEnv
 from .vec_env import make_vec_env as make_in_process_vec_env
 
 #: ``backend=`` values of :func:`make_worker_vec_env` (and ``uav_ipp.make_vec_env``).
@@ -91,20 +91,28 @@ def split_copies(n_envs: int, workers: int) -> list[range]:
 
 
 def check_workers(n_envs: int, workers: Any, backend: Any, ray_address: Any) -> None:
-    """One-line :class:`ConfigError` for bad scale-out options (``n_envs`` already checked)."""
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
-        raise ConfigError(f"invalid option workers={workers!r}: an integer >= 1 (processes or Ray actors)")
-    if workers > n_envs:
-        raise ConfigError(
-            f"invalid option workers={workers!r}: at most n_envs={n_envs} (each worker holds at least one env copy)"
-        )
-    if backend not in BACKENDS:
-        raise ConfigError(f"invalid option backend={backend!r}: one of {list(BACKENDS)}")
-    if ray_address is not None and (backend != "ray" or not isinstance(ray_address, str) or not ray_address):
-        raise ConfigError(
-            f"invalid option ray_address={ray_address!r}: a Ray address 'HOST:PORT' (or 'auto'), "
-            "used only with backend='ray'"
-        )
+    """One-line :class:`ConfigError` for bad scale-out options (``n_envs`` already checked), one
+    (option, value, accepted, what is allowed) row per option, checked in this order."""
+    is_count = isinstance(workers, (int, np.integer)) and not isinstance(workers, bool)
+    rules = (
+        ("workers", workers, is_count and workers >= 1, "an integer >= 1 (processes or Ray actors)"),
+        (
+            "workers",
+            workers,
+            is_count and workers <= n_envs,
+            f"at most n_envs={n_envs} (each worker holds at least one env copy)",
+        ),
+        ("backend", backend, backend in BACKENDS, f"one of {list(BACKENDS)}"),
+        (
+            "ray_address",
+            ray_address,
+            ray_address is None or (backend == "ray" and isinstance(ray_address, str) and bool(ray_address)),
+            "a Ray address 'HOST:PORT' (or 'auto'), used only with backend='ray'",
+        ),
+    )
+    for option, value, accepted, allowed in rules:
+        if not accepted:
+            raise ConfigError(f"invalid option {option}={value!r}: {allowed}")
 
 
 # ================================================================================= worker side
@@ -161,34 +169,32 @@ class WorkerCore:
         }
 
     def _dispatch(self, cmd: str, data: Any) -> Any:
+        """Run one command of :data:`_COMMANDS` (only :class:`WorkerVecEnv` sends them, ``build``
+        first, so an unknown or early command is a programming error)."""
         if cmd == "build":
             return self._build()
-        venv = self.venv
-        if venv is None:
-            raise RuntimeError(f"env worker received {cmd!r} before 'build'")
-        if cmd == "step":
-            venv.step_async(data)
-            return venv.step_wait()
-        if cmd == "reset":
-            observations = venv.reset()
-            return observations, venv.reset_infos
-        if cmd == "seed":
-            return list(venv.seed(data))
-        if cmd == "mission_stride":
-            return venv.set_mission_stride(data)
-        if cmd == "get_attr":
-            return venv.get_attr(data[0], indices=data[1])
-        if cmd == "set_attr":
-            return venv.set_attr(data[0], data[1], indices=data[2])
-        if cmd == "env_method":
-            return venv.env_method(data[0], *data[1], indices=data[3], **data[2])
-        if cmd == "is_wrapped":
-            return venv.env_is_wrapped(data[0], indices=data[1])
-        if cmd == "get_images":
-            return list(venv.get_images())
-        if cmd == "close":
-            return venv.close()
-        raise NotImplementedError(f"`{cmd}` is not implemented in the env worker")
+        assert self.venv is not None, f"env worker received {cmd!r} before 'build'"
+        return _COMMANDS[cmd](self.venv, data)
+
+
+def _step(venv: IppVecEnv, actions: Any) -> Any:
+    venv.step_async(actions)
+    return venv.step_wait()
+
+
+#: What a worker does for each command of the learner, given its vec env and the command's data.
+_COMMANDS: dict[str, Callable[[IppVecEnv, Any], Any]] = {
+    "step": _step,
+    "reset": lambda venv, _: (venv.reset(), venv.reset_infos),
+    "seed": lambda venv, seed: list(venv.seed(seed)),
+    "mission_stride": lambda venv, stride: venv.set_mission_stride(stride),
+    "get_attr": lambda venv, d: venv.get_attr(d[0], indices=d[1]),
+    "set_attr": lambda venv, d: venv.set_attr(d[0], d[1], indices=d[2]),
+    "env_method": lambda venv, d: venv.env_method(d[0], *d[1], indices=d[3], **d[2]),
+    "is_wrapped": lambda venv, d: venv.env_is_wrapped(d[0], indices=d[1]),
+    "get_images": lambda venv, _: list(venv.get_images()),
+    "close": lambda venv, _: venv.close(),
+}
 
 
 def _portable(exc: BaseException) -> BaseException:
@@ -483,6 +489,15 @@ class WorkerVecEnv(VecEnv):
         exc, text = payload
         raise exc from (_RemoteTraceback(text) if text else None)
 
+    @contextlib.contextmanager
+    def _marks_broken(self) -> Iterator[None]:
+        """A worker that died breaks this vec env for good: remember its error for every later call."""
+        try:
+            yield
+        except EnvWorkerError as exc:
+            self._broken = exc
+            raise
+
     def _checked(self) -> None:
         if self.closed:
             raise RuntimeError("this vec env is closed")
@@ -492,13 +507,10 @@ class WorkerVecEnv(VecEnv):
     def _call_all(self, cmd: str, data: Sequence[Any], ws: Sequence[int] | None = None) -> list[Any]:
         """Send ``data[k]`` to worker ``ws[k]`` (all workers by default), then gather in order."""
         ws = list(range(self._transport.n_workers)) if ws is None else list(ws)
-        try:
+        with self._marks_broken():
             for w, d in zip(ws, data):
                 self._transport.send(w, cmd, d)
             replies = self._transport.recv_all_raw(ws)
-        except EnvWorkerError as exc:
-            self._broken = exc
-            raise
         return [self._unwrap(r) for r in replies]
 
     def _route(self, indices: VecEnvIndices) -> tuple[list[int], list[list[int]], list[list[int]]]:
@@ -535,23 +547,16 @@ class WorkerVecEnv(VecEnv):
     def step_async(self, actions: np.ndarray) -> None:
         self._checked()
         actions = np.asarray(actions)
-        try:
+        with self._marks_broken():
             for w, (lo, hi) in enumerate(self._row_bounds):
                 self._transport.send(w, "step", actions[lo:hi])
-        except EnvWorkerError as exc:
-            self._broken = exc
-            raise
         self.waiting = True
 
     def step_wait(self) -> VecEnvStepReturn:
-        if not self.waiting:
-            raise RuntimeError("step_wait() called without step_async()")
+        assert self.waiting, "step_wait() called without step_async()"  # VecEnv protocol
         self.waiting = False
-        try:
+        with self._marks_broken():
             replies = self._transport.recv_all_raw(range(self.n_workers))
-        except EnvWorkerError as exc:
-            self._broken = exc
-            raise
         results = [self._unwrap(r) for r in replies]
         observations = concat_obs([r[0] for r in results])
         rewards = np.concatenate([r[1] for r in results])
@@ -615,10 +620,9 @@ def make_worker_vec_env(
     fusion_kwargs: dict[str, Any] | None = None,
 ) -> VecEnv:
     """:class:`WorkerVecEnv` of ``n_envs`` copies of one resolved config on ``workers`` workers,
-    seeded and wrapped in VecMonitor like the in-process pipeline. Counts and the fusion are
-    checked here first, so a bad one is one line before any process or actor starts."""
-    check_copies_and_seed(n_envs, seed)
-    check_workers(int(n_envs), workers, backend, ray_address)
+    seeded and wrapped in VecMonitor like the in-process pipeline. Counts and scale-out options
+    come checked from the front door (``uav_ipp.make_vec_env``); the fusion is checked here, so a
+    bad one is one line before any process or actor starts."""
     if fusion != RAW_FUSION and (not isinstance(fusion, str) or fusion not in available_fusions()):
         fusion_factory(fusion)  # raises the usual "unknown fusion" error
     specs = [

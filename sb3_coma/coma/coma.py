@@ -308,28 +308,25 @@ class COMA(OnPolicyAlgorithm):
         self.exploration_schedule = LinearSchedule(
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
         )
-        if self.env is not None:
-            check_spaces(self.observation_space, self.action_space)
+        if self.env is not None:  # its spaces were checked by the constructor or by SB3's load
             self.n_agents = resolve_n_agents(self.env)
             self.n_envs = self.env.num_envs
-        if self.n_agents is None:
-            raise ValueError("n_agents is unknown: pass an env built by sb3_coma.make_marl_vec_env")
-        self.n_copies = self.n_envs // self.n_agents
+        self.n_copies = self.n_envs // self._agents
         self._resolve_state()
         # A rollout must hold at least one minibatch of joint steps. The constructor rejects an
         # explicit n_steps that is too short; a model loaded onto an env with fewer copies (e.g.
-        # evaluation on 2 copies of a model trained on 8) stretches its rollouts instead.
+        # evaluation on 2 copies of a model trained on 8) stretches its rollouts instead, so the
+        # minibatch fits by construction here.
         min_steps = math.ceil(self.batch_size / self.n_copies)
         requested = DEFAULT_ROLLOUT_STEPS if self.n_steps_requested is None else self.n_steps_requested
         self.n_steps = max(requested, min_steps)
-        check_batch_fits_rollout(self.batch_size, self.n_steps, self.n_copies)
         self.set_random_seed(self.seed)
 
         assert isinstance(self.action_space, spaces.Discrete) and self.state_space is not None
         self.rollout_buffer = JointRolloutBuffer(
             self.n_steps,
             self.n_copies,
-            self.n_agents,
+            self._agents,
             self.observation_space,
             int(self.action_space.n),
             state_shape=tuple(self.state_space.shape or ()) if self.state_source == "env" else None,

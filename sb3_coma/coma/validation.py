@@ -68,36 +68,6 @@ def check_total_timesteps(value: Any, what: str = "total_timesteps") -> int:
     return int(value)
 
 
-def check_positive_rate(name: str, value: float | Callable[[float], float]) -> None:
-    """A learning rate: a positive number, or a schedule whose starting value is positive."""
-    start = value(1.0) if callable(value) else value
-    if isinstance(start, bool) or not isinstance(start, (int, float)) or not (start > 0 and math.isfinite(start)):
-        raise ValueError(f"{name} must be a finite positive number, got {value!r}")
-
-
-def check_unit_interval(name: str, value: float, low_open: bool = False) -> None:
-    """A number in [0, 1] (or (0, 1] with ``low_open``)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(f"{name} must be a number, got {value!r}")
-    if not (0.0 < value <= 1.0 if low_open else 0.0 <= value <= 1.0):
-        raise ValueError(f"{name} must lie in {'(0, 1]' if low_open else '[0, 1]'}, got {value!r}")
-
-
-def check_non_negative(name: str, value: float) -> None:
-    """A weight such as ``ent_coef``: a number >= 0."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{name} must be a number >= 0, got {value!r}")
-    if not value >= 0:
-        raise ValueError(f"{name} must be >= 0, got {value!r}")
-
-
-def check_positive_int(name: str, value: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise TypeError(f"{name} must be an int, got {value!r}")
-    if value < 1:
-        raise ValueError(f"{name} must be >= 1, got {value!r}")
-
-
 def check_batch_fits_rollout(batch_size: int, n_steps: int, n_copies: int) -> None:
     """A minibatch of joint steps cannot be larger than what one rollout collects."""
     if batch_size > n_steps * n_copies:
@@ -154,50 +124,79 @@ def check_device(device: Any) -> None:
         parsed = th.device(device)
     except (RuntimeError, TypeError, ValueError) as exc:
         raise ValueError(f"device {device!r} is not a torch device: use auto, cpu, cuda or cuda:<index>") from exc
-    if parsed.type == "cuda":
-        count = th.cuda.device_count() if th.cuda.is_available() else 0
-        if count == 0:
-            raise ValueError(f"device {device!r}: no CUDA device is available on this machine; use auto or cpu")
-        if parsed.index is not None and parsed.index >= count:
-            raise ValueError(
-                f"device {device!r}: no such CUDA device (this machine has {count}: cuda:0..cuda:{count - 1})"
-            )
-    if parsed.type == "mps" and not th.backends.mps.is_available():
-        raise ValueError(f"device {device!r}: no MPS (Apple GPU) device is available on this machine; use auto or cpu")
+    n_cuda = th.cuda.device_count() if th.cuda.is_available() else 0
+    # One rule for every accelerator: the device (and its index) must exist on this machine.
+    present = {"cuda": (parsed.index or 0) < n_cuda, "mps": th.backends.mps.is_available()}
+    if not present.get(parsed.type, True):
+        kind, at = _ACCELERATORS[parsed.type], "" if parsed.index is None else f" at index {parsed.index}"
+        raise ValueError(
+            f"device {device!r}: no {kind} device is available{at} on this machine (it has {n_cuda} CUDA "
+            "device(s)); use auto or cpu"
+        )
 
+
+#: The accelerators :func:`check_device` looks for, as its messages name them.
+_ACCELERATORS = {"cuda": "CUDA", "mps": "MPS (Apple GPU)"}
 
 #: COMA's advantage estimators: ``"return"`` (TD(lambda) return minus the counterfactual baseline,
 #: the default) and ``"q"`` (the paper's ``Q(s, u)`` minus the baseline).
 ADVANTAGES = ("return", "q")
 
 
-def _check_positive_number(name: str, value: Any, what: str = "positive") -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value < math.inf:
-        raise ValueError(f"{name} must be {what}, got {value!r}")
+def _is_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def _start(rate: Any) -> Any:
+    """A learning rate's starting value (SB3 schedules are called with the remaining progress)."""
+    return rate(1.0) if callable(rate) else rate
+
+
+def _positive(value: Any) -> bool:
+    return _is_number(value) and 0.0 < value < math.inf
+
+
+#: COMA's constructor arguments, one rule per group: (names, accepts, what is allowed). Each rule
+#: is written once and applied to every argument of its group.
+_ARGUMENT_RULES: tuple[tuple[tuple[str, ...], Callable[[Any], bool], str], ...] = (
+    (("learning_rate", "critic_learning_rate"), lambda v: _positive(_start(v)), "be a finite positive number"),
+    (
+        ("gamma", "td_lambda", "exploration_initial_eps", "exploration_final_eps"),
+        lambda v: _is_number(v) and 0.0 <= v <= 1.0,
+        "lie in [0, 1]",
+    ),
+    (("exploration_fraction", "kl_fraction"), lambda v: _is_number(v) and 0.0 < v <= 1.0, "lie in (0, 1]"),
+    (
+        ("batch_size", "n_critic_epochs", "n_epochs", "target_update_interval", "stats_window_size"),
+        lambda v: v >= 1,
+        "be >= 1",
+    ),
+    (("n_steps",), lambda v: v is None or v >= 1, "be None or >= 1"),
+    (("ent_coef", "kl_coef"), lambda v: _is_number(v) and v >= 0, "be a number >= 0"),
+    (("clip_range",), lambda v: v is None or _positive(v), "be None or a positive number"),
+    (("max_grad_norm",), _positive, "be positive"),
+    (("normalize_advantage",), lambda v: isinstance(v, (bool, np.bool_)), "be True or False"),
+    (("advantage",), lambda v: v in ADVANTAGES, f"be one of {ADVANTAGES}"),
+    (("seed",), lambda v: v is None or (_is_int(v) and v >= 0), "be None or an integer >= 0"),
+)
+#: The counts among them: a value of another type is a ``TypeError`` ("must be an int").
+_COUNTS = frozenset(
+    {"batch_size", "n_critic_epochs", "n_epochs", "target_update_interval", "stats_window_size", "n_steps"}
+)
 
 
 def check_coma_arguments(args: dict[str, Any]) -> None:
-    """Check ``COMA``'s constructor arguments (``locals()`` of ``__init__``), one rule per setting,
-    each error naming the argument and its value (SB3-style programming-error checks)."""
-    for name in ("learning_rate", "critic_learning_rate"):
-        check_positive_rate(name, args[name])
-    for name in ("gamma", "td_lambda", "exploration_initial_eps", "exploration_final_eps"):
-        check_unit_interval(name, args[name])
-    for name in ("exploration_fraction", "kl_fraction"):
-        check_unit_interval(name, args[name], low_open=True)
-    for name in ("batch_size", "n_critic_epochs", "n_epochs", "target_update_interval", "stats_window_size"):
-        check_positive_int(name, args[name])
-    for name in ("ent_coef", "kl_coef"):
-        check_non_negative(name, args[name])
-    if args["n_steps"] is not None:
-        check_positive_int("n_steps", args["n_steps"])
-    if args["clip_range"] is not None:
-        _check_positive_number("clip_range", args["clip_range"], "None or a positive number")
-    _check_positive_number("max_grad_norm", args["max_grad_norm"])
-    if not isinstance(args["normalize_advantage"], (bool, np.bool_)):
-        raise ValueError(f"normalize_advantage must be True or False, got {args['normalize_advantage']!r}")
-    if args["advantage"] not in ADVANTAGES:
-        raise ValueError(f"advantage must be one of {ADVANTAGES}, got {args['advantage']!r}")
-    seed = args["seed"]
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
-        raise ValueError(f"seed must be None or an integer >= 0, got {seed!r}")
+    """Check ``COMA``'s constructor arguments (``locals()`` of ``__init__``) against
+    :data:`_ARGUMENT_RULES`: one error naming the argument, its value and what is allowed
+    (``TypeError`` for a count that is not an int, ``ValueError`` otherwise)."""
+    for names, accepts, allowed in _ARGUMENT_RULES:
+        for name in names:
+            value = args[name]
+            not_int = name in _COUNTS and value is not None and not _is_int(value)
+            if not_int or not accepts(value):
+                error = TypeError if not_int else ValueError
+                raise error(f"{name} must {'be an int' if not_int else allowed}, got {value!r}")

@@ -124,8 +124,7 @@ class MarlVecEnv(VecEnv):
         self._actions = np.asarray(actions)
 
     def step_wait(self) -> VecEnvStepReturn:
-        if self._actions is None:
-            raise RuntimeError("step_wait() called without step_async()")
+        assert self._actions is not None, "step_wait() called without step_async()"  # VecEnv protocol
         observations, rewards, terminations, truncations, step_infos = self.venv.step(self._actions)
         self._actions = None
         terminations = np.asarray(terminations, dtype=bool)
@@ -201,30 +200,31 @@ class MarlVecEnv(VecEnv):
     def _copies_of(self, indices: VecEnvIndices) -> list[int]:
         return [row // self.n_agents for row in self._get_indices(indices)]
 
-    def _owner(self, copy: ParallelEnv, attr_name: str) -> Any:
+    def _owner(self, copy: ParallelEnv, attr_name: str, required: bool = True) -> Any:
         """The copy itself, or its unwrapped env when only that has ``attr_name`` (PettingZoo's
-        conversion wrappers, e.g. ``aec_to_parallel``, forward little); None when neither has it."""
+        conversion wrappers, e.g. ``aec_to_parallel``, forward little). When neither has it: the
+        copy (``required=False``, where ``set_attr`` makes a new attribute) or an ``AttributeError``
+        naming it (``get_attr`` and ``env_method``)."""
         for owner in (copy, copy.unwrapped):
             if hasattr(owner, attr_name):
                 return owner
-        return None
+        if required:
+            raise AttributeError(
+                f"neither MarlVecEnv nor the env {type(copy).__name__} has an attribute or method {attr_name!r}"
+            )
+        return copy
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         rows = list(self._get_indices(indices))
         if attr_name in _ADAPTER_ATTRS:
             return [getattr(self, attr_name)] * len(rows)
-        owners = [self._owner(self.copies[c], attr_name) for c in self._copies_of(rows)]
-        if any(owner is None for owner in owners):
-            raise AttributeError(
-                f"neither MarlVecEnv nor the env {type(self.copies[0]).__name__} has an attribute {attr_name!r}"
-            )
-        return [getattr(owner, attr_name) for owner in owners]
+        return [getattr(self._owner(self.copies[c], attr_name), attr_name) for c in self._copies_of(rows)]
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         if attr_name in _ADAPTER_ATTRS:
             raise AttributeError(f"{attr_name!r} is fixed when MarlVecEnv is built")
         for c in sorted(set(self._copies_of(indices))):
-            setattr(self._owner(self.copies[c], attr_name) or self.copies[c], attr_name, value)
+            setattr(self._owner(self.copies[c], attr_name, required=False), attr_name, value)
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
@@ -238,10 +238,9 @@ class MarlVecEnv(VecEnv):
         results: dict[int, Any] = {}
         for c in self._copies_of(rows):
             if c not in results:
-                method = getattr(self._owner(self.copies[c], method_name), method_name, None)
-                if not callable(method):
-                    raise AttributeError(f"the env {type(self.copies[c]).__name__} has no method {method_name!r}")
-                results[c] = method(*method_args, **method_kwargs)
+                results[c] = getattr(self._owner(self.copies[c], method_name), method_name)(
+                    *method_args, **method_kwargs
+                )
         return [results[c] for c in self._copies_of(rows)]
 
     def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
@@ -253,29 +252,37 @@ class MarlVecEnv(VecEnv):
 
 
 # ---------------------------------------------------------------------- checks
+def _is_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
 def _check_options(n_envs: Any, state: Any, seed: Any) -> None:
-    if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
-        raise ValueError(f"n_envs must be an integer >= 1 (env copies), got {n_envs!r}")
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
-        raise ValueError(f"seed must be None or an integer >= 0, got {seed!r}")
-    if state != "auto" and state not in STATE_SOURCES:
-        raise ValueError(f"state must be 'auto' or one of {STATE_SOURCES}, got {state!r}")
+    """:func:`make_marl_vec_env`'s own options, one (value, rule, what is allowed) row each."""
+    rules = (
+        ("n_envs", n_envs, _is_int(n_envs) and n_envs >= 1, "an integer >= 1 (env copies)"),
+        ("seed", seed, seed is None or (_is_int(seed) and seed >= 0), "None or an integer >= 0"),
+        ("state", state, state == "auto" or state in STATE_SOURCES, f"'auto' or one of {STATE_SOURCES}"),
+    )
+    for name, value, ok, allowed in rules:
+        if not ok:
+            raise ValueError(f"{name} must be {allowed}, got {value!r}")
 
 
 def _resolve_env(env: Any) -> ParallelEnv:
     """The ParallelEnv that ``env`` is or that the zero-argument factory ``env`` returns."""
-    hint = "; convert an AEC env with pettingzoo.utils.conversions.aec_to_parallel(env)"
-    if isinstance(env, ParallelEnv):
-        return env
-    if isinstance(env, AECEnv):
-        raise TypeError(f"env must be a PettingZoo ParallelEnv, got the AEC env {type(env).__name__}{hint}")
-    if callable(env):
-        made = env()
-        if isinstance(made, ParallelEnv):
-            return made
-        raise TypeError(f"the env factory {env!r} returned {type(made).__name__}, not a PettingZoo ParallelEnv{hint}")
+    factory = callable(env) and not isinstance(env, (ParallelEnv, AECEnv))
+    made = env() if factory else env
+    if isinstance(made, ParallelEnv):
+        return made
+    if factory:
+        given = f"the factory {env!r:.100}, which returned {type(made).__name__}"
+    else:
+        given = (
+            f"the AEC env {type(env).__name__}" if isinstance(env, AECEnv) else f"{type(env).__name__}: {env!r:.100}"
+        )
     raise TypeError(
-        f"env must be a PettingZoo ParallelEnv or a zero-argument callable returning one, got {type(env).__name__}: {env!r:.100}"
+        f"env must be a PettingZoo ParallelEnv or a zero-argument callable returning one, got {given}; "
+        "convert an AEC env with pettingzoo.utils.conversions.aec_to_parallel(env)"
     )
 
 

@@ -84,20 +84,16 @@ class MapsExtractor(BaseFeaturesExtractor):
         gain_inputs: bool = False,
         **trunk_kwargs: Any,
     ) -> None:
-        if not isinstance(observation_space, spaces.Dict):
-            raise ValueError(f"MapsExtractor needs a Dict observation space, got {observation_space}")
         keys = tuple(keys) if not isinstance(keys, str) else (keys,)
-        if not keys:
-            raise ValueError("MapsExtractor: keys must name at least one observation entry")
-        missing = [k for k in keys if k not in observation_space.spaces]
-        if missing:
-            raise ValueError(f"MapsExtractor: observation has no {missing}; it has {list(observation_space.spaces)}")
-        entries = [observation_space[k] for k in keys]
-        boxes = [b for b in entries if isinstance(b, spaces.Box) and len(b.shape) == 3]
-        if len(boxes) != len(entries):
-            raise ValueError(f"MapsExtractor: every key must be a (C, H, W) Box, got {entries}")
-        if len({b.shape[1:] for b in boxes}) != 1:
-            raise ValueError(f"MapsExtractor: maps of different sizes {[b.shape for b in boxes]}")
+        entries = observation_space.spaces if isinstance(observation_space, spaces.Dict) else {}
+        missing = [k for k in keys if k not in entries]
+        boxes = [b for b in (entries.get(k) for k in keys) if isinstance(b, spaces.Box) and len(b.shape) == 3]
+        # One rule for the input: at least one key, each a (C, H, W) Box of the Dict, all of one size.
+        if missing or len(boxes) != len(keys) or len({b.shape[1:] for b in boxes}) != 1:
+            raise ValueError(
+                f"MapsExtractor: keys {list(keys)} must name (C, H, W) Box entries of one size of a Dict "
+                f"observation space (it has no {missing}), got {observation_space}"
+            )
         if trunk not in TRUNKS:
             raise ValueError(f"MapsExtractor: trunk={trunk!r}; choose one of {sorted(TRUNKS)}")
         gain_space = observation_space.spaces.get(layout.KEY_GAIN)
@@ -151,15 +147,12 @@ class MaskedActorCriticPolicy(ActorCriticPolicy):
         mask_key: str = layout.KEY_MASK,
         **kwargs: Any,
     ) -> None:
-        if not isinstance(action_space, spaces.Discrete):
-            raise ValueError(f"{type(self).__name__} needs a Discrete action space, got {action_space}")
-        if not isinstance(observation_space, spaces.Dict) or mask_key not in observation_space.spaces:
+        mask = observation_space.spaces.get(mask_key) if isinstance(observation_space, spaces.Dict) else None
+        n_actions = action_space.n if isinstance(action_space, spaces.Discrete) else None
+        if n_actions is None or mask is None or mask.shape != (n_actions,):
             raise ValueError(
-                f"{type(self).__name__} needs a Dict observation with {mask_key!r}, got {observation_space}"
-            )
-        if observation_space[mask_key].shape != (action_space.n,):
-            raise ValueError(
-                f"observation[{mask_key!r}] has shape {observation_space[mask_key].shape}, expected ({action_space.n},)"
+                f"{type(self).__name__} needs a Discrete action space and a Dict observation whose {mask_key!r} "
+                f"has one entry per action, got {action_space} and {observation_space}"
             )
         if vf_features_extractor_kwargs is not None and share_features_extractor:
             raise ValueError(
@@ -247,6 +240,9 @@ class MaskedActorCriticPolicy(ActorCriticPolicy):
 class IPPOPolicy(MaskedActorCriticPolicy):
     """IPPO: one CNN trunk over ``local`` shared by the actor and the (decentralised) value function."""
 
+    #: The observation entries a vec env must have for this policy (checked by ``make_ippo``).
+    needs: tuple[str, ...] = (layout.KEY_LOCAL, layout.KEY_MASK)
+
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         kwargs.setdefault("features_extractor_kwargs", {"keys": ACTOR_KEYS})
         super().__init__(*args, **kwargs)
@@ -255,6 +251,9 @@ class IPPOPolicy(MaskedActorCriticPolicy):
 class MAPPOPolicy(MaskedActorCriticPolicy):
     """MAPPO: the IPPO actor (trunk over ``local``) plus a value function with its own trunk over
     ``local`` + ``state`` (centralised)."""
+
+    #: MAPPO's value function also reads the global state (checked by ``make_mappo``).
+    needs: tuple[str, ...] = (layout.KEY_LOCAL, layout.KEY_MASK, layout.KEY_STATE)
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         actor = dict(kwargs.get("features_extractor_kwargs") or {})
@@ -290,25 +289,24 @@ def missions_of(timesteps: int, venv: VecEnv) -> float:
     return float(timesteps) / (_n_agents(venv) * _budget(venv))
 
 
-def _check_venv(venv: VecEnv) -> None:
-    space = venv.observation_space
-    need = (layout.KEY_LOCAL, layout.KEY_MASK)
-    if not isinstance(space, spaces.Dict) or any(k not in space.spaces for k in need):
+def _check_venv(venv: VecEnv, need: tuple[str, ...]) -> None:
+    """The UAV world's fused layout: the entries ``need`` and ``local`` with a fusion's channels."""
+    entries = getattr(venv.observation_space, "spaces", {})
+    local = entries.get(layout.KEY_LOCAL)
+    fused = local is not None and (local.shape or (0,))[0] in (
+        layout.LOCAL_CHANNELS,
+        layout.LOCAL_CHANNELS + layout.V3_LOCAL_EXTRA,
+    )
+    if not fused or any(k not in entries for k in need):
         raise ValueError(
-            f"needs an uav_ipp.make_vec_env vec env with fusion 'mean' or 'sendfuse' (observation entries "
-            f"{list(need)}), got observation space {space}"
-        )
-    local_shape = space[layout.KEY_LOCAL].shape
-    assert local_shape is not None  # a Box in every vec env of uav_ipp.make_vec_env
-    if local_shape[0] not in (layout.LOCAL_CHANNELS, layout.LOCAL_CHANNELS + layout.V3_LOCAL_EXTRA):
-        raise ValueError(
-            f"observation['local'] has {local_shape[0]} channels, expected "
-            f"{layout.LOCAL_CHANNELS}: build the vec env with fusion='mean' or 'sendfuse', not 'none'"
+            f"needs an uav_ipp.make_vec_env vec env with fusion 'mean' or 'sendfuse', not 'none' (observation "
+            f"entries {list(need)}, {layout.LOCAL_CHANNELS} 'local' channels), got observation space "
+            f"{venv.observation_space}"
         )
 
 
-def _make(policy: type[MaskedActorCriticPolicy], venv: VecEnv, ppo_kwargs: dict[str, Any]) -> PPO:
-    _check_venv(venv)
+def _make(policy: type[IPPOPolicy] | type[MAPPOPolicy], venv: VecEnv, ppo_kwargs: dict[str, Any]) -> PPO:
+    _check_venv(venv, policy.needs)
     kwargs = {**DEFAULT_PPO_KWARGS, "device": "cpu", **ppo_kwargs}
     kwargs.pop("policy", None)
     return PPO(policy, venv, **kwargs)
@@ -345,6 +343,4 @@ def make_mappo(venv: VecEnv, **ppo_kwargs: Any) -> PPO:
     """
     if not _is_uav(venv):
         return PPO(CentralValuePolicy, CentralStateVecEnv(venv), **ppo_kwargs)
-    if layout.KEY_STATE not in getattr(venv.observation_space, "spaces", {}):
-        raise ValueError(f"MAPPO's value function reads observation[{layout.KEY_STATE!r}], which this vec env lacks")
     return _make(MAPPOPolicy, venv, ppo_kwargs)

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import math
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -79,26 +80,22 @@ DECODER_DEPTHS: tuple[int, int, int] = (1, 1, 1)  # D1_1, D2_1, D1_2
 
 def _check_grid_size(grid_size: Any) -> int:
     """Validate R early: the two 2x poolings and 2x upsamplings only round-trip when 4 | R."""
-    if isinstance(grid_size, bool) or not isinstance(grid_size, int):
-        raise ValueError(f"grid_size must be an int, got {grid_size!r}")
-    if grid_size < 4 or grid_size % 4 != 0:
+    if isinstance(grid_size, bool) or not isinstance(grid_size, int) or grid_size < 4 or grid_size % 4:
         raise ValueError(
-            f"grid_size must be a positive multiple of 4 (the encoder halves the map twice: "
-            f"R, R/2, R/4), got {grid_size}; e.g. 44 = 4 x 11 for the 11 x 11 lattice"
+            f"grid_size must be an int, a positive multiple of 4 (the encoder halves the map twice: "
+            f"R, R/2, R/4), got {grid_size!r}; e.g. 44 = 4 x 11 for the 11 x 11 lattice"
         )
     return grid_size
 
 
 def _check_alpha(alpha: Any) -> float:
     """``alpha`` mixes two convex combinations; outside [0, 1] the result is no longer convex."""
-    if isinstance(alpha, bool):
-        raise ValueError(f"fusion alpha must be a number in [0, 1], got {alpha!r}")
     try:
-        value = float(alpha)
+        value = math.nan if isinstance(alpha, bool) else float(alpha)
     except (TypeError, ValueError):
-        raise ValueError(f"fusion alpha must be a number in [0, 1], got {alpha!r}") from None
-    if not 0.0 <= value <= 1.0:  # also rejects NaN
-        raise ValueError(f"fusion alpha must be in [0, 1], got {alpha!r}")
+        value = math.nan
+    if not 0.0 <= value <= 1.0:  # also rejects NaN, hence a bool or anything that is not a number
+        raise ValueError(f"fusion alpha must be a number in [0, 1], got {alpha!r}")
     return value
 
 
@@ -227,13 +224,18 @@ def fusion_weights(features: Tensor, valid: Tensor | Any) -> tuple[Tensor, Tenso
     1 over the valid sources and are exactly 0 for invalid ones. :func:`fusion_strategy` explains
     why the softmax runs over the sources. Exposed for inspection, plots and tests.
     """
-    if features.dim() != 5:
-        raise ValueError(f"features must be (B, n, C, H, W), got shape {tuple(features.shape)}")
-    b, n, c, h, w = features.shape
+    b, n, c, h, w = _check_sources(features)
     mask = _as_bool_mask(valid, (b, n), features.device)
     view, channel_dim, pixel_dim = _source_view(features)
     channel_w, spatial_w = _weights_on_view(view, channel_dim, pixel_dim, mask, nonnegative=False)
     return channel_w.reshape(b, n, c), spatial_w.reshape(b, n, h, w)
+
+
+def _check_sources(features: Tensor) -> tuple[int, ...]:
+    """The shape of one scale's features of n >= 1 sources, ``(B, n, C, H, W)``."""
+    if features.dim() != 5 or features.shape[1] < 1:
+        raise ValueError(f"features must be (B, n, C, H, W) with n >= 1 sources, got shape {tuple(features.shape)}")
+    return tuple(features.shape)
 
 
 def _fuse_scale(features: Tensor, mask: Tensor | None, alpha: float, nonnegative: bool) -> Tensor:
@@ -287,11 +289,7 @@ def fusion_strategy(features: Tensor, valid: Tensor | Any, alpha: float = DEFAUL
         ``(B, C, H, W)`` fused features.
     """
     alpha = _check_alpha(alpha)
-    if features.dim() != 5:
-        raise ValueError(f"features must be (B, n, C, H, W), got shape {tuple(features.shape)}")
-    b, n = features.shape[:2]
-    if n < 1:
-        raise ValueError("fusion needs at least one source (n >= 1)")
+    b, n = _check_sources(features)[:2]
     mask = _as_bool_mask(valid, (b, n), features.device)
     if bool(mask.all()):
         return _fuse_scale(features, None, alpha, nonnegative=False)
@@ -377,17 +375,17 @@ class SenDFuseNet(nn.Module):
         return sum(p.numel() for p in self.parameters())
 
     # ------------------------------------------------------------------ input checks
-    def _check_maps(self, x: Tensor, what: str, layout: str) -> None:
-        """Fail with a message naming the expected layout instead of a conv shape error."""
-        r = self.grid_size
-        if not isinstance(x, Tensor):
-            raise TypeError(f"{what} expects a torch.Tensor {layout}, got {type(x).__name__}")
-        if x.dim() != 4 or tuple(x.shape[-2:]) != (r, r):
+    def _check_maps(self, x: Tensor, what: str, layout: str, channels: int | None = None) -> None:
+        """Fail with a message naming the expected layout instead of a conv shape error: a float
+        tensor ``(B, channels or n >= 1, R, R)``, all in one rule."""
+        r, one = self.grid_size, channels == 1
+        fits = isinstance(x, Tensor) and x.dim() == 4 and tuple(x.shape[-2:]) == (r, r)
+        if not (fits and x.is_floating_point() and x.shape[1] == (channels or max(1, x.shape[1]))):
+            got = f"shape {tuple(x.shape)}, dtype {x.dtype}" if isinstance(x, Tensor) else type(x).__name__
             raise ValueError(
-                f"{what} expects {layout} maps with R = {r} (this network's grid_size), got shape {tuple(x.shape)}"
+                f"{what} expects a floating-point torch.Tensor of {'one channel, ' if one else 'n >= 1 '}{layout} "
+                f"maps with R = {r} (this network's grid_size), got {got}"
             )
-        if not x.is_floating_point():
-            raise ValueError(f"{what} expects floating-point maps, got dtype {x.dtype}")
 
     @staticmethod
     def _center(x: Tensor) -> Tensor:
@@ -398,9 +396,7 @@ class SenDFuseNet(nn.Module):
     # ------------------------------------------------------------------ building blocks
     def encode(self, x: Tensor) -> list[Tensor]:
         """``(B, 1, R, R)`` -> ``[E1 (B, c1, R, R), E2 (B, c2, R/2, R/2), E3 (B, c3, R/4, R/4)]``."""
-        self._check_maps(x, "encode", "(B, 1, R, R)")
-        if x.shape[1] != 1:
-            raise ValueError(f"encode expects one channel, (B, 1, R, R), got shape {tuple(x.shape)}")
+        self._check_maps(x, "encode", "(B, 1, R, R)", channels=1)
         # Observations may arrive as float64 (numpy defaults); convert rather than fail in conv2d.
         e1 = self.enc1(self._center(x.to(self.head.weight.dtype)))
         e2 = self.enc2(_pool2(e1))
@@ -438,7 +434,7 @@ class SenDFuseNet(nn.Module):
         :meth:`fuse` computes for a UAV that received one map besides its own (up to the mean
         with the own map).
         """
-        self._check_maps(x, "forward", "(B, 1, R, R)")
+        self._check_maps(x, "forward", "(B, 1, R, R)", channels=1)
         x = x.to(self.head.weight.dtype)
         correction = self.decode(self.encode(x))
         return torch.clamp(torch.where(x != UNKNOWN, x + correction, x), 0.0, 1.0)
@@ -473,8 +469,6 @@ class SenDFuseNet(nn.Module):
         self._check_maps(maps, "fuse", "(B, n, R, R)")
         alpha = self.fusion_alpha if alpha is None else _check_alpha(alpha)
         b, n, r, _ = maps.shape
-        if n < 1:
-            raise ValueError("fuse needs at least one source map per fusion (n >= 1)")
         mask = _as_bool_mask(valid, (b, n), maps.device)
         maps = maps.to(self.head.weight.dtype)  # float64 observations: convert, don't fail
         all_valid = bool(mask.all())

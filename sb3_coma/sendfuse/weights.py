@@ -122,12 +122,11 @@ def save_weights(model: SenDFuseNet, path: str | os.PathLike[str], metadata: Map
         raise TypeError(f"save_weights expects a SenDFuseNet, got {type(model).__name__}")
     extra = dict(metadata or {})
     for key, value in extra.items():
-        if not isinstance(key, str) or not isinstance(value, str):
+        if not (isinstance(key, str) and isinstance(value, str)) or key == _KEY_FORMAT or key.startswith(_PREFIX):
             raise ValueError(
-                f"metadata keys and values must be str (safetensors stores strings), got {key!r}: {value!r}"
+                f"metadata {key!r}: {value!r}: keys and values must be str (safetensors stores strings), and "
+                f"{_KEY_FORMAT!r} and {_PREFIX}* keys are reserved for the architecture record"
             )
-        if key == _KEY_FORMAT or key.startswith(_PREFIX):
-            raise ValueError(f"metadata key {key!r} is reserved for the architecture record; pick another name")
     # Contiguous copies: the model keeps its parameters channels-last, safetensors needs plain
     # row-major tensors; the values (and hence a reload) are bit-identical.
     tensors = {name: t.detach().to("cpu").contiguous() for name, t in model.state_dict().items()}
@@ -179,11 +178,10 @@ def shipped_digest(path: str | os.PathLike[str]) -> str | None:
 
 def _resolve(path: str | os.PathLike[str] | None) -> Path:
     target = default_weights_path() if path is None else Path(path)
-    if not target.exists():
-        which = "the shipped pre-trained SenDFuse weights" if path is None else "SenDFuse weights"
-        raise SenDFuseWeightsError(f"{which} not found at {target}; {_HOW_TO_CREATE}")
     if not target.is_file():
-        raise SenDFuseWeightsError(f"SenDFuse weights path {target} is not a file")
+        which = "the shipped pre-trained SenDFuse weights" if path is None else "SenDFuse weights"
+        there = " (there is a folder, not a file)" if target.exists() else ""
+        raise SenDFuseWeightsError(f"{which} not found at {target}{there}; {_HOW_TO_CREATE}")
     expected = SHIPPED_SHA256.get(DEFAULT_GRID_SIZE) if path is None else shipped_digest(target)
     if expected is not None and _file_sha256(target) != expected:
         raise SenDFuseWeightsError(
@@ -194,12 +192,14 @@ def _resolve(path: str | os.PathLike[str] | None) -> Path:
     return target
 
 
-def read_metadata(path: str | os.PathLike[str] | None = None) -> dict[str, str]:
-    """The string metadata of a weight file (architecture record plus provenance), unvalidated."""
-    target = _resolve(path)
+def _read(target: Path, with_tensors: bool) -> tuple[dict[str, str], dict[str, torch.Tensor]]:
+    """(metadata, tensors or ``{}``) of a safetensors file; any failure of the reader is one
+    :class:`SenDFuseWeightsError` (the header or the layout is broken)."""
     try:
         with safe_open(str(target), framework="pt") as handle:
-            return dict(handle.metadata() or {})
+            meta = dict(handle.metadata() or {})
+            names = handle.keys() if with_tensors else []
+            return meta, {name: handle.get_tensor(name) for name in names}
     except Exception as exc:  # SafetensorError, OSError, UnicodeDecodeError, ...
         raise SenDFuseWeightsError(
             f"{target} is not a readable safetensors file (truncated or corrupt?): {exc}; "
@@ -207,24 +207,25 @@ def read_metadata(path: str | os.PathLike[str] | None = None) -> dict[str, str]:
         ) from exc
 
 
+def read_metadata(path: str | os.PathLike[str] | None = None) -> dict[str, str]:
+    """The string metadata of a weight file (architecture record plus provenance), unvalidated."""
+    return _read(_resolve(path), with_tensors=False)[0]
+
+
 def _config_from_metadata(meta: Mapping[str, str], target: Path) -> SenDFuseConfig:
-    if meta.get(_KEY_FORMAT) != FORMAT_NAME:
+    """The architecture a file records, once its format, format version and architecture are the
+    ones this sb3-coma writes (one rule: every field of the record as expected)."""
+    version = meta.get(_KEY_VERSION, "")
+    record = (
+        ("format", meta.get(_KEY_FORMAT), FORMAT_NAME),
+        ("format version", int(version) if version.isdigit() else version, FORMAT_VERSION),
+        ("architecture", meta.get(_KEY_ARCH), ARCHITECTURE),
+    )
+    wrong = [f"{field} {got!r}, expected {want!r}" for field, got, want in record if got != want]
+    if wrong:
         raise SenDFuseWeightsError(
-            f"{target} is a safetensors file but not a SenDFuse weight file "
-            f"(metadata 'format' is {meta.get(_KEY_FORMAT)!r}, expected {FORMAT_NAME!r})"
-        )
-    version_text = meta.get(_KEY_VERSION, "")
-    if not version_text.isdigit():
-        raise SenDFuseWeightsError(f"{target}: bad or missing {_KEY_VERSION!r} in metadata: {version_text!r}")
-    version = int(version_text)
-    if version != FORMAT_VERSION:
-        hint = "upgrade sb3-coma" if version > FORMAT_VERSION else "re-create the file"
-        raise SenDFuseWeightsError(
-            f"{target} has SenDFuse format version {version}, this sb3-coma reads version {FORMAT_VERSION}; {hint}"
-        )
-    if meta.get(_KEY_ARCH) != ARCHITECTURE:
-        raise SenDFuseWeightsError(
-            f"{target} stores architecture {meta.get(_KEY_ARCH)!r}, this sb3-coma builds {ARCHITECTURE!r}"
+            f"{target} is not a SenDFuse weight file this sb3-coma reads: its metadata has {'; '.join(wrong)}; "
+            f"re-create it ({_HOW_TO_CREATE}), or upgrade sb3-coma for a newer format"
         )
     try:
         grid_size = int(meta[_KEY_GRID])
@@ -273,15 +274,7 @@ def load_weights(
             shapes or dtypes, non-finite values, or a config mismatch.
     """
     target = _resolve(path)
-    try:
-        with safe_open(str(target), framework="pt") as handle:
-            meta = dict(handle.metadata() or {})
-            tensors = {name: handle.get_tensor(name) for name in handle.keys()}  # noqa: SIM118 (not a dict)
-    except Exception as exc:  # SafetensorError, OSError, ...: the header or the layout is broken
-        raise SenDFuseWeightsError(
-            f"{target} is not a readable safetensors file (truncated or corrupt?): {exc}; "
-            f"re-download or {_HOW_TO_CREATE}"
-        ) from exc
+    meta, tensors = _read(target, with_tensors=True)
     config = _config_from_metadata(meta, target)
     _check_expected(config, expected_config, target)
 
@@ -289,27 +282,24 @@ def load_weights(
     reference = model.state_dict()
     missing = sorted(set(reference) - set(tensors))
     unexpected = sorted(set(tensors) - set(reference))
-    if missing or unexpected:
+    problems = [f"missing {missing}"] if missing else []
+    problems += [f"unexpected {unexpected}"] if unexpected else []
+    problems += [
+        f"tensor {name!r} has shape {tuple(t.shape)} and dtype {t.dtype}, the architecture record implies "
+        f"{tuple(reference[name].shape)} and {reference[name].dtype}"
+        for name, t in tensors.items()
+        if name in reference and (t.shape != reference[name].shape or t.dtype != reference[name].dtype)
+    ]
+    if problems:
         raise SenDFuseWeightsError(
             f"{target} does not hold the tensors of a {ARCHITECTURE} network with {config.as_dict()}: "
-            f"missing {missing or 'none'}, unexpected {unexpected or 'none'}"
+            + "; ".join(problems)
         )
-    for name, tensor in tensors.items():
-        if tuple(tensor.shape) != tuple(reference[name].shape):
-            raise SenDFuseWeightsError(
-                f"{target}: tensor {name!r} has shape {tuple(tensor.shape)}, "
-                f"the architecture record implies {tuple(reference[name].shape)}"
-            )
-        if tensor.dtype != reference[name].dtype:
-            raise SenDFuseWeightsError(
-                f"{target}: tensor {name!r} has dtype {tensor.dtype}, expected {reference[name].dtype}"
-            )
     stored_digest = meta.get(_KEY_SHA)
-    if stored_digest is None:
-        raise SenDFuseWeightsError(f"{target}: metadata lacks the {_KEY_SHA!r} checksum; {_HOW_TO_CREATE}")
-    if _digest(tensors) != stored_digest:
+    if stored_digest is None or _digest(tensors) != stored_digest:
         raise SenDFuseWeightsError(
-            f"{target}: tensor data does not match its checksum (corrupt file); re-download or {_HOW_TO_CREATE}"
+            f"{target}: tensor data does not match its checksum {_KEY_SHA!r} ({stored_digest or 'missing'}): a "
+            f"corrupt file, or not written by sb3-coma; re-download or {_HOW_TO_CREATE}"
         )
     for name, tensor in tensors.items():
         if not bool(torch.isfinite(tensor).all()):

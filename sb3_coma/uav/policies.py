@@ -162,11 +162,16 @@ class _Actor(_Head):
         return logits
 
 
+def _is_positive(value: Any) -> bool:
+    """A finite number > 0 (not a bool): the rule of ``correction_bound`` and ``gain_prior_speed``."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < math.inf
+
+
 def _correction_bound(value: Any) -> float | None:
     """``None`` or a finite number > 0, with an error that names the bad value."""
     if value is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (value > 0 and math.isfinite(value)):
+    if not _is_positive(value):
         raise ValueError(f"correction_bound={value!r}: must be null (unbounded) or a finite number > 0")
     return float(value)
 
@@ -174,64 +179,56 @@ def _correction_bound(value: Any) -> float | None:
 def _gain_input_size(value: Any, observation_space: spaces.Dict) -> int:
     """How many ``action_gain`` values the actor's network reads (0: none), with errors that name
     the bad value."""
-    if not isinstance(value, bool):
-        raise ValueError(f"gain_inputs={value!r}: must be true or false")
-    if not value:
-        return 0
     space = observation_space.spaces.get(layout.KEY_GAIN)
-    if space is None:
-        raise ValueError(f"gain_inputs=True needs observation[{layout.KEY_GAIN!r}]: make the env with action_gain=True")
-    return int(math.prod(space.shape or (0,)))
+    if not isinstance(value, bool) or (value and space is None):
+        raise ValueError(
+            f"gain_inputs={value!r}: must be true or false, and gain_inputs=True needs "
+            f"observation[{layout.KEY_GAIN!r}]: make the env with action_gain=True"
+        )
+    return int(math.prod(space.shape or (0,))) if value and space is not None else 0
 
 
 def _prior_init(gain_prior: Any, speed: Any, observation_space: spaces.Dict) -> tuple[float, ...]:
     """The starting weight of each ``action_gain`` row (empty: no prior), with errors that name the
     bad value. A single number applies to every row."""
-    try:
-        speed = float(speed)
-    except (TypeError, ValueError):
-        raise ValueError(f"gain_prior_speed={speed!r}: must be a number") from None
-    if not (speed > 0.0 and math.isfinite(speed)):
+    if not _is_positive(speed):
         raise ValueError(f"gain_prior_speed={speed!r}: must be a finite number > 0")
     scalar = isinstance(gain_prior, (int, float)) and not isinstance(gain_prior, bool)
     try:
         weights = [float(gain_prior)] if scalar else [float(w) for w in gain_prior]
     except (TypeError, ValueError):
-        raise ValueError(
-            f"gain_prior={gain_prior!r}: must be a number or a list of numbers, one per "
-            f"{layout.KEY_GAIN!r} row {layout.GAIN_WEIGHTINGS}"
-        ) from None
+        weights = []
     if not weights or not all(w >= 0.0 and math.isfinite(w) for w in weights):
-        raise ValueError(f"gain_prior={gain_prior!r}: weights must be finite numbers >= 0 (0 = no prior)")
+        raise ValueError(
+            f"gain_prior={gain_prior!r}: must be a number or a list of numbers, one per {layout.KEY_GAIN!r} row "
+            f"{layout.GAIN_WEIGHTINGS}; weights must be finite numbers >= 0 (0 = no prior)"
+        )
     if not any(w > 0 for w in weights):
         return ()
-    if layout.KEY_GAIN not in observation_space.spaces:
-        raise ValueError(
-            f"gain_prior={gain_prior!r} needs observation[{layout.KEY_GAIN!r}]: make the env "
-            "with action_gain=True (the default), or use gain_prior=0"
-        )
-    rows = int((observation_space[layout.KEY_GAIN].shape or (0,))[0])
-    if scalar:
-        return tuple(weights * rows)
-    if len(weights) != rows:
+    has_gain = layout.KEY_GAIN in observation_space.spaces
+    rows = int((observation_space[layout.KEY_GAIN].shape or (0,))[0]) if has_gain else 0
+    if not has_gain or not (scalar or len(weights) == rows):
         raise ValueError(
             f"gain_prior={gain_prior!r}: needs one weight per {layout.KEY_GAIN!r} row, "
             f"{rows} ({', '.join(layout.GAIN_WEIGHTINGS)}), got {len(weights)}"
+            + (
+                ""
+                if has_gain
+                else "; the observation has none: make the env with action_gain=True (the default), or use gain_prior=0"
+            )
         )
-    return tuple(weights)
+    return tuple(weights * rows) if scalar else tuple(weights)
 
 
 def _check_box(obs_space: spaces.Dict, key: str, shape: tuple[int, ...] | None, what: str) -> spaces.Box:
-    if key not in obs_space.spaces:
+    """``obs_space[key]``, a Box (of ``shape`` when given): one rule, one message naming what is there."""
+    box = obs_space.spaces.get(key)
+    if not isinstance(box, spaces.Box) or shape not in (None, tuple(box.shape)):
+        got = tuple(box.shape) if isinstance(box, spaces.Box) else box or f"no such key ({list(obs_space.spaces)})"
         raise ValueError(
-            f"the UAV policies need observation[{key!r}] ({what}); the observation has {list(obs_space.spaces)}: "
-            "for another env use MlpPolicy, CnnPolicy or MultiInputPolicy"
+            f"the UAV policies need observation[{key!r}] ({what}) as a Box{'' if shape is None else f' of shape {shape}'}"
+            f", got {got}: for another env use MlpPolicy, CnnPolicy or MultiInputPolicy"
         )
-    box = obs_space.spaces[key]
-    if not isinstance(box, spaces.Box):
-        raise ValueError(f"observation[{key!r}] must be a Box ({what}), got {box}")
-    if shape is not None and tuple(box.shape) != shape:
-        raise ValueError(f"observation[{key!r}] ({what}) must have shape {shape}, got {tuple(box.shape)}")
     return box
 
 
@@ -244,27 +241,23 @@ def check_uav_spaces(observation_space: spaces.Space, action_space: spaces.Space
 
     :raises ValueError: naming what is missing or has the wrong shape, and what to use instead
     """
-    if not isinstance(action_space, spaces.Discrete) or int(action_space.n) != layout.N_ACTIONS:
+    discrete = isinstance(action_space, spaces.Discrete) and int(action_space.n) == layout.N_ACTIONS
+    if not (discrete and isinstance(observation_space, spaces.Dict)):
+        shown = "a Dict" if isinstance(observation_space, spaces.Dict) else observation_space
         raise ValueError(
             f"the UAV policies (CBAMPolicy, UavCnnPolicy) need the action space Discrete({layout.N_ACTIONS}), "
-            f"got {action_space}: for another env use MlpPolicy, CnnPolicy or MultiInputPolicy"
-        )
-    if not isinstance(observation_space, spaces.Dict):
-        raise ValueError(
-            "the UAV policies (CBAMPolicy, UavCnnPolicy) need a Dict observation with keys "
-            f"{layout.KEY_LOCAL!r}, {layout.KEY_STATE!r}, {layout.KEY_MASK!r} (uav_ipp.make_vec_env); got "
-            f"{observation_space}: for another env use MlpPolicy, CnnPolicy (images) or MultiInputPolicy"
+            f"got {action_space}, and need a Dict observation with keys {layout.KEY_LOCAL!r}, {layout.KEY_STATE!r}, "
+            f"{layout.KEY_MASK!r} (uav_ipp.make_vec_env), got {shown}: for another env use MlpPolicy, CnnPolicy "
+            "or MultiInputPolicy"
         )
     local = _check_box(observation_space, layout.KEY_LOCAL, None, f"{layout.LOCAL_CHANNELS} x H x W actor maps")
     v2, v3 = layout.LOCAL_CHANNELS, layout.LOCAL_CHANNELS + layout.V3_LOCAL_EXTRA
-    if len(local.shape) != 3 or local.shape[0] not in (v2, v3):
+    if len(local.shape) != 3 or local.shape[0] not in (v2, v3) or min(local.shape[1:]) < 4:
         raw = local.shape[:1] in ((layout.RAW_LOCAL_CHANNELS,), (v3 - 1,))
         raise ValueError(
             f"observation[{layout.KEY_LOCAL!r}] must have shape ({v2}, H, W) or, observation v3, ({v3}, H, W); got "
-            f"{tuple(local.shape)}" + (" (a raw env: add a fusion wrapper)" if raw else "")
+            f"{tuple(local.shape)}" + (" (a raw env: add a fusion wrapper)" if raw else "") + "; H and W at least 4"
         )
-    if local.shape[1] < 4 or local.shape[2] < 4:
-        raise ValueError(f"observation[{layout.KEY_LOCAL!r}] maps must be at least 4 x 4, got {tuple(local.shape)}")
     state_channels = layout.STATE_CHANNELS + (layout.V3_STATE_EXTRA if local.shape[0] == v3 else 0)
     _check_box(observation_space, layout.KEY_STATE, (state_channels, *local.shape[1:]), "critic's global maps")
     _check_box(observation_space, layout.KEY_MASK, (layout.N_ACTIONS,), "valid-action mask")
