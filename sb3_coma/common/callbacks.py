@@ -94,6 +94,17 @@ def truncate_metrics_csv(path: str | os.PathLike[str], max_timesteps: int) -> in
     return len(kept)
 
 
+def _check_counts(optional: Sequence[str] = (), **counts: Any) -> None:
+    """The one rule of the callbacks' counts (windows, frequencies, missions): an integer >= 1,
+    or ``None`` for the names in ``optional``; the error names the first bad one and its value."""
+    for name, value in counts.items():
+        if value is None and name in optional:
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            allowed = "an integer >= 1" + (" or None" if name in optional else "")
+            raise ValueError(f"{name} must be {allowed}, got {value!r}")
+
+
 def _complete(row: dict[str, Any]) -> bool:
     """Every column of the row is there: a partial last line (a crash mid-write) is not."""
     return all(row.get(column) not in (None, "") for column in METRIC_COLUMNS)
@@ -186,8 +197,7 @@ class EpisodeMetricsCallback(BaseCallback):
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose)
-        if window < 1:
-            raise ValueError(f"window must be >= 1, got {window!r}")
+        _check_counts(window=window)
         self.csv_path = Path(csv_path) if csv_path is not None else None
         self.window = int(window)
         self.prefix = prefix
@@ -295,10 +305,7 @@ class JointCheckpointCallback(BaseCallback):
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose)
-        if isinstance(save_freq, bool) or not isinstance(save_freq, (int, np.integer)) or save_freq < 1:
-            raise ValueError(f"save_freq must be a positive number of joint steps, got {save_freq!r}")
-        if keep_last is not None and keep_last < 1:
-            raise ValueError(f"keep_last must be >= 1 or None, got {keep_last!r}")
+        _check_counts(("keep_last",), save_freq=save_freq, keep_last=keep_last)
         self.save_freq = int(save_freq)
         self.save_path = Path(save_path)
         self.name_prefix = name_prefix
@@ -373,13 +380,11 @@ class StopOnTargetCallback(BaseCallback):
         verbose: int = 1,
     ) -> None:
         super().__init__(verbose)
-        if metric not in self.METRICS:
-            raise ValueError(f"metric must be one of {self.METRICS}, got {metric!r}")
         mode = mode or ("below" if metric == "entropy" else "above")
-        if mode not in ("below", "above"):
-            raise ValueError(f"mode must be 'below' or 'above', got {mode!r}")
-        if window < 1:
-            raise ValueError(f"window must be >= 1, got {window!r}")
+        for name, value, allowed in (("metric", metric, self.METRICS), ("mode", mode, ("below", "above"))):
+            if value not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
+        _check_counts(window=window)
         self.metric = metric
         self.threshold = float(threshold)
         self.mode = mode
@@ -601,8 +606,7 @@ class MissionEvalCallback(EvalCallback):
         eval_seed: int | None = None,
         select_after: int = 0,
     ) -> None:
-        if n_eval_missions < 1:
-            raise ValueError(f"n_eval_missions must be >= 1, got {n_eval_missions!r}")
+        _check_counts(n_eval_missions=n_eval_missions)
         if eval_seed is not None and (isinstance(eval_seed, bool) or not isinstance(eval_seed, (int, np.integer))):
             raise ValueError(f"eval_seed must be an integer or None, got {eval_seed!r}")
         self.eval_seed = None if eval_seed is None else int(eval_seed)

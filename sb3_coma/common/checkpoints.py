@@ -154,24 +154,9 @@ def atomic_save(model: Any, path: str | os.PathLike[str], validate: bool = True)
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
-    """Write a text file atomically (temporary file + :func:`os.replace`)."""
-    final = Path(path)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    existed = final.exists()
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp_name, final)
-    except BaseException as exc:
-        Path(tmp_name).unlink(missing_ok=True)
-        full = _disk_full(exc, final, existed)
-        if full is not None:
-            raise full from exc
-        raise
-    return final
+    """Write a text file atomically: :func:`atomic_write` of its UTF-8 bytes (newlines as given)."""
+    data = text.encode("utf-8")
+    return atomic_write(path, lambda handle: handle.write(data))
 
 
 def folder_write_problem(path: str | os.PathLike[str]) -> str | None:
@@ -220,11 +205,12 @@ def _check_zip(path: Path, display: Path | None = None) -> dict[str, Any]:
     except (zipfile.BadZipFile, EOFError, OSError, zlib.error, NotImplementedError) as exc:
         raise CheckpointError(f"checkpoint {shown} is truncated or corrupt: {exc}") from exc
     try:
-        data = json.loads(raw)
+        data: Any = json.loads(raw)
     except json.JSONDecodeError as exc:
-        raise CheckpointError(f"checkpoint {shown} has an unreadable 'data' member: {exc}") from exc
-    if not isinstance(data, dict):
-        raise CheckpointError(f"checkpoint {shown} has an unreadable 'data' member (not a JSON object)")
+        data = exc
+    if not isinstance(data, dict):  # one rule: the 'data' member is a JSON object
+        reason = data if isinstance(data, json.JSONDecodeError) else "not a JSON object"
+        raise CheckpointError(f"checkpoint {shown} has an unreadable 'data' member: {reason}")
     return data
 
 

@@ -207,12 +207,12 @@ class LockstepPair:
 # --------------------------------------------------------------------------- pair generation
 def _normalised(mix: Mapping[str, float], allowed: Sequence[str], what: str) -> tuple[tuple[str, ...], np.ndarray]:
     names = tuple(mix)
-    unknown = [n for n in names if n not in allowed]
-    if unknown:
-        raise ValueError(f"unknown {what} {unknown}; choose from {tuple(allowed)}")
     weights = np.array([float(mix[n]) for n in names], dtype=np.float64)
-    if not names or (weights < 0).any() or not np.isfinite(weights).all() or weights.sum() <= 0:
-        raise ValueError(f"{what} weights must be finite, >= 0 and not all 0, got {dict(mix)}")
+    unknown = [n for n in names if n not in allowed]
+    if unknown or not names or (weights < 0).any() or not np.isfinite(weights).all() or weights.sum() <= 0:
+        raise ValueError(
+            f"{what} {dict(mix)}: names from {tuple(allowed)} (unknown: {unknown}) with finite weights >= 0, not all 0"
+        )
     return names, weights / weights.sum()
 
 
@@ -244,16 +244,30 @@ class PairConfig:
         _normalised(self.noise_mix, NOISE_PRESETS, "noise presets")
         _normalised(self.map_mix, MAP_KINDS, "map kinds")
         lo, hi = self.uavs
-        if not 2 <= lo <= hi:
-            raise ValueError(f"uavs must be (lo, hi) with 2 <= lo <= hi, got {self.uavs}")
-        if not self.comm_ranges or any(r <= 0 or not math.isfinite(r) for r in self.comm_ranges):
-            raise ValueError(f"comm_ranges must be finite positive distances, got {self.comm_ranges}")
-        for name in ("take", "own_take", "random_start"):
-            value = getattr(self, name)
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f"{name} must be a probability in [0, 1], got {value}")
-        if self.take + self.own_take <= 0:
-            raise ValueError("take and own_take cannot both be 0 (no pair would ever be kept)")
+        # One row per field: (name, value, accepted, what is allowed).
+        rules = [
+            ("uavs", self.uavs, 2 <= lo <= hi, "(lo, hi) with 2 <= lo <= hi"),
+            (
+                "comm_ranges",
+                self.comm_ranges,
+                bool(self.comm_ranges) and all(0 < r < math.inf for r in self.comm_ranges),
+                "finite positive distances",
+            ),
+            *((n, getattr(self, n), 0.0 <= getattr(self, n) <= 1.0, "a probability in [0, 1]") for n in _PROBABILITIES),
+            (
+                "take + own_take",
+                self.take + self.own_take,
+                self.take + self.own_take > 0,
+                "> 0 (with both 0 no pair would ever be kept)",
+            ),
+        ]
+        for name, value, accepted, allowed in rules:
+            if not accepted:
+                raise ValueError(f"{name} must be {allowed}, got {value}")
+
+
+#: The probabilities of :class:`PairConfig`.
+_PROBABILITIES = ("take", "own_take", "random_start")
 
 
 @dataclass

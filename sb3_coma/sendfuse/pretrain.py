@@ -65,25 +65,31 @@ class PretrainConfig:
 
     def validate(self) -> None:
         """Reject bad values with a message naming the option (the CLI turns it into a user error)."""
-        for name in ("samples", "epochs", "batch", "threads"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"--{name} must be a positive integer, got {value!r}")
-        if not (math.isfinite(self.lr) and self.lr > 0):
-            raise ValueError(f"--lr must be a positive number, got {self.lr!r}")
-        if not 0.0 <= self.val_fraction < 1.0:
-            raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction!r}")
-        if not 0.0 < self.final_lr_fraction <= 1.0:
-            raise ValueError(f"final_lr_fraction must be in (0, 1], got {self.final_lr_fraction!r}")
-        if (
-            isinstance(self.calibration_fusions, bool)
-            or not isinstance(self.calibration_fusions, int)
-            or self.calibration_fusions < 1
-        ):
-            raise ValueError(f"calibration_fusions must be a positive integer, got {self.calibration_fusions!r}")
-        if not self.calibration_scales or any(not (math.isfinite(c) and c > 0) for c in self.calibration_scales):
-            raise ValueError(f"calibration_scales must be positive numbers, got {self.calibration_scales!r}")
+
+        def count(v: Any) -> bool:
+            return isinstance(v, int) and not isinstance(v, bool) and v >= 1
+
+        # One row per option: (name as the CLI spells it, accepted, what is allowed).
+        rules = [(f"--{name}", count(getattr(self, name)), "a positive integer") for name in _COUNTS]
+        rules += [
+            ("--lr", math.isfinite(self.lr) and self.lr > 0, "a positive number"),
+            ("val_fraction", 0.0 <= self.val_fraction < 1.0, "in [0, 1)"),
+            ("final_lr_fraction", 0.0 < self.final_lr_fraction <= 1.0, "in (0, 1]"),
+            (
+                "calibration_scales",
+                bool(self.calibration_scales) and all(math.isfinite(c) and c > 0 for c in self.calibration_scales),
+                "positive numbers",
+            ),
+        ]
+        for name, accepted, allowed in rules:
+            if not accepted:
+                value = getattr(self, name.lstrip("-"))
+                raise ValueError(f"{name} must be {allowed}, got {value!r}")
         self.data.validate()
+
+
+#: The counts of :class:`PretrainConfig`, each an integer >= 1.
+_COUNTS = ("samples", "epochs", "batch", "threads", "calibration_fusions")
 
 
 @dataclass(frozen=True)

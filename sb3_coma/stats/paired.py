@@ -427,25 +427,23 @@ def check_same_missions(a: Any, b: Any) -> tuple[str, ...] | None:
     """Refuse (``ValueError`` naming the option and both values) to pair two results that are not
     the same missions flown under the same settings; return their scene labels (``None`` when
     neither result has them)."""
-    for attr in ("env", "seed", "n_trials"):
-        if getattr(a, attr) != getattr(b, attr):
-            raise ValueError(f"not the same missions: {attr} {getattr(a, attr)!r} vs {getattr(b, attr)!r}")
-    oa, ob = _effective_options(a), _effective_options(b)
-    keys = list(MISSION_OPTIONS) + sorted(set(_DEFAULTS) - set(MISSION_OPTIONS) - set(MAY_DIFFER))
-    for key in keys:
-        if _normal(oa.get(key)) != _normal(ob.get(key)):
-            what = "not the same missions" if key in MISSION_OPTIONS else "not flown under the same settings"
-            raise ValueError(
-                f"{what}: {key} {oa.get(key)!r} vs {ob.get(key)!r} ({getattr(a, 'method', 'a')} vs "
-                f"{getattr(b, 'method', 'b')})"
-            )
+    same, settings = "not the same missions", "not flown under the same settings"
     sa, sb = getattr(a, "scenes", None), getattr(b, "scenes", None)
     for s in (sa, sb):
         if s is not None and len(s) != a.n_trials:
             raise ValueError(f"{len(s)} scene labels for {a.n_trials} missions")
-    if sa is not None and sb is not None and tuple(sa) != tuple(sb):
-        k = next(i for i, (x, y) in enumerate(zip(sa, sb)) if x != y)
-        raise ValueError(f"not the same missions: scene of mission {k} {sa[k]!r} vs {sb[k]!r}")
+    oa, ob = _effective_options(a), _effective_options(b)
+    keys = list(MISSION_OPTIONS) + sorted(set(_DEFAULTS) - set(MISSION_OPTIONS) - set(MAY_DIFFER))
+    # One rule: every (what, value in a, value in b) below is equal, checked in this order.
+    compared = [(attr, getattr(a, attr), getattr(b, attr), same) for attr in ("env", "seed", "n_trials")]
+    compared += [(key, oa.get(key), ob.get(key), same if key in MISSION_OPTIONS else settings) for key in keys]
+    if sa is not None and sb is not None:
+        compared += [(f"scene of mission {k}", x, y, same) for k, (x, y) in enumerate(zip(sa, sb))]
+    for name, va, vb, what in compared:
+        if _normal(va) != _normal(vb):
+            raise ValueError(
+                f"{what}: {name} {va!r} vs {vb!r} ({getattr(a, 'method', 'a')} vs {getattr(b, 'method', 'b')})"
+            )
     known = sa if sa is not None else sb
     return None if known is None else tuple(str(s) for s in known)
 
