@@ -32,8 +32,6 @@ from sb3_coma.baselines.adaptive_gain import default_weighting
 from sb3_coma.common.timing import one_thread, time_call, torch_fusion
 from uav_ipp import layout
 
-_torch_fusion = torch_fusion  # until sb3_coma.experiments.reproduce imports it from sb3_coma.common.timing
-
 
 @dataclass(frozen=True)
 class CostRow:

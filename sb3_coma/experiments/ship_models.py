@@ -40,39 +40,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from sb3_coma import COMA, training_options
 from sb3_coma.app import pretrained as pt
 from sb3_coma.app.config import resolve_env_id
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.app.model_manifest import ModelEntry, ModelFields, as_entry, update_models
-from sb3_coma.app.training import VALIDATION_SEED, selection_end
+from sb3_coma.app.selection import run_command, validation_best
+from sb3_coma.app.training import VALIDATION_SEED
 from sb3_coma.common.evaluation import PROTOCOLS, validation_missions
 from sb3_coma.experiments.learning_curves import Validation, fly_validation
 from sb3_coma.experiments.reproduce import UNSEEN_MISSIONS, curve_from_metrics
 from uav_ipp import WORLD_VERSION
-
-
-def validation_best(run: Path) -> tuple[float, int]:
-    """(best mean validation return, joint steps of that evaluation) of a run, over the
-    evaluations that may select its model (:func:`sb3_coma.app.training.selection_end`: not
-    while a warm-started actor is still the clone). Refuses a run whose ``best_model.zip`` is not
-    that evaluation's checkpoint (trained before the rule, its best was a warm-up checkpoint)."""
-    data = np.load(run / "eval" / "evaluations.npz")
-    steps, means = data["timesteps"], data["results"].mean(axis=1)
-    entry = _run_entry(run)
-    allowed = np.flatnonzero(steps > selection_end(entry, int(entry["n_timesteps"])))
-    if not len(allowed):
-        raise ValueError(f"{run}: no evaluation after the warm-up may select its model")
-    best = int(allowed[np.argmax(means[allowed])])  # the first of equal bests, as EvalCallback keeps it
-    saved = run / "best_model.zip"
-    if saved.is_file() and COMA.load(saved, device="cpu").num_timesteps < steps[best]:
-        raise ValueError(
-            f"{run}: best_model.zip is an earlier checkpoint than its best selectable evaluation "
-            f"({int(steps[best])} joint steps): retrain it with this version (same seed, same result)"
-        )
-    return float(means[best]), int(steps[best])
 
 
 def _load_trained(model_file: Path) -> tuple[COMA, dict[str, Any]]:
@@ -84,32 +63,9 @@ def _load_trained(model_file: Path) -> tuple[COMA, dict[str, Any]]:
     return model, options
 
 
-def _run_entry(run: Path) -> dict[str, Any]:
-    """The config entry a run trained with (its ``config.yml``, without the ``run`` record)."""
-    data = yaml.safe_load((run / "config.yml").read_text())
-    return next(v for k, v in data.items() if k != "run")
-
-
 def run_length(run: Path) -> int:
     """Joint steps the run trained for (its last evaluation)."""
     return int(np.load(run / "eval" / "evaluations.npz")["timesteps"][-1])
-
-
-def run_command(run: Path) -> tuple[str, dict[str, Any]]:
-    """The ``sb3-coma train`` command a run folder records (without its run-folder and display
-    flags), and its ``run`` section."""
-    info = yaml.safe_load((run / "config.yml").read_text())["run"]
-    words = info["command"].split()
-    words = words[words.index("train") :]
-    kept, skip = [], False
-    for word in words:
-        if skip:
-            skip = False
-        elif word == "--run-dir":
-            skip = True
-        elif word != "--no-progress":
-            kept.append(word)
-    return "sb3-coma " + " ".join(kept), info
 
 
 #: A candidate spelt ``shipped``: the model shipped today under that name (its run folder may be

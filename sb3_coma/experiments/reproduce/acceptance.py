@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_coma.experiments.ablation import LABELS
+from sb3_coma.app.pretrained import ABLATION_LABELS as LABELS
 from sb3_coma.experiments.reproduce.options import ABLATION_CHECK_NOISE, ABLATION_FULL
 from sb3_coma.stats.paired import holm_adjust, paired_difference
 

@@ -10,10 +10,12 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from sb3_coma.app.evaluation import Method
+from sb3_coma.common.timing import one_thread, time_call
+from sb3_coma.common.timing import torch_fusion as _torch_fusion
 from sb3_coma.experiments import ablation as ab
-from sb3_coma.experiments.costs import _torch_fusion, costs_markdown, decision_costs, one_thread, time_call
+from sb3_coma.experiments.costs import costs_markdown, decision_costs
 from sb3_coma.experiments.noise_sweep import run_noise_sweep
-from sb3_coma.experiments.protocols import Method
 from sb3_coma.experiments.reproduce.options import (
     ABLATION_ENV,
     COST_REPEATS,
