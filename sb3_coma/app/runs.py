@@ -19,6 +19,7 @@ One process writes a run folder at a time (:func:`lock_run_folder`): a second ``
 
 from __future__ import annotations
 
+import csv
 import os
 import pickle
 import re
@@ -239,3 +240,12 @@ def load_checkpoint(path: str | os.PathLike[str], env: Any = None, **kwargs: Any
         ) from exc
     except (KeyError, ValueError, RuntimeError, zipfile.BadZipFile, EOFError) as exc:
         raise CheckpointError(f"checkpoint {path} could not be loaded: {exc}") from exc
+
+
+def curve_from_metrics(path: Path) -> list[float]:
+    """The ``reward`` column of a run's ``metrics.csv`` (the team reward of every finished mission),
+    the training curve that ``models.json`` records; empty when the run wrote none."""
+    if not path.is_file():
+        return []
+    with path.open() as fh:
+        return [round(float(row["reward"]), 4) for row in csv.DictReader(fh)]

@@ -46,11 +46,11 @@ from sb3_coma.app import pretrained as pt
 from sb3_coma.app.config import resolve_env_id
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.app.model_manifest import ModelEntry, ModelFields, as_entry, update_models
+from sb3_coma.app.runs import curve_from_metrics
 from sb3_coma.app.selection import run_command, validation_best
 from sb3_coma.app.training import VALIDATION_SEED
 from sb3_coma.common.evaluation import PROTOCOLS, validation_missions
 from sb3_coma.experiments.learning_curves import Validation, fly_validation
-from sb3_coma.experiments.reproduce import UNSEEN_MISSIONS, curve_from_metrics
 from uav_ipp import WORLD_VERSION
 
 
@@ -95,7 +95,9 @@ def _selection(scores: dict[str, tuple[float, int]]) -> dict[str, Any]:
 SCORED_FORM = "each seed in its shipped form (pretrained.save_for_shipping: half precision, no target critic)"
 
 
-def seed_spread(models: dict[str, Path], env: str, fusion: str, missions: int = UNSEEN_MISSIONS) -> dict[str, Any]:
+def seed_spread(
+    models: dict[str, Path], env: str, fusion: str, missions: int = PROTOCOLS["unseen"].n_trials
+) -> dict[str, Any]:
     """The ``seeds_unseen`` entry: each seed's selected model on the unseen protocol (final F1 and
     entropy of the global belief, mean over ``missions`` test missions, argmax actions), each flown
     in the form it would ship in (:func:`shipped_form`), so the shipped seed's numbers are the
@@ -125,7 +127,7 @@ def shipped_form(path: Path, folder: Path, label: str) -> Path:
     return folder / pt.save_for_shipping(model, f"{label.replace(' ', '_')}.zip", directory=folder)["file"]
 
 
-def rescore_shipped_seed(name: str, missions: int = UNSEEN_MISSIONS) -> dict[str, Any]:
+def rescore_shipped_seed(name: str, missions: int = PROTOCOLS["unseen"].n_trials) -> dict[str, Any]:
     """Today's ``seeds_unseen`` of shipped model ``name`` with its shipped seed re-flown from the
     shipped file itself (the other seeds' run folders may be gone: their numbers stay as recorded,
     and ``scored`` says which form each was flown in)."""

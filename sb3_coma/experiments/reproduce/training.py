@@ -7,7 +7,6 @@ curve the same way (:func:`curve_from_metrics`).
 
 from __future__ import annotations
 
-import csv
 import shutil
 import time
 from collections.abc import Callable
@@ -17,6 +16,7 @@ from typing import Any
 import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.app import pretrained as pt
+from sb3_coma.app.runs import curve_from_metrics
 from sb3_coma.app.training import train
 from sb3_coma.common.callbacks import ProgressLinesCallback
 from sb3_coma.experiments.reproduce.options import (
@@ -69,15 +69,6 @@ def train_command(env: str, fusion: str, seed: int = TRAIN_SEED, validate: bool 
     variant = variant_for(env, fusion)
     command = f"sb3-coma train --env {env}" + (f" --variant {variant}" if variant else "") + f" --seed {seed}"
     return command + (f" --eval-freq {TRAIN_EVAL_FREQ}" if validate else "")
-
-
-def curve_from_metrics(path: Path) -> list[float]:
-    """The ``reward`` column of a run's ``metrics.csv`` (the team reward of every finished mission),
-    the training curve that ``models.json`` records; empty when the run wrote none."""
-    if not path.is_file():
-        return []
-    with path.open() as fh:
-        return [round(float(row["reward"]), 4) for row in csv.DictReader(fh)]
 
 
 def _train_model(
