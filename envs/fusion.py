@@ -170,27 +170,27 @@ def fusion_factory(name: str) -> Callable[..., FusionWrapper]:
             )
         )
     entry = installed[name]
-    try:
+    try:  # one rule: the entry point loads a FusionWrapper subclass
         factory = entry.load()
+        why = (
+            None if isinstance(factory, type) and issubclass(factory, FusionWrapper) else "not a FusionWrapper subclass"
+        )
     except (ImportError, AttributeError) as exc:
-        raise ConfigError(f"fusion {name!r} ({entry.value}) cannot be loaded: {exc}") from exc
-    if not (isinstance(factory, type) and issubclass(factory, FusionWrapper)):
-        raise ConfigError(f"fusion {name!r}: entry point {entry.value} is not a FusionWrapper subclass")
+        why = str(exc)
+    if why is not None:
+        raise ConfigError(f"fusion {name!r} ({entry.value}) cannot be loaded: {why}")
     return factory
 
 
 def wrap_fusion(env: VectorEnv, fusion: str, **kwargs: Any) -> FusionWrapper | VectorEnv:
     """Apply the named fusion wrapper; ``"none"`` keeps the raw observation (for tools)."""
-    if fusion == RAW_FUSION:
-        if kwargs:
-            raise ConfigError(f"invalid option fusion_kwargs={kwargs!r}: fusion 'none' takes no options")
-        return env
-    factory = fusion_factory(fusion)
-    accepted = [n for n in list(inspect.signature(factory).parameters)[1:] if n not in ("args", "kwargs")]
+    factory = None if fusion == RAW_FUSION else fusion_factory(fusion)
+    parameters = [] if factory is None else list(inspect.signature(factory).parameters)[1:]
+    accepted = [n for n in parameters if n not in ("args", "kwargs")]
     unknown = sorted(set(kwargs) - set(accepted))
     if unknown:
         raise ConfigError(
             f"invalid option fusion_kwargs={kwargs!r}: fusion {fusion!r} does not take {unknown}; "
             f"it takes {accepted or 'no options'}"
         )
-    return factory(env, **kwargs)
+    return env if factory is None else factory(env, **kwargs)

@@ -71,8 +71,8 @@ def build_local_table(flip_probabilities: Sequence[float]) -> np.ndarray:
     """(TABLE_SIZE, 2 + GAIN_SLOTS) float32 per fixed-point log-odds value: probability, entropy
     (bits), then the gain of a reading at each altitude level, class-weighted first, then plain
     (``MAX_LEVELS`` columns each; levels the config does not have stay 0)."""
-    if len(flip_probabilities) > MAX_LEVELS:
-        raise ValueError(f"at most {MAX_LEVELS} altitude levels, got {len(flip_probabilities)}")
+    # IppConfig refuses more than 3 altitudes at the edge; the tables' width is the same limit
+    assert len(flip_probabilities) <= MAX_LEVELS, flip_probabilities
     p = kernels.table_probabilities()
     table = np.zeros((len(p), kernels.L_GAIN0 + kernels.GAIN_SLOTS), dtype=np.float32)
     table[:, kernels.L_PROB] = p

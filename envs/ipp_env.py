@@ -175,11 +175,8 @@ class UavIppEnv(ParallelEnv):
         )
 
     def _set_truth(self, truth: GroundTruth) -> None:
-        if truth.valuable.shape != self._truth_u8.shape:
-            raise ValueError(
-                f"map {truth.name!r} is {truth.valuable.shape[0]} x {truth.valuable.shape[1]} cells; "
-                f"this env's belief grid is {self.config.grid} x {self.config.grid}"
-            )
+        # _load_truth asks for the config's grid, so the shapes agree by construction
+        assert truth.valuable.shape == self._truth_u8.shape, (truth.name, truth.valuable.shape)
         self._truth = truth
         np.copyto(self._truth_u8, truth.valuable, casting="unsafe")
         self._n_valuable = int(self._truth_u8.sum())
@@ -357,12 +354,13 @@ class UavIppEnv(ParallelEnv):
         if not isinstance(actions, dict):
             raise TypeError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
         unknown = sorted(set(actions) - set(self.possible_agents))
-        if unknown:
-            raise ValueError(f"unknown agent(s) {unknown} in actions; agents are {self.possible_agents}")
-        acts = np.zeros(self.n_uavs, dtype=np.int64)  # a missing agent moves "up" unless masked -> hovers
         missing = [a for a in self.agents if a not in actions]
-        if missing:
-            raise ValueError(f"missing action(s) for {missing}; every live agent must act")
+        if unknown or missing:  # one rule: the actions name exactly the live agents
+            raise ValueError(
+                f"actions must name the live agents and no other: unknown agent(s) {unknown}, missing {missing}; "
+                f"every live agent must act, and the agents are {self.possible_agents}"
+            )
+        acts = np.zeros(self.n_uavs, dtype=np.int64)
         for i, agent in enumerate(self.possible_agents):
             value = actions[agent]
             if type(value) is int and 0 <= value < layout.N_ACTIONS:  # the common case, no numpy
@@ -370,9 +368,10 @@ class UavIppEnv(ParallelEnv):
                 continue
             try:
                 a = int(np.asarray(value).item())
+                valid = a == np.asarray(value).item() and 0 <= a < layout.N_ACTIONS
             except (TypeError, ValueError, OverflowError):  # OverflowError: an infinite float
-                raise ValueError(f"action for {agent} must be an integer in 0..5, got {value!r}") from None
-            if a != np.asarray(value).item() or not 0 <= a < layout.N_ACTIONS:
+                valid = False
+            if not valid:
                 raise ValueError(f"action for {agent} must be an integer in 0..5, got {value!r}")
             acts[i] = a
         return acts

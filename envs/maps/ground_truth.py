@@ -104,12 +104,10 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 
 def _check_int(value: object, what: str, minimum: int, maximum: int | None = None, hint: str = "") -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise MapError(f"{what}={value!r} must be an integer{hint}")
-    v = int(value)
-    if v < minimum or (maximum is not None and v > maximum):
+    v = int(value) if isinstance(value, (int, np.integer)) and not isinstance(value, bool) else None
+    if v is None or v < minimum or (maximum is not None and v > maximum):
         allowed = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
-        raise MapError(f"{what}={v} must be {allowed}{hint}")
+        raise MapError(f"{what}={value!r} must be an integer {allowed}{hint}")
     return v
 
 
@@ -350,19 +348,22 @@ def load_ground_truth(
     lattice, grid = check_grid(grid, lattice)
     rule = None if valuable is None else parse_rule(valuable)
     split = check_split(split)
-    if not isinstance(name, str):
-        raise MapError(f"map name {name!r} must be a string; built-in maps are {list(BUILTIN_MAPS)}")
-    key = name.strip().lower()
+    key = name.strip().lower() if isinstance(name, str) else None
+    if key is None or (map_path is None and key not in BUILTIN_MAPS):
+        hint = (
+            f"; to use an image file pass map_path={name!r} (and valuable=...)"
+            if isinstance(name, str) and _looks_like_path(name)
+            else "; or pass map_path= (and valuable=) for your own image"
+        )
+        raise MapError(f"unknown map {name!r}; built-in maps are {list(BUILTIN_MAPS)}{hint}")
     if map_path is not None:
-        if not isinstance(map_path, (str, os.PathLike)):
-            raise MapError(f"map_path={map_path!r} must be a file path (str or os.PathLike)")
+        if not isinstance(map_path, (str, os.PathLike)) or "\x00" in os.fspath(map_path):
+            raise MapError(f"map_path={map_path!r} must be a file path (str or os.PathLike) without NUL bytes")
         if split != "paper":
             raise MapError(
                 f"split={split!r} needs a built-in map {list(BUILTIN_MAPS)}: a user image "
                 f"(map_path={os.fspath(map_path)!r}) has no disjoint scenes, only split='paper'"
             )
-        if "\x00" in os.fspath(map_path):
-            raise MapError(f"map_path={os.fspath(map_path)!r} contains a NUL byte; no file can have that name")
         path = Path(map_path).expanduser()
         label = path.stem if key in BUILTIN_MAPS or not name.strip() else name.strip()
         try:
@@ -371,13 +372,6 @@ def load_ground_truth(
         except OSError:
             stamp = (0, 0)  # read_image below phrases the error (missing, not a file, ...)
         return _load_file(os.fspath(path), stamp, rule, grid, lattice, label)
-    if key not in BUILTIN_MAPS:
-        hint = (
-            f"; to use an image file pass map_path={name!r} (and valuable=...)"
-            if _looks_like_path(name)
-            else "; or pass map_path= (and valuable=) for your own image"
-        )
-        raise MapError(f"unknown map {name!r}; built-in maps are {list(BUILTIN_MAPS)}{hint}")
     if key == "env1":
         return (
             _load_env1(seed, rule, grid, lattice)

@@ -39,8 +39,16 @@ RULE_NAMES: tuple[str, ...] = ("threshold", "dark", "hottest", "coldest", "exces
 _ALIASES = {"excess_green": "excess-green", "exg": "excess-green", "otsu": "threshold"}
 #: Rules whose parameter is a pixel fraction and therefore mandatory (no sensible default).
 _FRACTION_RULES = ("hottest", "coldest")
-#: Allowed closed ranges of a rule's threshold; ExG = 3g - 1 lies in [-1, 2], NDVI in [-1, 1].
-_THRESHOLD_RANGE = {"threshold": (0.0, 1.0), "dark": (0.0, 1.0), "excess-green": (-1.0, 2.0), "ndvi": (-1.0, 1.0)}
+#: The allowed range of each rule's number: a threshold's closed range (ExG = 3g - 1 lies in
+#: [-1, 2], NDVI in [-1, 1]) or, for the fraction rules, the open interval (0, 1).
+_RANGES = {
+    "threshold": (0.0, 1.0),
+    "dark": (0.0, 1.0),
+    "excess-green": (-1.0, 2.0),
+    "ndvi": (-1.0, 1.0),
+    "hottest": (0.0, 1.0),
+    "coldest": (0.0, 1.0),
+}
 #: The NDVI threshold used when ``ndvi`` comes without one: a common "dense green vegetation" cut.
 DEFAULT_NDVI_THRESHOLD = 0.5
 #: A pixel (or grid cell, by its area-averaged alpha) counts as transparent below this opacity:
@@ -85,33 +93,29 @@ class MapImage:
 
 def parse_rule(rule: object) -> Rule:
     """Parse a rule string such as ``"hottest:0.3"``; raise :class:`MapError` naming what is wrong."""
-    if not isinstance(rule, str):
-        raise MapError(f"valuable rule must be a string, got {rule!r} ({type(rule).__name__}); {_RULE_HELP}")
-    text = rule.strip().lower()
-    name, sep, arg = text.partition(":")
-    name = _ALIASES.get(name.strip(), name.strip())
-    if name not in RULE_NAMES:
-        raise MapError(f"unknown valuable rule {rule!r}; {_RULE_HELP}")
-    arg = arg.strip()
-    if not sep or arg == "":
-        if sep:  # "hottest:" with nothing after the colon is a typo, not a request for a default
-            raise MapError(f"valuable rule {rule!r} has a ':' but no number after it; {_RULE_HELP}")
-        if name in _FRACTION_RULES:
-            raise MapError(f"valuable rule {rule!r} needs a fraction, e.g. '{name}:0.3'; {_RULE_HELP}")
+    name, sep, arg = (rule.strip().lower() if isinstance(rule, str) else "").partition(":")
+    name, arg = _ALIASES.get(name.strip(), name.strip()), arg.strip()
+    if name not in RULE_NAMES:  # also anything that is not a string
+        raise MapError(f"unknown valuable rule {rule!r} ({type(rule).__name__}); {_RULE_HELP}")
+    fraction = name in _FRACTION_RULES
+    if not arg:
+        # "hottest:" with nothing after the colon is a typo, not a request for a default
+        if sep or fraction:
+            what = "a fraction" if fraction else "a number after the ':'"
+            raise MapError(f"valuable rule {rule!r} needs {what}, e.g. '{name}:0.3'; {_RULE_HELP}")
         return Rule(name, None)
     try:
         value = float(arg)
     except ValueError:
-        raise MapError(f"valuable rule {rule!r}: {arg!r} is not a number; {_RULE_HELP}") from None
+        value = math.nan
     if not math.isfinite(value):
-        raise MapError(f"valuable rule {rule!r}: {arg!r} is not a finite number; {_RULE_HELP}")
-    if name in _FRACTION_RULES:
-        if not 0.0 < value < 1.0:
-            raise MapError(f"valuable rule {rule!r}: the fraction {value:g} must lie strictly between 0 and 1")
-    else:
-        lo, hi = _THRESHOLD_RANGE[name]
-        if not lo <= value <= hi:
-            raise MapError(f"valuable rule {rule!r}: the threshold {value:g} must lie in [{lo:g}, {hi:g}] for '{name}'")
+        raise MapError(f"valuable rule {rule!r}: {arg!r} is not a number (a finite one); {_RULE_HELP}")
+    lo, hi = _RANGES[name]
+    if not (lo < value < hi if fraction else lo <= value <= hi):
+        allowed = f"strictly between {lo:g} and {hi:g}" if fraction else f"in [{lo:g}, {hi:g}] for '{name}'"
+        raise MapError(
+            f"valuable rule {rule!r}: the {'fraction' if fraction else 'threshold'} {value:g} must lie {allowed}"
+        )
     return Rule(name, value)
 
 
@@ -180,25 +184,21 @@ def apply_rule(rule: Rule, image: MapImage, label: str) -> np.ndarray:
             )
         exg = _chromatic_exg(image.rgb)
         mask = exg > (otsu_threshold(data(exg)) if value is None else value)
-    elif kind == "ndvi":
+    else:
+        assert kind == "ndvi", kind  # parse_rule only produces RULE_NAMES
         if image.ndvi is None:
             raise MapError(
                 f"valuable rule '{rule}' needs a near-infrared band, which only env3 ships; "
                 f"map {label!r} has none (try 'excess-green')"
             )
         mask = image.ndvi > (DEFAULT_NDVI_THRESHOLD if value is None else value)
-    else:  # parse_rule only produces RULE_NAMES; this guards future edits
-        raise MapError(f"unknown valuable rule {kind!r}; {_RULE_HELP}")
     if valid is not None:
         mask &= valid
     n = int(mask.sum())
-    if n == 0:
+    if n in (0, mask.size):  # all-or-nothing: one rule, whichever side it falls on
+        which = "no" if n == 0 else "every"
         raise MapError(
-            f"valuable rule '{rule}' marks no pixel of map {label!r} valuable; choose another rule or threshold"
-        )
-    if n == mask.size:
-        raise MapError(
-            f"valuable rule '{rule}' marks every pixel of map {label!r} valuable; choose another rule or threshold"
+            f"valuable rule '{rule}' marks {which} pixel of map {label!r} valuable; choose another rule or threshold"
         )
     return mask
 
@@ -322,10 +322,8 @@ def _decode(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """
     p = Path(path)
     shown = os.fspath(path)
-    if not p.exists():
-        raise MapError(f"map_path {shown!r} does not exist")
     if not p.is_file():
-        raise MapError(f"map_path {shown!r} is not a file")
+        raise MapError(f"map_path {shown!r} {'is not a file' if p.exists() else 'does not exist'}")
     try:
         data = np.fromfile(p, dtype=np.uint8)
     except OSError as exc:
@@ -336,13 +334,11 @@ def _decode(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     except cv2.error:
         img = None
-    if img is None:
+    if img is None or img.size == 0 or img.ndim < 2:
         raise MapError(
-            f"map_path {shown!r} is not an image cv2 can decode "
+            f"map_path {shown!r} is not an image cv2 can decode, or one of 0 pixels "
             "(use PNG, JPEG, TIFF, BMP or another format OpenCV reads)"
         )
-    if img.size == 0 or img.ndim < 2 or img.shape[0] == 0 or img.shape[1] == 0:
-        raise MapError(f"map_path {shown!r} is an empty image (0 pixels)")
     return data, img
 
 

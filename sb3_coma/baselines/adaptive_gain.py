@@ -221,18 +221,28 @@ class AdaptiveGainPlanner(Planner):
         knowledge: str = "shared",
     ) -> None:
         super().__init__(venv, seed)
-        if isinstance(discount, bool) or not isinstance(discount, (int, float)) or not 0.0 <= float(discount) <= 1.0:
-            raise ValueError(f"ag discount={discount!r}: must be a number in [0, 1]")
-        if weighting not in WEIGHTINGS:
-            raise ValueError(f"ag weighting={weighting!r}: choose one of {WEIGHTINGS}")
-        if (
-            isinstance(lookahead, bool)
-            or not isinstance(lookahead, (int, np.integer))
-            or not 1 <= lookahead <= MAX_LOOKAHEAD
-        ):
-            raise ValueError(f"ag lookahead={lookahead!r}: an integer from 1 (greedy AG) to {MAX_LOOKAHEAD}")
-        if knowledge not in KNOWLEDGE:
-            raise ValueError(f"ag knowledge={knowledge!r}: choose one of {KNOWLEDGE}")
+        # One row per option: (name, value, accepted, what is allowed); ``weighting`` is the
+        # world's own rule (check_weighting, below).
+        rules = (
+            (
+                "discount",
+                discount,
+                isinstance(discount, (int, float)) and not isinstance(discount, bool) and 0.0 <= discount <= 1.0,
+                "must be a number in [0, 1]",
+            ),
+            (
+                "lookahead",
+                lookahead,
+                isinstance(lookahead, (int, np.integer))
+                and not isinstance(lookahead, bool)
+                and 1 <= lookahead <= MAX_LOOKAHEAD,
+                f"an integer from 1 (greedy AG) to {MAX_LOOKAHEAD}",
+            ),
+            ("knowledge", knowledge, knowledge in KNOWLEDGE, f"choose one of {KNOWLEDGE}"),
+        )
+        for name, value, accepted, allowed in rules:
+            if not accepted:
+                raise ValueError(f"ag {name}={value!r}: {allowed}")
         self.discount = float(discount)
         self.weighting = check_weighting(weighting)
         self.lookahead = int(lookahead)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import torch as th
 from gymnasium import spaces
@@ -112,15 +113,26 @@ class CBAM(nn.Module):
 
 def _map_space(observation_space: spaces.Space, key: str | None) -> spaces.Box:
     """The (C, H, W) Box the trunk reads, from a Box or from ``observation_space[key]``."""
-    if isinstance(observation_space, spaces.Dict):
-        if key is None or key not in observation_space.spaces:
-            raise ValueError(
-                f"a Dict observation space needs `key` naming one of {list(observation_space.spaces)}, got key={key!r}"
-            )
-        observation_space = observation_space.spaces[key]
-    if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 3:
-        raise ValueError(f"expected a (C, H, W) Box observation space, got {observation_space}")
+    space = observation_space.spaces.get(key or "") if isinstance(observation_space, spaces.Dict) else observation_space
+    if not isinstance(space, spaces.Box) or len(space.shape) != 3:
+        raise ValueError(
+            f"expected a (C, H, W) Box observation space, or a Dict with `key` naming one, got {observation_space}"
+            f"{f' and key={key!r}' if isinstance(observation_space, spaces.Dict) else ''}"
+        )
+    observation_space = space
     return observation_space
+
+
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+
+
+def _is_finite(value: Any) -> bool:
+    """A finite number, or anything ``float()`` turns into one (a YAML string such as ``"0.5"``)."""
+    try:
+        return math.isfinite(float(value))
+    except (TypeError, ValueError):
+        return False
 
 
 class _Trunk(BaseFeaturesExtractor):
@@ -138,24 +150,26 @@ class _Trunk(BaseFeaturesExtractor):
         residual: bool = False,
     ) -> None:
         box = _map_space(observation_space, key if isinstance(observation_space, spaces.Dict) else None)
-        if isinstance(features_dim, bool) or not isinstance(features_dim, int) or features_dim < 1:
-            raise ValueError(f"features_dim must be an integer >= 1, got {features_dim!r}")
-        if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in channels):
-            raise ValueError(f"channels must be three integers >= 1, got {channels!r}")
+        # One row per argument: (name, value, accepted, what is allowed).
+        rules = (
+            ("features_dim", features_dim, _is_count(features_dim), "an integer >= 1"),
+            (
+                "channels",
+                channels,
+                len(channels) == 3 and all(_is_count(c) for c in channels),
+                "three widths (conv1, conv2, conv3), integers >= 1",
+            ),
+            ("gate_bias", gate_bias, _is_finite(gate_bias), "a number (finite)"),
+            ("residual", residual, isinstance(residual, bool), "true or false"),
+        )
+        for name, value, accepted, allowed in rules:
+            if not accepted:
+                raise ValueError(f"{name} must be {allowed}, got {value!r}")
         super().__init__(observation_space, features_dim)
-        if len(channels) != 3:
-            raise ValueError(f"channels must hold three widths (conv1, conv2, conv3), got {channels!r}")
         self.key = key if isinstance(observation_space, spaces.Dict) else None
         in_ch, height, width = box.shape
         c1, c2, c3 = (int(c) for c in channels)
-        try:
-            gate_bias = float(gate_bias)
-        except (TypeError, ValueError):
-            raise ValueError(f"gate_bias must be a number, got {gate_bias!r}") from None
-        if not math.isfinite(gate_bias):
-            raise ValueError(f"gate_bias must be finite, got {gate_bias!r}")
-        if not isinstance(residual, bool):
-            raise ValueError(f"residual must be true or false, got {residual!r}")
+        gate_bias = float(gate_bias)
 
         def attend(width: int) -> nn.Module:
             return CBAM(width, reduction, open_bias=gate_bias, residual=residual) if use_cbam else nn.Identity()

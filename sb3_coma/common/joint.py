@@ -131,13 +131,12 @@ def resolve_n_agents(env: VecEnv) -> int:
             n_agents = values[0] if values else None
         except Exception:  # any failure means "the env does not say"
             n_agents = None
-    if n_agents is None:
-        raise ValueError(
-            "the vec env does not expose `n_agents` (agents per env copy); COMA cannot regroup its "
-            "rows into joint steps. Build it with sb3_coma.make_marl_vec_env(parallel_env) or set `n_agents` on it."
-        )
     if isinstance(n_agents, bool) or not isinstance(n_agents, int) or n_agents < 1:
-        raise ValueError(f"`n_agents` must be a positive int, got {n_agents!r}")
+        raise ValueError(
+            f"the vec env does not expose `n_agents` (agents per env copy) as a positive int (got {n_agents!r}); "
+            "COMA cannot regroup its rows into joint steps. Build it with sb3_coma.make_marl_vec_env(parallel_env) "
+            "or set `n_agents` on it."
+        )
     if env.num_envs % n_agents != 0:
         raise ValueError(
             f"num_envs={env.num_envs} is not a multiple of n_agents={n_agents}: the vec env must hold "
@@ -159,15 +158,17 @@ def resolve_state_source(env: VecEnv, n_agents: int) -> tuple[str, spaces.Space]
     if source is None:
         has_key = isinstance(env.observation_space, spaces.Dict) and KEY_STATE in env.observation_space.spaces
         source = "obs" if has_key else "env" if state_space is not None and hasattr(env, "get_state") else "concat"
-    if source not in STATE_SOURCES:
-        raise ValueError(f"the vec env's state_source {source!r} is not one of {STATE_SOURCES}")
-    if source == "env" and not isinstance(state_space, spaces.Box):
-        raise ValueError(f"state_source 'env' needs a Box state_space on the vec env, got {state_space!r}")
-    if source == "obs" and not (
-        isinstance(env.observation_space, spaces.Dict) and KEY_STATE in env.observation_space.spaces
-    ):
+    # One rule: a known source whose input the env provides.
+    provided = {
+        "obs": isinstance(env.observation_space, spaces.Dict) and KEY_STATE in env.observation_space.spaces,
+        "env": isinstance(state_space, spaces.Box),
+        "concat": True,
+    }
+    if not provided.get(source, False):
         raise ValueError(
-            f"state_source 'obs' needs a {KEY_STATE!r} key in the observation, got {env.observation_space}"
+            f"the vec env's state_source {source!r} must be one of {STATE_SOURCES} with its input: 'obs' a "
+            f"{KEY_STATE!r} key in the observation (got {env.observation_space}), 'env' a Box state_space "
+            f"(got {state_space!r})"
         )
     return source, state_space_of(source, env.observation_space, n_agents, state_space)
 
