@@ -57,7 +57,7 @@ import torch as th
 from torch import nn
 
 from sb3_coma import __version__
-from sb3_coma.app.config import TrainingError, load_config, path_name_problem, split_env_kwargs
+from sb3_coma.app.config import TrainingError, load_config, path_name_problem
 from sb3_coma.app.methods import is_unknown_name, resolve_method
 from sb3_coma.app.pretrained import available, pretrained_dir, sha256_file
 from sb3_coma.app.runs import read_run_config, run_folder_of
@@ -294,32 +294,28 @@ def _config_dict(config: Any) -> dict[str, Any]:
     return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
 
 
-def _settings(
-    env: str, fusion: str, fusion_kwargs: Mapping[str, Any], options: Mapping[str, Any], origin: str
-) -> dict[str, Any]:
-    """The ``env`` block of the JSON: map, fusion, options as trained and the full resolved config."""
-    config = IppConfig.from_options(env, **dict(options))
+def _settings(config: IppConfig, fusion: str, fusion_kwargs: Mapping[str, Any], origin: str) -> dict[str, Any]:
+    """The ``env`` block of the JSON: map, fusion, the options that differ from ``IppConfig``'s
+    defaults and the full resolved config."""
+    resolved = _config_dict(config)
+    defaults = _config_dict(IppConfig(map_name=config.map_name))
     return {
-        "name": env,
+        "name": config.map_name,
         "fusion": fusion,
         "fusion_kwargs": dict(fusion_kwargs),
-        "options": dict(options),
-        "config": _config_dict(config),
+        "options": {k: v for k, v in resolved.items() if k != "map_name" and v != defaults[k]},
+        "config": resolved,
         "from": origin,
     }
 
 
 def _recorded_settings(env_options: Mapping[str, Any] | None, origin: str) -> dict[str, Any] | None:
-    """Settings from the env options a model records (``sb3_coma.training_options``): the options
-    that differ from ``IppConfig``'s defaults, and the full config."""
+    """Settings from the env options a model records (``sb3_coma.training_options``)."""
     if not env_options:
         return None
     recorded = dict(env_options)
     name, fusion, fusion_kwargs = recorded.pop("map"), recorded.pop("fusion"), recorded.pop("fusion_kwargs", {})
-    config = _config_dict(IppConfig.from_options(name, **recorded))
-    defaults = _config_dict(IppConfig(map_name=name))
-    options = {k: v for k, v in config.items() if k != "map_name" and v != defaults[k]}
-    return _settings(name, fusion, fusion_kwargs or {}, options, origin)
+    return _settings(IppConfig.from_options(name, **recorded), fusion, fusion_kwargs or {}, origin)
 
 
 def settings_of_source(source: ModelSource) -> dict[str, Any] | None:
@@ -338,19 +334,18 @@ def settings_of_source(source: ModelSource) -> dict[str, Any] | None:
         origin = f"models.json entry {source.given!r}"
         try:
             cfg = load_config(env=env, variant=variant)
-            fusion, fusion_kwargs, options = split_env_kwargs(cfg.env_kwargs)
+            config, fusion, fusion_kwargs = cfg.world.config, cfg.world.fusion, dict(cfg.world.fusion_kwargs)
             origin += f" (variant {variant!r} of {cfg.source})" if variant else f" ({cfg.source})"
         except TrainingError as exc:  # config file gone: the manifest's own fields still hold
-            fusion, fusion_kwargs, options = str(info.get("fusion", "sendfuse")), {}, {}
+            config, fusion, fusion_kwargs = IppConfig(map_name=env), str(info.get("fusion", "sendfuse")), {}
             origin += f"; its config could not be read ({exc}), env options are the defaults"
-        return _settings(env, str(info.get("fusion", fusion)), fusion_kwargs, options, origin)
+        return _settings(config, str(info.get("fusion", fusion)), fusion_kwargs, origin)
     if source.run_dir is not None:
         try:
             cfg = read_run_config(source.run_dir)
         except TrainingError:
             return None
-        fusion, fusion_kwargs, options = split_env_kwargs(cfg.env_kwargs)
-        return _settings(cfg.map_name, fusion, fusion_kwargs, options, f"run config {cfg.source}")
+        return _settings(cfg.world.config, cfg.world.fusion, cfg.world.fusion_kwargs, f"run config {cfg.source}")
     return None
 
 
@@ -382,12 +377,8 @@ def settings_of_model(model: Any) -> dict[str, Any] | None:
         return None
     config = venv.get_attr("config", indices=[0])[0]
     wrapper = fusion_wrapper(venv)
-    defaults = _config_dict(IppConfig(map_name=config.map_name))
-    options = {k: v for k, v in _config_dict(config).items() if k != "map_name" and v != defaults[k]}
     fusion_kwargs = {"alpha": wrapper.alpha} if getattr(wrapper, "alpha", None) is not None else {}
-    return _settings(
-        config.map_name, getattr(wrapper, "name", "unknown"), fusion_kwargs, options, "the env attached to the model"
-    )
+    return _settings(config, getattr(wrapper, "name", "unknown"), fusion_kwargs, "the env attached to the model")
 
 
 # =========================================================================== building the graphs
@@ -668,10 +659,9 @@ def _settings_from_spaces(model: Any, fusion: str) -> dict[str, Any]:
     if layout.KEY_GAIN not in space.spaces:
         options["action_gain"] = False
     return _settings(
-        "unknown",
+        IppConfig.from_options("unknown", **options),
         fusion,
         {},
-        options,
         "not recorded: options implied by the model's observation "
         "space, the rest are defaults (the map does not change the observation layout)",
     )
