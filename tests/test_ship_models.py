@@ -14,6 +14,7 @@ from tiny_runs import ENV, tiny_entry
 
 from sb3_coma.app import pretrained as pt
 from sb3_coma.app.training import train
+from sb3_coma.app.validation_flights import validation_return
 from sb3_coma.experiments import ship_models as sm
 
 
@@ -59,9 +60,9 @@ def shipped_folder(tmp_path, monkeypatch):
 
     monkeypatch.setattr(sm, "seed_spread", fake_spread)
     monkeypatch.setattr(sm, "_entry_of_run", fake_entry)
-    monkeypatch.setattr(sm, "_load_trained", lambda path: (path, {"map": "env3", "fusion": "mean"}))
+    monkeypatch.setattr(sm, "load_trained", lambda path: (path, {"map": "env3", "fusion": "mean"}))
     # flown today, not the recorded 7.1 (the fake "model" is its file)
-    monkeypatch.setattr(sm, "_validation_return", lambda model, options: 8.0)
+    monkeypatch.setattr(sm, "model_validation_return", lambda model, options: 8.0)
     return folder, spread_calls
 
 
@@ -110,7 +111,7 @@ def test_a_checkpoint_flown_today_scores_what_its_run_recorded(tmp_path):
     _, run = train(env="env1", config=config, seed=3, run_dir=tmp_path / "run", eval_freq=16, eval_missions=4,
                    progress_bar=False, verbose=0)  # fmt: skip
     recorded = np.load(run / "eval" / "evaluations.npz")["results"].mean(axis=1).max()
-    assert sm.validation_return(run / "best_model.zip", missions=4) == pytest.approx(float(recorded), abs=1e-6)
+    assert validation_return(run / "best_model.zip", missions=4) == pytest.approx(float(recorded), abs=1e-6)
 
 
 def test_a_bare_zip_competes_but_cannot_be_shipped(tmp_path, shipped_folder, monkeypatch):
@@ -120,12 +121,12 @@ def test_a_bare_zip_competes_but_cannot_be_shipped(tmp_path, shipped_folder, mon
         def __init__(self, path):
             self.path = path
 
-    monkeypatch.setattr(sm, "_load_trained", lambda path: (Model(path), {"map": "env3", "fusion": "mean"}))
-    monkeypatch.setattr(sm, "_validation_return", lambda m, o: 9.0 if str(m.path).endswith("old.zip") else 8.0)
+    monkeypatch.setattr(sm, "load_trained", lambda path: (Model(path), {"map": "env3", "fusion": "mean"}))
+    monkeypatch.setattr(sm, "model_validation_return", lambda m, o: 9.0 if str(m.path).endswith("old.zip") else 8.0)
     old = tmp_path / "old.zip"
     with pytest.raises(ValueError, match=r"old\.zip, has no run folder"):
         sm.ship("env3-mean-cnn", ["shipped", str(old)])
-    monkeypatch.setattr(sm, "_validation_return", lambda m, o: 6.0 if str(m.path).endswith("old.zip") else 8.0)
+    monkeypatch.setattr(sm, "model_validation_return", lambda m, o: 6.0 if str(m.path).endswith("old.zip") else 8.0)
     entry = sm.ship("env3-mean-cnn", ["shipped", str(old)])
     assert entry["seed"] == 0 and entry["selection"]["candidates"]["seed 5"] == {
         "best_validation_return": 6.0, "at_joint_steps": 21000}  # fmt: skip

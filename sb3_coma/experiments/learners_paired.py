@@ -16,7 +16,7 @@ Each ``label=CANDIDATES`` names one learner's seeds, comma-separated; a candidat
 * a run folder of ``sb3-coma train --eval-freq`` or of ``python -m sb3_coma.experiments.ippo_vs_ag``
   (its ``best_model.zip`` and ``eval/evaluations.npz``: the best validation return of the run),
 * ``shipped:NAME``, a shipped model, scored by flying it on today's validation missions
-  (``ship_models.validation_return``, the rule ``ship_models`` applies to it),
+  (``app.validation_flights.validation_return``, the rule ``ship_models`` applies to it),
 * or a model zip (only as a learner's single candidate: it has no validation score).
 The learner's row is the candidate with the highest validation return (split train, env seeds
 1000+, never the test split): ``sb3_coma.experiments.ship_models``'s rule for every learner alike.
@@ -48,8 +48,8 @@ from sb3_coma.app.arguments import add_env_argument, add_missions_argument
 from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
 from sb3_coma.app.selection import run_command, validation_best
+from sb3_coma.app.validation_flights import validation_return
 from sb3_coma.common.checkpoints import atomic_write_text
-from sb3_coma.experiments.ship_models import validation_return  # flies learning_curves.fly_validation
 from sb3_coma.stats.paired import PairedDifference, paired_difference, paired_markdown
 
 __all__ = ["METRICS", "Candidate", "Learner", "load", "main", "parse_learner", "select", "validation_score"]

@@ -67,14 +67,14 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
-from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from sb3_coma.app.config import TrainConfig, TrainingError, make_vec_env_from_kwargs, plain
+from sb3_coma.app.config import TrainConfig, TrainingError, plain
 from sb3_coma.app.evaluation import planner_options
 from sb3_coma.app.runs import CONFIG_FILE, TENSORBOARD_DIR, read_run_config
-from sb3_coma.app.training import VALIDATION_SEED, eval_copies
+from sb3_coma.app.training import VALIDATION_SEED
+from sb3_coma.app.validation_flights import MissionScores, Validation, fly_validation
 from sb3_coma.baselines import make_planner
 from sb3_coma.common.evaluation import PROTOCOLS
 from sb3_coma.experiments.figure_style import method_styles
@@ -98,36 +98,6 @@ class RunDirError(ValueError):
 
 
 # ------------------------------------------------------------------------------------ run folders
-@dataclass(frozen=True)
-class Validation:
-    """The validation missions of a run: what its ``MissionEvalCallback`` flew at every evaluation."""
-
-    env_id: str
-    #: ``env_kwargs`` without the fusion, as sorted JSON (hashable: runs that share it share missions)
-    options_json: str
-    missions: int
-    seed: int
-    n_agents: int
-
-    @property
-    def copies(self) -> int:
-        """Eval env copies, chosen as training chose them (so each copy flies the same missions)."""
-        return eval_copies(self.missions)
-
-    @property
-    def options(self) -> dict[str, Any]:
-        """The env options of the validation missions (without the fusion)."""
-        return json.loads(self.options_json)
-
-    def describe(self) -> str:
-        """One line for the table's notes: which missions, how many copies, which seeds."""
-        per_copy = self.missions // self.copies
-        return (
-            f"{self.missions} missions of {self.env_id} ({self.copies} env copies x {per_copy}, "
-            f"copy c from env seed {self.seed} + c), {self.n_agents} UAVs"
-        )
-
-
 @dataclass
 class RunCurve:
     """Validation F1 / entropy of one run at each evaluation."""
@@ -264,51 +234,6 @@ def read_run(run: str | Path, eval_seed: int | None = None) -> RunCurve:
 
 
 # ------------------------------------------------------------------------------------ validation missions
-@dataclass
-class MissionScores:
-    """Per-mission final F1, entropy and team return of one flight of the validation missions."""
-
-    f1: np.ndarray
-    entropy: np.ndarray
-    returns: np.ndarray
-
-
-def fly_validation(
-    validation: Validation,
-    predictor_for: Callable[[VecEnv], Any],
-    fusion: str = "mean",
-    fusion_kwargs: dict[str, Any] | None = None,
-) -> MissionScores:
-    """Fly the validation missions as ``MissionEvalCallback`` does (module docstring), with the
-    predictor ``predictor_for(venv)`` builds on the eval env (``returns``: SB3's per-row returns)."""
-    env_kwargs = {**validation.options, "fusion": fusion, **({"fusion_kwargs": fusion_kwargs} if fusion_kwargs else {})}
-    venv = make_vec_env_from_kwargs(validation.env_id, env_kwargs, n_envs=validation.copies, seed=validation.seed)
-    f1: list[float] = []
-    entropy: list[float] = []
-
-    def read_infos(locals_: dict[str, Any], _globals: dict[str, Any]) -> None:
-        # MissionEvalCallback._log_success_callback: a mission ends on every row of its copy; read it once.
-        if locals_["done"] and locals_["i"] % validation.n_agents == 0:
-            f1.append(float(locals_["info"]["f1"]))
-            entropy.append(float(locals_["info"]["entropy"]))
-
-    try:
-        predictor = predictor_for(venv)
-        venv.seed(validation.seed)  # MissionEvalCallback._on_step: applies to evaluate_policy's reset
-        returns, _ = evaluate_policy(
-            predictor,
-            venv,
-            n_eval_episodes=validation.missions * validation.n_agents,
-            deterministic=True,
-            return_episode_rewards=True,
-            warn=False,
-            callback=read_infos,
-        )
-    finally:
-        venv.close()
-    return MissionScores(np.array(f1), np.array(entropy), np.asarray(returns, dtype=np.float64))
-
-
 def baseline_scores(validation: Validation, name: str) -> MissionScores:
     """Baseline ``name`` (built as ``evaluate`` builds it) flown on the validation missions."""
 

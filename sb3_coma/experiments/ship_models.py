@@ -41,26 +41,15 @@ from typing import Any
 
 import numpy as np
 
-from sb3_coma import COMA, training_options
+from sb3_coma import COMA
 from sb3_coma.app import pretrained as pt
-from sb3_coma.app.config import resolve_env_id
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.app.model_manifest import ModelEntry, ModelFields, as_entry, update_models
 from sb3_coma.app.runs import curve_from_metrics
 from sb3_coma.app.selection import run_command, validation_best
-from sb3_coma.app.training import VALIDATION_SEED
-from sb3_coma.common.evaluation import PROTOCOLS, validation_missions
-from sb3_coma.experiments.learning_curves import Validation, fly_validation
+from sb3_coma.app.validation_flights import load_trained, model_validation_return
+from sb3_coma.common.evaluation import PROTOCOLS
 from uav_ipp import WORLD_VERSION
-
-
-def _load_trained(model_file: Path) -> tuple[COMA, dict[str, Any]]:
-    """A model zip and the env options it records (map, fusion, ...)."""
-    model = COMA.load(model_file, device="cpu")
-    options = training_options(model)
-    if options is None:
-        raise ValueError(f"{model_file} records no env options: not a model of a training run")
-    return model, options
 
 
 def run_length(run: Path) -> int:
@@ -154,43 +143,18 @@ def rescore_shipped_seed(name: str, missions: int = PROTOCOLS["unseen"].n_trials
     return {**spread, "metrics": metrics, "scored": form}
 
 
-def validation_return(model_file: Path, missions: int | None = None) -> float:
-    """Mean validation return of a model flown today, as ``MissionEvalCallback`` scores a checkpoint
-    (``learning_curves.fly_validation``: split train, env seeds from ``VALIDATION_SEED``, argmax):
-    the score of a candidate without its run folder. A recorded score can be stale (the env's
-    random streams changed since), a re-flown one cannot."""
-    return _validation_return(*_load_trained(model_file), missions)
-
-
-def _validation_return(model: COMA, options: dict[str, Any], missions: int | None = None) -> float:
-    """Today's validation missions: the validation protocol's (every train scene equally) where the
-    model trained on the train split, else its own env; ``missions`` default: the protocol's count."""
-    world = {k: v for k, v in options.items() if k not in ("map", "fusion", "fusion_kwargs")}
-    if world.get("split", "paper") == "train":
-        world.update(PROTOCOLS["validation"].env_options())
-    validation = Validation(
-        resolve_env_id(options["map"]),
-        json.dumps(world, sort_keys=True),
-        validation_missions(str(options["map"])) if missions is None else missions,
-        VALIDATION_SEED,
-        int(model.n_agents or 1),
-    )
-    scores = fly_validation(validation, lambda _venv: model, options["fusion"], options.get("fusion_kwargs") or None)
-    return float(scores.returns.mean())
-
-
 def _file_candidate(name: str, spec: str) -> tuple[str, tuple[float, int], Path, dict[str, Any] | None]:
     """(seed label, validation score flown today, model file, manifest entry or ``None``) of a
     candidate without a run folder: ``shipped`` (today's shipped ``name``) or a model zip."""
     entry = pt.read_manifest()["models"][name] if spec == SHIPPED else None
     path = pt.model_path(name) if spec == SHIPPED else Path(spec)
-    model, options = _load_trained(path)
+    model, options = load_trained(path)
     if entry is not None:
         seed = int(entry["seed"])
         steps = int(entry["selection"]["candidates"][f"seed {seed}"]["at_joint_steps"])
     else:
         seed, steps = int(model.seed or 0), int(model.num_timesteps)
-    return f"seed {seed}", (_validation_return(model, options), steps), path, entry
+    return f"seed {seed}", (model_validation_return(model, options), steps), path, entry
 
 
 def _flag_value(command: str, flag: str) -> str | None:
@@ -212,7 +176,7 @@ def shipped_file_name(name: str) -> str:
 def _entry_of_run(name: str, chosen: Path) -> dict[str, Any]:
     """The manifest entry of a run's ``best_model.zip``, saved into the shipped folder."""
     command, info = run_command(chosen)
-    model, env_options = _load_trained(chosen / "best_model.zip")
+    model, env_options = load_trained(chosen / "best_model.zip")
     fusion = env_options["fusion"]
     extractor = "cnn" if model.policy.features_extractor_class.__name__.startswith("Cnn") else "cbam"
     wall = (chosen / "model.zip").stat().st_mtime - (chosen / "config.yml").stat().st_mtime
@@ -306,7 +270,7 @@ def ship(name: str, runs: Sequence[Path | str]) -> dict[str, Any]:
             raise ValueError(f"{name}: two candidates of {label}")
         scores[label] = score
     best = max(scores, key=lambda label: scores[label][0])
-    _, options = _load_trained(next(iter(files.values())))  # the candidates are seeds of one setting
+    _, options = load_trained(next(iter(files.values())))  # the candidates are seeds of one setting
     spread = seed_spread(files, options["map"], options["fusion"])
     if best in folders:  # flown before: saving the winner replaces today's shipped file
         entry = _keep_same_file(name, lambda: _entry_of_run(name, folders[best]))
