@@ -58,11 +58,11 @@ def test_reproduce_quick_end_to_end(tmp_path, capsys):
 
 def test_reproduce_refuses_bad_input(tmp_path, capsys):
     assert main(["reproduce", "--quick", "--ship", "--out", str(tmp_path)]) == 2
-    assert "--ship needs --train" in capsys.readouterr().err
+    assert "ship must be used with train=True" in capsys.readouterr().err
     assert main(["reproduce", "--quick", "--env", "env9", "--out", str(tmp_path), "--no-docs"]) == 2
     assert "unknown shipped model 'env9'" in capsys.readouterr().err
     assert main(["reproduce", "--quick", "--wide-trials", "1", "--out", str(tmp_path), "--no-docs"]) == 2
-    assert "--wide-trials must be 0 (skip) or >= 2, got 1" in capsys.readouterr().err
+    assert "wide_trials must be 0 (skip) or an integer >= 2, got 1" in capsys.readouterr().err
 
 
 def test_acceptance_logic():

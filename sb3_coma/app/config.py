@@ -164,37 +164,49 @@ def read_config_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     :raises TrainingError: missing file, invalid YAML (with line and column), not a mapping
     """
     p = Path(path)
-    if not p.exists():
-        raise TrainingError(f"config file {p} does not exist")
-    if p.is_dir():
-        raise TrainingError(f"config file {p} is a folder")
+    data: Any = None
     try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TrainingError(f"config file {p} cannot be read: {exc}") from exc
-    try:
-        data = yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        where = ""
-        mark = getattr(exc, "problem_mark", None)
-        if mark is not None:
-            where = f" at line {mark.line + 1}, column {mark.column + 1}"
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise TrainingError(f"config file {p} is not valid YAML{where}: {problem}") from exc
-    if not isinstance(data, dict):
-        raise TrainingError(
-            f"config file {p} must be a mapping of env ids to hyperparameters, got {type(data).__name__}"
+        data = yaml.load(p.read_text(encoding="utf-8"), Loader=_UniqueKeyLoader)  # a SafeLoader subclass
+        problem = (
+            None
+            if isinstance(data, dict)
+            else f"must be a mapping of env ids to hyperparameters, got {type(data).__name__}"
         )
-    return data
+    except FileNotFoundError:
+        problem = "does not exist"
+    except IsADirectoryError:
+        problem = "is a folder"
+    except (OSError, UnicodeDecodeError) as exc:
+        problem = f"cannot be read: {exc}"
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = "" if mark is None else f" at line {mark.line + 1}, column {mark.column + 1}"
+        problem = f"is not valid YAML{where}: {getattr(exc, 'problem', None) or str(exc).splitlines()[0]}"
+    if problem is not None:  # one rule: the file is a readable YAML mapping
+        raise TrainingError(f"config file {p} {problem}")
+    return dict(data)
 
 
 def list_variants(path: str | os.PathLike[str] | None = None) -> dict[str, dict[str, Any]]:
     """The ``variants`` mapping of a config file (name -> overrides)."""
     p = Path(path) if path is not None else default_config_path()
-    variants = read_config_file(p).get(VARIANTS_KEY) or {}
-    if not isinstance(variants, dict):
-        raise TrainingError(f"config file {p}: '{VARIANTS_KEY}' must be a mapping of names to overrides")
-    return variants
+    return _variants(read_config_file(p), p)
+
+
+def _variants(data: Mapping[str, Any], path: Path) -> dict[str, dict[str, Any]]:
+    """A config file's ``variants``: a mapping of names to mappings of overrides (``null``: none)."""
+    variants = data.get(VARIANTS_KEY) or {}
+    bad = [] if isinstance(variants, dict) else [VARIANTS_KEY]
+    bad += [
+        f"variant {name!r}"
+        for name, extra in (variants.items() if not bad else ())
+        if not isinstance(extra or {}, dict)
+    ]
+    if bad:
+        raise TrainingError(
+            f"config file {path}: {bad[0]} must be a mapping of overrides (variants: name -> overrides)"
+        )
+    return {name: dict(extra or {}) for name, extra in variants.items()}
 
 
 # =========================================================================== validation
@@ -411,23 +423,34 @@ _WARM_START_DEFAULTS: dict[str, Any] = {"teacher": "oracle", "rounds": 8, "missi
 
 
 def check_warm_start(spec: Any, where: str) -> dict[str, Any]:
-    """The ``warm_start`` mapping with its defaults, or a :class:`TrainingError` naming the bad value."""
-    if not isinstance(spec, Mapping):
-        raise TrainingError(f"{where}: warm_start must be a mapping (teacher, rounds, missions, critic_warmup)")
-    unknown = sorted(set(spec) - set(_WARM_START_DEFAULTS))
-    if unknown:
-        raise TrainingError(f"{where}: warm_start does not take {unknown}; keys: {sorted(_WARM_START_DEFAULTS)}")
-    out = {**_WARM_START_DEFAULTS, **spec}
+    """The ``warm_start`` mapping with its defaults, or a :class:`TrainingError` naming the bad value.
+
+    One table of (setting, value, rule, what is allowed) and one raise: the mapping itself, its
+    keys and each value are one kind of check."""
+    is_map = isinstance(spec, Mapping)
+    out = {**_WARM_START_DEFAULTS, **(spec if is_map else {})}
     teachers = sorted(name for name, cls in PLANNERS.items() if cls.uses_env_state)
-    if out["teacher"] not in teachers:
-        raise TrainingError(f"{where}: warm_start teacher={out['teacher']!r}: one of {teachers}")
-    for key in ("rounds", "missions"):
-        value = out[key]
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise TrainingError(f"{where}: warm_start {key}={value!r}: an integer >= 1")
-    warmup = out["critic_warmup"]
-    if isinstance(warmup, bool) or not isinstance(warmup, (int, float)) or not 0.0 <= warmup < 1.0:
-        raise TrainingError(f"{where}: warm_start critic_warmup={warmup!r}: a number in [0, 1)")
+    unknown = sorted(set(spec) - set(_WARM_START_DEFAULTS)) if is_map else []
+
+    def number(value: Any) -> bool:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+    table: list[tuple[str, Any, bool, str]] = [
+        ("", spec, is_map, "a mapping (teacher, rounds, missions, critic_warmup)"),
+        (" keys", unknown, not unknown, f"each one of {sorted(_WARM_START_DEFAULTS)}"),
+        (" teacher", out["teacher"], out["teacher"] in teachers, f"one of {teachers}"),
+        (" rounds", out["rounds"], is_int(out["rounds"]) and out["rounds"] >= 1, "an integer >= 1"),
+        (" missions", out["missions"], is_int(out["missions"]) and out["missions"] >= 1, "an integer >= 1"),
+        (
+            " critic_warmup",
+            out["critic_warmup"],
+            number(out["critic_warmup"]) and 0.0 <= out["critic_warmup"] < 1.0,
+            "a number in [0, 1)",
+        ),
+    ]
+    for name, value, ok, allowed in table:
+        if not ok:
+            raise TrainingError(f"{where}: warm_start{name}={value!r}: {allowed}")
     return out
 
 
@@ -563,11 +586,10 @@ def map_list(text: str, flag: str = "--env") -> list[str]:
     """The maps of a comma-separated option, each once: one line naming the option when it is
     empty or names one map twice (``env1`` and ``UavIpp-Env1-v0`` are one map)."""
     names = [e.strip() for e in text.split(",") if e.strip()]
-    if not names:
-        raise TrainingError(f"{flag} is empty")
     twice = repeated(names, map_key)
-    if twice:
-        raise TrainingError(f"{flag} {text!r} lists the map {twice[0]!r} twice: give each map once")
+    if not names or twice:  # one rule: each map once, at least one
+        listed = f"lists the map {twice[0]!r} twice" if twice else "names no map"
+        raise TrainingError(f"{flag} {text!r} {listed}: give each map once")
     return names
 
 
@@ -603,16 +625,11 @@ def _apply_overrides(entry: dict[str, Any], overrides: Mapping[str, Any]) -> dic
 
 
 def _variant_overrides(data: Mapping[str, Any], path: Path, variant: str) -> dict[str, Any]:
-    variants = data.get(VARIANTS_KEY) or {}
-    if not isinstance(variants, dict):
-        raise TrainingError(f"config file {path}: '{VARIANTS_KEY}' must be a mapping of names to overrides")
+    variants = _variants(data, path)
     if variant not in variants:
         known = ", ".join(sorted(map(str, variants))) or "none defined"
         raise TrainingError(f"unknown variant {variant!r} in config file {path} (variants: {known})")
-    extra = variants[variant] or {}
-    if not isinstance(extra, dict):
-        raise TrainingError(f"config file {path}: variant {variant!r} must be a mapping of overrides")
-    return extra
+    return variants[variant]
 
 
 def _entry_and_where(
@@ -621,13 +638,11 @@ def _entry_and_where(
     """The env's entry of a config file with a variant and overrides merged in, and how error
     messages name it."""
     entry = data.get(env_id)
-    if entry is None:
+    if not isinstance(entry, dict):  # one rule: the file has a mapping for the env
         present = [k for k in data if k in ENV_IDS] or [k for k in data if k not in (VARIANTS_KEY, RUN_KEY)]
-        raise TrainingError(
-            f"config file {p} has no entry for {env_id} (it has: {', '.join(map(str, present)) or 'none'})"
-        )
-    if not isinstance(entry, dict):
-        raise TrainingError(f"config file {p}: the entry for {env_id} must be a mapping, got {type(entry).__name__}")
+        has = f"it has: {', '.join(map(str, present)) or 'none'}"
+        got = "no entry" if entry is None else f"a {type(entry).__name__}, not a mapping,"
+        raise TrainingError(f"config file {p} has {got} for {env_id} ({has})")
     where = f"config {p} [{env_id}]"
     if variant is not None:
         entry = _merge(entry, _variant_overrides(data, p, variant))
@@ -740,12 +755,11 @@ def load_config(
 def import_dotted(name: str, what: str) -> Any:
     """``module.attr`` imported; :class:`TrainingError` naming ``what`` when it cannot be."""
     module_name, _, attr = name.rpartition(".")
-    if not module_name:
-        raise TrainingError(f"{what} {name!r} is neither a known alias nor a dotted path (module.Class)")
     try:
         return getattr(importlib.import_module(module_name), attr)
-    except (ImportError, AttributeError) as exc:
-        raise TrainingError(f"{what} {name!r} cannot be imported: {exc}") from exc
+    except (ImportError, AttributeError, ValueError) as exc:  # ValueError: no module part at all
+        why = exc if module_name else "it is neither a known alias nor a dotted path (module.Class)"
+        raise TrainingError(f"{what} {name!r} cannot be imported: {why}") from exc
 
 
 def resolve_policy_kwargs(value: Any) -> dict[str, Any]:
@@ -753,13 +767,16 @@ def resolve_policy_kwargs(value: Any) -> dict[str, Any]:
     (aliases ``CBAMExtractor``/``CnnExtractor`` or dotted paths) become classes."""
     if value is None:
         return {}
+    problem, text = None, value
     if isinstance(value, str):
         try:
             value = eval(value, dict(_POLICY_KWARGS_NAMES))  # rl-zoo3's documented format
         except Exception as exc:  # any error in the user's expression
-            raise TrainingError(f"policy_kwargs {value!r} is not a valid Python expression: {exc}") from exc
-    if not isinstance(value, dict):
-        raise TrainingError(f"policy_kwargs must be a mapping, got {value!r}")
+            problem = f"is not a valid Python expression: {exc}"
+    if problem is None and not isinstance(value, dict):
+        problem = f"must be a mapping, got {value!r}"
+    if problem is not None:  # one rule: a mapping, or an expression that makes one
+        raise TrainingError(f"policy_kwargs {text!r} {problem}")
     out = dict(value)
     for key, item in list(out.items()):
         if key.endswith("_class") and isinstance(item, str):

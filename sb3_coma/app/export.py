@@ -185,24 +185,21 @@ class ModelSource:
 def resolve_model_source(name_or_path: str | os.PathLike[str]) -> ModelSource:
     """A model zip path or a shipped model name -> :class:`ModelSource`, with errors naming the value."""
     text = os.fspath(name_or_path)
-    if not text.strip():
-        raise ExportError("--model is empty: pass a COMA model .zip or a shipped model name")
-    problem = path_name_problem(text)
-    if problem is not None:
-        raise ExportError(f"--model {text!r}: {problem}")
-    try:  # the evaluation's resolver: a shipped name means the verified package file, as there
-        method = resolve_method(text)
-    except (ValueError, OSError) as exc:  # a folder, a missing file, a checksum mismatch, not a COMA zip
-        if not is_unknown_name(text):
-            raise ExportError(str(exc)) from None
-        available_models = ", ".join(available()) or "none"
-        raise ExportError(
-            f"unknown model {text!r}: not a model file and not a shipped model (available: {available_models})"
-        ) from None
-    if method.source == "planner":
-        raise ExportError(
-            f"model {text!r} is a baseline planner, not a trained model: pass a COMA model .zip or a shipped model name"
-        )
+    problem = path_name_problem(text)  # an empty name, or one that is not text
+    method = None
+    if problem is None:
+        try:  # the evaluation's resolver: a shipped name means the verified package file, as there
+            method = resolve_method(text)
+        except (ValueError, OSError) as exc:  # a folder, a missing file, a checksum mismatch, not a COMA zip
+            available_models = ", ".join(available()) or "none"
+            unknown = (
+                f"unknown model {text!r}: not a model file and not a shipped model (available: {available_models})"
+            )
+            problem = unknown if is_unknown_name(text) else str(exc)
+    if method is not None and method.source == "planner":
+        problem = f"model {text!r} is a baseline planner, not a trained model"
+    if method is None or problem is not None:  # one rule: a trained model's file or shipped name
+        raise ExportError(f"--model {text!r}: {problem}; pass a COMA model .zip or a shipped model name")
     assert method.path is not None  # a name or a path resolves to a file
     if method.source == "shipped":
         return ModelSource(text, method.path, dict(method.shipped), None)
@@ -212,23 +209,22 @@ def resolve_model_source(name_or_path: str | os.PathLike[str]) -> ModelSource:
 def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
     """The output folder, checked before any work: not a file, and creatable / writable."""
     out = Path(out_dir)
-    if not str(out_dir).strip():
-        raise ExportError("--out is empty: pass the folder to write the ONNX files into")
-    problem = path_name_problem(out)
-    if problem is not None:
-        raise ExportError(f"--out {str(out)!r}: {problem}")
-    if out.exists() and not out.is_dir():
-        raise ExportError(f"--out {str(out)!r} is an existing file, not a folder")
     probe = out
-    while not probe.exists():  # the nearest existing ancestor is where the folder gets created
-        if probe.parent == probe:
-            break
+    while not probe.exists() and probe.parent != probe:  # the nearest existing ancestor: where it is made
         probe = probe.parent
-    if probe.exists() and not probe.is_dir():
-        raise ExportError(f"--out {str(out)!r} cannot be created: {str(probe)!r} is a file")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        where = "" if probe == out else f" ({str(probe)!r} is not writable)"
-        raise ExportError(f"--out {str(out)!r} is not writable{where}")
+    name_problem = path_name_problem(os.fspath(out_dir))  # an empty name, or one that is not text
+    problems = (  # in order, the first that applies
+        (name_problem is not None, f": {name_problem}; pass the folder to write the ONNX files into"),
+        (out.exists() and not out.is_dir(), " is an existing file, not a folder"),
+        (probe.exists() and not probe.is_dir(), f" cannot be created: {str(probe)!r} is a file"),
+        (
+            not os.access(probe, os.W_OK | os.X_OK),
+            " is not writable" + ("" if probe == out else f" ({str(probe)!r} is not writable)"),
+        ),
+    )
+    for applies, problem in problems:
+        if applies:
+            raise ExportError(f"--out {os.fspath(out_dir)!r}{problem}")
     return out
 
 
@@ -509,14 +505,15 @@ def _verify(path: Path, feeds: dict[str, np.ndarray], reference: Any, what: str)
     got = session.run(None, onnx_feeds(session, feeds))
     worst = 0.0
     for g, w in zip(got, reference(*(feeds[k] for k in names))):
-        if w.dtype.kind in "iu":
-            if not np.array_equal(g, w):
-                raise RuntimeError(f"ONNX export check failed: {what} {path} gives other actions than PyTorch")
-            continue
+        actions = w.dtype.kind in "iu"
         valid = w > MASKED_LOGIT / 2  # masked logits are one constant; compare the rest
-        diff = float(np.max(np.abs(g[valid] - w[valid]))) if valid.any() else 0.0
+        if actions:  # actions agree exactly or not at all
+            diff = 0.0 if np.array_equal(g, w) else math.inf
+        else:
+            diff = float(np.max(np.abs(g[valid] - w[valid]))) if valid.any() else 0.0
         if not diff <= 1e-4:
-            raise RuntimeError(f"ONNX export check failed: {what} {path} differs from PyTorch by {diff:g}")
+            how = "gives other actions than PyTorch" if actions else f"differs from PyTorch by {diff:g}"
+            raise RuntimeError(f"ONNX export check failed: {what} {path} {how}")
         worst = max(worst, diff)
     return worst
 
@@ -616,13 +613,14 @@ def _resolve_fusion(model: Any, fusion: str | None, given: Mapping[str, Any] | N
     check_fusion_matches(fusion, settings, f"fusion={fusion!r}")
     if fusion is None:
         fusion = (settings or {}).get("fusion")
-    if fusion not in FUSIONS:
-        if fusion is None or fusion == "unknown":
-            raise ExportError(
-                "cannot tell which fusion this model was trained with (no shipped-model entry, "
-                "run config or env with a fusion wrapper): pass fusion='sendfuse' or 'mean'"
-            )
-        raise ExportError(f"fusion={fusion!r}: choose one of {', '.join(FUSIONS)}")
+    if fusion not in FUSIONS:  # one rule: a fusion the export knows, given or recorded
+        told = fusion is not None and fusion != "unknown"
+        raise ExportError(
+            f"fusion={fusion!r}: choose one of {', '.join(FUSIONS)}"
+            if told
+            else "cannot tell which fusion this model was trained with (no shipped-model entry, "
+            "run config or env with a fusion wrapper): pass fusion='sendfuse' or 'mean'"
+        )
     if settings is None:
         settings = _settings_from_spaces(model, fusion)
     return fusion, {**settings, "fusion": fusion}

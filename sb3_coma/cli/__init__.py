@@ -43,8 +43,12 @@ def user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean "the user gave a bad value": printed as one line, exit 2.
 
     A function, not a constant, because the classes live in modules that import torch: they are
-    looked up only once a command has failed, never for ``--help``."""
+    looked up only once a command has failed, never for ``--help``. A command whose front door
+    reports every bad input as a plain ``ValueError`` names it in its module's ``USER_ERRORS``: the
+    one handler here then prints it as one line, instead of each command re-wrapping it."""
     from sb3_coma.app.config import TrainingError
+    from sb3_coma.app.outputs import OutputFolderError
+    from sb3_coma.app.pretrained import PretrainedError
     from sb3_coma.common.checkpoints import CheckpointError
     from sb3_coma.common.shipped import ShippedFileError
     from sb3_coma.sendfuse import SenDFuseWeightsError
@@ -60,6 +64,8 @@ def user_errors() -> tuple[type[BaseException], ...]:
         CheckpointError,
         SenDFuseWeightsError,
         ShippedFileError,
+        PretrainedError,
+        OutputFolderError,
     )
 
 
@@ -93,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _run(table[args.command], args)
     except Exception as exc:  # the user-error classes are imported only now that one may be needed
-        if not isinstance(exc, user_errors()):
+        if not isinstance(exc, (*user_errors(), *getattr(table[args.command], "USER_ERRORS", ()))):
             raise
         print(f"sb3-coma {args.command}: error: {exc}", file=sys.stderr)
         return 2

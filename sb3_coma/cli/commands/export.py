@@ -15,6 +15,9 @@ if TYPE_CHECKING:  # the export imports torch and onnx: run() imports it, --help
     from sb3_coma.coma import COMA
 
 NAME = "export"
+#: Every bad input of the export is a ``ValueError`` subclass (``ExportError``, ``PretrainedError``,
+#: ``CheckpointError``, ``OutputFolderError``), whose module loads onnx: this command's user errors.
+USER_ERRORS = (ValueError,)
 HELP = "export a trained model's actor and its fusion network to ONNX (+ a JSON of inputs and env options)"
 DESCRIPTION = (
     "Write actor.onnx (features extractor + action head + gain prior, masked logits and the argmax action), "
@@ -55,16 +58,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _load(source: ModelSource) -> COMA:
     """Load the model the source names: a shipped one after its checksum, a zip after validation."""
-    from sb3_coma.app.pretrained import PretrainedError, load_pretrained
+    from sb3_coma.app.pretrained import load_pretrained
     from sb3_coma.app.runs import load_checkpoint
-    from sb3_coma.common.checkpoints import CheckpointError
 
-    try:
-        if source.shipped is not None:
-            return load_pretrained(source.given)
-        return load_checkpoint(source.path, env=None, device="cpu")
-    except (PretrainedError, CheckpointError) as exc:  # corrupt, truncated, another algorithm
-        raise UserError(str(exc)) from None
+    # corrupt, truncated, another algorithm: a PretrainedError / CheckpointError, one line (USER_ERRORS)
+    if source.shipped is not None:
+        return load_pretrained(source.given)
+    return load_checkpoint(source.path, env=None, device="cpu")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -73,7 +73,6 @@ def run(args: argparse.Namespace) -> int:
         FUSION_FILE,
         METADATA_FILE,
         OPSET,
-        ExportError,
         check_fusion_matches,
         check_opset,
         check_out_dir,
@@ -81,19 +80,16 @@ def run(args: argparse.Namespace) -> int:
         resolve_model_source,
         settings_of_source,
     )
-    from sb3_coma.app.outputs import OutputFolderError, OutputInterrupted, staged_output
+    from sb3_coma.app.outputs import OutputInterrupted, staged_output
     from sb3_coma.common.checkpoints import validate_checkpoint
 
     # Every check that needs no model comes first: a bad --opset, --model or --out costs nothing.
-    try:
-        opset = check_opset(OPSET if args.opset is None else args.opset, f"--opset {args.opset}")
-        source = resolve_model_source(args.model)
-        out = check_out_dir(args.out)
-        validate_checkpoint(source.path)  # CheckpointError (a user error): empty, truncated, not COMA
-        settings = settings_of_source(source)
-        check_fusion_matches(args.fusion, settings, f"--fusion {args.fusion}")
-    except ExportError as exc:
-        raise UserError(str(exc)) from None
+    opset = check_opset(OPSET if args.opset is None else args.opset, f"--opset {args.opset}")
+    source = resolve_model_source(args.model)
+    out = check_out_dir(args.out)
+    validate_checkpoint(source.path)  # CheckpointError (a user error): empty, truncated, not COMA
+    settings = settings_of_source(source)
+    check_fusion_matches(args.fusion, settings, f"--fusion {args.fusion}")
     fusion = args.fusion or (settings or {}).get("fusion")
     if fusion is None:
         raise UserError(
@@ -106,8 +102,6 @@ def run(args: argparse.Namespace) -> int:
             paths = export_onnx(
                 model, staging, fusion=fusion, settings=settings, source=source, opset=opset, verify=not args.no_verify
             )
-    except (ExportError, OutputFolderError) as exc:
-        raise UserError(str(exc)) from None
     except OutputInterrupted as exc:  # SIGTERM: nothing was moved into --out
         print(f"sb3-coma {NAME}: {exc}", file=sys.stderr)
         return 128 + exc.signum

@@ -28,6 +28,9 @@ from sb3_coma.cli import UserError, set_threads
 # them, so that building the parser (``--help``) does not.
 
 NAME = "reproduce"
+#: ``reproduce()`` refuses a bad option (a count, an unknown or corrupt shipped model, env options,
+#: an --out it cannot replace) with a ``ValueError`` before any work: this command's user errors.
+USER_ERRORS = (ValueError,)
 HELP = (
     "reproduce the paper protocol (Table I), the unseen protocol, the env3 ablation, the noise sweep and the "
     "deployment cost table (shipped models or --train) into results/ and docs/RESULTS.md"
@@ -159,35 +162,6 @@ def _add_section_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _check_paired_counts(args: argparse.Namespace) -> None:
-    """Every verdict is a paired test on shared missions and needs at least 2 of them: a count of 1
-    would fly everything and report "nan" everywhere, so it is refused before any work, naming the
-    option. (--quick caps each count at 2, never below what is given.)"""
-    for flag, value in (
-        ("--trials", args.trials),
-        ("--unseen-missions", args.unseen_missions),
-        ("--sweep-missions", args.sweep_missions),
-    ):
-        if value == 1:
-            skip = "" if flag == "--trials" else " (0 skips it)"
-            raise UserError(
-                f"{flag} 1: the paired verdicts need at least 2 missions (with 1 every verdict is nan); "
-                f"use {flag} 2 or more{skip}"
-            )
-
-
-def _check_outputs(args: argparse.Namespace) -> None:
-    """--out and --docs, checked before minutes of missions rather than when the report is written."""
-    from sb3_coma.app.config import output_file_problem, output_folder_problem
-
-    problem = output_folder_problem(args.out)
-    if problem is not None:
-        raise UserError(f"--out {args.out!r} cannot take the results: {problem}")
-    problem = None if args.docs is None else output_file_problem(args.docs)
-    if problem is not None:
-        raise UserError(f"--docs {args.docs!r} cannot be written: {problem}")
-
-
 def _env_names(args: argparse.Namespace) -> list[str]:
     """The maps of --env, each once."""
     from sb3_coma.app.config import map_list
@@ -196,28 +170,31 @@ def _env_names(args: argparse.Namespace) -> list[str]:
 
 
 def _check_options(args: argparse.Namespace) -> None:
-    """--trials, the paired counts, the outputs, --seed and the combinations of flags."""
-    if args.trials < 1:
-        raise UserError(f"--trials must be >= 1, got {args.trials}")
-    _check_paired_counts(args)
-    _check_outputs(args)
-    if args.seed < 0:
-        raise UserError(f"--seed must be >= 0, got {args.seed}")
-    if args.ship and (not args.train or args.quick):
-        raise UserError("--ship needs --train (and not --quick)")
-    if args.baselines_only and (args.train or args.record):
-        raise UserError("--baselines-only flies no model: not with --train or --record")
+    """What only the command line adds to ``reproduce()``'s own rules (which it applies before any
+    work: counts, seed, --ship and --baselines-only), checked before minutes of missions.
 
+    Every verdict is a paired test on shared missions and needs at least 2 of them: a count of 1
+    would fly everything and report "nan" everywhere, so it is refused, naming the option (0 skips
+    the unseen and sweep steps; --quick caps each count at 2, never below what is given). --out
+    and --docs are checked now rather than when the report is written."""
+    from sb3_coma.app.config import output_file_problem, output_folder_problem
 
-def _check_counts(args: argparse.Namespace) -> None:
-    """--wide-trials, --unseen-missions, --sweep-missions and --timesteps."""
-    if args.wide_trials is not None and (args.wide_trials < 0 or args.wide_trials == 1):
-        raise UserError(f"--wide-trials must be 0 (skip) or >= 2, got {args.wide_trials}")
-    for flag, value in (("--unseen-missions", args.unseen_missions), ("--sweep-missions", args.sweep_missions)):
-        if value is not None and value < 0:
-            raise UserError(f"{flag} must be >= 0, got {value}")
-    if args.timesteps is not None and args.timesteps < 1:
-        raise UserError(f"--timesteps must be >= 1, got {args.timesteps}")
+    paired = "the paired verdicts need at least 2 missions (with 1 every verdict is nan)"
+    rules = [
+        *(
+            (flag, value, None if value != 1 else f"{paired}; use {flag} 2 or more{skip}")
+            for flag, value, skip in (
+                ("--trials", args.trials, ""),
+                ("--unseen-missions", args.unseen_missions, " (0 skips it)"),
+                ("--sweep-missions", args.sweep_missions, " (0 skips it)"),
+            )
+        ),
+        ("--out", args.out, output_folder_problem(args.out)),
+        ("--docs", args.docs, None if args.docs is None else output_file_problem(args.docs)),
+    ]
+    for flag, value, problem in rules:
+        if problem is not None:
+            raise UserError(f"{flag} {value!r}: {problem}")
 
 
 def _docs_path(args: argparse.Namespace) -> Path | None:
@@ -251,7 +228,6 @@ def run(args: argparse.Namespace) -> int:
     set_threads(args.threads)
     envs = _env_names(args)
     _check_options(args)
-    _check_counts(args)
     docs = _docs_path(args)
     counts = _given_counts(args)
     try:
@@ -277,8 +253,6 @@ def run(args: argparse.Namespace) -> int:
             log=None if args.quiet else lambda line: print(line, flush=True),  # a log shows each step as it comes
             **counts,
         )
-    except ValueError as exc:  # unknown/missing/corrupt shipped model, bad env options, an --out it cannot replace
-        raise UserError(str(exc)) from None
     except OutputInterrupted as exc:  # SIGTERM: the staged results were dropped, --out is as it was
         print(f"sb3-coma {NAME}: {exc}", file=sys.stderr)
         return 128 + exc.signum

@@ -138,25 +138,36 @@ class ReproduceOptions:
     baselines_only: bool = False
 
     def checked(self) -> ReproduceOptions:
-        """Validated, with ``quick`` applied: the steps then trust every field."""
+        """Validated, with ``quick`` applied: the steps then trust every field.
+
+        One table of (field, rule, what is allowed) and one raise; ``wide_trials`` is checked
+        again once ``quick`` has capped it (a quick run of one trial has one wide trial)."""
         self.env_names = list(self.env_names)
-        if not self.env_names:
-            raise ValueError("env_names is empty")
-        for name in ("trials", "unseen_missions", "sweep_missions", "wide_trials", "seed"):
+
+        def count(name: str, least: int) -> bool:
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "trials" else 0):
-                raise ValueError(f"{name} must be an integer >= {1 if name == 'trials' else 0}, got {value!r}")
-        if self.quick:
+            return isinstance(value, int) and not isinstance(value, bool) and value >= least
+
+        rules: list[tuple[str, bool, str]] = [
+            ("env_names", bool(self.env_names), "a non-empty list of maps"),
+            ("trials", count("trials", 1), "an integer >= 1"),
+            *((name, count(name, 0), "an integer >= 0") for name in ("unseen_missions", "sweep_missions", "seed")),
+            ("wide_trials", count("wide_trials", 0) and self.wide_trials != 1, "0 (skip) or an integer >= 2"),
+            ("timesteps", self.timesteps is None or count("timesteps", 1), "None or an integer >= 1"),
+            ("ship", not self.ship or (self.train and not self.quick), "used with train=True and quick=False"),
+            ("baselines_only", not self.baselines_only or not (self.train or self.record), "without train or record"),
+        ]
+        if self.quick and all(ok for _, ok, _ in rules):
             self.trials = min(self.trials, QUICK_TRIALS)
             self.wide_trials = min(self.wide_trials, self.trials)
             self.unseen_missions = min(self.unseen_missions, QUICK_TRIALS)
             self.sweep_missions = min(self.sweep_missions, QUICK_TRIALS)
-        if self.wide_trials == 1:
-            raise ValueError(f"wide_trials must be 0 (skip) or an integer >= 2, got {self.wide_trials!r}")
-        if self.ship and (not self.train or self.quick):
-            raise ValueError("ship=True needs train=True and quick=False")
-        if self.baselines_only and (self.train or self.record):
-            raise ValueError("baselines_only=True flies no model: it cannot train, ship or record one")
+            rules.append(
+                ("wide_trials", self.wide_trials != 1, "0 (skip) or an integer >= 2 (with quick: trials >= 2)")
+            )
+        for name, ok, allowed in rules:
+            if not ok:
+                raise ValueError(f"{name} must be {allowed}, got {getattr(self, name)!r}")
         return self
 
 
