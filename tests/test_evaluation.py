@@ -268,7 +268,7 @@ def test_every_baseline_row_of_the_tables_resolves_by_its_name():
     """Each baseline row the protocols write (docs/RESULTS.md) is a name ``evaluate`` and
     ``sb3-coma evaluate --methods`` take, meaning the same planner and options as the row."""
     from sb3_coma.app import evaluation as ev
-    from sb3_coma.experiments.protocols import BASELINE_METHODS
+    from sb3_coma.app.rows import BASELINE_METHODS
 
     for method in BASELINE_METHODS:
         ev.check_policy(method.label)
@@ -291,7 +291,7 @@ def test_every_shipped_model_row_resolves_by_its_name():
     """``coma``, ``coma[mean-cnn]``, ``coma[paper-actor]`` ...: the row label of a shipped model on
     its map leads back to that model."""
     from sb3_coma.app.pretrained import read_manifest
-    from sb3_coma.experiments.protocols import shipped_label, shipped_name_of_label
+    from sb3_coma.app.rows import shipped_label, shipped_name_of_label
 
     models = read_manifest()["models"]
     assert models

@@ -13,12 +13,13 @@ import numpy as np
 import pytest
 
 from sb3_coma.app.evaluation import evaluate
+from sb3_coma.app.rows import BASELINE_METHODS
 from sb3_coma.baselines.adaptive_gain import FALLBACK_WEIGHTING, WEIGHTING_BY_MAP, default_weighting
 from sb3_coma.cli import main
 from sb3_coma.common.evaluation import PROTOCOLS
 from sb3_coma.experiments.ag_weighting import VALIDATION_SEED, pick_ag_weighting, validation_options
 from sb3_coma.experiments.noise_sweep import QUICK_AXES, run_noise_sweep, sweep_points
-from sb3_coma.experiments.protocols import BASELINE_METHODS, Method, ProtocolResult, default_pairs, run_protocol
+from sb3_coma.experiments.protocols import Method, ProtocolResult, default_pairs, run_protocol
 from sb3_coma.stats.paired import paired_difference
 
 TINY = dict(budget=3)

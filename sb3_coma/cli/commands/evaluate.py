@@ -142,7 +142,7 @@ def _for_map(label: str | None, method: str, env_name: str) -> tuple[str | None,
     own model, ``coma[mean-cnn]`` its ``<map>-mean-cnn``: the labels ``reproduce`` gives them) ->
     (the row as label, that shipped model); any other method as given, so that every row of
     docs/RESULTS.md can be flown again by its name."""
-    from sb3_coma.experiments.protocols import shipped_name_of_label
+    from sb3_coma.app.rows import shipped_name_of_label
 
     shipped = shipped_name_of_label(method, env_name)
     return (label or method, shipped) if shipped is not None else (label, method)

@@ -32,7 +32,7 @@ from sb3_coma.app.arguments import (
 from sb3_coma.cli import UserError, set_threads
 
 if TYPE_CHECKING:  # the sweep imports torch and matplotlib: the functions import it, --help never does
-    from sb3_coma.experiments.protocols import Method
+    from sb3_coma.app.methods import Method
 
 NAME = "noise-sweep"
 HELP = "AG and the trained ablation arms over sigma, a_low, drop probability and both decoders (shared missions)"
@@ -82,9 +82,9 @@ def default_arms(env: str) -> list[str]:
 
 def _arm(name: str, env: str) -> Method:
     """The arm ``name`` names: AG, or a shipped model labelled as its ablation arm."""
+    from sb3_coma.app.methods import Method
     from sb3_coma.app.pretrained import load_pretrained
     from sb3_coma.experiments import ablation as ab
-    from sb3_coma.experiments.protocols import Method
 
     if name.strip().lower() in ("ag", "adaptive_gain", "adaptive-gain"):
         return Method("ag", "ag")

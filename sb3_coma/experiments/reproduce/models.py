@@ -16,14 +16,9 @@ import torch as th
 
 from sb3_coma.app import evaluation as ev
 from sb3_coma.app import pretrained as pt
+from sb3_coma.app.methods import Method
 from sb3_coma.app.pretrained import PretrainedError
-from sb3_coma.experiments.protocols import (
-    BASELINE_METHODS,
-    LEARNED_BASELINES,
-    Method,
-    outdated_note,
-    shipped_methods,
-)
+from sb3_coma.app.rows import BASELINE_METHODS, LEARNED_BASELINES, outdated_note, shipped_methods
 from sb3_coma.experiments.reproduce.options import (
     ABLATION_ARMS,
     ABLATION_ENV,

@@ -44,7 +44,7 @@ def _metrics_entry(res: Any) -> ModelFields:
 
 def _manifest_name(env: str, method: str) -> str | None:
     """The shipped model a result row flew: ``coma`` -> ``env``, ``coma[paper-actor]`` ->
-    ``env-paper-actor`` (``protocols.shipped_label`` the other way); ``None`` for a baseline."""
+    ``env-paper-actor`` (``app.rows.shipped_label`` the other way); ``None`` for a baseline."""
     if method == "coma":
         return env
     if method.startswith("coma[") and method.endswith("]"):
