@@ -34,12 +34,13 @@ def parse_variant(key: str | Sequence[str]) -> Variant:
     """``"sendfuse_cbam"`` or ``("sendfuse", "cbam")`` -> ``("sendfuse", "cbam")``, validated."""
     if isinstance(key, str):
         parts = key.strip().lower().replace("-", "_").split("_")
-        if len(parts) != 2:
-            raise ValueError(f"ablation variant {key!r}: expected FUSION_EXTRACTOR, e.g. 'sendfuse_cbam'")
     else:
         parts = [str(p).strip().lower() for p in key]
-    if len(parts) != 2 or parts[0] not in FUSIONS or parts[1] not in EXTRACTORS:
-        raise ValueError(f"ablation variant {key!r}: fusion must be one of {FUSIONS} and extractor one of {EXTRACTORS}")
+    if len(parts) != 2 or parts[0] not in FUSIONS or parts[1] not in EXTRACTORS:  # one rule: a known pair
+        raise ValueError(
+            f"ablation variant {key!r}: expected FUSION_EXTRACTOR (e.g. 'sendfuse_cbam'): "
+            f"fusion must be one of {FUSIONS} and extractor one of {EXTRACTORS}"
+        )
     return parts[0], parts[1]
 
 
@@ -47,19 +48,18 @@ def find_models(source: Mapping[Any, Any] | str | os.PathLike) -> dict[Variant, 
     """Variant -> model (object or path) from a mapping or a directory of ``{fusion}_{extractor}.zip``."""
     if isinstance(source, Mapping):
         models = {parse_variant(k): v for k, v in source.items()}
-        for variant, model in models.items():
-            if isinstance(model, (str, os.PathLike)) and not Path(model).is_file():
-                raise FileNotFoundError(f"model file for {variant[0]}_{variant[1]} not found: {os.fspath(model)!r}")
+        missing = [
+            f"model file for {f}_{e}: {os.fspath(m)!r}"
+            for (f, e), m in models.items()
+            if isinstance(m, (str, os.PathLike)) and not Path(m).is_file()
+        ]
     else:
         folder = Path(source)
-        if not folder.is_dir():
-            raise FileNotFoundError(f"models directory not found: {os.fspath(source)!r}")
-        models = {}
-        for f in FUSIONS:
-            for e in EXTRACTORS:
-                path = folder / f"{f}_{e}.zip"
-                if path.is_file():
-                    models[(f, e)] = path
+        missing = [] if folder.is_dir() else [f"models directory: {os.fspath(source)!r}"]
+        found = ((f, e, folder / f"{f}_{e}.zip") for f in FUSIONS for e in EXTRACTORS)
+        models = {(f, e): path for f, e, path in found if path.is_file()}
+    if missing:  # one rule: every path given is there
+        raise FileNotFoundError(f"not found: {', '.join(missing)}")
     if not models:
         names = ", ".join(f"{f}_{e}.zip" for f in FUSIONS for e in EXTRACTORS)
         raise ValueError(
@@ -140,11 +140,9 @@ def run_ablation(
 ) -> AblationResult:
     """Evaluate every available variant at every noise level on the same seeded missions
     (``protocol="unseen"``: the unseen protocol's missions, on which verdicts rest)."""
-    if "noise" in env_options:
-        raise ValueError("pass noise levels with noises=..., not noise=")
     noises = tuple(noises)
-    if not noises:
-        raise ValueError("noises is empty")
+    if "noise" in env_options or not noises:  # one rule: the levels are noises=..., at least one
+        raise ValueError(f"noises must be a non-empty list of noise levels (not noise=...), got {noises!r}")
     found = find_models(models)
     out = AblationResult(env=env, noises=noises)
     unavailable = {f: fusion_unavailable(env, f, noise=noises[0], **env_options) for f in {v[0] for v in found}}

@@ -132,13 +132,18 @@ def pick_ag_weighting(
         from sb3_coma.app.evaluation import evaluate as evaluate_method
 
         evaluate = evaluate_method
-    if isinstance(n_missions, bool) or not isinstance(n_missions, int) or n_missions < 2:
-        raise ValueError(f"n_missions={n_missions!r}: a paired test needs an integer >= 2")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < VALIDATION_SEED:
-        raise ValueError(
-            f"seed={seed!r}: validation seeds start at {VALIDATION_SEED} (below are the seeds the "
-            f"protocols and the training's checkpoint validation use)"
-        )
+    for arg, value, least, why in (  # one rule for both counts: an integer from its least value
+        ("n_missions", n_missions, 2, "a paired test needs an integer >= 2"),
+        (
+            "seed",
+            seed,
+            VALIDATION_SEED,
+            f"validation seeds start at {VALIDATION_SEED} (below are the seeds the protocols and the "
+            "training's checkpoint validation use)",
+        ),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int) or value < least:
+            raise ValueError(f"{arg}={value!r}: {why}")
     options = validation_options(noise=noise, **env_options)
     results = {}
     for weighting in WEIGHTINGS:

@@ -285,26 +285,30 @@ def _check_arms(arms: Sequence[Method], env: str, n_missions: int, options: Mapp
     the paired columns (one mission makes every verdict nan), a model of another map family, or
     a model whose observation options differ from the sweep's. Other world differences of a
     model (budget ...) are one warning here; the swept settings differ on purpose (no warning)."""
-    if not arms:
-        raise ValueError("no arms to sweep")
-    if len(arms) > 1 and n_missions < 2:
-        raise ValueError(
-            f"n_missions={n_missions}: each arm minus the reference is a paired test on shared missions and needs "
-            f"at least 2 (with 1 every verdict is nan)"
-        )
     builtin = set(ENV_IDS.values())
     trained = {a.label: dict(a.trained) for a in arms if a.learned}
-    for label, own in trained.items():
-        own_map = str(own.get("map", ""))
-        if map_key(own_map) in builtin and map_key(env) in builtin and map_key(own_map) != map_key(env):
-            raise ValueError(
-                f"arm {label!r} is a model of {own_map} but the sweep flies {env}: sweep it on {own_map}, "
-                f"or pass a model of {env}"
-            )
+    elsewhere = [
+        f"arm {label!r} is a model of {own_map} but the sweep flies {env}: sweep it on {own_map}, or pass a model of {env}"
+        for label, own_map in ((label, str(own.get("map", ""))) for label, own in trained.items())
+        if map_key(own_map) in builtin and map_key(env) in builtin and map_key(own_map) != map_key(env)
+    ]
     labels = [a.label for a in arms]
     twice = sorted({label for label in labels if labels.count(label) > 1})
-    if twice:
-        raise ValueError(f"arm(s) {twice} given twice: give each arm once")
+    problems = [  # one table, one raise: the first that applies
+        *(["no arms to sweep"] if not arms else []),
+        *(
+            [
+                f"n_missions={n_missions}: each arm minus the reference is a paired test on shared missions and "
+                "needs at least 2 (with 1 every verdict is nan)"
+            ]
+            if len(arms) > 1 and n_missions < 2
+            else []
+        ),
+        *elsewhere,
+        *([f"arm(s) {twice} given twice: give each arm once"] if twice else []),
+    ]
+    if problems:
+        raise ValueError(problems[0])
     fields = {f for f in IppConfig.__dataclass_fields__ if f != "map_name"}
     fixed = {k: v for k, v in options.items() if k in fields}
     for label, own in trained.items():

@@ -26,6 +26,9 @@ from sb3_coma.app.arguments import (
 from sb3_coma.cli import UserError, set_threads
 
 NAME = "ablation"
+#: The ablation refuses a bad variant, model set, log folder or noise list with a ``ValueError``:
+#: this command's user errors, one line each.
+USER_ERRORS = (ValueError,)
 HELP = "evaluate the SenDFuse / CBAM ablation models at three noise levels"
 
 
@@ -59,33 +62,22 @@ def run(args: argparse.Namespace) -> int:
     from sb3_coma.stats.tables import write_per_step_csv, write_table_csv
 
     set_threads(args.threads)
-    if args.trials < 1 or args.seed < 0:
-        raise UserError("--trials must be >= 1 and --seed >= 0")
-    if args.models and args.model:
-        raise UserError("give either --models DIR or --model FUSION_EXTRACTOR=PATH, not both")
-    source: dict[str, str] | str
-    if args.model:
-        pairs = [spec.split("=", 1) for spec in args.model]
-        bad = [spec for spec, p in zip(args.model, pairs) if len(p) != 2 or not p[1].strip()]
-        if bad:
-            raise UserError(f"--model needs FUSION_EXTRACTOR=PATH, got {bad[0]!r}")
-        source = {k.strip(): v.strip() for k, v in pairs}
-    elif args.models:
-        source = args.models
-    else:
-        raise UserError("give the models: --models DIR or --model FUSION_EXTRACTOR=PATH")
+    pairs = [spec.split("=", 1) for spec in args.model]
+    bad = [spec for spec, p in zip(args.model, pairs) if len(p) != 2 or not p[1].strip()]
+    rules = (  # one table, one raise: (flag, what was given, allowed)
+        ("--trials", args.trials, args.trials >= 1, ">= 1"),
+        ("--seed", args.seed, args.seed >= 0, ">= 0"),
+        ("--models/--model", args.models or args.model, bool(args.models) != bool(args.model), "one of the two"),
+        ("--model", bad[0] if bad else None, not bad, "FUSION_EXTRACTOR=PATH"),
+    )
+    for flag, given, ok, allowed in rules:
+        if not ok:
+            raise UserError(f"{flag} must be {allowed}, got {given!r}")
+    source: dict[str, str] | str = {k.strip(): v.strip() for k, v in pairs} if args.model else args.models
     noises = [n.strip() for n in args.noises.split(",") if n.strip()]
     options = {k: v for k, v in (("n_uavs", args.uavs), ("budget", args.budget)) if v is not None}
-    try:
-        logs = ablation.find_training_logs(args.training_logs) if args.training_logs else None
-    except (ValueError, FileNotFoundError) as exc:
-        raise UserError(str(exc)) from None
-    try:
-        result = ablation.run_ablation(
-            source, env=args.env, noises=noises, n_trials=args.trials, seed=args.seed, **options
-        )
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    logs = ablation.find_training_logs(args.training_logs) if args.training_logs else None
+    result = ablation.run_ablation(source, env=args.env, noises=noises, n_trials=args.trials, seed=args.seed, **options)
     out = Path(args.out)
     written = []
     if result.results:

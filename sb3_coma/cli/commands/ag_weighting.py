@@ -17,10 +17,11 @@ import json
 from pathlib import Path
 
 from sb3_coma.app.arguments import add_env_argument, add_missions_argument, add_seed_argument, add_workers_argument
-from sb3_coma.cli import UserError
 from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, pick_ag_weighting
 
 NAME = "ag-weighting"
+#: The picker refuses a bad count, seed or option with a ``ValueError``: this command's user errors.
+USER_ERRORS = (ValueError,)
 HELP = "choose AG's entropy weighting (class / plain) per map on validation missions (never test missions)"
 
 
@@ -44,17 +45,14 @@ def run(args: argparse.Namespace) -> int:
     options = {k: v for k, v in (("n_uavs", args.uavs), ("budget", args.budget)) if v is not None}
     choices = []
     for name in names:
-        try:
-            choice = pick_ag_weighting(
-                name,
-                n_missions=args.missions,
-                seed=args.seed,
-                noise=args.noise,
-                log=lambda m: print(m, flush=True),
-                **options,
-            )
-        except ValueError as exc:
-            raise UserError(str(exc)) from None
+        choice = pick_ag_weighting(
+            name,
+            n_missions=args.missions,
+            seed=args.seed,
+            noise=args.noise,
+            log=lambda m: print(m, flush=True),
+            **options,
+        )
         choices.append(choice)
     print()
     for c in choices:

@@ -50,14 +50,21 @@ def run(args: argparse.Namespace) -> int:
     from sb3_coma.sendfuse.quality import evaluate_quality, format_table
     from sb3_coma.sendfuse.weights import load_weights
 
-    if args.missions < 1:
-        raise UserError(f"--missions must be >= 1, got {args.missions}")
     presets = tuple(args.noise) if args.noise else NOISE_PRESETS
     bad = [p for p in presets if p not in NOISE_PRESETS]
-    if bad:
-        raise UserError(f"--noise {' '.join(bad)}: choose from {' '.join(NOISE_PRESETS)}")
-    if args.valuable is not None and args.map_path is None:
-        raise UserError("--valuable needs --map-path (the built-in maps have their own rules)")
+    rules = (  # one table, one raise: (flag, what was given, allowed)
+        ("--missions", args.missions, args.missions >= 1, ">= 1"),
+        ("--noise", " ".join(bad), not bad, f"each one of {' '.join(NOISE_PRESETS)}"),
+        (
+            "--valuable",
+            args.valuable,
+            args.valuable is None or args.map_path is not None,
+            "given with --map-path (the built-in maps have their own rules)",
+        ),
+    )
+    for flag, given, ok, allowed in rules:
+        if not ok:
+            raise UserError(f"{flag} {given}: must be {allowed}")
     options = {}
     if args.map_path is not None:
         options = {"map_path": args.map_path, "valuable": args.valuable}

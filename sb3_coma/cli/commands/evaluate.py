@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -32,6 +32,9 @@ if TYPE_CHECKING:
 # the parser (``--help``) loads neither torch nor matplotlib (sb3_coma/cli/__init__.py).
 
 NAME = "evaluate"
+#: The evaluation front door (``resolve_method``, ``evaluate``) and the figures refuse a bad method,
+#: option or log with a ``ValueError`` / ``TypeError``: this command's user errors, one line each.
+USER_ERRORS = (ValueError, TypeError)
 HELP = "evaluate trained models and baselines (AG, lawnmower, random) as in the paper's Table I"
 DESCRIPTION = (
     "Fly N seeded missions per method (trial k uses env seed SEED+k, identical for every method), print "
@@ -129,11 +132,10 @@ def _methods(args: argparse.Namespace) -> list[tuple[str | None, str]]:
         out.append((label, value))
     for name in [m.strip() for m in args.methods.split(",") if m.strip()]:
         out.append((None, name))
-    if not out:
-        raise UserError("nothing to evaluate: give --methods and/or --model")
     labels = [lab or name for lab, name in out]
-    if len(set(labels)) != len(labels):
-        raise UserError(f"duplicate method labels {labels}; name models with --model LABEL=PATH")
+    if not out or len(set(labels)) != len(labels):  # one rule: at least one method, each label once
+        problem = f"duplicate method labels {labels}" if out else "nothing to evaluate"
+        raise UserError(f"{problem}: give --methods and/or --model, naming models with --model LABEL=PATH")
     return out
 
 
@@ -154,9 +156,7 @@ def _env_options(args: argparse.Namespace) -> dict[str, Any]:
         options["n_uavs"] = args.uavs
     if args.budget is not None:
         options["budget"] = args.budget
-    if args.map_path is not None:
-        if not Path(args.map_path).is_file():
-            raise FileNotFoundError(f"map image not found: {args.map_path!r}")
+    if args.map_path is not None:  # checked in _check_args: an image file
         options["map_path"] = args.map_path
     if args.valuable is not None:
         options["valuable"] = args.valuable
@@ -187,31 +187,32 @@ def _trials_text(args: argparse.Namespace, env_names: list[str]) -> str:
 
 
 def _check_args(args: argparse.Namespace) -> None:
-
-    for flag, value, low in (
-        ("--trials", 1 if args.trials is None else args.trials, 1),
-        ("--seed", args.seed, 0),
-        ("--agents-per-episode", args.agents_per_episode, 1),
-    ):
-        if value < low:
-            raise UserError(f"{flag} must be >= {low}, got {value}")
-    if args.n_envs is not None and args.n_envs < 1:
-        raise UserError(f"--n-envs must be >= 1, got {args.n_envs}")
-    _check_path_names(args)
-
-
-def _check_path_names(args: argparse.Namespace) -> None:
-    """Paths this command prints and records: a name that is not valid text in the file system's
-    encoding is refused before any mission is flown, not in a traceback after them."""
+    """The counts, and the paths this command reads, prints and records, refused before any
+    mission is flown (a name that is not valid text in the file system's encoding, a missing map
+    image or training log), not in a traceback after them: one table, one raise."""
     from sb3_coma.app.config import path_name_problem
 
-    paths = [("--map-path", args.map_path)]
-    paths += [("--model", _labelled(spec, "")[1]) for spec in args.model]
-    paths += [("--training-log", _labelled(spec, "")[1]) for spec in args.training_log]
-    for flag, value in paths:
+    rules: list[tuple[str, Any, str | None]] = [
+        (flag, value, None if value >= low else f"must be >= {low}, got {value}")
+        for flag, value, low in (
+            ("--trials", 1 if args.trials is None else args.trials, 1),
+            ("--seed", args.seed, 0),
+            ("--agents-per-episode", args.agents_per_episode, 1),
+            ("--n-envs", 1 if args.n_envs is None else args.n_envs, 1),
+        )
+    ]
+    paths: list[tuple[str, Any, str, Callable[[Path], bool] | None]]
+    paths = [("--map-path", args.map_path, "map image", Path.is_file)]
+    paths += [("--model", _labelled(spec, "")[1], "", None) for spec in args.model]
+    paths += [("--training-log", _labelled(spec, "")[1], "training log", Path.exists) for spec in args.training_log]
+    for flag, value, what, exists in paths:
         problem = None if value is None else path_name_problem(value)
+        if problem is None and value is not None and exists is not None and not exists(Path(value)):
+            problem = f"{what} not found"
+        rules.append((flag, value, problem))
+    for flag, value, problem in rules:
         if problem is not None:
-            raise UserError(f"{flag} {value!r}: {problem}")
+            raise UserError(f"{flag} {value!r}: {problem}" if isinstance(value, str) else f"{flag} {problem}")
 
 
 #: What an evaluation writes into --out (``fnmatch`` patterns): how a folder written before
@@ -225,22 +226,18 @@ def _check_out(out: Path) -> None:
     """Refuse an --out the tables cannot be written into before any mission is flown, not after:
     a file (or a path below one), a read-only location, or a folder where a table file goes.
     Files already in --out are replaced, as every evaluation does."""
-    from sb3_coma.app.config import path_name_problem
-    from sb3_coma.common.checkpoints import folder_write_problem
+    from sb3_coma.app.config import output_folder_problem
 
-    problem = path_name_problem(out)
-    if problem is not None:
-        raise UserError(f"--out {str(out)!r}: {problem}")
-    problem = folder_write_problem(out)
+    problem = output_folder_problem(out)  # its name, a file in its place, a read-only location
     if problem is None:
         problem = next((f"{out / name} is a folder" for name in OUTPUT_FILES if (out / name).is_dir()), None)
     if problem is not None:
-        raise UserError(f"--out {out} cannot take the results: {problem}")
+        raise UserError(f"--out {str(out)!r} cannot take the results: {problem}")
 
 
 def run(args: argparse.Namespace) -> int:
     from sb3_coma.app import evaluation as ev
-    from sb3_coma.app.outputs import OutputFolderError, OutputInterrupted, staged_output
+    from sb3_coma.app.outputs import OutputInterrupted, staged_output
 
     set_threads(args.threads)
     if args.seed is None:
@@ -254,21 +251,13 @@ def run(args: argparse.Namespace) -> int:
     resolved: dict[str, ev.Method] = {}
     for env, (lab, name) in itertools.product(env_names, methods):  # fail on a typo before minutes of missions
         method = _for_map(lab, name, env)[1]
-        try:
-            resolved[method] = resolved.get(method) or ev.resolve_method(method)  # once: a shipped zip is hashed once
-        except (ValueError, TypeError) as exc:
-            raise UserError(str(exc)) from None
+        resolved[method] = resolved.get(method) or ev.resolve_method(method)  # once: a shipped zip is hashed once
     logs = [_labelled(spec, Path(_labelled(spec, "")[1]).stem or "reward") for spec in args.training_log]
-    for _, path in logs:
-        if not Path(path).exists():
-            raise FileNotFoundError(f"training log not found: {path!r}")
     target = Path(args.out)
     _check_out(target)
     try:  # everything goes into a staging folder that replaces --out once complete
         with staged_output(target, command=NAME, own=OUTPUT_PATTERNS) as out:
             written = _fly_and_write(args, methods, resolved, env_names, options, logs, out)
-    except OutputFolderError as exc:
-        raise UserError(str(exc)) from None
     except OutputInterrupted as exc:  # SIGTERM: nothing was moved into --out
         print(f"sb3-coma {NAME}: {exc}", file=sys.stderr)
         return 128 + exc.signum
@@ -354,15 +343,12 @@ def _plots(
             written.append(plots.plot_mission(r, out / f"{stem}.png"))
             if not args.no_gif:
                 written.append(plots.animate_mission(r, out / f"{stem}.gif"))
-    if logs:
-        try:
-            written.append(
-                plots.plot_training_reward(
-                    dict(logs), out / "training_reward.png", agents_per_episode=args.agents_per_episode
-                )
+    if logs:  # a log without episodes is a ValueError: one line (USER_ERRORS)
+        written.append(
+            plots.plot_training_reward(
+                dict(logs), out / "training_reward.png", agents_per_episode=args.agents_per_episode
             )
-        except ValueError as exc:
-            raise UserError(str(exc)) from None
+        )
     return written
 
 

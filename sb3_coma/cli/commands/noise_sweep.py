@@ -35,6 +35,9 @@ if TYPE_CHECKING:  # the sweep imports torch and matplotlib: the functions impor
     from sb3_coma.app.methods import Method
 
 NAME = "noise-sweep"
+#: The sweep refuses a bad arm (unknown, of another map, given twice) or option with a
+#: ``ValueError``: this command's user errors, one line each.
+USER_ERRORS = (ValueError,)
 HELP = "AG and the trained ablation arms over sigma, a_low, drop probability and both decoders (shared missions)"
 
 
@@ -95,38 +98,35 @@ def _arm(name: str, env: str) -> Method:
     return Method(label, model, kind="coma", fusion=info.get("fusion"), deterministic=info.get("deterministic", True))
 
 
-def _check_out(out: str) -> None:
-    """An --out the table cannot be written into is refused before the sweep, not after it."""
+def _check_options(args: argparse.Namespace, missions: int) -> None:
+    """The counts, and an --out the table cannot be written into, refused before the sweep, not
+    after it (the arms themselves are the sweep's own rules: ``run_noise_sweep``)."""
     from sb3_coma.app.config import output_folder_problem
 
-    problem = output_folder_problem(out)
-    if problem is not None:
-        raise UserError(f"--out {out!r} cannot take the results: {problem}")
+    rules = (
+        ("--missions", missions, None if missions >= 1 else "must be >= 1"),
+        ("--seed", args.seed, None if args.seed >= 0 else "must be >= 0"),
+        ("--out", args.out, output_folder_problem(args.out)),
+    )
+    for flag, value, problem in rules:
+        if problem is not None:
+            raise UserError(f"{flag} {value!r}: {problem}")
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_coma.app.outputs import OutputFolderError, OutputInterrupted, staged_output
+    from sb3_coma.app.outputs import OutputInterrupted, staged_output
     from sb3_coma.experiments.report import sweep_sentence
 
     set_threads(args.threads)
     missions = args.missions if args.missions is not None else (2 if args.quick else 20)
-    if missions < 1 or args.seed < 0:
-        raise UserError(f"--missions must be >= 1 and --seed >= 0, got {missions} and {args.seed}")
-    _check_out(args.out)
+    _check_options(args, missions)
     names = [a.strip() for a in args.arms.split(",") if a.strip()] if args.arms is not None else default_arms(args.env)
-    if not names:
-        raise UserError("--arms is empty")
-    try:
-        arms = [_arm(n, args.env) for n in names]
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    arms = [_arm(n, args.env) for n in names]  # none: the sweep's own "no arms to sweep"
     options = {} if args.budget is None else {"budget": args.budget}
     target = Path(args.out)
     try:  # the sweep writes into a staging folder that replaces --out once complete
         with staged_output(target, command=NAME, own=OUTPUT_PATTERNS) as out:
             result, written = _sweep(args, arms, missions, options, out)
-    except OutputFolderError as exc:
-        raise UserError(str(exc)) from None
     except OutputInterrupted as exc:  # SIGTERM: nothing was moved into --out
         print(f"sb3-coma {NAME}: {exc}", file=sys.stderr)
         return 128 + exc.signum
@@ -152,20 +152,17 @@ def _sweep(
     from sb3_coma.experiments.noise_sweep import run_noise_sweep
     from sb3_coma.experiments.report import sweep_sentence
 
-    try:
-        result = run_noise_sweep(
-            arms,
-            env=args.env,
-            n_missions=missions,
-            seed=args.seed,
-            quick=args.quick,
-            grid=args.grid,
-            split=args.split,
-            log=lambda m: print(m, flush=True),
-            **options,
-        )
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    result = run_noise_sweep(
+        arms,
+        env=args.env,
+        n_missions=missions,
+        seed=args.seed,
+        quick=args.quick,
+        grid=args.grid,
+        split=args.split,
+        log=lambda m: print(m, flush=True),
+        **options,
+    )
     (out / "noise_sweep.md").write_text(f"{sweep_sentence(result)}\n\n{result.markdown()}")
     written = [out / "noise_sweep.md", result.write_csv(out / "noise_sweep.csv")]
     if not args.no_plots and result.results:

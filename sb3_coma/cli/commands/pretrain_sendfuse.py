@@ -101,13 +101,16 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     out = Path(args.out) if args.out else Path(default_weights_path(config.grid_size).name)
-    if out.resolve().parent == default_weights_path(config.grid_size).resolve().parent:
-        raise UserError(
-            f"--out {str(out)!r} is inside the installed package; write the weights elsewhere "
-            "(shipped weights change only through a release, with their SHA-256 recorded)"
-        )
-    if out.exists() and out.is_dir():
-        raise UserError(f"--out {str(out)!r} is a directory; give a file name such as sendfuse.safetensors")
+    for refused, why in (  # one rule: a file of the user's, not a folder and not the shipped one
+        (
+            out.resolve().parent == default_weights_path(config.grid_size).resolve().parent,
+            "is inside the installed package; write the weights elsewhere "
+            "(shipped weights change only through a release, with their SHA-256 recorded)",
+        ),
+        (out.is_dir(), "is a directory; give a file name such as sendfuse.safetensors"),
+    ):
+        if refused:
+            raise UserError(f"--out {str(out)!r} {why}")
     command = canonical_command(args)
     print(f"{command}\n-> {out}", flush=True)
     result = pretrain(config, progress=not args.quiet)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 from pathlib import Path
@@ -45,17 +46,21 @@ def _joint_steps(text: str) -> int:
 
     value = written_number(text.strip())
     try:
-        number = value if isinstance(value, float) else int(value)
+        number: float = value if isinstance(value, float) else int(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid whole number: {text!r}") from None
-    if isinstance(number, float) and not number.is_integer():
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of joint steps")
-    if number < 1:
+        number = math.nan  # not a number at all
+    if isinstance(number, float) and not number.is_integer():  # nan included
+        problem = (
+            f"{text!r} is not a whole number of joint steps" if number == number else f"invalid whole number: {text!r}"
+        )
+    elif number < 1:
         return int(number)  # the count's own rule (app.config.checked_count) names the flag
-    try:
-        return check_total_timesteps(number, "the value")
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    else:
+        try:
+            return check_total_timesteps(number, "the value")
+        except ValueError as exc:
+            problem = str(exc)
+    raise argparse.ArgumentTypeError(problem)
 
 
 #: The count flags and the ``train()`` argument whose rule each follows.
@@ -191,17 +196,14 @@ def _check_paths(args: argparse.Namespace) -> None:
     is a shipped model failing its SHA-256: refused before any work (the run folder's location is
     checked by train() before anything is built)."""
     from sb3_coma.app.config import path_name_problem
-    from sb3_coma.app.pretrained import PretrainedError, verify_shipped_file
+    from sb3_coma.app.pretrained import verify_shipped_file
 
     for flag, value in (("--config", args.config), ("--resume", args.resume), ("--run-dir", args.run_dir)):
         problem = None if value is None else path_name_problem(value)
         if problem is not None:
             raise UserError(f"{flag} {value!r}: {problem}")
     if args.resume is not None and Path(args.resume).is_file():
-        try:
-            verify_shipped_file(args.resume)
-        except PretrainedError as exc:
-            raise UserError(str(exc)) from None
+        verify_shipped_file(args.resume)  # a PretrainedError: one line (cli.user_errors)
 
 
 def _overrides(args: argparse.Namespace) -> dict[str, object]:
@@ -221,9 +223,8 @@ def _overrides(args: argparse.Namespace) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     from sb3_coma.app import training
-    from sb3_coma.app.config import TrainingError, checked_count, default_config_path, list_variants
+    from sb3_coma.app.config import checked_count, default_config_path, list_variants
     from sb3_coma.app.training import TrainingInterrupted
-    from sb3_coma.common.checkpoints import CheckpointError
 
     set_threads(args.threads)
     _check_paths(args)
@@ -258,8 +259,6 @@ def run(args: argparse.Namespace) -> int:
             allow_change=args.allow_change,
             fork=args.fork,
         )
-    except (TrainingError, CheckpointError) as exc:
-        raise UserError(str(exc)) from exc
     except TrainingInterrupted as exc:
         if args.verbose < 1:  # train() already said it otherwise
             print(
