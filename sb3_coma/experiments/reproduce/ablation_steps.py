@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_coma.app import evaluation as ev
+from sb3_coma.app.pretrained import ABLATION_LABELS
 from sb3_coma.experiments import ablation as ab
 from sb3_coma.experiments import report
 from sb3_coma.experiments.reproduce.acceptance import ablation_acceptance
@@ -46,14 +47,14 @@ def ablation_step(
     tables.write_table_csv(result.rows(), out / "ablation.csv", group_title="noise")
     sections = {"ablation": result.markdown()}
     (out / "ablation.md").write_text(sections["ablation"])
-    full = ab.LABELS[ABLATION_FULL]
+    full = ABLATION_LABELS[ABLATION_FULL]
     keys = [(noise, label) for (label, noise) in result.results if label != full and (full, noise) in result.results]
     adjusted = holm_adjust(
         [paired_difference(result.results[(full, n)], result.results[(lb, n)], "entropy") for n, lb in keys]
     )
     paired = [(noise, d) for (noise, _), d in zip(keys, adjusted)]
     sections["ablation_paired"] = report.paired_table(paired, "noise")
-    flown = {v: m for v, m in arms.items() if ab.LABELS[v] not in result.skipped}
+    flown = {v: m for v, m in arms.items() if ABLATION_LABELS[v] not in result.skipped}
     summary = {"ablation": {**ablation_acceptance(result), "paired": [{"noise": n, **d.as_dict()} for n, d in paired]}}
     return AblationStep(summary=summary, sections=sections, result=result, arms=flown)
 
@@ -72,7 +73,7 @@ def wide_paired_check(
     trials, seed, noise = opts.wide_trials, opts.seed, opts.noise
     table1 = _coma_vs_ag(sources, trials, seed, noise, say)
     runs = _fly_arms(arms, trials, seed, say)
-    full = ab.LABELS[ABLATION_FULL]
+    full = ABLATION_LABELS[ABLATION_FULL]
     diffs = holm_adjust(
         [paired_difference(runs[full], r, "entropy") for label, r in runs.items() if label != full and full in runs]
     )
@@ -110,7 +111,7 @@ def _fly_arms(
     """Every ablation arm on the same missions at the check's noise, by arm label."""
     runs = {}
     for variant, model in arms.items():
-        label = ab.LABELS[variant]
+        label = ABLATION_LABELS[variant]
         say(f"paired check: {label} on {ABLATION_ENV}, noise {ABLATION_CHECK_NOISE} ({trials} missions) ...")
         runs[label] = ev.evaluate(
             model,

@@ -11,9 +11,9 @@ from pathlib import Path
 from typing import Any
 
 from sb3_coma.app.evaluation import Method
+from sb3_coma.app.pretrained import ABLATION_LABELS
 from sb3_coma.common.timing import one_thread, time_call
 from sb3_coma.common.timing import torch_fusion as _torch_fusion
-from sb3_coma.experiments import ablation as ab
 from sb3_coma.experiments.costs import costs_markdown, decision_costs
 from sb3_coma.experiments.noise_sweep import run_noise_sweep
 from sb3_coma.experiments.reproduce.options import (
@@ -33,7 +33,9 @@ def sweep_arms(
     env = ABLATION_ENV if ABLATION_ENV in sources else opts.env_names[0]
     methods = [Method("ag", "ag")]
     if env == ABLATION_ENV and arms:
-        methods += [Method(ab.LABELS[v], m, kind="coma", fusion=v[0], deterministic=True) for v, m in arms.items()]
+        methods += [
+            Method(ABLATION_LABELS[v], m, kind="coma", fusion=v[0], deterministic=True) for v, m in arms.items()
+        ]
     elif env in sources:
         src = sources[env]
         methods.append(Method("coma", src.model, kind="coma", fusion=src.fusion, deterministic=src.deterministic))
@@ -69,7 +71,7 @@ def cost_models(
     out: dict[str, tuple[Any, str, str]] = {}
     seen = set()
     candidates = [(f"COMA {src.env}", src.model, src.fusion, src.env) for src in sources.values()] + [
-        (f"COMA {ab.LABELS[v]}", m, v[0], ABLATION_ENV) for v, m in arms.items()
+        (f"COMA {ABLATION_LABELS[v]}", m, v[0], ABLATION_ENV) for v, m in arms.items()
     ]
     for label, model, fusion, env in candidates:
         arch = (fusion, type(model.policy.actor.features_extractor).__name__)
