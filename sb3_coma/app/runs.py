@@ -76,15 +76,13 @@ def check_run_dir(run_dir: str | os.PathLike[str] | None) -> None:
         return
     problem = folder_name_problem(run_dir)
     if problem is not None:
-        raise TrainingError(
-            f"run folder {os.fspath(run_dir)!r} {problem}: pass a visible folder name such as runs/my-run"
-        )
-    problem = folder_write_problem(run_dir)
-    if problem is not None:
-        raise TrainingError(f"run folder {run_dir} cannot be made: {problem}")
-    holder = lock_holder(run_dir) if Path(run_dir).is_dir() else None
-    if holder is not None:
-        raise TrainingError(_in_use(Path(run_dir), holder, resuming=False))
+        problem = f"run folder {os.fspath(run_dir)!r} {problem}: pass a visible folder name such as runs/my-run"
+    elif (made := folder_write_problem(run_dir)) is not None:
+        problem = f"run folder {run_dir} cannot be made: {made}"
+    elif Path(run_dir).is_dir() and (holder := lock_holder(run_dir)) is not None:
+        problem = _in_use(Path(run_dir), holder, resuming=False)
+    if problem is not None:  # one rule: a folder this run can make and hold alone
+        raise TrainingError(problem)
 
 
 def _in_use(run_dir: Path, holder: LockHolder, resuming: bool) -> str:
@@ -214,19 +212,21 @@ def resolve_resume(resume: str | os.PathLike[str]) -> tuple[Path | None, Path]:
     :raises CheckpointError: the zip is truncated/corrupt or not a COMA model
     """
     p = Path(resume)
-    if not p.exists():
-        raise TrainingError(f"cannot resume from {p}: no such file or folder")
-    if p.is_dir():
-        if not (p / CONFIG_FILE).is_file():
-            raise TrainingError(
-                f"cannot resume from {p}: not a run folder (no {CONFIG_FILE}); pass a run folder or a checkpoint .zip"
-            )
-        model = newest_model(p)
-        if model is None:
-            raise TrainingError(f"cannot resume from {p}: the run folder has no valid checkpoint or {MODEL_FILE}")
-        return p, model
-    validate_checkpoint(p)
-    return run_folder_of(p), p
+    if p.is_file():
+        validate_checkpoint(p)
+        return run_folder_of(p), p
+    run_folder = p.is_dir() and (p / CONFIG_FILE).is_file()
+    model = newest_model(p) if run_folder else None
+    if model is None:  # one rule: a checkpoint, or a run folder holding one
+        why = (
+            "no such file or folder"
+            if not p.exists()
+            else f"the run folder has no valid checkpoint or {MODEL_FILE}"
+            if run_folder
+            else f"not a run folder (no {CONFIG_FILE}); pass a run folder or a checkpoint .zip"
+        )
+        raise TrainingError(f"cannot resume from {p}: {why}")
+    return p, model
 
 
 def load_checkpoint(path: str | os.PathLike[str], env: Any = None, **kwargs: Any) -> COMA:
@@ -234,12 +234,13 @@ def load_checkpoint(path: str | os.PathLike[str], env: Any = None, **kwargs: Any
     validate_checkpoint(path)
     try:
         return COMA.load(str(path), env=env, **kwargs)
-    except pickle.UnpicklingError as exc:  # torch's "Weights only load failed ..." on a damaged member
-        raise CheckpointError(
-            f"checkpoint {path} is corrupt: a network or optimizer member is not a readable PyTorch file"
-        ) from exc
-    except (KeyError, ValueError, RuntimeError, zipfile.BadZipFile, EOFError) as exc:
-        raise CheckpointError(f"checkpoint {path} could not be loaded: {exc}") from exc
+    except (pickle.UnpicklingError, KeyError, ValueError, RuntimeError, zipfile.BadZipFile, EOFError) as exc:
+        why = (  # torch's "Weights only load failed ..." on a damaged member
+            "is corrupt: a network or optimizer member is not a readable PyTorch file"
+            if isinstance(exc, pickle.UnpicklingError)
+            else f"could not be loaded: {exc}"
+        )
+        raise CheckpointError(f"checkpoint {path} {why}") from exc
 
 
 def curve_from_metrics(path: Path) -> list[float]:

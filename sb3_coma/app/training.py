@@ -257,21 +257,27 @@ def _resumed_config(
     overrides: Mapping[str, Any] | None,
 ) -> TrainConfig:
     """The config of the run folder a resume continues in (its own, plus ``overrides``)."""
-    if config is not None or variant is not None:
-        raise TrainingError(
-            f"--resume {resume} continues run {resume_run} with its own config; drop --config/--variant"
-        )
     cfg = read_run_config(resume_run)
-    if env is not None and resolve_env_id(env) != cfg.env_id:
-        raise TrainingError(f"--resume {resume}: that run trains {cfg.env_id}, not {resolve_env_id(env)}")
-    if overrides:
-        # A resumed run continues its checkpoint (whose settings are saved in it) on its own env: a
-        # --set would either be ignored (COMA's arguments) or change the world mid-run (env_kwargs,
-        # e.g. the fusion), and config.yml would then misstate the run. Refuse instead.
-        raise TrainingError(
-            f"--resume {resume}: --set {', '.join(sorted(overrides))} cannot apply to a resumed run (the "
-            f"checkpoint keeps its settings and its env); start a new run to change them"
-        )
+    asked = resolve_env_id(env) if env is not None else cfg.env_id
+    # A resumed run continues its checkpoint (whose settings are saved in it) on its own env: a
+    # --set would either be ignored (COMA's arguments) or change the world mid-run (env_kwargs,
+    # e.g. the fusion), and config.yml would then misstate the run. One rule: nothing but the run's
+    # own config, refused naming what was given.
+    refused = (
+        (
+            config is not None or variant is not None,
+            f"continues run {resume_run} with its own config; drop --config/--variant",
+        ),
+        (asked != cfg.env_id, f"that run trains {cfg.env_id}, not {asked}"),
+        (
+            bool(overrides),
+            f"--set {', '.join(sorted(overrides or {}))} cannot apply to a resumed run (the checkpoint keeps its "
+            "settings and its env); start a new run to change them",
+        ),
+    )
+    problem = next((why for given, why in refused if given), None)
+    if problem is not None:
+        raise TrainingError(f"--resume {resume}: {problem}")
     return cfg
 
 
@@ -337,14 +343,12 @@ def _allowed_changes(
         return ", ".join(f"{k} from {old!r} to {new!r} ({why})" for k, (old, new, why) in items.items())
 
     kept = {k: c for k, c in changes.items() if k.split(".")[0] not in RESUME_APPLIED_KEYS}
-    if kept:
+    if kept or (changes and not allow_change):
         raise TrainingError(
             f"--resume {resume} would change {listing(kept)}, which the checkpoint keeps as it was saved; "
             "restore config.yml or start a new run"
-        )
-    if changes and not allow_change:
-        raise TrainingError(
-            f"--resume {resume} would change {listing(changes)}; pass --allow-change to resume with the "
+            if kept
+            else f"--resume {resume} would change {listing(changes)}; pass --allow-change to resume with the "
             "change (it is recorded in config.yml)"
         )
     return {k: {"from": old, "to": new} for k, (old, new, _) in changes.items()}
@@ -411,10 +415,9 @@ def plan_run(
         total_timesteps = checked_count("total_timesteps", total_timesteps)
     if n_envs is not None:
         n_envs = checked_count("n_envs", n_envs)
-    if seed is not None and not is_int(seed):
-        raise TrainingError(f"seed must be an integer, got {seed!r}")
-    if eval_seed is not None and not is_int(eval_seed):
-        raise TrainingError(f"eval_seed must be an integer, got {eval_seed!r}")
+    for name, value, least in (("seed", seed, None), ("eval_seed", eval_seed, 0)):  # one rule for the seeds
+        if value is not None and (not is_int(value) or (least is not None and value < least)):
+            raise TrainingError(f"{name} must be an integer{'' if least is None else f' >= {least}'}, got {value!r}")
     check_device(device)
     resume_run, resume_model = _resolve_resume(resume) if resume is not None else (None, None)
     parent = None
@@ -520,15 +523,17 @@ def build_model(plan: RunPlan, venv: VecEnv, device: str = "auto", verbose: int 
                 device=device,
                 **coma_kwargs(plan.cfg.entry),
             )
-        except TrainingError:
-            raise
-        except AssertionError as exc:  # e.g. SB3's bare `assert features_dim > 0`
-            raise TrainingError(
-                f"{plan.cfg.where}: COMA rejected a setting ({_assertion_site(exc)}); check "
-                f"policy_kwargs={plan.cfg.entry.get('policy_kwargs')!r}"
-            ) from exc
-        except (TypeError, ValueError) as exc:
-            raise TrainingError(f"{plan.cfg.where}: {exc}") from exc
+        except (AssertionError, TypeError, ValueError) as exc:  # one line naming the config entry
+            if isinstance(exc, TrainingError):  # already names it (a bad policy name, ...)
+                message = str(exc)
+            elif isinstance(exc, AssertionError):  # e.g. SB3's bare `assert features_dim > 0`
+                message = (
+                    f"{plan.cfg.where}: COMA rejected a setting ({_assertion_site(exc)}); check "
+                    f"policy_kwargs={plan.cfg.entry.get('policy_kwargs')!r}"
+                )
+            else:
+                message = f"{plan.cfg.where}: {exc}"
+            raise TrainingError(message) from exc
     record_env_options(model, plan.cfg.world)
     return model
 
@@ -745,13 +750,11 @@ def save_final(
 
 
 # =========================================================================== train()
-def _check_counts(eval_freq: Any, save_freq: Any, eval_seed: Any) -> None:
-    """Frequencies and the validation seed, refused before anything is built."""
+def _check_counts(eval_freq: Any, save_freq: Any) -> None:
+    """The frequencies, refused before anything is built (the seeds: :func:`plan_run`)."""
     for name, value in (("eval_freq", eval_freq), ("save_freq", save_freq)):
         if value is not None:
             checked_count(name, value)
-    if eval_seed is not None and is_int(eval_seed) and eval_seed < 0:
-        raise TrainingError(f"eval_seed must be an integer >= 0, got {eval_seed!r}")
 
 
 def train(
@@ -821,7 +824,7 @@ def train(
     :raises TrainingInterrupted: stopped by a signal (after saving a checkpoint)
     """
     say = log or (print if verbose >= 1 else (lambda _msg: None))
-    _check_counts(eval_freq, save_freq, eval_seed)
+    _check_counts(eval_freq, save_freq)
     check_run_dir(run_dir)
     plan = plan_run(
         env, config, variant, overrides, resume, total_timesteps, n_envs, seed, eval_seed, device, allow_change, fork

@@ -102,8 +102,7 @@ class ComaExperimentManager(ExperimentManager):
     """
 
     def __init__(self, args: argparse.Namespace, algo: str, env_id: str, *pos: Any, **kwargs: Any) -> None:
-        if env_id not in ENV_IDS:
-            raise TrainingError(f"--algo {ALGO} trains the UavIpp envs ({', '.join(ENV_IDS)}), not {env_id!r}")
+        assert env_id in ENV_IDS, env_id  # train() checked it at the edge (_start, _check_env)
         super().__init__(args, algo, env_id, *pos, **kwargs)
         self.variant: str | None = getattr(args, "variant", None)
         self.map_name = ENV_IDS[env_id]
@@ -350,12 +349,15 @@ def enjoy_parser() -> argparse.ArgumentParser:
 
 # =========================================================================== train and enjoy
 def _check_env(env_id: str) -> None:
+    """One rule: a UavIpp env id (another registered env is rl-zoo3's, not COMA's)."""
     if env_id in ENV_IDS:
         return
-    if env_id in gymnasium.registry:
-        raise TrainingError(f"--algo {ALGO} trains the UavIpp envs ({', '.join(ENV_IDS)}), not {env_id!r}")
     close = difflib.get_close_matches(env_id, list(ENV_IDS) + list(gymnasium.registry), n=1)
-    raise TrainingError(f"unknown env id {env_id!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+    raise TrainingError(
+        f"--algo {ALGO} trains the UavIpp envs ({', '.join(ENV_IDS)}), not {env_id!r}"
+        if env_id in gymnasium.registry
+        else f"unknown env id {env_id!r}" + (f" (did you mean {close[0]!r}?)" if close else "")
+    )
 
 
 def _start(args: argparse.Namespace) -> None:
@@ -374,10 +376,16 @@ def _start(args: argparse.Namespace) -> None:
 
 def train(args: argparse.Namespace) -> None:
     """rl-zoo3's training lifecycle with :class:`ComaExperimentManager`."""
-    if args.track:
-        raise TrainingError("--track (Weights & Biases) is not supported with --algo coma; use -tb for TensorBoard")
-    if args.trained_agent and not (args.trained_agent.endswith(".zip") and os.path.isfile(args.trained_agent)):
-        raise TrainingError(f"-i {args.trained_agent}: the trained agent must be an existing .zip file")
+    refused = (  # (refused, why): the options rl-zoo3 takes that a COMA run cannot
+        (args.track, "--track (Weights & Biases) is not supported with --algo coma; use -tb for TensorBoard"),
+        (
+            args.trained_agent and not (args.trained_agent.endswith(".zip") and os.path.isfile(args.trained_agent)),
+            f"-i {args.trained_agent}: the trained agent must be an existing .zip file",
+        ),
+    )
+    problem = next((why for bad, why in refused if bad), None)
+    if problem is not None:
+        raise TrainingError(problem)
     _start(args)
     register()
     print("=" * 10, args.env, "=" * 10)
@@ -449,14 +457,14 @@ def read_zoo_log_yaml(path: Path) -> Any:
     """A log folder's YAML, safely (:class:`_ZooLogLoader`); any other Python tag is one line."""
     try:
         return yaml.load(path.read_text(encoding="utf-8"), Loader=_ZooLogLoader)
-    except yaml.constructor.ConstructorError as exc:
-        tag = getattr(exc, "problem", "") or str(exc).splitlines()[0]
+    except yaml.YAMLError as exc:  # a Python tag (ConstructorError) or broken YAML: one line
+        first = str(exc).splitlines()[0]
         raise TrainingError(
-            f"{path}: {tag}; sb3-coma reads log-folder YAML as plain data (and rl-zoo3's OrderedDicts) only, "
-            "never Python objects: fix or delete that entry"
+            f"{path}: {getattr(exc, 'problem', '') or first}; sb3-coma reads log-folder YAML as plain data (and "
+            "rl-zoo3's OrderedDicts) only, never Python objects: fix or delete that entry"
+            if isinstance(exc, yaml.constructor.ConstructorError)
+            else f"{path}: not valid YAML ({first})"
         ) from None
-    except yaml.YAMLError as exc:
-        raise TrainingError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
 
 
 def _saved_hyperparams(stats_path: str) -> dict[str, Any]:

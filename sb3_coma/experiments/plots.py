@@ -327,21 +327,41 @@ def _trail_2d(ax: plt.Axes, traj: np.ndarray, norm: colors.Normalize, upto: int 
         ax.plot(pts[-1, 0], pts[-1, 1], "^", ms=8, color=uav_colour(u), mec="k")
 
 
-def _check_recorded(result: EvaluationResult, trial: int) -> None:
-    if not 0 <= trial < result.n_trials:
-        raise ValueError(f"trial {trial} out of range: the result has {result.n_trials} trials")
-    if np.isnan(result.trajectories[trial]).any():
-        raise ValueError("this result has no trajectories (evaluated on an env without recorded copies)")
+def _check_recorded(result: EvaluationResult, trial: int, picture: bool = False, frames: bool = False) -> None:
+    """What a mission's figure reads, recorded for ``trial``: its trajectory, and for the picture
+    (``picture``) the final belief and the truth, for the animation (``frames``) the per-step
+    beliefs. One table, one raise: the first thing missing is named with how to record it."""
+    in_range = 0 <= trial < result.n_trials
+    beliefs = result.final_beliefs
+    needs = (
+        (in_range, f"trial {trial} out of range: the result has {result.n_trials} trials"),
+        (
+            not in_range or not np.isnan(result.trajectories[trial]).any(),
+            "this result has no trajectories (evaluated on an env without recorded copies)",
+        ),
+        (
+            not picture or (beliefs is not None and trial < len(beliefs)),
+            f"trial {trial} has no recorded final belief: evaluate(..., record={trial + 1})",
+        ),
+        (
+            not picture or result.ground_truth is not None,
+            "this result records no ground truth map (evaluate_policy records one)",
+        ),
+        (
+            not frames or result.belief_frames is not None,
+            "this result has no per-step beliefs: evaluate(..., record=1) keeps them for trial 0",
+        ),
+    )
+    missing = next((message for ok, message in needs if not ok), None)
+    if missing is not None:
+        raise ValueError(missing)
 
 
 def plot_mission(result: EvaluationResult, path: PathLike, trial: int = 0) -> Path:
     """Ground truth, final global belief, and the UAVs' 3-D trajectories coloured by altitude."""
-    _check_recorded(result, trial)
-    if result.final_beliefs is None or trial >= len(result.final_beliefs):
-        raise ValueError(f"trial {trial} has no recorded final belief: evaluate(..., record={trial + 1})")
+    _check_recorded(result, trial, picture=True)
     truth = result.ground_truth
-    if truth is None:
-        raise ValueError("this result records no ground truth map (evaluate_policy records one)")
+    assert truth is not None and result.final_beliefs is not None  # _check_recorded
     size = result.field_size
     traj = result.trajectories[trial]
     norm = colors.Normalize(min(result.altitudes), max(result.altitudes))
@@ -416,10 +436,9 @@ def animate_mission(result: EvaluationResult, path: PathLike, fps: float = 2.0, 
     its position, with F1 and entropy in the title."""
     from PIL import Image
 
-    _check_recorded(result, 0)
+    _check_recorded(result, 0, frames=True)
     frames = result.belief_frames
-    if frames is None:
-        raise ValueError("this result has no per-step beliefs: evaluate(..., record=1) keeps them for trial 0")
+    assert frames is not None  # _check_recorded
     size = result.field_size
     stride = max(1, int(np.ceil(frames.shape[-1] / max_side)))
     norm = colors.Normalize(min(result.altitudes), max(result.altitudes))
