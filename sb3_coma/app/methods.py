@@ -147,16 +147,13 @@ def _load_model_file(path: Path, venv: Any) -> Any:
     """Load a resolved model file on ``venv``, naming the file in the one-line errors."""
     try:
         return COMA.load(str(path), env=venv, device="cpu")
-    except pickle.UnpicklingError as exc:  # torch's "Weights only load failed ..." on a damaged member
-        raise ValueError(
-            f"cannot load model {str(path)!r}: it is corrupt (a network or optimizer member is not "
-            "a readable PyTorch file)"
-        ) from exc
-    except (ValueError, KeyError, AssertionError, RuntimeError, EOFError) as exc:
-        raise ValueError(
-            f"cannot load model {str(path)!r} for this environment: {exc} (was it trained with "
-            f"another number of UAVs or observation layout?)"
-        ) from exc
+    except (pickle.UnpicklingError, ValueError, KeyError, AssertionError, RuntimeError, EOFError) as exc:
+        why = (  # torch's "Weights only load failed ..." on a damaged member
+            ": it is corrupt (a network or optimizer member is not a readable PyTorch file)"
+            if isinstance(exc, pickle.UnpicklingError)
+            else f" for this environment: {exc} (was it trained with another number of UAVs or observation layout?)"
+        )
+        raise ValueError(f"cannot load model {str(path)!r}{why}") from exc
 
 
 def resolve_method(
@@ -259,12 +256,12 @@ def _resolve_path(text: str, label: str | None, explicit: bool) -> Method:
             pretrained.verify_shipped_file(path)
             trained = training_options(path) or {}  # also refuses a file that is not a COMA zip
             return Method(label or path.stem, text, kind="coma", source="file", path=path, trained=trained)
-    if Path(text).is_dir():
-        raise ValueError(f"model {text!r} is a folder: pass the model .zip inside it (e.g. {text}/model.zip)")
-    if explicit or looks_like_path(text):
+    if not Path(text).is_dir() and (explicit or looks_like_path(text)):
         raise FileNotFoundError(f"model file not found: {text!r}")
-    raise ValueError(
-        f"unknown method {text!r}: not a baseline ({', '.join(sorted(PLANNERS))}; table rows: "
+    raise ValueError(  # one rule for a name that is no model file: a folder, or an unknown name
+        f"model {text!r} is a folder: pass the model .zip inside it (e.g. {text}/model.zip)"
+        if Path(text).is_dir()
+        else f"unknown method {text!r}: not a baseline ({', '.join(sorted(PLANNERS))}; table rows: "
         f"{', '.join(sorted(PLANNER_ALIASES))}), not a model file, and not "
         f"a shipped model (available: {', '.join(pretrained.available()) or 'none'})"
     )

@@ -76,11 +76,10 @@ def _checked(name: str, fields: Mapping[str, Any], whole: bool) -> None:
     """Refuse keys outside the schema and, for a whole entry, one without its file's fields: what
     is refused here never reaches the file."""
     unknown = sorted(set(fields) - entry_keys())
-    if unknown:
-        raise ValueError(f"models.json entry {name!r}: unknown keys {unknown} (schema: sb3_coma.app.model_manifest)")
     missing = sorted(ModelEntry.__required_keys__ - set(fields)) if whole else []
-    if missing:
-        raise ValueError(f"models.json entry {name!r}: missing {missing}")
+    if unknown or missing:  # one rule: the schema's keys, all of them for a whole entry
+        problem = f"unknown keys {unknown} (schema: sb3_coma.app.model_manifest)" if unknown else f"missing {missing}"
+        raise ValueError(f"models.json entry {name!r}: {problem}")
 
 
 def as_entry(name: str, fields: Mapping[str, Any]) -> ModelEntry:

@@ -609,13 +609,15 @@ def _refuse_foreign(final: Path, command: str, shown: Path) -> None:
     names is how a user's spreadsheet or figure used to be deleted."""
     try:
         foreign = _inventory(final, command).foreign
-    except OSError as exc:
-        raise OutputFolderError(f"--out {shown} cannot be read ({exc.strerror}): pass an empty or new folder") from None
-    if foreign:
-        raise OutputFolderError(
-            f"--out {shown} is not empty and holds what no sb3-coma command wrote there ({_names(foreign)}); "
-            "nothing was changed: pass an empty or new folder"
+        problem = (
+            f"is not empty and holds what no sb3-coma command wrote there ({_names(foreign)}); nothing was changed"
+            if foreign
+            else None
         )
+    except OSError as exc:
+        problem = f"cannot be read ({exc.strerror})"
+    if problem is not None:  # one rule: a folder known to hold only sb3-coma's outputs
+        raise OutputFolderError(f"--out {shown} {problem}: pass an empty or new folder")
 
 
 def _link_or_copy(src: str, dst: str) -> None:
@@ -933,16 +935,18 @@ def _staged(final: Path, target: str | os.PathLike[str], command: str, say: Call
             lock.release()
         if progress is not None and not isinstance(exc, OutputInterrupted):
             error = _kept(exc, Path(target), staging, progress, say)
-            if error is exc:
-                raise
-            raise error from None
-        _remove_tree(staging)  # the unfinished output: nothing finished is lost
-        if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
-            raise DiskFullError(
-                errno.ENOSPC,
-                f"the disk is full: --out {target} was not written and its previous content is untouched "
-                "(nothing of this run was left behind); free some space and run it again",
-            ) from None
-        raise
+        else:
+            _remove_tree(staging)  # the unfinished output: nothing finished is lost
+            full = isinstance(exc, OSError) and exc.errno == errno.ENOSPC
+            error = exc
+            if full:
+                error = DiskFullError(
+                    errno.ENOSPC,
+                    f"the disk is full: --out {target} was not written and its previous content is untouched "
+                    "(nothing of this run was left behind); free some space and run it again",
+                )
+        if error is exc:  # one exit: the error itself, or the one line that replaces it
+            raise
+        raise error from None
     if lock is not None:
         lock.release()

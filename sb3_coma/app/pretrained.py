@@ -63,18 +63,26 @@ def read_manifest(directory: str | os.PathLike[str] | None = None) -> dict[str, 
     """The parsed ``models.json`` (``{"format": 1, "models": {name: entry}}``); it is written by
     ``sb3_coma.app.model_manifest.update_models`` alone (the entry's schema is there)."""
     path = Path(directory or pretrained_dir()) / MANIFEST
+    data: Any = None
+    problem: str | None
     if not path.is_file():
-        raise PretrainedError(
+        problem = (
             f"no shipped models: {path} is missing (this install has no sb3_coma/pretrained "
             f"data; retrain with `sb3-coma reproduce --train`)"
         )
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise PretrainedError(f"{path} is not valid JSON: {exc}") from None
-    if not isinstance(data, dict) or not isinstance(data.get("models"), dict):
-        raise PretrainedError(f"{path} has no 'models' mapping")
-    return data
+    else:
+        try:
+            data = json.loads(path.read_text())
+            problem = (
+                None
+                if isinstance(data, dict) and isinstance(data.get("models"), dict)
+                else f"{path} has no 'models' mapping"
+            )
+        except json.JSONDecodeError as exc:
+            problem = f"{path} is not valid JSON: {exc}"
+    if problem is not None:  # one rule: a readable manifest with a models mapping
+        raise PretrainedError(problem)
+    return dict(data)
 
 
 def save_for_shipping(model: Any, file: str, directory: str | os.PathLike[str] | None = None) -> dict[str, Any]:
@@ -152,20 +160,19 @@ def model_path(name: str, directory: str | os.PathLike[str] | None = None, verif
     """Path of a shipped model's zip, checked against its SHA-256 unless ``verify=False``."""
     info = model_info(name, directory)
     path = Path(directory or pretrained_dir()) / info["file"]
-    if not path.is_file():
+    expected = str(info.get("sha256", "")).lower()
+    actual = sha256_file(path) if verify and path.is_file() else expected
+    if not path.is_file() or actual != expected:  # one rule: the file is there, as shipped
         raise PretrainedError(
-            f"shipped model {name!r}: file {path} is missing (reinstall sb3-coma or retrain "
-            f"with: {info.get('command', 'sb3-coma reproduce --train')})"
-        )
-    if verify:
-        actual = sha256_file(path)
-        expected = str(info.get("sha256", "")).lower()
-        if actual != expected:
-            raise PretrainedError(
-                f"shipped model {name!r}: checksum mismatch for {path} (sha256 {actual}, "
-                f"models.json expects {expected}); the file was modified or corrupted and "
-                f"is NOT loaded (an SB3 zip can run code when loaded)"
+            f"shipped model {name!r}: "
+            + (
+                f"checksum mismatch for {path} (sha256 {actual}, models.json expects {expected}); the file was "
+                "modified or corrupted and is NOT loaded (an SB3 zip can run code when loaded)"
+                if path.is_file()
+                else f"file {path} is missing (reinstall sb3-coma or retrain with: "
+                f"{info.get('command', 'sb3-coma reproduce --train')})"
             )
+        )
     return path
 
 
