@@ -356,9 +356,11 @@ class UavIppEnv(ParallelEnv):
         unknown = sorted(set(actions) - set(self.possible_agents))
         missing = [a for a in self.agents if a not in actions]
         if unknown or missing:  # one rule: the actions name exactly the live agents
+            wrong = "; ".join(
+                part for part in (unknown and f"unknown agent(s) {unknown}", missing and f"missing {missing}") if part
+            )
             raise ValueError(
-                f"actions must name the live agents and no other: unknown agent(s) {unknown}, missing {missing}; "
-                f"every live agent must act, and the agents are {self.possible_agents}"
+                f"{wrong} in actions: every live agent must act, and the agents are {self.possible_agents}"
             )
         acts = np.zeros(self.n_uavs, dtype=np.int64)
         for i, agent in enumerate(self.possible_agents):

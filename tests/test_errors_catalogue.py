@@ -517,7 +517,7 @@ Y = "YAML config and train()"
 MF = "model file"
 W = "SenDFuse weights"
 EV = "evaluate()"
-Z = "rl-zoo3 entry (python -m sb3_coma.app.zoo)"
+Z = "rl-zoo3 entry (python -m sb3_coma.zoo)"
 
 #: A quick evaluation (2 UAVs, 2 decisions, one mission): a case fails fast even if unchecked.
 _QUICK_EVALUATE = ["evaluate", "--methods", "random", "--trials", "1", "--uavs", "2", "--budget", "2", "--no-plots"]

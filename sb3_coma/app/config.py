@@ -873,7 +873,8 @@ def make_world_vec_env(
         )
     except ValueError as exc:  # uav_ipp.ConfigError, an unavailable fusion, ...
         options = {k: v for k, v in world.record().items() if k not in ("map", "fusion", "fusion_kwargs")}
-        changed = {k: v for k, v in options.items() if v != _DEFAULT_OPTIONS.get(k, v)}
+        defaults = plain(_DEFAULT_OPTIONS)
+        changed = {k: v for k, v in options.items() if v != defaults.get(k, v)}
         raise TrainingError(f"cannot build {world.env_id} (fusion={world.fusion!r}, options {changed}): {exc}") from exc
 
 

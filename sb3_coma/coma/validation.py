@@ -129,10 +129,8 @@ def check_device(device: Any) -> None:
     present = {"cuda": (parsed.index or 0) < n_cuda, "mps": th.backends.mps.is_available()}
     if not present.get(parsed.type, True):
         kind, at = _ACCELERATORS[parsed.type], "" if parsed.index is None else f" at index {parsed.index}"
-        raise ValueError(
-            f"device {device!r}: no {kind} device is available{at} on this machine (it has {n_cuda} CUDA "
-            "device(s)); use auto or cpu"
-        )
+        has = f" (it has {n_cuda} CUDA device(s))" if parsed.type == "cuda" and n_cuda else ""
+        raise ValueError(f"device {device!r}: no {kind} device is available{at} on this machine{has}; use auto or cpu")
 
 
 #: The accelerators :func:`check_device` looks for, as its messages name them.
