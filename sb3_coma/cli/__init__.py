@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.metadata
+import linecache
 import pkgutil
 import sys
 from types import ModuleType
@@ -69,6 +70,21 @@ def user_errors() -> tuple[type[BaseException], ...]:
     )
 
 
+def _raised_by_our_checks(exc: BaseException) -> bool:
+    """Whether a plain ``ValueError`` / ``TypeError`` (a command's ``USER_ERRORS``) comes from a
+    ``raise`` statement of ours (sb3_coma or uav_ipp code) rather than from inside a dependency or
+    a C extension called by our code: the first is a message for the user (one line, exit 2), the
+    second a failure whose traceback must be seen."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    if tb is None:
+        return False
+    module = str(tb.tb_frame.f_globals.get("__name__", ""))
+    line = linecache.getline(tb.tb_frame.f_code.co_filename, tb.tb_lineno).strip()
+    return module.split(".")[0] in ("sb3_coma", "uav_ipp") and line.startswith("raise ")
+
+
 def set_threads(threads: int) -> None:
     """``--threads``: torch's CPU thread count for this command (must be >= 1)."""
     if not isinstance(threads, int) or threads < 1:
@@ -99,7 +115,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _run(table[args.command], args)
     except Exception as exc:  # the user-error classes are imported only now that one may be needed
-        if not isinstance(exc, (*user_errors(), *getattr(table[args.command], "USER_ERRORS", ()))):
+        generic = getattr(table[args.command], "USER_ERRORS", ())
+        if not (isinstance(exc, user_errors()) or (isinstance(exc, generic) and _raised_by_our_checks(exc))):
             raise
         print(f"sb3-coma {args.command}: error: {exc}", file=sys.stderr)
         return 2
