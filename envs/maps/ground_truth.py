@@ -158,13 +158,8 @@ def _load_file(
             stacklevel=3,
         )
     image, transparent_cells = image_on_grid(file, grid)
-    effective = rule if rule is not None else Rule("threshold")
-    try:
-        mask = apply_rule(effective, image, label)
-    except MapError as exc:
-        if transparent_cells:
-            raise MapError(f"{exc} (its {transparent_cells:,} transparent grid cells are never valuable)") from None
-        raise
+    # a mask with no (or every) valuable cell names the transparent cells itself (apply_rule)
+    mask = apply_rule(rule if rule is not None else Rule("threshold"), image, label)
     shown = "threshold at Otsu (default)" if rule is None else str(rule)
     source = f"user image {path}, {shown}"
     if file.alpha is not None:
@@ -300,6 +295,28 @@ def _looks_like_path(name: str) -> bool:
     return os.sep in name or "/" in name or Path(name).suffix.lower() in _IMAGE_SUFFIXES
 
 
+def _map_source_problem(name: object, key: str | None, map_path: object, split: str) -> str | None:
+    """What is wrong with where the map comes from, else ``None``: one rule for ``name``,
+    ``map_path`` and ``split`` together (a built-in name, or an image file in the "paper" split)."""
+    if key is None or (map_path is None and key not in BUILTIN_MAPS):
+        hint = (
+            f"; to use an image file pass map_path={name!r} (and valuable=...)"
+            if isinstance(name, str) and _looks_like_path(name)
+            else "; or pass map_path= (and valuable=) for your own image"
+        )
+        return f"unknown map {name!r}; built-in maps are {list(BUILTIN_MAPS)}{hint}"
+    if map_path is None:
+        return None
+    if not isinstance(map_path, (str, os.PathLike)) or "\x00" in os.fspath(map_path):
+        return f"map_path={map_path!r} must be a file path (str or os.PathLike) without NUL bytes"
+    if split != "paper":
+        return (
+            f"split={split!r} needs a built-in map {list(BUILTIN_MAPS)}: a user image "
+            f"(map_path={os.fspath(map_path)!r}) has no disjoint scenes, only split='paper'"
+        )
+    return None
+
+
 def check_grid(grid: object, lattice: object) -> tuple[int, int]:
     """``(lattice, grid)`` checked: a lattice >= 2 and a belief grid from the lattice's size to
     :data:`MAX_GRID`; :class:`MapError` naming the value otherwise (before any map is allocated)."""
@@ -349,21 +366,10 @@ def load_ground_truth(
     rule = None if valuable is None else parse_rule(valuable)
     split = check_split(split)
     key = name.strip().lower() if isinstance(name, str) else None
-    if key is None or (map_path is None and key not in BUILTIN_MAPS):
-        hint = (
-            f"; to use an image file pass map_path={name!r} (and valuable=...)"
-            if isinstance(name, str) and _looks_like_path(name)
-            else "; or pass map_path= (and valuable=) for your own image"
-        )
-        raise MapError(f"unknown map {name!r}; built-in maps are {list(BUILTIN_MAPS)}{hint}")
+    problem = _map_source_problem(name, key, map_path, split)
+    if problem is not None:
+        raise MapError(problem)
     if map_path is not None:
-        if not isinstance(map_path, (str, os.PathLike)) or "\x00" in os.fspath(map_path):
-            raise MapError(f"map_path={map_path!r} must be a file path (str or os.PathLike) without NUL bytes")
-        if split != "paper":
-            raise MapError(
-                f"split={split!r} needs a built-in map {list(BUILTIN_MAPS)}: a user image "
-                f"(map_path={os.fspath(map_path)!r}) has no disjoint scenes, only split='paper'"
-            )
         path = Path(map_path).expanduser()
         label = path.stem if key in BUILTIN_MAPS or not name.strip() else name.strip()
         try:

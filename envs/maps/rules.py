@@ -22,6 +22,7 @@ rule picks its threshold (Otsu, or the fraction of ``hottest`` / ``coldest``).
 
 from __future__ import annotations
 
+import contextlib
 import io
 import math
 import os
@@ -56,6 +57,15 @@ DEFAULT_NDVI_THRESHOLD = 0.5
 OPAQUE = 0.5
 #: EXIF tag of the orientation (TIFF/EXIF 0x0112), 1 = as stored.
 _EXIF_ORIENTATION = 0x0112
+#: The rules that read a band not every image has: rule -> (the :class:`MapImage` field, what
+#: the rule needs, said to a user whose map lacks it).
+_BANDS = {
+    "excess-green": (
+        "rgb",
+        "a colour image, but map {label!r} is grayscale; use 'threshold', 'dark', 'hottest' or 'coldest'",
+    ),
+    "ndvi": ("ndvi", "a near-infrared band, which only env3 ships; map {label!r} has none (try 'excess-green')"),
+}
 _RULE_HELP = (
     "allowed rules: 'threshold[:T]', 'dark[:T]', 'hottest:F', 'coldest:F', "
     "'excess-green[:T]', 'ndvi[:T]' (T a number, F a fraction in (0, 1))"
@@ -92,31 +102,34 @@ class MapImage:
 
 
 def parse_rule(rule: object) -> Rule:
-    """Parse a rule string such as ``"hottest:0.3"``; raise :class:`MapError` naming what is wrong."""
+    """Parse a rule string such as ``"hottest:0.3"``; raise :class:`MapError` naming what is wrong.
+
+    One rule, one raise: the first problem (an unknown name, a missing number, one that is not
+    finite, one outside the rule's range) is named with what is allowed.
+    """
     name, sep, arg = (rule.strip().lower() if isinstance(rule, str) else "").partition(":")
     name, arg = _ALIASES.get(name.strip(), name.strip()), arg.strip()
-    if name not in RULE_NAMES:  # also anything that is not a string
-        raise MapError(f"unknown valuable rule {rule!r} ({type(rule).__name__}); {_RULE_HELP}")
     fraction = name in _FRACTION_RULES
-    if not arg:
-        # "hottest:" with nothing after the colon is a typo, not a request for a default
-        if sep or fraction:
-            what = "a fraction" if fraction else "a number after the ':'"
-            raise MapError(f"valuable rule {rule!r} needs {what}, e.g. '{name}:0.3'; {_RULE_HELP}")
-        return Rule(name, None)
     try:
-        value = float(arg)
+        value = float(arg) if arg else None
     except ValueError:
         value = math.nan
-    if not math.isfinite(value):
-        raise MapError(f"valuable rule {rule!r}: {arg!r} is not a number (a finite one); {_RULE_HELP}")
-    lo, hi = _RANGES[name]
-    if not (lo < value < hi if fraction else lo <= value <= hi):
+    lo, hi = _RANGES.get(name, (0.0, 1.0))
+    if name not in RULE_NAMES:  # also anything that is not a string
+        problem = f"unknown valuable rule {rule!r} ({type(rule).__name__}); {_RULE_HELP}"
+    elif value is None and (sep or fraction):
+        # "hottest:" with nothing after the colon is a typo, not a request for a default
+        what = "a fraction" if fraction else "a number after the ':'"
+        problem = f"valuable rule {rule!r} needs {what}, e.g. '{name}:0.3'; {_RULE_HELP}"
+    elif value is not None and not math.isfinite(value):
+        problem = f"valuable rule {rule!r}: {arg!r} is not a number (a finite one); {_RULE_HELP}"
+    elif value is not None and not (lo < value < hi if fraction else lo <= value <= hi):
         allowed = f"strictly between {lo:g} and {hi:g}" if fraction else f"in [{lo:g}, {hi:g}] for '{name}'"
-        raise MapError(
-            f"valuable rule {rule!r}: the {'fraction' if fraction else 'threshold'} {value:g} must lie {allowed}"
-        )
-    return Rule(name, value)
+        kind = "fraction" if fraction else "threshold"
+        problem = f"valuable rule {rule!r}: the {kind} {value:g} must lie {allowed}"
+    else:
+        return Rule(name, value)
+    raise MapError(problem)
 
 
 def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
@@ -162,6 +175,10 @@ def apply_rule(rule: Rule, image: MapImage, label: str) -> np.ndarray:
     kind, value = rule.kind, rule.value
     gray = image.gray
     valid = image.valid
+    # one rule: a rule that reads a band the image lacks is refused, naming the rules that fit
+    band, needs = _BANDS.get(kind, (None, ""))
+    if band is not None and getattr(image, band) is None:
+        raise MapError(f"valuable rule '{rule}' needs {needs.format(label=label)}")
 
     def data(values: np.ndarray) -> np.ndarray:  # the cells a threshold is chosen on
         return values if valid is None else values[valid]
@@ -177,28 +194,22 @@ def apply_rule(rule: Rule, image: MapImage, label: str) -> np.ndarray:
         assert value is not None  # ... and for "coldest"
         mask = gray < np.quantile(data(gray), value)
     elif kind == "excess-green":
-        if image.rgb is None:
-            raise MapError(
-                f"valuable rule '{rule}' needs a colour image, but map {label!r} is grayscale; "
-                "use 'threshold', 'dark', 'hottest' or 'coldest'"
-            )
+        assert image.rgb is not None  # checked above (_BANDS)
         exg = _chromatic_exg(image.rgb)
         mask = exg > (otsu_threshold(data(exg)) if value is None else value)
     else:
-        assert kind == "ndvi", kind  # parse_rule only produces RULE_NAMES
-        if image.ndvi is None:
-            raise MapError(
-                f"valuable rule '{rule}' needs a near-infrared band, which only env3 ships; "
-                f"map {label!r} has none (try 'excess-green')"
-            )
+        assert kind == "ndvi" and image.ndvi is not None, kind  # parse_rule only produces RULE_NAMES
         mask = image.ndvi > (DEFAULT_NDVI_THRESHOLD if value is None else value)
     if valid is not None:
         mask &= valid
     n = int(mask.sum())
     if n in (0, mask.size):  # all-or-nothing: one rule, whichever side it falls on
         which = "no" if n == 0 else "every"
+        hidden = 0 if valid is None else int((~valid).sum())  # never valuable, so part of the reason
+        note = f" (its {hidden:,} transparent grid cells are never valuable)" if hidden else ""
         raise MapError(
-            f"valuable rule '{rule}' marks {which} pixel of map {label!r} valuable; choose another rule or threshold"
+            f"valuable rule '{rule}' marks {which} pixel of map {label!r} valuable; choose another rule or "
+            f"threshold{note}"
         )
     return mask
 
@@ -222,10 +233,7 @@ def _normalise(img: np.ndarray, path: str) -> np.ndarray:
     if img.dtype == np.uint16:
         return img.astype(np.float32) / 65535.0
     out = img.astype(np.float32)
-    if not np.isfinite(out).all():
-        raise MapError(
-            f"map_path {path!r} contains NaN or infinite pixel values (a NoData mark? save it as an alpha channel: transparent pixels are left out of the map)"
-        )
+    assert np.isfinite(out).all(), path  # _decode refuses non-finite pixels
     if np.issubdtype(img.dtype, np.floating) and out.min() >= 0.0 and out.max() <= 1.0:
         return out
     # signed integers or floats outside [0, 1] (e.g. a float32 TIFF of temperatures): stretch
@@ -307,8 +315,7 @@ def _channels(img: np.ndarray, shown: str) -> tuple[np.ndarray, np.ndarray | Non
     channels = img.shape[2]
     if channels == 2:  # gray + alpha
         return _normalise(img[:, :, 0], shown), None, _normalise(img[:, :, 1], shown)
-    if channels not in (3, 4):
-        raise MapError(f"map_path {shown!r} has {channels} channels; expected 1 (gray), 3 (colour) or 4 (with alpha)")
+    assert channels in (3, 4), channels  # _decode refuses other channel counts
     alpha = _normalise(img[:, :, 3], shown) if channels == 4 else None
     rgb = np.ascontiguousarray(_normalise(img[:, :, 2::-1], shown))
     return rgb_to_gray(rgb), rgb, alpha
@@ -318,27 +325,39 @@ def _decode(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """(encoded bytes, OpenCV's decoded array) of a user's file, with the file errors phrased.
 
     Bytes are decoded with ``cv2.imdecode`` (not ``imread``) so paths with non-ASCII characters
-    work and a non-image file is an error we phrase, not an empty return.
+    work and a non-image file is an error we phrase, not an empty return. One rule, one raise: the
+    file is an image we can read (there, readable, not empty, decodable, 1 to 4 channels, finite
+    values); the first thing wrong is named.
     """
     p = Path(path)
-    shown = os.fspath(path)
+    data, img, problem = np.zeros(0, np.uint8), None, None
     if not p.is_file():
-        raise MapError(f"map_path {shown!r} {'is not a file' if p.exists() else 'does not exist'}")
-    try:
-        data = np.fromfile(p, dtype=np.uint8)
-    except OSError as exc:
-        raise MapError(f"map_path {shown!r} cannot be read: {exc.strerror or exc}") from None
-    if data.size == 0:
-        raise MapError(f"map_path {shown!r} is empty (0 bytes, no pixels)")
-    try:
-        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        img = None
-    if img is None or img.size == 0 or img.ndim < 2:
-        raise MapError(
-            f"map_path {shown!r} is not an image cv2 can decode, or one of 0 pixels "
-            "(use PNG, JPEG, TIFF, BMP or another format OpenCV reads)"
-        )
+        problem = "is not a file" if p.exists() else "does not exist"
+    else:
+        try:
+            data = np.fromfile(p, dtype=np.uint8)
+        except OSError as exc:
+            problem = f"cannot be read: {exc.strerror or exc}"
+    if problem is None and data.size == 0:
+        problem = "is empty (0 bytes, no pixels)"
+    if problem is None:
+        with contextlib.suppress(cv2.error):
+            img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        channels = 1 if img is None or img.ndim < 3 else img.shape[2]
+        if img is None or img.size == 0 or img.ndim < 2:
+            problem = (
+                "is not an image cv2 can decode, or one of 0 pixels "
+                "(use PNG, JPEG, TIFF, BMP or another format OpenCV reads)"
+            )
+        elif channels not in (1, 2, 3, 4):
+            problem = f"has {channels} channels; expected 1 (gray), 3 (colour) or 4 (with alpha)"
+        elif img.dtype.kind == "f" and not np.isfinite(img.astype(np.float32, copy=False)).all():
+            problem = (
+                "contains NaN or infinite pixel values (a NoData mark? save it as an alpha channel: "
+                "transparent pixels are left out of the map)"
+            )
+    if problem is not None or img is None:
+        raise MapError(f"map_path {os.fspath(path)!r} {problem}")
     return data, img
 
 

@@ -38,16 +38,17 @@ _FIXED = ("split",)
 # pick_ag_weighting: ``sb3-coma ag-weighting --help`` reads the constants above without them.
 
 
+def _at_least(value: object, least: int) -> bool:
+    """Whether ``value`` is an integer (not a bool) of at least ``least``."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= least
+
+
 def validation_options(noise: str = "moderate", **env_options: Any) -> dict[str, Any]:
     """The env options of the validation missions: ``split="train"`` plus ``noise`` and the rest.
 
-    Refuses a ``split`` of its own: the point of the picker is never to look at test missions."""
-    bad = [k for k in _FIXED if k in env_options]
-    if bad:
-        raise ValueError(
-            f"pick_ag_weighting chooses on split={VALIDATION_SPLIT!r} validation missions; "
-            f"do not pass {', '.join(bad)}= (got {', '.join(repr(env_options[k]) for k in bad)})"
-        )
+    Takes no ``split`` of its own: the point of the picker is never to look at test missions
+    (:func:`pick_ag_weighting` refuses one, naming it, before it gets here)."""
+    assert not any(k in env_options for k in _FIXED), sorted(env_options)
     return {**env_options, "split": VALIDATION_SPLIT, "noise": noise}
 
 
@@ -132,18 +133,23 @@ def pick_ag_weighting(
         from sb3_coma.app.evaluation import evaluate as evaluate_method
 
         evaluate = evaluate_method
-    for arg, value, least, why in (  # one rule for both counts: an integer from its least value
-        ("n_missions", n_missions, 2, "a paired test needs an integer >= 2"),
+    fixed = [k for k in _FIXED if k in env_options]
+    needs = (  # one rule, one raise: both counts an integer from its least value, the split the picker's own
+        (_at_least(n_missions, 2), f"n_missions={n_missions!r}: a paired test needs an integer >= 2"),
         (
-            "seed",
-            seed,
-            VALIDATION_SEED,
-            f"validation seeds start at {VALIDATION_SEED} (below are the seeds the protocols and the "
-            "training's checkpoint validation use)",
+            _at_least(seed, VALIDATION_SEED),
+            f"seed={seed!r}: validation seeds start at {VALIDATION_SEED} (below are the seeds the protocols "
+            "and the training's checkpoint validation use)",
         ),
-    ):
-        if isinstance(value, bool) or not isinstance(value, int) or value < least:
-            raise ValueError(f"{arg}={value!r}: {why}")
+        (
+            not fixed,
+            f"pick_ag_weighting chooses on split={VALIDATION_SPLIT!r} validation missions; "
+            f"do not pass {', '.join(fixed)}= (got {', '.join(repr(env_options[k]) for k in fixed)})",
+        ),
+    )
+    problem = next((message for ok, message in needs if not ok), None)
+    if problem is not None:
+        raise ValueError(problem)
     options = validation_options(noise=noise, **env_options)
     results = {}
     for weighting in WEIGHTINGS:

@@ -115,33 +115,45 @@ def _seed_label(run: Path, index: int) -> str:
 
 
 def _candidate(spec: str, index: int) -> Candidate:
+    """One candidate of a learner. One rule, one raise: a candidate is a known ``shipped:NAME``, a
+    run folder with its ``best_model.zip``, or a model file; what ``spec`` is instead is named."""
+    path = Path(spec)
     if spec.startswith(SHIPPED_PREFIX):
         name = spec[len(SHIPPED_PREFIX) :]
-        entry = pt.read_manifest()["models"].get(name)
-        if entry is None:
-            raise ValueError(f"{spec!r}: no shipped model {name!r}")
-        path = pt.model_path(name)
-        return Candidate(f"seed {entry['seed']}", path, validation_return(path))
-    path = Path(spec)
-    if path.is_dir():
-        if not (path / "best_model.zip").is_file():
-            raise ValueError(f"{spec!r}: a run folder without best_model.zip (train it with validation)")
+        models = pt.read_manifest()["models"]
+        if name in models:
+            path = pt.model_path(name)
+            return Candidate(f"seed {models[name]['seed']}", path, validation_return(path))
+        problem = f"no shipped model {name!r} (shipped: {', '.join(sorted(models))})"
+    elif path.is_dir() and (path / "best_model.zip").is_file():
         return Candidate(_seed_label(path, index), path / "best_model.zip", validation_score(path))
-    if path.is_file():
+    elif path.is_dir():
+        problem = "a run folder without best_model.zip (train it with validation)"
+    elif path.is_file():
         return Candidate(path.stem, path, None)
-    raise ValueError(f"{spec!r}: neither a run folder, a model zip nor shipped:NAME")
+    else:
+        problem = "neither a run folder, a model zip nor shipped:NAME"
+    raise ValueError(f"{spec!r}: {problem}")
 
 
 def parse_learner(spec: str) -> Learner:
-    """``label=CANDIDATE[,CANDIDATE...]`` (module docstring) -> a :class:`Learner`."""
+    """``label=CANDIDATE[,CANDIDATE...]`` (module docstring) -> a :class:`Learner`.
+
+    One rule, one raise: the spec's form, then that its candidates can be compared (every one
+    scored on validation when there are several, each under a seed label of its own)."""
     label, sep, rest = spec.partition("=")
-    if not sep or not label or not rest:
-        raise ValueError(f"{spec!r}: expected label=CANDIDATE[,CANDIDATE...]")
-    candidates = [_candidate(part, i) for i, part in enumerate(rest.split(","))]
-    if len(candidates) > 1 and any(c.validation is None for c in candidates):
-        raise ValueError(f"{spec!r}: a plain zip has no validation score: give it alone or as a run folder")
-    if len({c.label for c in candidates}) != len(candidates):
-        raise ValueError(f"{spec!r}: two candidates with the same seed label")
+    candidates = [_candidate(part, i) for i, part in enumerate(rest.split(","))] if sep and label and rest else []
+    needs = (
+        (bool(candidates), "expected label=CANDIDATE[,CANDIDATE...]"),
+        (
+            len(candidates) == 1 or all(c.validation is not None for c in candidates),
+            "a plain zip has no validation score: give it alone or as a run folder",
+        ),
+        (len({c.label for c in candidates}) == len(candidates), "two candidates with the same seed label"),
+    )
+    problem = next((message for ok, message in needs if not ok), None)
+    if problem is not None:
+        raise ValueError(f"{spec!r}: {problem}")
     return Learner(label, candidates)
 
 

@@ -123,15 +123,27 @@ def _teacher_missions(run: Path) -> int:
 
 
 def _run_config(run: Path) -> TrainConfig:
-    """The run's recorded config, or a :class:`RunDirError` naming the folder and what is wrong."""
-    if not run.is_dir():
-        raise RunDirError(f"run folder {run}: not a folder")
-    if not (run / CONFIG_FILE).is_file():
-        raise RunDirError(f"run folder {run}: no {CONFIG_FILE} (not an sb3-coma train run folder)")
-    try:
-        return read_run_config(run)
-    except TrainingError as exc:
-        raise RunDirError(f"run folder {run}: {exc}") from exc
+    """The run's recorded config, or a :class:`RunDirError` naming the folder and what is wrong.
+
+    One rule, one raise: the folder holds what a curve reads (``config.yml``, a valid one,
+    ``eval/evaluations.npz`` and TensorBoard events under ``tb/``); the first thing missing is named
+    with how to get it."""
+    needs = (
+        (run.is_dir(), "not a folder"),
+        ((run / CONFIG_FILE).is_file(), f"no {CONFIG_FILE} (not an sb3-coma train run folder)"),
+        ((run / EVALUATIONS).is_file(), f"no {EVALUATIONS} (train it with --eval-freq N --eval-missions M)"),
+        (
+            any((run / TENSORBOARD_DIR).glob("**/events.out.tfevents.*")),
+            f"no TensorBoard event file under {TENSORBOARD_DIR}/",
+        ),
+    )
+    problem = next((message for ok, message in needs if not ok), None)
+    if problem is None:
+        try:
+            return read_run_config(run)
+        except TrainingError as exc:
+            problem = str(exc)
+    raise RunDirError(f"run folder {run}: {problem}")
 
 
 def _flag(command: str, name: str) -> str | None:
@@ -156,9 +168,7 @@ def _eval_seed(cfg: TrainConfig, override: int | None) -> int:
 
 def _evaluations(run: Path, n_agents: int) -> tuple[np.ndarray, int]:
     """(evaluation steps, validation missions M) from ``eval/evaluations.npz``."""
-    path = run / EVALUATIONS
-    if not path.is_file():
-        raise RunDirError(f"run folder {run}: no {EVALUATIONS} (train it with --eval-freq N --eval-missions M)")
+    path = run / EVALUATIONS  # there: _run_config checked it
     with np.load(path) as data:
         steps, results = np.asarray(data["timesteps"], dtype=np.int64), np.asarray(data["results"])
     if steps.size == 0 or results.ndim != 2 or results.shape[1] % n_agents:
@@ -169,14 +179,15 @@ def _evaluations(run: Path, n_agents: int) -> tuple[np.ndarray, int]:
     return steps, results.shape[1] // n_agents
 
 
-def _tensorboard_scalars(run: Path, tags: Sequence[str]) -> dict[str, dict[int, float]]:
-    """``{tag: {step: value}}`` over every event file under ``run/tb`` (a resumed run appends files;
-    the last value written at a step wins). ``sb3_coma.experiments.plots._read_tensorboard`` numbers the points
-    1..n instead of keeping their steps, which these curves need, so this reads the same
-    ``EventAccumulator`` keeping them."""
+def _tensorboard_scalars(run: Path, tags: Sequence[str], steps: np.ndarray) -> dict[str, np.ndarray]:
+    """``{tag: values at every evaluation step}`` over every event file under ``run/tb`` (a
+    resumed run appends files; the last value written at a step wins).
+    ``sb3_coma.experiments.plots._read_tensorboard`` numbers the points 1..n instead of keeping their
+    steps, which these curves need, so this reads the same ``EventAccumulator`` keeping them.
+
+    One rule, one raise: every tag has a value at every evaluation step (a step without one is an
+    error, not a gap); a tag missing altogether is named with the scalars the log does hold."""
     folders = sorted({p.parent for p in (run / TENSORBOARD_DIR).glob("**/events.out.tfevents.*")})
-    if not folders:
-        raise RunDirError(f"run folder {run}: no TensorBoard event file under {TENSORBOARD_DIR}/")
     found: dict[str, dict[int, float]] = {tag: {} for tag in tags}
     seen: set[str] = set()
     for folder in folders:
@@ -188,19 +199,16 @@ def _tensorboard_scalars(run: Path, tags: Sequence[str]) -> dict[str, dict[int, 
             if tag in present:
                 found[tag].update({int(e.step): float(e.value) for e in acc.Scalars(tag)})
     missing = [tag for tag in tags if not found[tag]]
-    if missing:
-        raise RunDirError(
-            f"run folder {run}: no {', '.join(missing)} in its TensorBoard log (scalars: {sorted(seen) or 'none'})"
+    lost = {tag: [int(s) for s in steps if int(s) not in found[tag]] for tag in tags if found[tag]}
+    lost = {tag: at for tag, at in lost.items() if at}
+    if missing or lost:
+        problem = (
+            f"no {', '.join(missing)} in its TensorBoard log (scalars: {sorted(seen) or 'none'})"
+            if missing
+            else "; ".join(f"{tag} is missing at evaluation steps {at} of {EVALUATIONS}" for tag, at in lost.items())
         )
-    return found
-
-
-def _at_steps(run: Path, tag: str, values: dict[int, float], steps: np.ndarray) -> np.ndarray:
-    """``values`` at every evaluation step; a step without a scalar is an error, not a gap."""
-    lost = [int(s) for s in steps if int(s) not in values]
-    if lost:
-        raise RunDirError(f"run folder {run}: {tag} is missing at evaluation steps {lost} of {EVALUATIONS}")
-    return np.array([values[int(s)] for s in steps], dtype=np.float64)
+        raise RunDirError(f"run folder {run}: {problem}")
+    return {tag: np.array([found[tag][int(s)] for s in steps], dtype=np.float64) for tag in tags}
 
 
 def read_run(run: str | Path, eval_seed: int | None = None) -> RunCurve:
@@ -209,7 +217,7 @@ def read_run(run: str | Path, eval_seed: int | None = None) -> RunCurve:
     cfg = _run_config(run)
     n_agents = int(cfg.n_agents)
     steps, missions = _evaluations(run, n_agents)
-    scalars = _tensorboard_scalars(run, list(TAGS.values()))
+    scalars = _tensorboard_scalars(run, list(TAGS.values()), steps)
     env_kwargs = {k: v for k, v in cfg.env_kwargs.items() if k not in ("fusion", "fusion_kwargs")}
     if cfg.run.get("validation_protocol") == "validation" and env_kwargs.get("split", "paper") == "train":
         env_kwargs.update(PROTOCOLS["validation"].env_options())  # as make_validation_env built it
@@ -227,8 +235,8 @@ def read_run(run: str | Path, eval_seed: int | None = None) -> RunCurve:
         budget=int(cfg.world.config.budget),
         validation=validation,
         steps=steps,
-        f1=_at_steps(run, TAGS["f1"], scalars[TAGS["f1"]], steps),
-        entropy=_at_steps(run, TAGS["entropy"], scalars[TAGS["entropy"]], steps),
+        f1=scalars[TAGS["f1"]],
+        entropy=scalars[TAGS["entropy"]],
         teacher_missions=_teacher_missions(run),
     )
 
@@ -244,8 +252,8 @@ def baseline_scores(validation: Validation, name: str) -> MissionScores:
         return make_planner(kind, venv, seed=validation.seed, **planner_options(kind, config, options))
 
     scores = fly_validation(validation, planner)
-    if len(scores.f1) != validation.missions:  # pragma: no cover - evaluate_policy counts missions exactly
-        raise RuntimeError(f"{name}: flew {len(scores.f1)} of {validation.missions} validation missions")
+    # evaluate_policy counts missions exactly: another count is our bug, not the user's
+    assert len(scores.f1) == validation.missions, f"{name}: flew {len(scores.f1)} of {validation.missions} missions"
     return scores
 
 
@@ -291,8 +299,7 @@ def build_group(
     name: str, runs: Sequence[RunCurve], levels: Callable[[Validation], dict[str, tuple[float, float]]]
 ) -> GroupCurve:
     """A group's curves on the evaluation steps all its runs share (the common prefix)."""
-    if not runs:
-        raise RunDirError(f"group {name}: no run folder")
+    assert runs, f"group {name}: no run folder"  # parse_groups gives every group at least one
     _check_same(name, runs, "validation missions", lambda r: r.validation)
     _check_same(name, runs, "budget", lambda r: r.budget)
     _check_same(name, runs, "teacher-labelled missions", lambda r: r.teacher_missions)

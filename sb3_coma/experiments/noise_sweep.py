@@ -280,11 +280,12 @@ SWEPT_OPTIONS = ("noise", "sigma", "alpha_low", "drop_probability", "decoder")
 
 
 def _check_arms(arms: Sequence[Method], env: str, n_missions: int, options: Mapping[str, Any]) -> None:
-    """Everything about the arms that would waste the sweep, refused before any mission is flown:
-    two arms under one label (their results would overwrite each other), too few missions for
-    the paired columns (one mission makes every verdict nan), a model of another map family, or
-    a model whose observation options differ from the sweep's. Other world differences of a
-    model (budget ...) are one warning here; the swept settings differ on purpose (no warning)."""
+    """Everything about the arms and options that would waste the sweep, refused before any mission
+    is flown: an env option the settings set themselves (``points=`` says those), two arms under
+    one label (their results would overwrite each other), too few missions for the paired columns
+    (one mission makes every verdict nan), a model of another map family, or a model whose
+    observation options differ from the sweep's. Other world differences of a model (budget ...)
+    are one warning here; the swept settings differ on purpose (no warning)."""
     builtin = set(ENV_IDS.values())
     trained = {a.label: dict(a.trained) for a in arms if a.learned}
     elsewhere = [
@@ -294,7 +295,9 @@ def _check_arms(arms: Sequence[Method], env: str, n_missions: int, options: Mapp
     ]
     labels = [a.label for a in arms]
     twice = sorted({label for label in labels if labels.count(label) > 1})
+    clash = sorted(set(options) & set(SWEPT_OPTIONS))
     problems = [  # one table, one raise: the first that applies
+        *([f"the noise sweep sets {clash} itself; pass the settings with points="] if clash else []),
         *(["no arms to sweep"] if not arms else []),
         *(
             [
@@ -351,9 +354,6 @@ def run_noise_sweep(
         starts unless ``start=`` says otherwise)
     :param env_options: more env options (``budget``, ``n_uavs`` ...); not the swept ones
     """
-    clash = sorted(set(env_options) & set(SWEPT_OPTIONS))
-    if clash:
-        raise ValueError(f"the noise sweep sets {clash} itself; pass the settings with points=")
     if points is None:
         points = sweep_points(QUICK_AXES if quick else AXES, grid=grid)
     options = {"split": split, **({"start": "random"} if split != "paper" else {}), **env_options}

@@ -158,8 +158,7 @@ def plot_metric_grid(
     """F1 (top) and entropy (bottom) vs step, one column per group (e.g. noise level); a method
     keeps its style in every column, and the one legend lists every method."""
     groups = [g for g in results if results[g]]
-    if not groups:
-        raise ValueError("plot_metric_grid needs at least one non-empty group")
+    assert groups, "plot_metric_grid needs at least one non-empty group"  # its callers write it only then
     labs = {g: list(labels[g]) if labels and g in labels else [r.method for r in results[g]] for g in groups}
     styles = method_styles(label for g in groups for label in labs[g])
     fig, axes = plt.subplots(2, len(groups), figsize=(4.2 * len(groups) + 2.2, 7), squeeze=False, layout="constrained")
@@ -232,8 +231,10 @@ def _read_tensorboard(path: Path, tag: str | None) -> TrainingCurve:
 def load_training_log(path: PathLike, agents_per_episode: int = 1, tag: str | None = None) -> TrainingCurve:
     """Team reward per episode from a CSV, a monitor CSV or a TensorBoard log (module docstring)."""
     path = Path(path)
-    if isinstance(agents_per_episode, bool) or int(agents_per_episode) != agents_per_episode or agents_per_episode < 1:
-        raise ValueError(f"agents_per_episode={agents_per_episode!r}: must be an integer >= 1")
+    # the edge (sb3-coma evaluate --agents-per-episode) checked it: a bad one is our bug
+    assert not isinstance(agents_per_episode, bool) and int(agents_per_episode) == agents_per_episode >= 1, (
+        f"agents_per_episode={agents_per_episode!r}: must be an integer >= 1"
+    )
     if not path.exists():
         raise FileNotFoundError(f"training log not found: {str(path)!r}")
     if path.is_dir():
@@ -268,8 +269,7 @@ def plot_training_reward(
     """Team reward vs training episode (Figure 3): raw values faint, a trailing mean on top."""
     if isinstance(logs, (str, os.PathLike, TrainingCurve)):
         logs = {"reward": logs}
-    if not logs:
-        raise ValueError("plot_training_reward needs at least one log")
+    assert logs, "plot_training_reward needs at least one log"  # its callers draw it only then
     styles = method_styles(logs)
     fig, ax = plt.subplots(figsize=(8.5, 4), layout="constrained")
     for label, log in logs.items():
@@ -493,8 +493,7 @@ def plot_ablation(
 
     ``results`` maps (variant label, noise level) to its result.
     """
-    if not results:
-        raise ValueError("plot_ablation needs at least one result")
+    assert results, "plot_ablation needs at least one result"  # its callers draw it only then
     variants = list(dict.fromkeys(v for v, _ in results))
     noises = list(dict.fromkeys(n for _, n in results))
     styles = method_styles(variants)
@@ -572,8 +571,7 @@ def plot_noise_sweep(result: NoiseSweepResult, path: PathLike, title: str | None
     """
     axes_swept = [a for a in AXIS_TITLES if any(p.axis == a or p.axis == "grid" for p in result.points)] or ["sigma"]
     decoders = list(dict.fromkeys(p.decoder for p in result.points))
-    if not result.results:
-        raise ValueError("plot_noise_sweep needs at least one result")
+    assert result.results, "plot_noise_sweep needs at least one result"  # its callers draw it only then
     styles = method_styles(result.arms)
     fig, grid = plt.subplots(
         2,

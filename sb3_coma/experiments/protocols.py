@@ -353,8 +353,8 @@ def run_protocol(
     out = ProtocolResult(proto, n, seed, noise, {**env_options, **proto.env_options()})
     for env, ms in methods.items():
         labels = [m.label for m in ms]
-        if len(set(labels)) != len(labels):
-            raise ValueError(f"duplicate method labels on {env}: {labels}")
+        # the rows come from app.rows, which labels every method of a map once: a repeat is our bug
+        assert len(set(labels)) == len(labels), f"duplicate method labels on {env}: {labels}"
         out.methods[env] = list(ms)
         for m in ms:
             if log:

@@ -37,7 +37,7 @@ from sb3_coma.app.evaluation import Missions, parallel_evaluation, resolve_metho
 from sb3_coma.app.evaluation import fly as fly_method
 from sb3_coma.common.evaluation import EvaluationResult, merge_results
 from sb3_coma.stats.paired import PairedDifference, holm_adjust, paired_difference, paired_markdown
-from uav_ipp.maps.build_shipped_maps import source_dir
+from uav_ipp.maps.build_shipped_maps import read_source_image, source_dir
 
 __all__ = ["CROPS", "IMAGE_DIR", "RULE", "build", "fly", "images", "main", "table_markdown", "verdicts"]
 
@@ -77,10 +77,7 @@ def build(source: Path | None, out: Path = IMAGE_DIR) -> dict[str, str]:
         folder = data / "landsat8" / "small_full_data_cloudy"
         bands = []
         for band in BANDS:
-            image = cv2.imread(str(folder / band), cv2.IMREAD_UNCHANGED)
-            if image is None:
-                raise SystemExit(f"cannot read the Landsat-8 band {folder / band}")
-            bands.append(image.astype(np.float64))
+            bands.append(read_source_image(folder / band, hint=" (a Landsat-8 band)").astype(np.float64))
         rgb = np.stack(bands, axis=-1)
     for name, (row, col) in CROPS.items():
         crop = _stretch(rgb[row : row + SIDE, col : col + SIDE], 2.0, 98.0)
