@@ -268,14 +268,15 @@ def test_every_baseline_row_of_the_tables_resolves_by_its_name():
     """Each baseline row the protocols write (docs/RESULTS.md) is a name ``evaluate`` and
     ``sb3-coma evaluate --methods`` take, meaning the same planner and options as the row."""
     from sb3_coma.app import evaluation as ev
+    from sb3_coma.app import methods
     from sb3_coma.app.rows import BASELINE_METHODS
 
     for method in BASELINE_METHODS:
         ev.check_policy(method.label)
         assert not ev.is_model(method.label)
-        planner, options = ev.PLANNER_ALIASES.get(method.label, (method.label, {}))
+        planner, options = methods.PLANNER_ALIASES.get(method.label, (method.label, {}))
         assert (planner, options) == (method.policy, dict(method.planner_kwargs)), method.label
-    assert {"ag-k2", "ag-k3", "ag-comm", "ag-central", "oracle"} <= set(ev.baseline_names())
+    assert {"ag-k2", "ag-k3", "ag-comm", "ag-central", "oracle"} <= set(methods.baseline_names())
 
 
 def test_a_row_name_flies_what_the_protocols_fly():

@@ -37,11 +37,7 @@ import numpy as np
 
 import uav_ipp
 from sb3_coma.app.methods import (
-    PLANNER_ALIASES,
     Method,
-    baseline_names,
-    is_baseline,
-    looks_like_path,
     resolve_method,
 )
 from sb3_coma.baselines.adaptive_gain import default_weighting
@@ -49,7 +45,6 @@ from sb3_coma.coma import COMA
 from sb3_coma.common.evaluation import (
     DEFAULT_TRIALS,
     EVAL_BATCH,
-    PROTOCOLS,
     EvaluationResult,
     _check_int,
     evaluate_policy,
@@ -58,29 +53,6 @@ from sb3_coma.common.evaluation import (
     relabel,
 )
 from uav_ipp import NOISE_PRESETS, IppConfig
-
-__all__ = [
-    "OBSERVATION_OPTIONS",
-    "PLANNER_ALIASES",
-    "PROTOCOLS",
-    "WORLD_OPTIONS",
-    "Method",
-    "Missions",
-    "WorldMismatchWarning",
-    "baseline_names",
-    "check_observation_options",
-    "check_policy",
-    "evaluate",
-    "fly",
-    "is_baseline",
-    "is_model",
-    "looks_like_path",
-    "parallel_evaluation",
-    "planner_options",
-    "resolve_method",
-    "trained_options",
-    "world_differences",
-]
 
 
 def is_model(policy_or_name: Any) -> bool:

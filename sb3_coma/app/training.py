@@ -44,7 +44,6 @@ from sb3_coma.app.config import (
     coma_kwargs,
     construct,
     env_options_of,
-    eval_copies,
     is_int,
     load_config,
     make_training_env,
@@ -92,27 +91,6 @@ from sb3_coma.common.evaluation import validation_missions
 from sb3_coma.common.memory import release_freed_memory
 
 # the trainer
-__all__ = [
-    "RESUME_APPLIED_KEYS",
-    "TB_LOG_NAME",
-    "VALIDATION_SEED",
-    "MissionCallbacks",
-    "RunPlan",
-    "TrainingInterrupted",
-    "attach_callbacks",
-    "build_model",
-    "check_device",
-    "eval_copies",
-    "learn",
-    "mission_callbacks",
-    "plan_run",
-    "prepare_run_folder",
-    "record_env_options",
-    "run_settings",
-    "save_final",
-    "selection_end",
-    "train",
-]
 
 TB_LOG_NAME = "COMA"
 #: Env seed of the validation missions that ``--eval-freq`` flies (seeds 1000, 1001, ...): far

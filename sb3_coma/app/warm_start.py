@@ -41,21 +41,9 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_coma.app.config import WARM_START_KEY, TrainConfig, check_warm_start, make_training_env
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma import COMA
-from sb3_coma.coma.coma import actor_frozen_then
 from sb3_coma.common.callbacks import SignalStopCallback
 from sb3_coma.common.checkpoints import atomic_save, atomic_write_text
 from sb3_coma.uav.imitation import DaggerCheckpoint, DaggerInterrupted, DaggerReport, clone_teacher
-
-__all__ = [
-    "WARM_START_MODEL",
-    "WARM_START_RECORD",
-    "WARM_START_STATE",
-    "WarmStartInterrupted",
-    "actor_frozen_then",
-    "warm_start",
-    "warm_start_pending",
-    "warm_start_run",
-]
 
 #: The clone (with its KL reference and the actor's hold): a COMA model at 0 joint steps.
 WARM_START_MODEL = "warm_start.zip"

@@ -66,7 +66,6 @@ from sb3_coma.coma.policies import CnnPolicy, COMAPolicy, MlpPolicy, MultiInputP
 from sb3_coma.coma.progress import JointStepProgressBar
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
-    ADVANTAGES,
     check_batch_fits_rollout,
     check_coma_arguments,
     check_device,
@@ -91,8 +90,6 @@ SelfCOMA = TypeVar("SelfCOMA", bound="COMA")
 
 #: Steps per env copy per rollout when ``n_steps`` is not given (256 joint steps with 8 copies).
 DEFAULT_ROLLOUT_STEPS = 32
-
-__all__ = ["ADVANTAGES", "COMA", "actor_frozen_then"]
 
 #: Format of the models this version saves (see ``coma_format``).
 COMA_FORMAT = 2

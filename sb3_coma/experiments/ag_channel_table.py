@@ -25,8 +25,6 @@ import numpy as np
 from sb3_coma.app.evaluation import Method, Missions
 from sb3_coma.app.evaluation import fly as fly_method
 
-__all__ = ["KEYS", "fly", "main"]
-
 #: The final metrics of one mission, in table order.
 KEYS = ("f1", "entropy", "team_f1", "team_entropy")
 

@@ -34,8 +34,6 @@ from sb3_coma.common.checkpoints import atomic_write_text
 from sb3_coma.common.evaluation import EvaluationResult
 from sb3_coma.stats.paired import PairedDifference, holm_adjust, paired_difference, paired_markdown
 
-__all__ = ["CLONE_LABEL", "PAIR_LABELS", "SCRATCH_LABEL", "WARM_LABEL", "main"]
-
 #: Row names of the three learners, as every generated table spells them.
 WARM_LABEL = pt.WARM_START_TITLE
 CLONE_LABEL = "oracle clone (DAgger)"

@@ -25,8 +25,6 @@ from sb3_coma.app.roles import add_split_argument, protocol_for_split
 from sb3_coma.common.evaluation import EvaluationResult
 from sb3_coma.stats.paired import PairedDifference, holm_adjust, paired_difference
 
-__all__ = ["main", "sweep"]
-
 #: (label, method, planner options) of the methods flown at every budget, the learned one first.
 BASELINES: tuple[tuple[str, str, dict[str, Any]], ...] = (("ag", "ag", {}), ("ag-k3", "ag", {"lookahead": 3}))
 

@@ -53,15 +53,13 @@ from stable_baselines3.common.callbacks import BaseCallback
 import uav_ipp
 from sb3_coma import COMA
 from sb3_coma.app.arguments import add_env_argument, add_out_argument, add_threads_argument
+from sb3_coma.app.config import eval_copies
 from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
-from sb3_coma.app.training import eval_copies
 from sb3_coma.common.callbacks import MissionEvalCallback
 from sb3_coma.common.evaluation import PROTOCOLS, VALIDATION_SEED, validation_missions
 from sb3_coma.mappo.mappo import make_ippo, make_mappo, missions_of, timesteps_for_missions
 from sb3_coma.stats.paired import paired_difference
-
-__all__ = ["METRICS", "Curve", "main", "parse_args"]
 
 #: Final metrics reported, in table order.
 METRICS = ("f1", "entropy", "team_f1", "team_entropy")

@@ -52,8 +52,6 @@ from sb3_coma.app.validation_flights import validation_return
 from sb3_coma.common.checkpoints import atomic_write_text
 from sb3_coma.stats.paired import PairedDifference, paired_difference, paired_markdown
 
-__all__ = ["METRICS", "Candidate", "Learner", "load", "main", "parse_learner", "select", "validation_score"]
-
 #: Final metrics compared, in table order (global belief, then the UAVs' own beliefs).
 METRICS = ("f1", "entropy", "team_f1", "team_entropy")
 #: The greedy planners every learner is compared with (label, AG's options).

@@ -45,20 +45,6 @@ from sb3_coma.common.evaluation import ALL_METRICS, EvaluationResult
 from sb3_coma.stats.paired import PairedDifference, cell, holm_adjust, paired_difference
 from uav_ipp import ENV_IDS, IppConfig
 
-__all__ = [
-    "ALPHA_LOWS",
-    "AXES",
-    "CENTRE",
-    "DECODERS",
-    "DROP_PROBABILITIES",
-    "QUICK_AXES",
-    "SIGMAS",
-    "NoiseSweepResult",
-    "SweepPoint",
-    "run_noise_sweep",
-    "sweep_points",
-]
-
 SIGMAS: tuple[float, ...] = (0.0, 0.02, 0.06, 0.1, 0.2, 0.3)
 ALPHA_LOWS: tuple[float, ...] = (1.0, 0.8, 0.6, 0.4)
 DROP_PROBABILITIES: tuple[float, ...] = (0.0, 0.3)

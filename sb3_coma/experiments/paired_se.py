@@ -20,8 +20,6 @@ from sb3_coma.app.arguments import add_env_argument, add_missions_argument, add_
 from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.stats.paired import paired_difference
 
-__all__ = ["main"]
-
 #: (label, baseline name, planner options) of the methods compared with AG.
 METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("ag-k2", "ag", {"lookahead": 2}),

@@ -26,8 +26,6 @@ from sb3_coma import load_pretrained
 from sb3_coma.app.arguments import add_env_argument, add_missions_argument
 from sb3_coma.app.evaluation import Missions, fly, resolve_method
 
-__all__ = ["main"]
-
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Print one table row per team size: the model, AG and the lawnmower on the same missions."""

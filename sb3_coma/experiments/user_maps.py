@@ -39,8 +39,6 @@ from sb3_coma.common.evaluation import EvaluationResult, merge_results
 from sb3_coma.stats.paired import PairedDifference, holm_adjust, paired_difference, paired_markdown
 from uav_ipp.maps.build_shipped_maps import read_source_image, source_dir
 
-__all__ = ["CROPS", "IMAGE_DIR", "RULE", "build", "fly", "images", "main", "table_markdown", "verdicts"]
-
 #: The shipped crops: name -> (top row, left column) in the 603 x 627 Landsat-8 scene; every crop is
 #: :data:`SIDE` px square, picked among the cloud-free windows (under 0.3 % bright pixels), disjoint.
 CROPS: dict[str, tuple[int, int]] = {

@@ -174,9 +174,9 @@ def _env_names(args: argparse.Namespace) -> list[str]:
 
 def _trials(args: argparse.Namespace, env_name: str) -> int:
     """Missions per method on ``env_name``: ``--trials``, else the protocol's count for that map."""
-    from sb3_coma.app import evaluation as ev
+    from sb3_coma.common.evaluation import PROTOCOLS
 
-    return int(args.trials) if args.trials is not None else ev.PROTOCOLS[args.protocol].missions(env_name)
+    return int(args.trials) if args.trials is not None else PROTOCOLS[args.protocol].missions(env_name)
 
 
 def _trials_text(args: argparse.Namespace, env_names: list[str]) -> str:
@@ -238,10 +238,11 @@ def _check_out(out: Path) -> None:
 def run(args: argparse.Namespace) -> int:
     from sb3_coma.app import evaluation as ev
     from sb3_coma.app.outputs import OutputInterrupted, staged_output
+    from sb3_coma.common.evaluation import PROTOCOLS
 
     set_threads(args.threads)
     if args.seed is None:
-        args.seed = ev.PROTOCOLS[args.protocol].first_seed if args.protocol else 0
+        args.seed = PROTOCOLS[args.protocol].first_seed if args.protocol else 0
     if args.trials is None and not args.protocol:
         args.trials = ev.DEFAULT_TRIALS
     _check_args(args)
