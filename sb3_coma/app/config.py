@@ -25,7 +25,7 @@ import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, TypeGuard
+from typing import Any, NoReturn, TypeGuard
 
 import torch as th
 import yaml
@@ -216,7 +216,7 @@ def coma_parameter_names() -> list[str]:
     return [n for n in inspect.signature(COMA.__init__).parameters if n not in skip]
 
 
-def _fail(where: str, message: str) -> None:
+def _fail(where: str, message: str) -> NoReturn:
     raise TrainingError(f"{where}: {message}")
 
 
@@ -225,13 +225,20 @@ def is_int(value: Any) -> TypeGuard[int]:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
-def positive_int(where: str, key: str, value: Any) -> int:
-    """``value`` as an int >= 1 (``2.0`` passes); :class:`TrainingError` naming ``where`` and ``key``."""
+def _whole_at_least(value: Any, minimum: int) -> int | None:
+    """``value`` as an int >= ``minimum`` (``2.0`` passes), ``None`` when it is not one: the one
+    test behind :func:`positive_int` (config entries) and :func:`checked_count` (a run's counts)."""
     if isinstance(value, float) and value.is_integer():
         value = int(value)
-    if not is_int(value) or value < 1:
+    return int(value) if is_int(value) and value >= minimum else None
+
+
+def positive_int(where: str, key: str, value: Any) -> int:
+    """``value`` as an int >= 1 (``2.0`` passes); :class:`TrainingError` naming ``where`` and ``key``."""
+    number = _whole_at_least(value, 1)
+    if number is None:
         _fail(where, f"{key} must be a positive integer, got {value!r}")
-    return int(value)
+    return number
 
 
 #: The least value each count of a run takes (the frequencies: 0 means none). One rule per count,
@@ -243,12 +250,11 @@ def checked_count(key: str, value: Any, label: str | None = None) -> int:
     """``value`` as the count ``key`` of :data:`COUNT_MINIMUMS` (``2.0`` passes); a
     :class:`TrainingError` naming ``label`` (default: the key) and the value otherwise."""
     minimum = COUNT_MINIMUMS[key]
-    if isinstance(value, float) and value.is_integer():
-        value = int(value)
-    if not is_int(value) or value < minimum:
+    number = _whole_at_least(value, minimum)
+    if number is None:
         rule = f"an integer >= {minimum}" + (" (0: none) in joint steps" if minimum == 0 else "")
         raise TrainingError(f"{label or key} must be {rule}, got {value!r}")
-    return int(value)
+    return number
 
 
 def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[str, dict[str, Any], dict[str, Any]]:
@@ -659,14 +665,12 @@ def config_entry(
     variant: str | None = None,
     overrides: Mapping[str, Any] | None = None,
     data: dict[str, Any] | None = None,
-    validate: bool = True,
 ) -> dict[str, Any]:
     """The env's entry of a config file, with a variant and overrides merged in, validated (its
     env options resolved only by :func:`train_config`, the one that keeps them)."""
     p = Path(path)
     entry, where = _entry_and_where(p, env_id, variant, overrides, read_config_file(p) if data is None else data)
-    if validate:
-        validate_entry(entry, where)
+    validate_entry(entry, where)
     return entry
 
 
