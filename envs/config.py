@@ -12,7 +12,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 #: Version of the world's rules. 2: per-cell local beliefs M_i fed by cell-level messages (issue #14);
 #: 1: local beliefs on the comm grid. A model trained on another version sees different observations.
@@ -58,7 +58,9 @@ class ConfigError(ValueError):
     """A user-facing option has a bad value; the message names the option and what is allowed."""
 
 
-def _fail(option: str, value: Any, allowed: str) -> None:
+def invalid_option(option: str, value: Any, allowed: str) -> NoReturn:
+    """The one way the world refuses an option: one line naming it, its value and what is allowed
+    (the config's own checks, the env's start columns, the vec env's copies and workers)."""
     raise ConfigError(f"invalid option {option}={value!r}: {allowed}")
 
 
@@ -154,20 +156,20 @@ class IppConfig:
             try:
                 options["altitudes"] = tuple(float(a) for a in options["altitudes"])
             except (TypeError, ValueError):
-                _fail("altitudes", options["altitudes"], "a non-empty list of positive altitudes in metres")
+                invalid_option("altitudes", options["altitudes"], "a non-empty list of positive altitudes in metres")
         if "flip_probability" in options and options["flip_probability"] is not None:
             fp = options["flip_probability"]
             if not isinstance(fp, Mapping):
-                _fail("flip_probability", fp, "a mapping altitude -> flip probability")
+                invalid_option("flip_probability", fp, "a mapping altitude -> flip probability")
             try:
                 options["flip_probability"] = {float(k): float(v) for k, v in fp.items()}
             except (TypeError, ValueError):
-                _fail("flip_probability", fp, "a mapping altitude (m) -> flip probability (numbers)")
+                invalid_option("flip_probability", fp, "a mapping altitude (m) -> flip probability (numbers)")
         if options.get("start_positions") is not None:
             try:
                 options["start_positions"] = tuple(tuple(float(c) for c in p) for p in options["start_positions"])
             except (TypeError, ValueError):
-                _fail("start_positions", options["start_positions"], "a list of (x, y, z) triples in metres")
+                invalid_option("start_positions", options["start_positions"], "a list of (x, y, z) triples in metres")
         return cls(map_name=str(name), **options)
 
     def replace(self, **changes: Any) -> IppConfig:
@@ -194,45 +196,47 @@ class IppConfig:
     def _validate_sizes(self) -> None:
         """``lattice``, ``grid``, ``n_uavs``, ``budget`` and ``field_size``."""
         if not _is_int(self.lattice) or self.lattice < 2:
-            _fail("lattice", self.lattice, "an integer >= 2")
+            invalid_option("lattice", self.lattice, "an integer >= 2")
         if not _is_int(self.grid) or self.grid < self.lattice:
-            _fail("grid", self.grid, f"an integer >= lattice ({self.lattice})")
+            invalid_option("grid", self.grid, f"an integer >= lattice ({self.lattice})")
         if not _is_int(self.n_uavs) or self.n_uavs < 1:
-            _fail("n_uavs", self.n_uavs, "an integer >= 1")
+            invalid_option("n_uavs", self.n_uavs, "an integer >= 1")
         if self.n_uavs > self.lattice * self.lattice:
-            _fail("n_uavs", self.n_uavs, f"at most {self.lattice * self.lattice} (one UAV per lattice column)")
+            invalid_option("n_uavs", self.n_uavs, f"at most {self.lattice * self.lattice} (one UAV per lattice column)")
         if not _is_int(self.budget) or self.budget < 1:
-            _fail("budget", self.budget, "an integer >= 1 (decisions per UAV)")
+            invalid_option("budget", self.budget, "an integer >= 1 (decisions per UAV)")
         if not (isinstance(self.field_size, (int, float)) and math.isfinite(self.field_size) and self.field_size > 0):
-            _fail("field_size", self.field_size, "a positive number of metres")
+            invalid_option("field_size", self.field_size, "a positive number of metres")
 
     def _validate_altitudes(self) -> None:
         """At most 3 positive, strictly increasing, equally spaced altitudes."""
         if not self.altitudes or any(not math.isfinite(a) or a <= 0 for a in self.altitudes):
-            _fail("altitudes", self.altitudes, "a non-empty list of positive altitudes in metres")
+            invalid_option("altitudes", self.altitudes, "a non-empty list of positive altitudes in metres")
         if len(self.altitudes) > 3:
-            _fail(
+            invalid_option(
                 "altitudes",
                 self.altitudes,
                 "at most 3 altitude levels (the gain kernels carry 3 columns per weighting)",
             )
         if list(self.altitudes) != sorted(set(self.altitudes)):
-            _fail("altitudes", self.altitudes, "strictly increasing altitudes")
+            invalid_option("altitudes", self.altitudes, "strictly increasing altitudes")
         if len(self.altitudes) > 1:
             steps = {round(b - a, 9) for a, b in zip(self.altitudes, self.altitudes[1:])}
             if len(steps) != 1:
-                _fail("altitudes", self.altitudes, "equally spaced altitudes (up/down move one level)")
+                invalid_option("altitudes", self.altitudes, "equally spaced altitudes (up/down move one level)")
 
     def _validate_flip_probability(self) -> None:
         """One flip probability in (0, 0.5) for every altitude."""
         if not isinstance(self.flip_probability, Mapping):
-            _fail("flip_probability", self.flip_probability, "a mapping altitude (m) -> flip probability")
+            invalid_option("flip_probability", self.flip_probability, "a mapping altitude (m) -> flip probability")
         missing = [a for a in self.altitudes if a not in self.flip_probability]
         if missing:
-            _fail("flip_probability", dict(self.flip_probability), f"an entry for every altitude; missing {missing}")
+            invalid_option(
+                "flip_probability", dict(self.flip_probability), f"an entry for every altitude; missing {missing}"
+            )
         for alt, q in self.flip_probability.items():
             if not (0.0 < q < 0.5):
-                _fail(
+                invalid_option(
                     "flip_probability",
                     dict(self.flip_probability),
                     f"probabilities strictly between 0 and 0.5 (altitude {alt} has {q})",
@@ -241,69 +245,71 @@ class IppConfig:
     def _validate_starts(self) -> None:
         """``fov_deg``, ``start``, ``split``, ``mission_from_seed``, ``start_altitude`` and ``start_positions``."""
         if not (_is_number(self.fov_deg) and 0 < self.fov_deg < 180):
-            _fail("fov_deg", self.fov_deg, "an angle in (0, 180) degrees")
+            invalid_option("fov_deg", self.fov_deg, "an angle in (0, 180) degrees")
         if self.start is not None and self.start not in STARTS:
-            _fail("start", self.start, "None (the split's rule), 'fixed' or 'random'")
+            invalid_option("start", self.start, "None (the split's rule), 'fixed' or 'random'")
         if self.split not in SPLITS:
-            _fail("split", self.split, f"one of {list(SPLITS)}")
+            invalid_option("split", self.split, f"one of {list(SPLITS)}")
         if self.split != "paper" and self.map_path is not None:
-            _fail(
+            invalid_option(
                 "split",
                 self.split,
                 "'paper' with map_path= (a user's image has no train / test scenes); "
                 "use start='random' for random starts on it",
             )
         if not isinstance(self.mission_from_seed, bool):
-            _fail("mission_from_seed", self.mission_from_seed, "True or False")
+            invalid_option("mission_from_seed", self.mission_from_seed, "True or False")
         if self.mission_from_seed and self.split == "paper":
-            _fail("mission_from_seed", True, "False with split='paper' (the paper's mission is fixed)")
+            invalid_option("mission_from_seed", True, "False with split='paper' (the paper's mission is fixed)")
         if self.start_altitude not in self.altitudes:
-            _fail("start_altitude", self.start_altitude, f"one of the altitudes {list(self.altitudes)}")
+            invalid_option("start_altitude", self.start_altitude, f"one of the altitudes {list(self.altitudes)}")
         if self.start_positions is not None:
             self._validate_start_positions(self.start_positions)
 
     def _validate_channel(self) -> None:
         """``noise``, ``alpha_low``, ``sigma``, ``attenuation`` and ``decoder``."""
         if not isinstance(self.noise, str) or self.noise not in NOISE_PRESETS:
-            _fail("noise", self.noise, f"one of {sorted(NOISE_PRESETS)}")
+            invalid_option("noise", self.noise, f"one of {sorted(NOISE_PRESETS)}")
         if self.alpha_low is not None and not (_is_number(self.alpha_low) and 0.0 <= self.alpha_low <= 1.0):
-            _fail("alpha_low", self.alpha_low, "None (the noise preset's) or a lower attenuation bound in [0, 1]")
+            invalid_option(
+                "alpha_low", self.alpha_low, "None (the noise preset's) or a lower attenuation bound in [0, 1]"
+            )
         if self.sigma is not None and not (_is_number(self.sigma) and math.isfinite(self.sigma) and self.sigma >= 0):
-            _fail("sigma", self.sigma, "None (the noise preset's) or a noise standard deviation >= 0")
+            invalid_option("sigma", self.sigma, "None (the noise preset's) or a noise standard deviation >= 0")
         if self.attenuation not in ATTENUATIONS:
-            _fail("attenuation", self.attenuation, f"one of {list(ATTENUATIONS)}")
+            invalid_option("attenuation", self.attenuation, f"one of {list(ATTENUATIONS)}")
         if self.decoder not in DECODERS:
-            _fail("decoder", self.decoder, f"one of {list(DECODERS)}")
+            invalid_option("decoder", self.decoder, f"one of {list(DECODERS)}")
 
     def _validate_comm(self) -> None:
         """``comm_range``, ``drop_probability`` and ``comm_grid``."""
         if not (isinstance(self.comm_range, (int, float)) and self.comm_range >= 0 and not math.isnan(self.comm_range)):
-            _fail("comm_range", self.comm_range, "a distance >= 0 in metres (inf for unlimited)")
+            invalid_option("comm_range", self.comm_range, "a distance >= 0 in metres (inf for unlimited)")
         if not (_is_number(self.drop_probability) and 0.0 <= self.drop_probability <= 1.0):
-            _fail("drop_probability", self.drop_probability, "a probability in [0, 1]")
+            invalid_option("drop_probability", self.drop_probability, "a probability in [0, 1]")
         if not _is_int(self.comm_grid) or self.comm_grid < 4 or self.comm_grid % 4 or self.comm_grid > self.grid:
-            _fail("comm_grid", self.comm_grid, f"a multiple of 4 between 4 and grid ({self.grid})")
+            invalid_option("comm_grid", self.comm_grid, f"a multiple of 4 between 4 and grid ({self.grid})")
 
     def _validate_reward(self) -> None:
         """``alpha``, ``beta``, ``reward_entropy``, ``reward`` and the pair of the last two."""
         if not (
             _is_number(self.alpha) and _is_number(self.beta) and math.isfinite(self.alpha) and math.isfinite(self.beta)
         ):
-            _fail("alpha/beta", (self.alpha, self.beta), "finite reward scale and offset")
+            invalid_option("alpha/beta", (self.alpha, self.beta), "finite reward scale and offset")
         if max(abs(self.alpha), abs(self.beta)) > MAX_REWARD_SCALE:
-            _fail(
+            invalid_option(
                 "alpha/beta",
                 (self.alpha, self.beta),
                 f"magnitudes at most {MAX_REWARD_SCALE:g}: larger rewards overflow float32 to inf",
             )
         if self.reward_entropy not in ("plain", "weighted"):
-            _fail(
+            invalid_option(
                 "reward_entropy",
                 self.reward_entropy,
                 "'plain' (binary entropy of every cell) or 'weighted' (ipp-marl's class weighting)",
             )
         if self.reward not in REWARDS:
-            _fail(
+            invalid_option(
                 "reward",
                 self.reward,
                 "'entropy' (the paper's entropy-drop reward) or 'metrics' (the change of F1 and valuable-cell entropy)",
@@ -313,25 +319,27 @@ class IppConfig:
     def _validate_outputs(self) -> None:
         """``action_gain``, ``observation``, ``render_mode`` and ``map_seed``."""
         if not isinstance(self.action_gain, bool):
-            _fail("action_gain", self.action_gain, "True (observe each action's expected information gain) or False")
+            invalid_option(
+                "action_gain", self.action_gain, "True (observe each action's expected information gain) or False"
+            )
         if self.observation not in OBSERVATIONS:
-            _fail("observation", self.observation, f"one of {list(OBSERVATIONS)}")
+            invalid_option("observation", self.observation, f"one of {list(OBSERVATIONS)}")
         if self.observation == "v3" and self.comm_grid % self.lattice:
-            _fail(
+            invalid_option(
                 "comm_grid",
                 self.comm_grid,
                 f"a multiple of lattice ({self.lattice}) with observation='v3' (its fine view)",
             )
         if self.render_mode not in (None, "rgb_array", "ansi"):
-            _fail("render_mode", self.render_mode, "None, 'rgb_array' or 'ansi'")
+            invalid_option("render_mode", self.render_mode, "None, 'rgb_array' or 'ansi'")
         if self.map_seed is not None and (not _is_int(self.map_seed) or self.map_seed < 0):
-            _fail("map_seed", self.map_seed, "None (a new map each reset, env1 only) or an integer >= 0")
+            invalid_option("map_seed", self.map_seed, "None (a new map each reset, env1 only) or an integer >= 0")
 
     def _validate_reward_pair(self) -> None:
         """``reward_entropy`` shapes only the entropy-drop reward: with ``reward="metrics"`` a
         weighted entropy would be ignored while the run's config claims it, so the pair is refused."""
         if self.reward == "metrics" and self.reward_entropy == "weighted":
-            _fail(
+            invalid_option(
                 "reward_entropy",
                 self.reward_entropy,
                 "not with reward='metrics', which ignores it (it weights the 'entropy' reward only); "
@@ -340,25 +348,25 @@ class IppConfig:
 
     def _validate_start_positions(self, positions: tuple[tuple[float, float, float], ...]) -> None:
         if len(positions) != self.n_uavs:
-            _fail("start_positions", positions, f"exactly n_uavs={self.n_uavs} positions")
+            invalid_option("start_positions", positions, f"exactly n_uavs={self.n_uavs} positions")
         columns = set()
         for p in positions:
             if len(p) != 3:
-                _fail("start_positions", positions, "(x, y, z) triples")
+                invalid_option("start_positions", positions, "(x, y, z) triples")
             x, y, z = p
             for coord in (x, y):
                 k = coord / self.spacing
                 if not (0 <= coord <= self.field_size) or abs(k - round(k)) > 1e-6:
-                    _fail(
+                    invalid_option(
                         "start_positions",
                         p,
                         f"x and y on the lattice: multiples of {self.spacing:g} m in [0, {self.field_size:g}]",
                     )
             if z not in self.altitudes:
-                _fail("start_positions", p, f"z one of the altitudes {list(self.altitudes)}")
+                invalid_option("start_positions", p, f"z one of the altitudes {list(self.altitudes)}")
             col = (round(x / self.spacing), round(y / self.spacing))
             if col in columns:
-                _fail("start_positions", p, "distinct (x, y) columns: two UAVs cannot share a column")
+                invalid_option("start_positions", p, "distinct (x, y) columns: two UAVs cannot share a column")
             columns.add(col)
 
 

@@ -41,7 +41,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from . import gain, kernels, layout
-from .config import ConfigError, IppConfig
+from .config import ConfigError, IppConfig, invalid_option
 from .gain import WEIGHTINGS
 from .geometry import FieldGeometry
 from .maps import GroundTruth, load_ground_truth
@@ -228,15 +228,11 @@ class UavIppEnv(ParallelEnv):
                 if self._no_fly[round(p[1] / cfg.spacing), round(p[0] / cfg.spacing)]
             ]
             if bad:
-                raise ConfigError(
-                    f"invalid option start_positions={bad!r}: these columns are no-fly on map {self.ground_truth.name!r}"
-                )
+                invalid_option("start_positions", bad, f"these columns are no-fly on map {self.ground_truth.name!r}")
             return pos
         free = self._default_columns()
         if len(free) < n:
-            raise ConfigError(
-                f"invalid option n_uavs={n}: map {self.ground_truth.name!r} has only {len(free)} flyable columns"
-            )
+            invalid_option("n_uavs", n, f"map {self.ground_truth.name!r} has only {len(free)} flyable columns")
         if cfg.start_rule == "random":
             pick = self._rng.choice(len(free), size=n, replace=False)
             cols = [free[k] for k in pick]

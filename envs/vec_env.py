@@ -17,7 +17,7 @@ import supersuit
 from gymnasium.vector import VectorEnv
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-from .config import ConfigError, IppConfig
+from .config import IppConfig, invalid_option
 from .fusion import DEFAULT_FUSION, wrap_fusion
 from .ipp_env import UavIppEnv
 
@@ -48,8 +48,7 @@ class IppVecEnv(VecEnv):
         self._actions = np.asarray(actions)
 
     def step_wait(self):
-        if self._actions is None:
-            raise RuntimeError("step_wait() called without step_async()")
+        assert self._actions is not None, "step_wait() called without step_async()"
         observations, rewards, terminations, truncations, step_infos = self.venv.step(self._actions)
         infos = cast("list[dict[str, Any]]", step_infos)  # SuperSuit: one info dict per row
         self._actions = None
@@ -113,10 +112,17 @@ class IppVecEnv(VecEnv):
 def check_copies_and_seed(n_envs: Any, seed: Any) -> None:
     """One-line :class:`ConfigError` for a bad ``n_envs`` or ``seed``; shared with the worker
     pipeline (``uav_ipp.workers``), which must refuse them before it starts any process."""
-    if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
-        raise ConfigError(f"invalid option n_envs={n_envs!r}: an integer >= 1 (env copies)")
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
-        raise ConfigError(f"invalid option seed={seed!r}: an integer or None")
+    rules = (
+        ("n_envs", n_envs, _is_whole(n_envs) and n_envs >= 1, "an integer >= 1 (env copies)"),
+        ("seed", seed, seed is None or _is_whole(seed), "an integer or None"),
+    )
+    for option, value, accepted, allowed in rules:
+        if not accepted:
+            invalid_option(option, value, allowed)
+
+
+def _is_whole(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 def make_vec_env(

@@ -53,7 +53,7 @@ from stable_baselines3.common.vec_env.base_vec_env import (
     VecEnvStepReturn,
 )
 
-from .config import ConfigError, IppConfig
+from .config import ConfigError, IppConfig, invalid_option
 from .fusion import RAW_FUSION, available_fusions, fusion_factory
 from .vec_env import IppVecEnv
 from .vec_env import make_vec_env as make_in_process_vec_env
@@ -112,7 +112,7 @@ def check_workers(n_envs: int, workers: Any, backend: Any, ray_address: Any) -> 
     )
     for option, value, accepted, allowed in rules:
         if not accepted:
-            raise ConfigError(f"invalid option {option}={value!r}: {allowed}")
+            invalid_option(option, value, allowed)
 
 
 # ================================================================================= worker side
@@ -297,25 +297,29 @@ class _PipeTransport(_Transport):
                 return f"killed by signal {-code}"
         return f"exit code {code}"
 
-    def _dead(self, w: int, exc: BaseException | None = None) -> EnvWorkerError:
+    def _dead(self, w: int) -> EnvWorkerError:
         self.processes[w].join(timeout=1.0)  # reap it, so its exit code is known
-        return self.died(w, self._exit_reason(w) + (f" ({type(exc).__name__})" if exc is not None else ""))
+        return self.died(w, self._exit_reason(w))
+
+    @contextlib.contextmanager
+    def _pipe_to(self, w: int) -> Iterator[Connection]:
+        """Worker ``w``'s pipe; a pipe that breaks (the worker died) becomes the one error naming
+        the worker and why it died."""
+        try:
+            yield self.remotes[w]
+        except (EOFError, OSError):  # OSError: BrokenPipeError, ConnectionResetError, ...
+            raise self._dead(w) from None
 
     def send(self, w: int, cmd: str, data: Any) -> None:
-        try:
-            self.remotes[w].send((cmd, data))
-        except (BrokenPipeError, ConnectionResetError, EOFError) as exc:
-            raise self._dead(w, exc) from None
+        with self._pipe_to(w) as remote:
+            remote.send((cmd, data))
 
     def recv_raw(self, w: int) -> tuple[bool, Any]:
-        remote, process = self.remotes[w], self.processes[w]
-        while not remote.poll(POLL_INTERVAL_S):
-            if not process.is_alive() and not remote.poll(0):
-                raise self._dead(w)
-        try:
+        process = self.processes[w]
+        with self._pipe_to(w) as remote:
+            while not remote.poll(POLL_INTERVAL_S) and process.is_alive():
+                pass  # a dead worker's pipe holds what it sent, then reads as closed (EOFError)
             return remote.recv()
-        except (EOFError, ConnectionResetError, OSError) as exc:
-            raise self._dead(w, exc) from None
 
     def shutdown(self) -> None:
         for remote, process in zip(self.remotes, self.processes):

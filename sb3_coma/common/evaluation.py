@@ -345,13 +345,13 @@ def _run_batch(
             ent[:, t] = [infos[r]["entropy"] for r in rows]
             for k, arr in team.items():
                 arr[:, t] = [infos[r].get(k, np.nan) for r in rows]
-            if t < budget:
-                if dones.any():
-                    raise RuntimeError(f"a mission ended after {t} of {budget} steps")
-                if frames:
-                    belief_frames.append(venv.env_method("global_belief", indices=[0])[0].astype(np.float16))
-        if not dones.all():
-            raise RuntimeError(f"missions did not end after the budget of {budget} steps")
+            if (dones != (t == budget)).any():  # one rule: every mission lasts exactly the budget
+                raise RuntimeError(
+                    f"every mission must last the budget of {budget} steps; at step {t}, {int(dones.sum())} of "
+                    f"{len(dones)} rows ended"
+                )
+            if frames and t < budget:
+                belief_frames.append(venv.env_method("global_belief", indices=[0])[0].astype(np.float16))
     finally:
         if snaps is not None:
             snaps.remove()
@@ -482,12 +482,13 @@ def merge_results(parts: Sequence[EvaluationResult]) -> EvaluationResult:
     starts at the seed where chunk ``k`` ends), as flown by one call over all trials: per-trial
     arrays concatenated, planning times averaged by trials, the recorded beliefs and the GIF
     frames of the first chunks. Used to fly the chunks in parallel processes."""
-    if not parts:
-        raise ValueError("merge_results needs at least one result")
+    chunks = [(p.method, p.seed, p.seed + p.n_trials) for p in parts]
+    if not chunks or any(q[0] != p[0] or q[1] != p[2] for p, q in itertools.pairwise(chunks)):
+        raise ValueError(
+            f"merge_results needs one or more consecutive chunks of one method's missions, got (method, first seed, "
+            f"end seed) {chunks}"
+        )
     first = parts[0]
-    for prev, part in itertools.pairwise(parts):
-        if part.seed != prev.seed + prev.n_trials or part.method != first.method:
-            raise ValueError(f"chunks are not consecutive missions of one method: {prev!r} then {part!r}")
     beliefs = [p.final_beliefs for p in parts if p.final_beliefs is not None and len(p.final_beliefs)]
     scenes = [p.scenes for p in parts]
     return dataclasses.replace(

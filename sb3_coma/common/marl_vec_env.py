@@ -182,8 +182,7 @@ class MarlVecEnv(VecEnv):
             raise RuntimeError(
                 f"get_state() needs state_source 'env' (PettingZoo's state()); this env's is {self.state_source!r}"
             )
-        if self._states is None:
-            raise RuntimeError("get_state() called before reset()")
+        assert self._states is not None, "get_state() called before reset()"
         return self._states.copy()
 
     def action_masks(self) -> np.ndarray:

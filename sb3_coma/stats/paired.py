@@ -28,6 +28,7 @@ the run is executed but not the world the missions are flown in.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -429,16 +430,13 @@ def check_same_missions(a: Any, b: Any) -> tuple[str, ...] | None:
     neither result has them)."""
     same, settings = "not the same missions", "not flown under the same settings"
     sa, sb = getattr(a, "scenes", None), getattr(b, "scenes", None)
-    for s in (sa, sb):
-        if s is not None and len(s) != a.n_trials:
-            raise ValueError(f"{len(s)} scene labels for {a.n_trials} missions")
     oa, ob = _effective_options(a), _effective_options(b)
     keys = list(MISSION_OPTIONS) + sorted(set(_DEFAULTS) - set(MISSION_OPTIONS) - set(MAY_DIFFER))
     # One rule: every (what, value in a, value in b) below is equal, checked in this order.
     compared = [(attr, getattr(a, attr), getattr(b, attr), same) for attr in ("env", "seed", "n_trials")]
     compared += [(key, oa.get(key), ob.get(key), same if key in MISSION_OPTIONS else settings) for key in keys]
     if sa is not None and sb is not None:
-        compared += [(f"scene of mission {k}", x, y, same) for k, (x, y) in enumerate(zip(sa, sb))]
+        compared += [(f"scene of mission {k}", x, y, same) for k, (x, y) in enumerate(itertools.zip_longest(sa, sb))]
     for name, va, vb, what in compared:
         if _normal(va) != _normal(vb):
             raise ValueError(
@@ -473,8 +471,6 @@ def paired_difference(
     va = np.asarray(getattr(a, metric))[:, -1].astype(np.float64)
     vb = np.asarray(getattr(b, metric))[:, -1].astype(np.float64)
     d = va - vb
-    if labels is not None and len(labels) != len(d):
-        raise ValueError(f"{len(labels)} scene labels for {len(d)} missions")
     se = float(d.std(ddof=1) / math.sqrt(len(d))) if len(d) > 1 else float("nan")
     clusters = labels if labels is not None else tuple(str(k) for k in range(len(d)))
     clustered = cluster_robust_mean(d, clusters)

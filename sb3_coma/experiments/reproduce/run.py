@@ -56,8 +56,7 @@ class _Clock:
     def run(self, step: Callable[..., T], *args: Any) -> T:
         """``step(*args)``, after its progress line; its seconds go into :attr:`timings`."""
         number = len(self.timings) + 1
-        if STEPS[number - 1] is not step:
-            raise RuntimeError(f"step {number} is {STEPS[number - 1].__name__}, not {step.__name__}")
+        assert STEPS[number - 1] is step, f"step {number} is {STEPS[number - 1].__name__}, not {step.__name__}"
         tic = time.perf_counter()
         self.say(f"[{number}/{len(STEPS)}] {step.__name__.replace('_', ' ')} ({tic - self.start:.0f} s elapsed)")
         result = step(*args)
