@@ -315,3 +315,37 @@ def test_cli_evaluates_table_rows_by_name(tmp_path, capsys):
     assert set(names) <= rows, rows
     assert main(["evaluate", "--env", "env1", "--methods", "coma[mean-cnn]", "--out", str(out)]) == 2
     assert "unknown method 'coma[mean-cnn]'" in capsys.readouterr().err  # an env3 model only
+
+
+def test_a_mission_must_last_exactly_the_budget():
+    """One rule for both ways to break it: the env ends its missions before the budget the
+    evaluation reads from its config, or lets them run past it."""
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    from sb3_coma.baselines import make_planner
+    from sb3_coma.common.evaluation import evaluate_policy
+
+    class StatedBudget(VecEnvWrapper):  # reports a budget that is not the env's
+        def __init__(self, venv, budget: int) -> None:
+            super().__init__(venv)
+            self.n_agents, self.stated = venv.n_agents, budget
+
+        def reset(self):
+            return self.venv.reset()
+
+        def step_wait(self):
+            return self.venv.step_wait()
+
+        def get_attr(self, attr_name, indices=None):
+            values = self.venv.get_attr(attr_name, indices)
+            return [v.replace(budget=self.stated) for v in values] if attr_name == "config" else values
+
+    config = uav_ipp.IppConfig.from_options("env1", n_uavs=2, budget=4)
+    for stated, step in ((5, 4), (3, 3)):
+        with pytest.raises(RuntimeError, match=rf"the budget of {stated} steps; at step {step}"):
+            evaluate_policy(
+                lambda venv, seed: make_planner("random", venv, seed=seed),
+                lambda n, s=stated: StatedBudget(uav_ipp.make_vec_env(config, n_envs=n, fusion="mean"), s),
+                n_trials=1,
+                record=0,
+            )

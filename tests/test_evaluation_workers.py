@@ -74,6 +74,8 @@ def test_merge_refuses_chunks_that_are_not_consecutive():
     b = evaluate("random", record=0, workers=1, seed=5, **{**SMALL, "n_trials": 2})
     with pytest.raises(ValueError, match="consecutive"):
         merge_results([a, b])
+    with pytest.raises(ValueError, match="consecutive"):
+        merge_results([])
 
 
 def test_cli_workers_zero_is_one_line(capsys):

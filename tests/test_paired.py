@@ -57,6 +57,21 @@ def test_refuses_different_missions_and_unknown_metrics():
         paired_difference(a, a, "return")
 
 
+def test_scene_labels_must_be_one_per_mission():
+    """The label count is checked once (cluster_robust_mean); a result's own labels that fall
+    short of the other's are still refused, mission by mission."""
+    a, b = _result("a", [0.3, 0.4, 0.5]), _result("b", [0.3, 0.4, 0.5])
+    with pytest.raises(ValueError, match="2 cluster labels for 3 values"):
+        paired_difference(a, b, scenes=["s0", "s1"])
+    a.scenes, b.scenes = ("s0", "s0", "s1"), ("s0", "s0")
+    with pytest.raises(ValueError, match="not the same missions: scene of mission 2 's1' vs None"):
+        paired_difference(a, b)
+    b.scenes = ("s0", "s0")
+    a.scenes = ("s0", "s0")
+    with pytest.raises(ValueError, match="2 cluster labels for 3 values"):
+        paired_difference(a, b)
+
+
 def test_markdown_table_has_one_row_per_comparison():
     d = PairedDifference("coma", "ag", "entropy", 50, 0.31, 0.33, -0.02, 0.005)
     text = paired_markdown([d, d], ["env1", "env2"])
