@@ -112,17 +112,10 @@ class IppVecEnv(VecEnv):
 def check_copies_and_seed(n_envs: Any, seed: Any) -> None:
     """One-line :class:`ConfigError` for a bad ``n_envs`` or ``seed``; shared with the worker
     pipeline (``uav_ipp.workers``), which must refuse them before it starts any process."""
-    rules = (
-        ("n_envs", n_envs, _is_whole(n_envs) and n_envs >= 1, "an integer >= 1 (env copies)"),
-        ("seed", seed, seed is None or _is_whole(seed), "an integer or None"),
-    )
-    for option, value, accepted, allowed in rules:
-        if not accepted:
-            invalid_option(option, value, allowed)
-
-
-def _is_whole(value: Any) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
+        invalid_option("n_envs", n_envs, "an integer >= 1 (env copies)")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+        invalid_option("seed", seed, "an integer or None")
 
 
 def make_vec_env(
