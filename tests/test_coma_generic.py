@@ -1,10 +1,9 @@
 """COMA on envs that are not the UAV world, through the route every SB3 user takes
 (``make_marl_vec_env`` over a PettingZoo ``ParallelEnv``), and the boundary between the algorithm
-and the world: the UAV world trains as it did before COMA became generic."""
+and the world (that the UAV world trains as it did: tests/test_uav_training_fingerprint.py)."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -241,58 +240,6 @@ def test_import_sb3_coma_loads_neither_the_world_nor_rl_zoo3() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
-
-
-def _uav_fingerprint(policy: str, policy_kwargs: dict[str, Any], **kwargs: Any) -> dict[str, Any]:
-    """The recorded short training (tests/data/uav_fingerprint_0.2.json): 3 UAVs, 6 decisions, 2 copies."""
-    import uav_ipp
-
-    threads = th.get_num_threads()
-    th.set_num_threads(1)
-    try:
-        env = uav_ipp.make_vec_env("env1", n_envs=2, fusion="mean", seed=3, n_uavs=3, budget=6, action_gain=True)
-        model = COMA(
-            policy,
-            env,
-            n_steps=12,
-            batch_size=8,
-            n_epochs=2,
-            n_critic_epochs=2,
-            seed=5,
-            policy_kwargs=policy_kwargs,
-            **kwargs,
-        )
-        model.learn(72)
-        actions, _ = model.predict(env.reset(), deterministic=True)
-    finally:
-        th.set_num_threads(threads)
-    params = {name: float(value.double().sum()) for name, value in model.policy.state_dict().items()}
-    return {"params": params, "act": actions.tolist()}
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize(
-    ("name", "policy", "extra"),
-    [
-        ("cbam_gain", "CBAMPolicy", {"policy_kwargs": {"gain_inputs": True}, "advantage": "q"}),
-        (
-            "cnn_eps",
-            "UavCnnPolicy",
-            {"policy_kwargs": {}, "exploration_initial_eps": 0.3, "exploration_final_eps": 0.05},
-        ),
-    ],
-)
-def test_the_uav_world_trains_as_before_coma_became_generic(name: str, policy: str, extra: dict[str, Any]) -> None:
-    """Parameter for parameter against sums recorded by sb3-coma 0.2 (small float tolerance: other
-    CPUs sum in another order; a changed random stream or network would differ by far more)."""
-    recorded = json.loads((ROOT / "tests" / "data" / "uav_fingerprint_0.2.json").read_text())[name]
-    small = {"features_extractor_kwargs": {"features_dim": 16, "channels": [8, 8, 8]}}
-    kwargs = dict(extra)
-    got = _uav_fingerprint(policy, {**small, **kwargs.pop("policy_kwargs")}, **kwargs)
-    assert set(got["params"]) == set(recorded["params"])
-    for key, value in recorded["params"].items():
-        assert got["params"][key] == pytest.approx(value, rel=1e-4, abs=1e-4), key
-    assert got["act"] == recorded["act"]
 
 
 def test_learn_leaves_no_empty_folder_in_the_temp_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
