@@ -56,7 +56,8 @@ def make_vec_env(
     ``workers``), in Ray actors on this machine or on the cluster at ``ray_address``. Row order,
     seeds and so trajectories are the same whatever ``workers`` and ``backend`` are."""
     check_copies_and_seed(n_envs, seed)
-    check_workers(int(n_envs), workers, backend, ray_address)
+    n_envs, seed = int(n_envs), None if seed is None else int(seed)  # numpy integers as Python ints
+    check_workers(n_envs, workers, backend, ray_address)
     monitor = bool(options.pop("monitor", True))
     fusion_kwargs = options.pop("fusion_kwargs", None)
     config = resolve_config(name, options)

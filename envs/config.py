@@ -8,11 +8,14 @@ what is allowed, instead of a traceback from deep inside a footprint kernel.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, NoReturn
+from typing import Any, NoReturn, TypeGuard
+
+import numpy as np
 
 #: Version of the world's rules. 2: per-cell local beliefs M_i fed by cell-level messages (issue #14);
 #: 1: local beliefs on the comm grid. A model trained on another version sees different observations.
@@ -64,12 +67,39 @@ def invalid_option(option: str, value: Any, allowed: str) -> NoReturn:
     raise ConfigError(f"invalid option {option}={value!r}: {allowed}")
 
 
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
+# The world's number predicates (sb3_coma has its own, sb3_coma.common.numbers: the world imports
+# nothing of the learner). ``bool`` is a subclass of ``int`` (``isinstance(True, int)`` holds, so
+# ``True`` would pass as 1), and numpy's scalars are no subclasses of ``int`` or ``float`` (except
+# ``np.float64``), so ``isinstance(value, int)`` alone both lets ``True`` in and keeps
+# ``np.int64(3)`` out.
+def is_flag(value: Any) -> TypeGuard[bool]:
+    """True or False: a ``bool`` or numpy's ``np.bool_`` (which is not a ``bool`` subclass)."""
+    return isinstance(value, (bool, np.bool_))
 
 
-def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+def is_whole(value: Any) -> TypeGuard[int]:
+    """An integer: an ``int`` or a numpy integer (``np.int64`` is not an ``int`` subclass), never a
+    flag (``True`` is an ``int``)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def is_real(value: Any) -> TypeGuard[float]:
+    """A real number: an ``int``, a ``float`` or a numpy integer or floating scalar (``np.float32``
+    is not a ``float`` subclass), never a flag. NaN and inf are numbers: ranges are the caller's."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
+def plain(value: Any) -> Any:
+    """A numpy scalar as the Python ``bool``, ``int`` or ``float`` it holds (YAML, JSON and a saved
+    model's record take only those); anything else as it is."""
+    return value.item() if isinstance(value, (np.bool_, np.integer, np.floating)) else value
+
+
+def _real(value: Any) -> float:
+    """``float(value)`` for the numbers of a list option; a flag is refused (``TypeError``)."""
+    if is_flag(value):
+        raise TypeError(f"{value!r} is a flag, not a number")
+    return float(value)
 
 
 @dataclass(frozen=True)
@@ -111,7 +141,11 @@ class IppConfig:
 
     def __post_init__(self) -> None:
         """Valid by construction: every ``IppConfig`` (direct, :meth:`from_options`, :meth:`replace`)
-        is checked once, here, so the env and the vec-env builders that receive one trust it."""
+        is checked once, here, so the env and the vec-env builders that receive one trust it. A numpy
+        scalar option (``np.int64(3)``, ``np.float32(0.5)``, ``np.bool_(True)``) is kept as the Python
+        number it holds, so the config's record (YAML, JSON) takes it."""
+        for f in dataclasses.fields(self):
+            object.__setattr__(self, f.name, plain(getattr(self, f.name)))
         self.validate()
 
     # ------------------------------------------------------------------ derived values
@@ -154,7 +188,7 @@ class IppConfig:
             raise ConfigError("pass the map as the first argument (name=...), not as map_name=")
         if "altitudes" in options and options["altitudes"] is not None:
             try:
-                options["altitudes"] = tuple(float(a) for a in options["altitudes"])
+                options["altitudes"] = tuple(_real(a) for a in options["altitudes"])
             except (TypeError, ValueError):
                 invalid_option("altitudes", options["altitudes"], "a non-empty list of positive altitudes in metres")
         if "flip_probability" in options and options["flip_probability"] is not None:
@@ -162,12 +196,12 @@ class IppConfig:
             if not isinstance(fp, Mapping):
                 invalid_option("flip_probability", fp, "a mapping altitude -> flip probability")
             try:
-                options["flip_probability"] = {float(k): float(v) for k, v in fp.items()}
+                options["flip_probability"] = {_real(k): _real(v) for k, v in fp.items()}
             except (TypeError, ValueError):
                 invalid_option("flip_probability", fp, "a mapping altitude (m) -> flip probability (numbers)")
         if options.get("start_positions") is not None:
             try:
-                options["start_positions"] = tuple(tuple(float(c) for c in p) for p in options["start_positions"])
+                options["start_positions"] = tuple(tuple(_real(c) for c in p) for p in options["start_positions"])
             except (TypeError, ValueError):
                 invalid_option("start_positions", options["start_positions"], "a list of (x, y, z) triples in metres")
         return cls(map_name=str(name), **options)
@@ -195,17 +229,17 @@ class IppConfig:
 
     def _validate_sizes(self) -> None:
         """``lattice``, ``grid``, ``n_uavs``, ``budget`` and ``field_size``."""
-        if not _is_int(self.lattice) or self.lattice < 2:
+        if not is_whole(self.lattice) or self.lattice < 2:
             invalid_option("lattice", self.lattice, "an integer >= 2")
-        if not _is_int(self.grid) or self.grid < self.lattice:
+        if not is_whole(self.grid) or self.grid < self.lattice:
             invalid_option("grid", self.grid, f"an integer >= lattice ({self.lattice})")
-        if not _is_int(self.n_uavs) or self.n_uavs < 1:
+        if not is_whole(self.n_uavs) or self.n_uavs < 1:
             invalid_option("n_uavs", self.n_uavs, "an integer >= 1")
         if self.n_uavs > self.lattice * self.lattice:
             invalid_option("n_uavs", self.n_uavs, f"at most {self.lattice * self.lattice} (one UAV per lattice column)")
-        if not _is_int(self.budget) or self.budget < 1:
+        if not is_whole(self.budget) or self.budget < 1:
             invalid_option("budget", self.budget, "an integer >= 1 (decisions per UAV)")
-        if not (isinstance(self.field_size, (int, float)) and math.isfinite(self.field_size) and self.field_size > 0):
+        if not (is_real(self.field_size) and math.isfinite(self.field_size) and self.field_size > 0):
             invalid_option("field_size", self.field_size, "a positive number of metres")
 
     def _validate_altitudes(self) -> None:
@@ -244,7 +278,7 @@ class IppConfig:
 
     def _validate_starts(self) -> None:
         """``fov_deg``, ``start``, ``split``, ``mission_from_seed``, ``start_altitude`` and ``start_positions``."""
-        if not (_is_number(self.fov_deg) and 0 < self.fov_deg < 180):
+        if not (is_real(self.fov_deg) and 0 < self.fov_deg < 180):
             invalid_option("fov_deg", self.fov_deg, "an angle in (0, 180) degrees")
         if self.start is not None and self.start not in STARTS:
             invalid_option("start", self.start, "None (the split's rule), 'fixed' or 'random'")
@@ -257,11 +291,11 @@ class IppConfig:
                 "'paper' with map_path= (a user's image has no train / test scenes); "
                 "use start='random' for random starts on it",
             )
-        if not isinstance(self.mission_from_seed, bool):
+        if not is_flag(self.mission_from_seed):
             invalid_option("mission_from_seed", self.mission_from_seed, "True or False")
         if self.mission_from_seed and self.split == "paper":
             invalid_option("mission_from_seed", True, "False with split='paper' (the paper's mission is fixed)")
-        if self.start_altitude not in self.altitudes:
+        if not is_real(self.start_altitude) or self.start_altitude not in self.altitudes:
             invalid_option("start_altitude", self.start_altitude, f"one of the altitudes {list(self.altitudes)}")
         if self.start_positions is not None:
             self._validate_start_positions(self.start_positions)
@@ -270,11 +304,11 @@ class IppConfig:
         """``noise``, ``alpha_low``, ``sigma``, ``attenuation`` and ``decoder``."""
         if not isinstance(self.noise, str) or self.noise not in NOISE_PRESETS:
             invalid_option("noise", self.noise, f"one of {sorted(NOISE_PRESETS)}")
-        if self.alpha_low is not None and not (_is_number(self.alpha_low) and 0.0 <= self.alpha_low <= 1.0):
+        if self.alpha_low is not None and not (is_real(self.alpha_low) and 0.0 <= self.alpha_low <= 1.0):
             invalid_option(
                 "alpha_low", self.alpha_low, "None (the noise preset's) or a lower attenuation bound in [0, 1]"
             )
-        if self.sigma is not None and not (_is_number(self.sigma) and math.isfinite(self.sigma) and self.sigma >= 0):
+        if self.sigma is not None and not (is_real(self.sigma) and math.isfinite(self.sigma) and self.sigma >= 0):
             invalid_option("sigma", self.sigma, "None (the noise preset's) or a noise standard deviation >= 0")
         if self.attenuation not in ATTENUATIONS:
             invalid_option("attenuation", self.attenuation, f"one of {list(ATTENUATIONS)}")
@@ -283,18 +317,16 @@ class IppConfig:
 
     def _validate_comm(self) -> None:
         """``comm_range``, ``drop_probability`` and ``comm_grid``."""
-        if not (isinstance(self.comm_range, (int, float)) and self.comm_range >= 0 and not math.isnan(self.comm_range)):
+        if not (is_real(self.comm_range) and self.comm_range >= 0 and not math.isnan(self.comm_range)):
             invalid_option("comm_range", self.comm_range, "a distance >= 0 in metres (inf for unlimited)")
-        if not (_is_number(self.drop_probability) and 0.0 <= self.drop_probability <= 1.0):
+        if not (is_real(self.drop_probability) and 0.0 <= self.drop_probability <= 1.0):
             invalid_option("drop_probability", self.drop_probability, "a probability in [0, 1]")
-        if not _is_int(self.comm_grid) or self.comm_grid < 4 or self.comm_grid % 4 or self.comm_grid > self.grid:
+        if not is_whole(self.comm_grid) or self.comm_grid < 4 or self.comm_grid % 4 or self.comm_grid > self.grid:
             invalid_option("comm_grid", self.comm_grid, f"a multiple of 4 between 4 and grid ({self.grid})")
 
     def _validate_reward(self) -> None:
         """``alpha``, ``beta``, ``reward_entropy``, ``reward`` and the pair of the last two."""
-        if not (
-            _is_number(self.alpha) and _is_number(self.beta) and math.isfinite(self.alpha) and math.isfinite(self.beta)
-        ):
+        if not (is_real(self.alpha) and is_real(self.beta) and math.isfinite(self.alpha) and math.isfinite(self.beta)):
             invalid_option("alpha/beta", (self.alpha, self.beta), "finite reward scale and offset")
         if max(abs(self.alpha), abs(self.beta)) > MAX_REWARD_SCALE:
             invalid_option(
@@ -318,7 +350,7 @@ class IppConfig:
 
     def _validate_outputs(self) -> None:
         """``action_gain``, ``observation``, ``render_mode`` and ``map_seed``."""
-        if not isinstance(self.action_gain, bool):
+        if not is_flag(self.action_gain):
             invalid_option(
                 "action_gain", self.action_gain, "True (observe each action's expected information gain) or False"
             )
@@ -332,7 +364,7 @@ class IppConfig:
             )
         if self.render_mode not in (None, "rgb_array", "ansi"):
             invalid_option("render_mode", self.render_mode, "None, 'rgb_array' or 'ansi'")
-        if self.map_seed is not None and (not _is_int(self.map_seed) or self.map_seed < 0):
+        if self.map_seed is not None and (not is_whole(self.map_seed) or self.map_seed < 0):
             invalid_option("map_seed", self.map_seed, "None (a new map each reset, env1 only) or an integer >= 0")
 
     def _validate_reward_pair(self) -> None:
@@ -374,3 +406,45 @@ class IppConfig:
 #: gymnasium ids, ``sb3-coma train``, the studies): ``IppConfig``'s own, the paper's Env3. Defined
 #: here, beside the options, so that reading it imports neither Stable-Baselines3 nor torch.
 DEFAULT_MAP: str = IppConfig.map_name
+
+
+# ------------------------------------------------ the same rules on the command line
+#: The largest seed: numpy's and Stable-Baselines3's seeding (``np.random.seed``) take 0 .. 2**32 - 1.
+SEED_MAX = 2**32 - 1
+
+
+def integer_type(
+    least: int | None, most: int | None = None, sentinels: Mapping[int, str] | None = None
+) -> Callable[[str], int]:
+    """An argparse ``type=`` for an integer option: a whole number from ``least`` (``None``: any) to
+    ``most`` (``None``: no bound), or one of ``sentinels`` (value -> what it means, as the option's
+    help documents it). Anything else is an ``argparse.ArgumentTypeError`` naming the value and what
+    is allowed, which ``sb3-coma`` prints as one line, ``argument --seed: must be ..., got -1``."""
+    named = dict(sentinels or {})
+    if least is None:
+        rule = "an integer"
+    elif most is None:
+        rule = f"an integer >= {least}"
+    else:
+        rule = f"an integer from {least} to {most}"
+    allowed = " or ".join([*(f"{value} ({meaning})" for value, meaning in named.items()), rule])
+
+    def integer(text: str) -> int:
+        try:
+            value = int(text.strip())
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text!r}") from None
+        if value not in named and ((least is not None and value < least) or (most is not None and value > most)):
+            raise argparse.ArgumentTypeError(f"must be {allowed}, got {value}")
+        return value
+
+    integer.__name__ = "integer"  # argparse's own messages name the type by it
+    return integer
+
+
+#: ``type=`` of a count: an integer >= 1 (copies, missions, UAVs, decisions, threads, epochs ...).
+count_value = integer_type(1)
+#: ``type=`` of a count that may be none: 0 (none: the step is skipped) or an integer >= 1.
+count_or_none_value = integer_type(1, sentinels={0: "none"})
+#: ``type=`` of a seed: an integer from 0 to :data:`SEED_MAX`.
+seed_value = integer_type(0, SEED_MAX)

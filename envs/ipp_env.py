@@ -41,7 +41,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from . import gain, kernels, layout
-from .config import ConfigError, IppConfig, invalid_option
+from .config import ConfigError, IppConfig, invalid_option, is_whole
 from .gain import WEIGHTINGS
 from .geometry import FieldGeometry
 from .maps import GroundTruth, load_ground_truth
@@ -273,7 +273,7 @@ class UavIppEnv(ParallelEnv):
         if seed is None and cfg.mission_from_seed and self._mission is not None:
             seed = self._mission + self.mission_stride  # the next mission of this copy's sequence
         if seed is not None:
-            if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            if not is_whole(seed) or seed < 0:
                 raise ConfigError(f"invalid reset seed={seed!r}: an integer >= 0 or None")
             self._rng = np.random.default_rng(seed)
             self._mission = int(seed)

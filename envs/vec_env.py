@@ -17,7 +17,7 @@ import supersuit
 from gymnasium.vector import VectorEnv
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-from .config import IppConfig, invalid_option
+from .config import IppConfig, invalid_option, is_whole
 from .fusion import DEFAULT_FUSION, wrap_fusion
 from .ipp_env import UavIppEnv
 
@@ -112,9 +112,9 @@ class IppVecEnv(VecEnv):
 def check_copies_and_seed(n_envs: Any, seed: Any) -> None:
     """One-line :class:`ConfigError` for a bad ``n_envs`` or ``seed``; shared with the worker
     pipeline (``uav_ipp.workers``), which must refuse them before it starts any process."""
-    if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
+    if not is_whole(n_envs) or n_envs < 1:
         invalid_option("n_envs", n_envs, "an integer >= 1 (env copies)")
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+    if seed is not None and not is_whole(seed):
         invalid_option("seed", seed, "an integer or None")
 
 

@@ -28,12 +28,15 @@ holds one SB3 ``VecEnv`` (:class:`WorkerVecEnv`) that scatters actions and gathe
 
 from __future__ import annotations
 
+import ast
 import contextlib
+import functools
 import multiprocessing as mp
 import os
 import pickle
 import signal
 import socket
+import sys
 import traceback
 from abc import ABC, abstractmethod
 from collections import deque
@@ -41,6 +44,8 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
+from pathlib import Path
+from types import FrameType
 from typing import Any
 
 import gymnasium
@@ -232,6 +237,71 @@ def _pipe_worker(remote: Connection, parent_remote: Connection, spec: Cloudpickl
         remote.close()
 
 
+# ======================================================================= the __main__ guard
+#: The guard a script that starts worker processes needs, as the error names it.
+MAIN_GUARD = 'if __name__ == "__main__":'
+
+
+def _main_is_rerun() -> bool:
+    """Whether a ``spawn`` / ``forkserver`` child re-runs this process's ``__main__`` before it
+    serves (``multiprocessing.spawn.get_preparation_data``): a script run by path, or a module
+    run with ``-m`` other than a package's ``__main__``; not ``python -c`` nor an interactive session."""
+    main = sys.modules.get("__main__")
+    name = getattr(getattr(main, "__spec__", None), "name", None)
+    if name is not None:
+        return not (name == "__main__" or name.endswith(".__main__"))
+    return getattr(main, "__file__", None) is not None
+
+
+@functools.lru_cache(maxsize=8)
+def _guarded_lines(filename: str, stamp: float) -> tuple[tuple[int, int], ...] | None:
+    """The line ranges of the ``if`` statements of a script that test ``__name__`` (its guard,
+    however spelt); ``None`` when its source cannot be read (then nothing is refused)."""
+    try:
+        tree = ast.parse(Path(filename).read_text(encoding="utf-8"), filename)
+    except (OSError, SyntaxError, UnicodeDecodeError, ValueError):
+        return None
+    return tuple(
+        (node.lineno, node.end_lineno or node.lineno)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.If)
+        and any(isinstance(name, ast.Name) and name.id == "__name__" for name in ast.walk(node.test))
+    )
+
+
+def check_main_guard(what: str, start_method: str) -> None:
+    """Refuse to start ``start_method`` processes from the unguarded top level of the main script.
+
+    A ``spawn`` / ``forkserver`` child first re-runs the parent's ``__main__`` script; a call at its
+    top level, outside :data:`MAIN_GUARD`, would start workers again in every child, which
+    multiprocessing stops with its "bootstrapping phase" error, so the parent saw only dead workers
+    ("out of memory?"). Found on the caller's stack: the main script's module-level frame, at a
+    line outside every ``if`` that tests ``__name__``.
+
+    :raises RuntimeError: one line naming the call, the script and its line, and the guard
+    """
+    main = sys.modules.get("__main__")
+    if start_method not in ("spawn", "forkserver") or main is None or not _main_is_rerun():
+        return
+    frame: FrameType | None = sys._getframe(1)
+    while frame is not None and not (frame.f_globals is vars(main) and frame.f_code.co_name == "<module>"):
+        frame = frame.f_back
+    if frame is None:
+        return  # not below the script's own top level (a thread, a callback of another process)
+    script, line = frame.f_code.co_filename, frame.f_lineno
+    try:
+        guarded = _guarded_lines(script, os.stat(script).st_mtime)
+    except OSError:
+        return
+    if guarded is None or any(first <= line <= last for first, last in guarded):
+        return
+    raise RuntimeError(
+        f"{what} starts worker processes ({start_method}) from the top level of {script!r} (line {line}), "
+        f"outside `{MAIN_GUARD}`: each worker re-runs that script first, so put the call under "
+        f"`{MAIN_GUARD}` (or use workers=1)"
+    )
+
+
 # ================================================================================ transports
 class _Transport(ABC):
     """How the learner talks to its workers: ``send`` one command, ``recv`` its reply in order."""
@@ -272,6 +342,7 @@ class _PipeTransport(_Transport):
         super().__init__(len(specs))
         if start_method is None:
             start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+        check_main_guard(f"make_vec_env(workers={len(specs)})", start_method)
         ctx = mp.get_context(start_method)
         self.remotes: list[Connection] = []
         self.processes: list[BaseProcess] = []

@@ -399,6 +399,28 @@ def _load_checkpoint(path: Path, files: Files):
     return load_checkpoint(path, env=files.venv, device="cpu")
 
 
+def _nodata_tiff(files: Files) -> Path:
+    """A float32 TIFF of temperatures, 100 x 100, whose left quarter holds -9999 (GIS's NoData fill)."""
+    from PIL import Image
+
+    values = np.linspace(280.0, 300.0, 10_000, dtype=np.float32).reshape(100, 100)
+    values[:, :25] = -9999.0
+    path = files.path("maps/dem.tif")
+    Image.fromarray(values).save(path)
+    return path
+
+
+def _unguarded_script(files: Files) -> None:
+    """Run, as this process's main script, one that starts env workers at its top level (no guard)."""
+    import runpy
+
+    script = files.text(
+        "unguarded/script.py",
+        'import uav_ipp\nuav_ipp.make_vec_env("env1", n_envs=2, n_uavs=2, budget=4, workers=2)\n',
+    )
+    runpy.run_path(str(script), run_name="__main__")
+
+
 def _no_gpu() -> contextlib.AbstractContextManager[Any]:
     """A machine without CUDA or MPS, whatever this one has (the cases must not depend on it)."""
     import torch
@@ -531,6 +553,15 @@ CASES: list[Case | CliCase] = [
         lambda f: uav_ipp.make_env("env1", n_uavs=0),
         ConfigError,
         ("n_uavs=0",),
+        "an integer >= 1",
+    ),
+    Case(
+        "env-n_uavs-bool",
+        E,
+        'make_env("env1", n_uavs=True)',
+        lambda f: uav_ipp.make_env("env1", n_uavs=True),
+        ConfigError,
+        ("n_uavs=True",),
         "an integer >= 1",
     ),
     Case(
@@ -787,6 +818,16 @@ CASES: list[Case | CliCase] = [
         "choose another rule",
     ),
     Case(
+        "map-path-nodata-fill",
+        M,
+        'make_env("mine", map_path="<tmp>/maps/dem.tif", valuable="coldest:0.3")  # a warning: float32 TIFF, '
+        "left quarter -9999",
+        lambda f: _as_error(lambda: uav_ipp.make_env("mine", map_path=_nodata_tiff(f), valuable="coldest:0.3")),
+        UserWarning,
+        ("NoData fill -9999", "2,500 of 10,000 pixels"),
+        "never valuable",
+    ),
+    Case(
         "map-rule-unknown",
         M,
         'make_env("env2", valuable="bogus")',
@@ -982,6 +1023,15 @@ CASES: list[Case | CliCase] = [
         "['CBAMPolicy', 'CnnPolicy', 'MlpPolicy', 'MultiInputPolicy', 'UavCOMAPolicy', 'UavCnnPolicy']",
     ),
     Case(
+        "coma-generic-cnn-policy-on-dict",
+        C,
+        'COMA("CnnPolicy", venv)  # generic NatureCNN policy, the world has a Dict observation',
+        lambda f: _coma(f, policy="CnnPolicy"),
+        ValueError,
+        ("'CnnPolicy'", "['action_gain', 'local']"),
+        "'UavCnnPolicy'",
+    ),
+    Case(
         "coma-device-no-cuda",
         C,
         'COMA("UavCnnPolicy", venv, device="cuda")  # no GPU here',
@@ -1096,6 +1146,15 @@ CASES: list[Case | CliCase] = [
         lambda f: _coma(f, batch_size=2.5),
         TypeError,
         ("batch_size", "2.5"),
+        "an int",
+    ),
+    Case(
+        "coma-n_steps-bool",
+        C,
+        "COMA(..., n_steps=True)",
+        lambda f: _coma(f, n_steps=True),
+        TypeError,
+        ("n_steps", "True"),
         "an int",
     ),
     Case(
@@ -1567,6 +1626,24 @@ CASES: list[Case | CliCase] = [
         "an integer >= 1",
     ),
     Case(
+        "vec-env-workers-without-main-guard",
+        E,
+        "python script.py  # make_vec_env(..., workers=2) at the script's top level, without the guard",
+        _unguarded_script,
+        RuntimeError,
+        ("make_vec_env(workers=2)", "script.py' (line 2)"),
+        'if __name__ == "__main__":',
+    ),
+    Case(
+        "evaluate-seed-bool",
+        EV,
+        'evaluate("random", seed=True)',
+        lambda f: _evaluate("random", seed=True),
+        ValueError,
+        ("seed=True",),
+        "an integer >= 0",
+    ),
+    Case(
         "evaluate-n_trials-zero",
         EV,
         'evaluate("random", n_trials=0)',
@@ -1904,6 +1981,13 @@ CASES: list[Case | CliCase] = [
         "not found",
     ),
     CliCase(
+        "cli-evaluate-model-path-with-equals-missing",
+        "sb3-coma evaluate --methods '' --model <tmp>/sweep/lr=0.001/none.zip  # named whole, not split at '='",
+        lambda f: ["evaluate", "--methods", "", "--model", str(f.path("sweep/lr=0.001/none.zip"))],
+        ("sweep/lr=0.001/none.zip",),
+        "not found",
+    ),
+    CliCase(
         "cli-evaluate-model-corrupt",
         "sb3-coma evaluate --methods '' --model <damaged zip> --fusion mean",
         lambda f: [
@@ -1980,7 +2064,21 @@ CASES: list[Case | CliCase] = [
         "cli-demo-uavs-zero",
         "sb3-coma demo --env env1 --uavs 0",
         lambda f: ["demo", "--env", "env1", "--uavs", "0"],
-        ("n_uavs=0",),
+        ("--uavs", "got 0"),
+        "an integer >= 1",
+    ),
+    CliCase(
+        "cli-demo-seed-negative",
+        "sb3-coma demo --seed -1",
+        lambda f: ["demo", "--seed", "-1"],
+        ("--seed", "got -1"),
+        "an integer from 0 to 4294967295",
+    ),
+    CliCase(
+        "cli-evaluate-uavs-text",
+        "sb3-coma evaluate --uavs two",
+        lambda f: [*_QUICK_EVALUATE, "--uavs", "two"],
+        ("--uavs", "'two'"),
         "an integer >= 1",
     ),
     CliCase(

@@ -111,7 +111,11 @@ def test_ippo_run_with_validation_then_paired_report(tmp_path):
 
 @pytest.mark.parametrize(
     "argv, bad",
-    [(["--workers", "0"], "--workers 0"), (["--workers", "9"], "--workers 9"), (["--val-freq", "-1"], "--val-freq -1")],
+    [
+        (["--workers", "0"], "argument --workers: must be an integer >= 1, got 0"),
+        (["--workers", "9"], "--workers 9"),
+        (["--val-freq", "-1"], "argument --val-freq: must be 0 (none) or an integer >= 1, got -1"),
+    ],
 )
 def test_ippo_vs_ag_bad_counts_exit_2_naming_the_value(argv, bad, capsys):
     with pytest.raises(SystemExit) as stop:

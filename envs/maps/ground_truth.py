@@ -16,7 +16,9 @@ Decisions a caller may rely on:
   its train / test splits accept no other ``valuable`` rule.
 * A user's image is read as it is shown (EXIF orientation applied) and its transparent pixels are
   no data: never valuable, out of the rule's threshold, counted in a one-line ``UserWarning``
-  (:mod:`.rules`); an image with no opaque pixel is an error.
+  (:mod:`.rules`); an image with no opaque pixel is an error. The NoData fills of a float raster
+  (-3.4028235e+38, -9999, a TIFF's declared ``GDAL_NODATA``) are no data in the same way, and the
+  warning names the fill and its pixels.
 * Built-in names are case-insensitive (``"Env3"`` works), because gym ids spell them that way.
 * Results are cached (real maps per rule/grid/lattice, split missions per scene/transform/rule/
   grid/lattice, user files per path + modification time),
@@ -37,7 +39,16 @@ import numpy as np
 
 from . import shipped
 from .errors import MapError
-from .rules import DEFAULT_NDVI_THRESHOLD, MapImage, Rule, apply_rule, image_on_grid, parse_rule, read_image
+from .rules import (
+    DEFAULT_NDVI_THRESHOLD,
+    MapImage,
+    Rule,
+    apply_rule,
+    fills_text,
+    image_on_grid,
+    parse_rule,
+    read_image,
+)
 from .scenes import ENV1_SEED_RANGES, TRANSFORMS, Scene, check_split, dihedral, pick, split_scenes
 from .synthetic import star_map
 
@@ -163,15 +174,20 @@ def _load_file(
     shown = "threshold at Otsu (default)" if rule is None else str(rule)
     source = f"user image {path}, {shown}"
     if file.alpha is not None:
-        pixels = file.alpha.size
+        pixels, hidden, what = file.alpha.size, file.transparent_pixels, "are transparent"
+        if file.nodata:  # a float raster's NoData fills: no data, never the coldest (or hottest) ground
+            hidden = sum(n for _, n in file.nodata)
+            more = file.transparent_pixels - hidden
+            what = f"hold {fills_text(file.nodata)} and are no data"
+            what += f", {more:,} more are transparent" if more > 0 else ""
         warnings.warn(
-            f"map_path {path!r}: {file.transparent_pixels:,} of {pixels:,} pixels "
-            f"({100 * file.transparent_pixels / pixels:.1f} %) are transparent; {transparent_cells:,} of "
-            f"{grid * grid:,} grid cells are mostly transparent and never valuable",
+            f"map_path {path!r}: {hidden:,} of {pixels:,} pixels "
+            f"({100 * hidden / pixels:.1f} %) {what}; {transparent_cells:,} of "
+            f"{grid * grid:,} grid cells are mostly {'no data' if file.nodata else 'transparent'} and never valuable",
             UserWarning,
             stacklevel=3,
         )
-        source += f"; {transparent_cells} transparent cells never valuable"
+        source += f"; {transparent_cells} {'no-data' if file.nodata else 'transparent'} cells never valuable"
     return GroundTruth(label, _readonly(mask), _no_fly_none(lattice), source)
 
 

@@ -17,7 +17,10 @@ fraction on the grid the environment actually scores, and the mask is binary at 
 A user's file is read as it is *shown*: its EXIF orientation is applied (a phone photo stored
 sideways is turned upright, as every viewer does), and transparent pixels (an alpha channel, or a
 palette / colour-key ``tRNS`` transparency) are "no data": never valuable, and left out when a
-rule picks its threshold (Otsu, or the fraction of ``hottest`` / ``coldest``).
+rule picks its threshold (Otsu, or the fraction of ``hottest`` / ``coldest``). So are the pixels of
+a float raster that hold a standard NoData fill (:data:`STANDARD_NODATA`: float32's and float64's
+lowest value, -9999) and, in any raster, the pixels that hold the NoData value its metadata
+declares (a TIFF's ``GDAL_NODATA`` tag): a fill is a mark, not the coldest ground.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from PIL import Image
+from PIL import Image, TiffImagePlugin
 
 from .errors import MapError
 
@@ -57,6 +60,15 @@ DEFAULT_NDVI_THRESHOLD = 0.5
 OPAQUE = 0.5
 #: EXIF tag of the orientation (TIFF/EXIF 0x0112), 1 = as stored.
 _EXIF_ORIENTATION = 0x0112
+#: The NoData fills of float rasters that declare none (GDAL's defaults for Float32 and Float64,
+#: and the -9999 of many GIS exports), with the name a warning gives each.
+STANDARD_NODATA: dict[float, str] = {
+    float(np.finfo(np.float32).min): "-3.4028235e+38 (float32 lowest)",
+    float(np.finfo(np.float64).min): "-1.7976931348623157e+308 (float64 lowest)",
+    -9999.0: "-9999",
+}
+#: TIFF tag of GDAL's NoData value (ASCII text, e.g. "-9999" or "nan").
+_GDAL_NODATA_TAG = 42113
 #: The rules that read a band not every image has: rule -> (the :class:`MapImage` field, what
 #: the rule needs, said to a user whose map lacks it).
 _BANDS = {
@@ -226,8 +238,13 @@ def resize_to_grid(image: np.ndarray, grid: int) -> np.ndarray:
     return cv2.resize(img, (grid, grid), interpolation=cv2.INTER_AREA)
 
 
-def _normalise(img: np.ndarray, path: str) -> np.ndarray:
-    """Pixel values to float32 in [0, 1] according to their storage type."""
+def _normalise(img: np.ndarray, path: str, valid: np.ndarray | None = None) -> np.ndarray:
+    """Pixel values to float32 in [0, 1] according to their storage type; ``valid`` (the pixels
+    that hold data, (H, W)) keeps NoData fills out of a float image's stretch (they become 0)."""
+    if valid is not None:  # a fill takes a valid pixel's value (no part in the stretch), then 0
+        where = valid if img.ndim == 2 else valid[:, :, None]
+        filled = np.where(where, img, img[valid].min(axis=0))
+        return np.where(where, _normalise(filled, path), 0.0).astype(np.float32)
     if img.dtype == np.uint8:
         return img.astype(np.float32) / 255.0
     if img.dtype == np.uint16:
@@ -247,12 +264,15 @@ class ImageFile:
 
     ``rgb`` is ``None`` for single-channel files; ``alpha`` (opacity, 1 = opaque) is ``None`` unless
     some pixel is transparent (below :data:`OPAQUE`), so fully opaque RGBA files cost nothing extra.
+    A pixel that holds a NoData fill is transparent (alpha 0); ``nodata`` names each fill found and
+    how many pixels hold it.
     """
 
     gray: np.ndarray
     rgb: np.ndarray | None
     alpha: np.ndarray | None
     orientation: int = 1
+    nodata: tuple[tuple[str, int], ...] = ()
 
     @property
     def transparent_pixels(self) -> int:
@@ -306,31 +326,86 @@ def _pil_metadata(data: np.ndarray, shape: tuple[int, ...], need_alpha: bool) ->
     return orientation, (alpha if alpha.shape == shape[:2] else None)
 
 
-def _channels(img: np.ndarray, shown: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """(gray, rgb, alpha) of a decoded OpenCV array (BGR / BGRA order), each float32 in [0, 1]."""
+def _channels(
+    img: np.ndarray, shown: str, valid: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(gray, rgb, alpha) of a decoded OpenCV array (BGR / BGRA order), each float32 in [0, 1];
+    ``valid``: the pixels that hold no NoData fill (``None``: all)."""
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 2:
-        return _normalise(img, shown), None, None
+        return _normalise(img, shown, valid), None, None
     channels = img.shape[2]
     if channels == 2:  # gray + alpha
-        return _normalise(img[:, :, 0], shown), None, _normalise(img[:, :, 1], shown)
+        return _normalise(img[:, :, 0], shown, valid), None, _normalise(img[:, :, 1], shown, valid)
     assert channels in (3, 4), channels  # _decode refuses other channel counts
-    alpha = _normalise(img[:, :, 3], shown) if channels == 4 else None
-    rgb = np.ascontiguousarray(_normalise(img[:, :, 2::-1], shown))
+    alpha = _normalise(img[:, :, 3], shown, valid) if channels == 4 else None
+    rgb = np.ascontiguousarray(_normalise(img[:, :, 2::-1], shown, valid))
     return rgb_to_gray(rgb), rgb, alpha
 
 
-def _decode(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """(encoded bytes, OpenCV's decoded array) of a user's file, with the file errors phrased.
+def _declared_nodata(data: np.ndarray) -> tuple[float, str] | None:
+    """(value, its text) of the NoData value a TIFF declares (``GDAL_NODATA``), else ``None``.
+
+    Read from the file's first directory with PIL's TIFF tag parser (which, unlike ``Image.open``,
+    reads the tags of any pixel layout, a 3-band float raster's too); anything unreadable
+    declares nothing."""
+    header = data[:8].tobytes()
+    if header[:4] not in (b"II*\x00", b"MM\x00*"):
+        return None
+    try:
+        stream = io.BytesIO(data.tobytes())
+        tags = TiffImagePlugin.ImageFileDirectory_v2(stream.read(8))
+        stream.seek(tags.next)
+        tags.load(stream)
+        text = str(tags.get(_GDAL_NODATA_TAG, "")).strip().rstrip("\x00").strip()
+        return (float(text), text) if text else None
+    except Exception:  # a damaged directory or a value that is no number: no declaration
+        return None
+
+
+def _nodata(img: np.ndarray, data: np.ndarray) -> tuple[np.ndarray | None, tuple[tuple[str, int], ...]]:
+    """(the pixels that hold a NoData fill in any channel, or ``None``; (fill as shown, pixels) of
+    each fill found): :data:`STANDARD_NODATA` in a float raster, the declared value in any."""
+    fills = dict(STANDARD_NODATA) if img.dtype.kind == "f" else {}
+    declared = _declared_nodata(data)
+    if declared is not None:
+        fills[declared[0]] = f"{declared[1]} (the file's GDAL_NODATA)"
+    mask, found = np.zeros(img.shape[:2], dtype=bool), []
+    for fill, shown in fills.items():
+        hit = np.isnan(img) if math.isnan(fill) else img == np.float64(fill)  # float64: no overflow
+        hit = (hit if hit.ndim == 2 else hit.any(axis=2)) & ~mask
+        if hit.any():
+            found.append((shown, int(hit.sum())))
+            mask |= hit
+    return (mask if found else None), tuple(found)
+
+
+def fills_text(fills: tuple[tuple[str, int], ...]) -> str:
+    """The fills of :func:`_nodata` in words: ``"the NoData fill -9999"``, or with several, each
+    with its pixels: ``"the NoData fills -9999 (2,500 pixels), nan (the file's GDAL_NODATA) (12 pixels)"``."""
+    if len(fills) == 1:
+        return f"the NoData fill {fills[0][0]}"
+    return "the NoData fills " + ", ".join(f"{fill} ({n:,} pixels)" for fill, n in fills)
+
+
+def _with_data(img: np.ndarray, nodata: np.ndarray | None) -> np.ndarray:
+    return img if nodata is None else img[~nodata]
+
+
+def _decode(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, tuple[tuple[str, int], ...]]:
+    """(encoded bytes, OpenCV's decoded array, its NoData pixels and fills (:func:`_nodata`)) of a
+    user's file, with the file errors phrased.
 
     Bytes are decoded with ``cv2.imdecode`` (not ``imread``) so paths with non-ASCII characters
     work and a non-image file is an error we phrase, not an empty return. One rule, one raise: the
-    file is an image we can read (there, readable, not empty, decodable, 1 to 4 channels, finite
-    values); the first thing wrong is named.
+    file is an image we can read (there, readable, not empty, decodable, 1 to 4 channels, some
+    pixel with data, finite values where there is data); the first thing wrong is named.
     """
     p = Path(path)
     data, img, problem = np.zeros(0, np.uint8), None, None
+    nodata: np.ndarray | None = None
+    fills: tuple[tuple[str, int], ...] = ()
     if not p.is_file():
         problem = "is not a file" if p.exists() else "does not exist"
     else:
@@ -341,9 +416,16 @@ def _decode(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     if problem is None and data.size == 0:
         problem = "is empty (0 bytes, no pixels)"
     if problem is None:
-        with contextlib.suppress(cv2.error):
-            img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        level = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # not libtiff's "Unknown field
+        try:  # with tag 42113" (GDAL_NODATA, read here) and other GIS tags, printed on stderr
+            with contextlib.suppress(cv2.error):
+                img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        finally:
+            cv2.utils.logging.setLogLevel(level)
         channels = 1 if img is None or img.ndim < 3 else img.shape[2]
+        if img is not None and img.size and img.ndim >= 2 and channels in (1, 2, 3, 4):
+            nodata, fills = _nodata(img, data)
         if img is None or img.size == 0 or img.ndim < 2:
             problem = (
                 "is not an image cv2 can decode, or one of 0 pixels "
@@ -351,14 +433,16 @@ def _decode(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             )
         elif channels not in (1, 2, 3, 4):
             problem = f"has {channels} channels; expected 1 (gray), 3 (colour) or 4 (with alpha)"
-        elif img.dtype.kind == "f" and not np.isfinite(img.astype(np.float32, copy=False)).all():
+        elif nodata is not None and nodata.all():
+            problem = f"holds only NoData pixels ({fills_text(fills)}); nothing to map"
+        elif img.dtype.kind == "f" and not np.isfinite(_with_data(img, nodata).astype(np.float32, copy=False)).all():
             problem = (
-                "contains NaN or infinite pixel values (a NoData mark? save it as an alpha channel: "
-                "transparent pixels are left out of the map)"
+                "contains NaN or infinite pixel values (a NoData mark? declare it in a TIFF's GDAL_NODATA tag, "
+                "or save it as an alpha channel: no-data and transparent pixels are left out of the map)"
             )
     if problem is not None or img is None:
         raise MapError(f"map_path {os.fspath(path)!r} {problem}")
-    return data, img
+    return data, img, nodata, fills
 
 
 def read_image(path: str | os.PathLike) -> ImageFile:
@@ -367,20 +451,25 @@ def read_image(path: str | os.PathLike) -> ImageFile:
     The EXIF orientation (JPEG, TIFF, PNG, WebP) is applied, as ``PIL.ImageOps.exif_transpose``
     would. Transparency comes from an alpha channel (RGBA, gray + alpha, a palette with ``tRNS``,
     which OpenCV expands to BGRA) or from a colour-key ``tRNS`` (read through PIL); the colour of a
-    transparent pixel is whatever the file stores there, so the loader treats it as no data.
+    transparent pixel is whatever the file stores there, so the loader treats it as no data. A
+    pixel that holds a NoData fill (:func:`_nodata`) is transparent too, and out of the stretch of
+    a float image's values.
     """
     shown = os.fspath(path)
-    data, img = _decode(path)
-    gray, rgb, alpha = _channels(img, shown)
+    data, img, nodata, fills = _decode(path)
+    valid = None if nodata is None else ~nodata
+    gray, rgb, alpha = _channels(img, shown, valid)
     orientation, pil_alpha = _pil_metadata(data, img.shape, need_alpha=alpha is None)
     alpha = pil_alpha if alpha is None else alpha
+    if valid is not None:
+        alpha = valid.astype(np.float32) if alpha is None else np.where(valid, alpha, 0.0).astype(np.float32)
     if alpha is not None and not (alpha < OPAQUE).any():
         alpha = None  # an alpha channel that hides nothing
     if alpha is not None and (alpha < OPAQUE).all():
         raise MapError(f"map_path {shown!r} is fully transparent (every pixel has alpha < {OPAQUE:g}); nothing to map")
     turned = [None if a is None else np.ascontiguousarray(orient(a, orientation)) for a in (gray, rgb, alpha)]
     assert turned[0] is not None
-    return ImageFile(gray=turned[0], rgb=turned[1], alpha=turned[2], orientation=orientation)
+    return ImageFile(gray=turned[0], rgb=turned[1], alpha=turned[2], orientation=orientation, nodata=fills)
 
 
 def image_on_grid(image: ImageFile, grid: int) -> tuple[MapImage, int]:

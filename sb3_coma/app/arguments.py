@@ -5,13 +5,16 @@ thing in ``sb3-coma evaluate``, ``reproduce``, ``noise-sweep``, ``ablation``, ``
 the studies' own ``main()``: one flag, one help text, one rule for the default, written here so
 that a change (a clearer help, a new check) reaches every parser at once. It lives in the
 application layer because both the command line (layer 4) and the studies (layer 3) build
-parsers; it imports only ``argparse`` (and the world's default map name, which loads neither
-Stable-Baselines3 nor torch), so ``sb3-coma --help`` stays quick (tests/test_cli_lazy.py).
+parsers; it imports only ``argparse``, the integer types of ``uav_ipp.config`` (the world's rules for a user's numbers)
+and the world's default map name, none of which loads Stable-Baselines3 or torch, so
+``sb3-coma --help`` stays quick (tests/test_cli_lazy.py).
 """
 
 from __future__ import annotations
 
 import argparse
+
+from uav_ipp.config import count_value, seed_value
 
 #: ``--env`` of the commands that fly several maps: all three families, comma separated.
 ALL_MAPS = "env1,env2,env3"
@@ -30,7 +33,7 @@ def add_threads_argument(parser: argparse.ArgumentParser) -> None:
     """``--threads``: torch's CPU threads, 1 unless asked (checked by ``sb3_coma.cli.set_threads``)."""
     parser.add_argument(
         "--threads",
-        type=int,
+        type=count_value,
         default=1,
         help="torch CPU threads (default 1: as fast as 2 for these small networks; float reductions differ "
         "with the thread count, so results are reproducible for a fixed count)",
@@ -38,13 +41,13 @@ def add_threads_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def workers_value(text: str) -> int | str:
-    """``--workers``: ``auto`` or an integer >= 1 (argparse turns the ValueError into one line)."""
+    """``--workers``: ``auto`` or an integer >= 1 (argparse turns the error into one line)."""
     if text == "auto":
         return text
-    value = int(text)
-    if value < 1:
-        raise ValueError(text)
-    return value
+    try:
+        return count_value(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"must be auto or an integer >= 1, got {text!r}") from None
 
 
 def add_workers_argument(parser: argparse.ArgumentParser) -> None:
@@ -77,7 +80,7 @@ def add_missions_argument(
     """``--missions``: how many missions each ``per`` flies; ``default`` ``None`` means the
     protocol's count (or ``default_text``, where the command decides it otherwise)."""
     shown = default_text or ("the protocol's" if default is None else str(default))
-    parser.add_argument("--missions", type=int, default=default, help=f"missions per {per} (default {shown})")
+    parser.add_argument("--missions", type=count_value, default=default, help=f"missions per {per} (default {shown})")
 
 
 def add_seed_argument(parser: argparse.ArgumentParser, default: int | None = 0, note: str = "") -> None:
@@ -86,7 +89,7 @@ def add_seed_argument(parser: argparse.ArgumentParser, default: int | None = 0, 
     shown = "the protocol's: 0, validation 1000" if default is None else str(default)
     parser.add_argument(
         "--seed",
-        type=int,
+        type=seed_value,
         default=default,
         help=f"first env seed: mission k flies env seed SEED+k, the same for every method (default {shown}{note})",
     )

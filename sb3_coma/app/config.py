@@ -41,6 +41,8 @@ from sb3_coma.coma.validation import check_total_timesteps
 from sb3_coma.common.checkpoints import folder_write_problem
 from sb3_coma.common.evaluation import PROTOCOLS
 from sb3_coma.common.extractors import CBAMExtractor, CnnExtractor
+from sb3_coma.common.numbers import is_real, is_whole
+from sb3_coma.common.numbers import plain as plain_number
 from uav_ipp import DEFAULT_FUSION, DEFAULT_MAP, ENV_IDS, ConfigError, IppConfig
 
 #: Top-level keys of a config file that are not gymnasium ids.
@@ -114,17 +116,18 @@ def resolve_env_id(env: str) -> str:
     )
 
 
-def default_config_path() -> Path:
-    """``zoo_configs/coma.yml`` of a source checkout, else the copy the installed distribution
-    carries (setup.cfg ``data_files``: it lands under the install prefix, found through the
-    distribution's own file list so that venv, ``--user`` and ``--prefix`` installs all work)."""
-    candidates = [Path(__file__).resolve().parents[2] / "zoo_configs" / "coma.yml"]
+def default_config_path(name: str = "coma.yml") -> Path:
+    """``zoo_configs/<name>`` of a source checkout (``coma.yml``: the UAV world's; ``marl/coma.yml``
+    and its neighbours: the learner benchmark's), else the copy the installed distribution carries
+    (setup.cfg ``data_files``: it lands under the install prefix, found through the distribution's
+    own file list so that venv, ``--user`` and ``--prefix`` installs all work)."""
+    candidates = [Path(__file__).resolve().parents[2] / "zoo_configs" / name]
     try:
         files = importlib.metadata.distribution("sb3-coma").files or []
     except importlib.metadata.PackageNotFoundError:
         files = []
-    candidates += [Path(str(f.locate())).resolve() for f in files if f.as_posix().endswith("zoo_configs/coma.yml")]
-    candidates.append(Path(sys.prefix) / "zoo_configs" / "coma.yml")
+    candidates += [Path(str(f.locate())).resolve() for f in files if f.as_posix().endswith(f"zoo_configs/{name}")]
+    candidates.append(Path(sys.prefix) / "zoo_configs" / name)
     for path in candidates:
         if path.is_file():
             return path
@@ -221,14 +224,14 @@ def _fail(where: str, message: str) -> NoReturn:
 
 
 def is_int(value: Any) -> TypeGuard[int]:
-    """An ``int`` that is not a ``bool``."""
-    return isinstance(value, int) and not isinstance(value, bool)
+    """An integer that is not a flag (:func:`sb3_coma.common.numbers.is_whole`: numpy's included)."""
+    return is_whole(value)
 
 
 def _whole_at_least(value: Any, minimum: int) -> int | None:
     """``value`` as an int >= ``minimum`` (``2.0`` passes), ``None`` when it is not one: the one
     test behind :func:`positive_int` (config entries) and :func:`checked_count` (a run's counts)."""
-    if isinstance(value, float) and value.is_integer():
+    if is_real(value) and not is_whole(value) and float(value).is_integer():
         value = int(value)
     return int(value) if is_int(value) and value >= minimum else None
 
@@ -438,9 +441,6 @@ def check_warm_start(spec: Any, where: str) -> dict[str, Any]:
     teachers = sorted(name for name, cls in PLANNERS.items() if cls.uses_env_state)
     unknown = sorted(set(spec) - set(_WARM_START_DEFAULTS)) if is_map else []
 
-    def number(value: Any) -> bool:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
-
     table: list[tuple[str, Any, bool, str]] = [
         ("", spec, is_map, "a mapping (teacher, rounds, missions, critic_warmup)"),
         (" keys", unknown, not unknown, f"each one of {sorted(_WARM_START_DEFAULTS)}"),
@@ -450,7 +450,7 @@ def check_warm_start(spec: Any, where: str) -> dict[str, Any]:
         (
             " critic_warmup",
             out["critic_warmup"],
-            number(out["critic_warmup"]) and 0.0 <= out["critic_warmup"] < 1.0,
+            is_real(out["critic_warmup"]) and 0.0 <= out["critic_warmup"] < 1.0,
             "a number in [0, 1)",
         ),
     ]
@@ -942,7 +942,8 @@ def eval_copies(missions: int) -> int:
 
 def plain(value: Any) -> Any:
     """JSON/YAML-safe copy: tuples become lists, classes dotted paths, schedules ``lin_<x>``,
-    paths and other objects strings."""
+    paths and other objects strings; a numpy scalar the Python number it holds."""
+    value = plain_number(value)
     if isinstance(value, Mapping):
         return {str(k): plain(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):

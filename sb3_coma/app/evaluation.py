@@ -33,8 +33,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 import uav_ipp
 from sb3_coma.app.methods import (
     Method,
@@ -52,6 +50,7 @@ from sb3_coma.common.evaluation import (
     protocol_of,
     relabel,
 )
+from sb3_coma.common.numbers import is_real, is_whole, plain
 from uav_ipp import NOISE_PRESETS, IppConfig
 
 
@@ -122,7 +121,7 @@ def _comparable(value: Any) -> Any:
         return tuple(sorted((_comparable_key(k), _comparable(v)) for k, v in value.items()))
     if isinstance(value, (list, tuple)):
         return tuple(_comparable(v) for v in value)
-    if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)):
+    if is_real(value):
         return float(value)
     return value
 
@@ -196,7 +195,7 @@ def _warn_if_flown_differently(method: Method, config: IppConfig) -> None:
     own_n = trained.get("n_uavs")
     if own_n is None and method.source == "object":
         own_n = getattr(method.policy, "n_agents", None)  # a COMA object that records no options
-    if isinstance(own_n, (int, np.integer)) and not isinstance(own_n, bool) and int(own_n) != n_uavs:
+    if is_whole(own_n) and int(own_n) != n_uavs:
         warnings.warn(
             f"{what} was trained with {int(own_n)} UAVs but flies with {n_uavs} (n_uavs={n_uavs}): allowed, its "
             f"actor is per agent, but the results are not those of its own team size",
@@ -283,8 +282,10 @@ class Missions:
     options: Mapping[str, Any] = field(default_factory=dict)
 
     def env_options(self) -> dict[str, Any]:
-        """The env options as given (the protocol's are added by :func:`fly`)."""
-        return {**self.options, **({} if self.noise is None else {"noise": self.noise})}
+        """The env options as given (the protocol's are added by :func:`fly`), numpy scalars as the
+        Python numbers they hold (a result records them)."""
+        options = {**self.options, **({} if self.noise is None else {"noise": self.noise})}
+        return {key: plain(value) for key, value in options.items()}
 
 
 def fly(method: Method | Any, missions: Missions) -> EvaluationResult:
@@ -493,6 +494,9 @@ _POOL: dict[int, ProcessPoolExecutor] = {}
 
 def _pool(n_workers: int) -> ProcessPoolExecutor:
     if n_workers not in _POOL:
+        from uav_ipp.workers import check_main_guard
+
+        check_main_guard(f"evaluate(workers={n_workers})", "spawn")  # one line, not dead workers
         _close_pool()
         context = multiprocessing.get_context("spawn")  # torch and numba are not fork-safe
         _POOL[n_workers] = ProcessPoolExecutor(max_workers=n_workers, mp_context=context)

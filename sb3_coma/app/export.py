@@ -63,6 +63,7 @@ from sb3_coma.app.pretrained import available, pretrained_dir, sha256_file
 from sb3_coma.app.runs import read_run_config, run_folder_of
 from sb3_coma.common.checkpoints import training_options
 from sb3_coma.common.masking import MASKED_LOGIT, mask_logits
+from sb3_coma.common.numbers import is_whole
 from sb3_coma.sendfuse.network import UNKNOWN, SenDFuseNet
 from sb3_coma.sendfuse.weights import default_weights_path, load_weights
 from uav_ipp import IppConfig, layout
@@ -243,12 +244,12 @@ def check_opset(opset: Any, label: str) -> int:
     """``opset`` when :func:`supported_opsets` has it; else :class:`ExportError` naming ``label``
     (``--opset 99`` / ``opset=99``) and the supported range."""
     low, high = supported_opsets()
-    if isinstance(opset, bool) or not isinstance(opset, int) or not low <= opset <= high:
+    if not is_whole(opset) or not low <= opset <= high:
         raise ExportError(
             f"{label}: must be an integer from {low} to {high} (the opsets that onnx {onnx.__version__} and "
             f"torch {th.__version__}'s exporter both write)"
         )
-    return opset
+    return int(opset)
 
 
 def check_fusion_matches(fusion: str | None, settings: Mapping[str, Any] | None, label: str) -> None:

@@ -71,6 +71,22 @@ def looks_like_path(name: str) -> bool:
     return name.endswith(".zip") or os.sep in name or "/" in name or name.startswith(".")
 
 
+def split_label(spec: str) -> tuple[str | None, str]:
+    """``"LABEL=PATH"`` -> (label, path), split at the first ``=``; anything else -> (``None``, spec).
+
+    A path that exists is a path even when it holds ``=`` (``sweep/lr=0.001/model.zip``, a model
+    file without its ``.zip``, a log folder): the whole spec wins over the split, so only a spec
+    that names nothing on disk is read as ``LABEL=PATH``; a "label" holding a folder separator is
+    the start of a path (a missing ``sweep/lr=0.001/model.zip`` is named whole, not as ``0.001/...``).
+    """
+    text = spec.strip()
+    label, sep, path = text.partition("=")
+    whole = Path(text).exists() or Path(text + ".zip").is_file() or "/" in label or os.sep in label
+    if not sep or not label.strip() or not path.strip() or whole:
+        return None, text
+    return label.strip(), path.strip()
+
+
 def is_unknown_name(text: str) -> bool:
     """Whether :func:`resolve_method` refuses ``text`` as an unknown name (no baseline, no shipped
     model, no file or folder, not spelt as a path), so a front door can word that case its way."""

@@ -396,6 +396,7 @@ def plan_run(
     for name, value, least in (("seed", seed, None), ("eval_seed", eval_seed, 0)):  # one rule for the seeds
         if value is not None and (not is_int(value) or (least is not None and value < least)):
             raise TrainingError(f"{name} must be an integer{'' if least is None else f' >= {least}'}, got {value!r}")
+    seed = None if seed is None else int(seed)  # a numpy integer as an int: config.yml records it
     check_device(device)
     resume_run, resume_model = _resolve_resume(resume) if resume is not None else (None, None)
     parent = None

@@ -79,6 +79,7 @@ from sb3_coma.common.checkpoints import (
     validate_checkpoint,
 )
 from uav_ipp import ENV_IDS, ConfigError
+from uav_ipp.config import SEED_MAX, count_value, integer_type
 
 ALGO = "coma"
 
@@ -271,13 +272,24 @@ class _StoreDict(StoreDict):
         setattr(namespace, self.dest, parsed)
 
 
+#: rl-zoo3's integer options, each with the values its help documents (``-1``: rl-zoo3's "the
+#: default" where it has one), as argparse types (:func:`sb3_coma.app.arguments.integer_type`).
+_SEED = integer_type(0, SEED_MAX, sentinels={-1: "random"})
+_THREADS = integer_type(1, sentinels={-1: "torch's default"})
+_CONFIG_STEPS = integer_type(1, sentinels={-1: "the config's"})
+_LOG_INTERVAL = integer_type(1, sentinels={-1: "default", -2: "off"})
+#: ``<= 0: none``, as rl-zoo3: every integer is a documented value.
+_FREQUENCY = integer_type(None)
+_EXPERIMENT = integer_type(0, sentinels={-1: "no experiment folder"})
+
+
 def _common_arguments(parser: argparse.ArgumentParser, seed: int) -> None:
     parser.add_argument("--algo", default=ALGO, choices=[ALGO], help="RL algorithm (coma)")
     parser.add_argument("--env", default=DEFAULT_ENV_ID, help=f"environment id (default {DEFAULT_ENV_ID})")
-    parser.add_argument("--seed", type=int, default=seed, help=f"random generator seed (default {seed}; -1: random)")
+    parser.add_argument("--seed", type=_SEED, default=seed, help=f"random generator seed (default {seed}; -1: random)")
     parser.add_argument("--device", default="auto", help="PyTorch device (auto, cpu, cuda ...)")
-    parser.add_argument("--num-threads", type=int, default=-1, help="torch threads (-1: torch's default)")
-    parser.add_argument("--verbose", type=int, default=1, help="0: no output, 1: info")
+    parser.add_argument("--num-threads", type=_THREADS, default=-1, help="torch threads (-1: torch's default)")
+    parser.add_argument("--verbose", type=integer_type(0), default=1, help="0: no output, 1: info")
     parser.add_argument("--gym-packages", nargs="+", default=[], help="extra modules to import (env registration)")
     parser.add_argument("--env-kwargs", nargs="+", action=_StoreDict, help="env options, e.g. noise:'loud'")
     parser.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
@@ -298,28 +310,28 @@ def train_parser() -> argparse.ArgumentParser:
     add("-tb", "--tensorboard-log", default="", help="TensorBoard log folder")
     add("-i", "--trained-agent", default="", help="a model .zip to continue training")
     add("--truncate-last-trajectory", type=bool, default=True, help="(off-policy algorithms only)")
-    add("-n", "--n-timesteps", type=int, default=-1, help="joint steps to train (-1: the config's)")
-    add("--log-interval", type=int, default=-1, help="log every N rollouts (-1: default, -2: off)")
-    add("--eval-freq", type=int, default=25000, help="joint steps between evaluations (<= 0: none)")
+    add("-n", "--n-timesteps", type=_CONFIG_STEPS, default=-1, help="joint steps to train (-1: the config's)")
+    add("--log-interval", type=_LOG_INTERVAL, default=-1, help="log every N rollouts (-1: default, -2: off)")
+    add("--eval-freq", type=_FREQUENCY, default=25000, help="joint steps between evaluations (<= 0: none)")
     add("--optimization-log-path", default=None, help="folder for each trial's evaluations and best model")
-    add("--eval-episodes", type=int, default=5, help="missions per evaluation")
-    add("--n-eval-envs", type=int, default=1, help="env copies of the evaluation env")
-    add("--save-freq", type=int, default=-1, help="joint steps between checkpoints (<= 0: none)")
+    add("--eval-episodes", type=count_value, default=5, help="missions per evaluation")
+    add("--n-eval-envs", type=count_value, default=1, help="env copies of the evaluation env")
+    add("--save-freq", type=_FREQUENCY, default=-1, help="joint steps between checkpoints (<= 0: none)")
     add("--save-replay-buffer", action="store_true", help="(off-policy algorithms only)")
     add("-f", "--log-folder", default="logs", help="log folder")
     add("--vec-env", default="dummy", choices=["dummy", "subproc"], help="ignored (env copies are vectorised)")
-    add("--n-trials", type=int, default=500, help="Optuna trials of this worker")
-    add("--max-total-trials", type=int, default=None, help="Optuna trials of the whole study")
+    add("--n-trials", type=count_value, default=500, help="Optuna trials of this worker")
+    add("--max-total-trials", type=count_value, default=None, help="Optuna trials of the whole study")
     add("-optimize", "--optimize-hyperparameters", action="store_true", help="run a hyperparameter search")
     add("--no-optim-plots", action="store_true", help="no Optuna plots")
-    add("--n-jobs", type=int, default=1, help="parallel Optuna jobs")
+    add("--n-jobs", type=count_value, default=1, help="parallel Optuna jobs")
     add("--sampler", default="tpe", choices=["random", "tpe", "auto"], help="Optuna sampler")
     add("--pruner", default="median", choices=["halving", "median", "none"], help="Optuna pruner")
-    add("--n-startup-trials", type=int, default=10, help="trials before the sampler is used")
-    add("--n-evaluations", type=int, default=None, help="evaluations per trial")
+    add("--n-startup-trials", type=integer_type(0), default=10, help="trials before the sampler is used")
+    add("--n-evaluations", type=count_value, default=None, help="evaluations per trial")
     add("--storage", default=None, help="Optuna storage (sqlite:///coma.db, a .log journal file, ...)")
     add("--study-name", default=None, help="Optuna study name")
-    add("--trial-id", type=int, default=None, help="Optuna trial whose hyperparameters to train with")
+    add("--trial-id", type=integer_type(0), default=None, help="Optuna trial whose hyperparameters to train with")
     add("-uuid", "--uuid", action="store_true", help="a unique id in the log folder name")
     add("--track", action="store_true", help="Weights & Biases tracking (not supported with COMA: use -tb)")
     return parser
@@ -333,14 +345,14 @@ def enjoy_parser() -> argparse.ArgumentParser:
     _common_arguments(parser, seed=0)
     add = parser.add_argument
     add("-f", "--folder", default="logs", help="log folder")
-    add("-n", "--n-timesteps", type=int, default=1000, help="env steps to fly")
-    add("--n-envs", type=int, default=1, help="env copies")
-    add("--exp-id", type=int, default=0, help="experiment id (0: latest, -1: no experiment folder)")
+    add("-n", "--n-timesteps", type=count_value, default=1000, help="env steps to fly")
+    add("--n-envs", type=count_value, default=1, help="env copies")
+    add("--exp-id", type=_EXPERIMENT, default=0, help="experiment id (0: latest, -1: no experiment folder)")
     add("--no-render", action="store_true", help="do not render (rendering is not available: headless maps)")
     add("--deterministic", action="store_true", help="argmax actions (the default for COMA)")
     add("--stochastic", action="store_true", help="sample actions from the policy")
     add("--load-best", action="store_true", help="load best_model.zip")
-    add("--load-checkpoint", type=int, default=None, help="load rl_model_<N>_steps.zip")
+    add("--load-checkpoint", type=count_value, default=None, help="load rl_model_<N>_steps.zip")
     add("--load-last-checkpoint", action="store_true", help="load the newest checkpoint")
     add("--norm-reward", action="store_true", help="ignored (no VecNormalize)")
     add("--custom-objects", action="store_true", help="ignored (COMA models load without them)")

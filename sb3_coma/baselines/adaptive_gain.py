@@ -22,6 +22,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
 from uav_ipp import kernels
+from uav_ipp.config import is_real, is_whole
 from uav_ipp.gain import WEIGHTINGS, check_weighting, gain_density
 from uav_ipp.geometry import FieldGeometry
 from uav_ipp.ipp_env import ACTION_DELTAS
@@ -227,15 +228,13 @@ class AdaptiveGainPlanner(Planner):
             (
                 "discount",
                 discount,
-                isinstance(discount, (int, float)) and not isinstance(discount, bool) and 0.0 <= discount <= 1.0,
+                is_real(discount) and 0.0 <= discount <= 1.0,
                 "must be a number in [0, 1]",
             ),
             (
                 "lookahead",
                 lookahead,
-                isinstance(lookahead, (int, np.integer))
-                and not isinstance(lookahead, bool)
-                and 1 <= lookahead <= MAX_LOOKAHEAD,
+                is_whole(lookahead) and 1 <= lookahead <= MAX_LOOKAHEAD,
                 f"an integer from 1 (greedy AG) to {MAX_LOOKAHEAD}",
             ),
             ("knowledge", knowledge, knowledge in KNOWLEDGE, f"choose one of {KNOWLEDGE}"),

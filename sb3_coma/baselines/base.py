@@ -17,6 +17,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
 from uav_ipp import layout
+from uav_ipp.config import is_whole
 
 
 class Planner(ABC):
@@ -35,21 +36,27 @@ class Planner(ABC):
 
     def __init__(self, venv: VecEnv, seed: int | None = None) -> None:
         n_agents = getattr(venv, "n_agents", None)
-        if not isinstance(n_agents, (int, np.integer)) or n_agents < 1:
+        if not is_whole(n_agents) or n_agents < 1:
             raise TypeError(
                 f"{type(self).__name__} needs an IPP vec env with an n_agents attribute "
                 f"(uav_ipp.make_vec_env), got {type(venv).__name__}"
             )
         self.venv = venv
         self.n_agents = int(n_agents)
-        self.seed = seed
-        self.rng = np.random.default_rng(seed)
+        self.seed = self._checked_seed(seed)
+        self.rng = np.random.default_rng(self.seed)
+
+    def _checked_seed(self, seed: Any) -> int | None:
+        """``None`` or an integer >= 0 (a numpy integer as an ``int``); ``ValueError`` naming it."""
+        if seed is not None and (not is_whole(seed) or seed < 0):
+            raise ValueError(f"{self.name} seed={seed!r}: must be None or an integer >= 0")
+        return None if seed is None else int(seed)
 
     def reset(self, seed: int | None = None) -> None:
         """Forget per-episode state; reseed the random stream when ``seed`` is given."""
         if seed is not None:
-            self.seed = seed
-            self.rng = np.random.default_rng(seed)
+            self.seed = self._checked_seed(seed)
+            self.rng = np.random.default_rng(self.seed)
 
     def predict(
         self,

@@ -15,6 +15,7 @@ import itertools
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from uav_ipp.config import is_real
 from uav_ipp.geometry import FieldGeometry
 
 from .base import Planner
@@ -176,7 +177,7 @@ class LawnmowerPlanner(Planner):
         if altitude is None:
             self.level = default_level(self.geometry, self.n_agents)
         else:
-            if float(altitude) not in config.altitudes:
+            if not is_real(altitude) or float(altitude) not in config.altitudes:
                 raise ValueError(
                     f"lawnmower altitude={altitude!r}: must be one of the env's altitudes {list(config.altitudes)}"
                 )
@@ -186,7 +187,7 @@ class LawnmowerPlanner(Planner):
         width = config.field_size / self.n_agents
         if lanes_per_uav is None:
             lanes_per_uav = max(1, round(width / side))
-        if isinstance(lanes_per_uav, bool) or int(lanes_per_uav) != lanes_per_uav or lanes_per_uav < 1:
+        if not (is_real(lanes_per_uav) and float(lanes_per_uav).is_integer() and lanes_per_uav >= 1):
             raise ValueError(f"lawnmower lanes_per_uav={lanes_per_uav!r}: must be an integer >= 1")
         self.lanes_per_uav = int(lanes_per_uav)
         self.ranges = axis_ranges(self.geometry, self.level)

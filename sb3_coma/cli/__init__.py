@@ -21,12 +21,22 @@ import linecache
 import pkgutil
 import sys
 from types import ModuleType
+from typing import NoReturn
 
 from sb3_coma.cli import commands
 
 
 class UserError(Exception):
     """An error the user can fix; printed without a traceback."""
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse, with a bad option or value as one stderr line (``sb3-coma demo: error: argument
+    --seed: must be ...``, exit status 2), as every other user error of the command line, instead of
+    the usage block first (``--help`` prints it)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def _command_modules() -> list[ModuleType]:
@@ -95,7 +105,7 @@ def set_threads(threads: int) -> None:
 
 
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, ModuleType]]:
-    parser = argparse.ArgumentParser(prog="sb3-coma", description="COMA + SenDFuse + CBAM for multi-UAV IPP")
+    parser = _OneLineParser(prog="sb3-coma", description="COMA + SenDFuse + CBAM for multi-UAV IPP")
     parser.add_argument("--version", action="version", version=f"%(prog)s {importlib.metadata.version('sb3-coma')}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     table = {}
@@ -108,7 +118,12 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, ModuleType]]:
 
 def main(argv: list[str] | None = None) -> int:
     parser, table = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # a bad option or value (its line printed): 2; --help and --version go on
+        if exc.code == 2:
+            return 2
+        raise
     if args.command is None:
         parser.print_help()
         return 2

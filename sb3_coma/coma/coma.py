@@ -37,7 +37,6 @@ import io
 import math
 import os
 import pathlib
-import sys
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -45,9 +44,9 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
-from stable_baselines3.common.logger import HumanOutputFormat, Logger
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import (
@@ -84,6 +83,8 @@ from sb3_coma.common.joint import (
     resolve_state_source,
     state_space_of,
 )
+from sb3_coma.common.logger import folderless_logger
+from sb3_coma.common.numbers import is_real, plain_arguments
 from sb3_coma.common.shipped import check_shipped_file
 
 SelfCOMA = TypeVar("SelfCOMA", bound="COMA")
@@ -134,6 +135,9 @@ class COMA(OnPolicyAlgorithm):
     :param ent_coef: entropy bonus weight in the actor loss
     :param max_grad_norm: gradient-norm clip for actor and critic
     :param normalize_advantage: standardise advantages per actor minibatch
+    :param normalize_q: the critic learns ``Q`` in units of its targets' running mean and standard
+        deviation (as MAPPO's value normalisation): its output layer works near 0 and 1 whatever
+        the scale of the team's returns; ``False``: the critic outputs ``Q`` itself (the paper)
     :param target_update_interval: critic updates between target-critic synchronisations (a hard copy)
     :param exploration_initial_eps: initial weight of uniform-over-valid-actions exploration
     :param exploration_final_eps: final weight
@@ -171,6 +175,7 @@ class COMA(OnPolicyAlgorithm):
     #: The manifest entry of a shipped model, set by ``sb3_coma.load_pretrained`` (absent otherwise).
     pretrained_info: dict[str, Any]
 
+    @plain_arguments  # np.int64(8), np.float32(0.9): stored (and saved) as int and float
     def __init__(
         self,
         policy: str | type[COMAPolicy],
@@ -188,6 +193,7 @@ class COMA(OnPolicyAlgorithm):
         ent_coef: float = 0.01,
         max_grad_norm: float = 10.0,
         normalize_advantage: bool = True,
+        normalize_q: bool = False,
         target_update_interval: int = 4,
         exploration_initial_eps: float = 0.0,
         exploration_final_eps: float = 0.0,
@@ -241,6 +247,7 @@ class COMA(OnPolicyAlgorithm):
         self.advantage = advantage
         self.td_lambda = td_lambda
         self.normalize_advantage = normalize_advantage
+        self.normalize_q = bool(normalize_q)
         self.target_update_interval = target_update_interval
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
@@ -280,6 +287,8 @@ class COMA(OnPolicyAlgorithm):
         self._last_states: np.ndarray | None = None
         self._n_critic_updates = 0
         self._n_target_updates = 0
+        #: Running mean and variance of the critic's targets (``normalize_q``), saved with the model.
+        self.q_scale = RunningMeanStd(shape=())
 
     @classmethod
     def _resolve_policy(cls, policy: str | type[COMAPolicy]) -> type[COMAPolicy]:
@@ -361,7 +370,7 @@ class COMA(OnPolicyAlgorithm):
         """Hold the actor (learning rate 0) over the first ``fraction`` of ``learn()`` while the
         critic learns, e.g. after a warm start: advantages from an untrained critic would undo the
         clone. Saved with the model, so a resumed run holds it over the same part of the run."""
-        if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0.0 <= fraction < 1.0:
+        if not is_real(fraction) or not 0.0 <= fraction < 1.0:
             raise ValueError(f"critic_warmup={fraction!r}: a number in [0, 1)")
         self.critic_warmup = float(fraction)
         self._setup_lr_schedule()
@@ -451,9 +460,7 @@ class COMA(OnPolicyAlgorithm):
         logger is built here without a folder."""
         own_logger = not self._custom_logger and self.tensorboard_log is None
         if own_logger:
-            self._logger = Logger(
-                folder=None, output_formats=[HumanOutputFormat(sys.stdout)] if self.verbose >= 1 else []
-            )
+            self._logger = folderless_logger(self.verbose)
             self._custom_logger = True
         try:
             out = super()._setup_learn(*args, **kwargs)
@@ -476,7 +483,7 @@ class COMA(OnPolicyAlgorithm):
         probs = self.policy.action_probs(rows, th.as_tensor(masks, device=self.device))
         actions = th.multinomial(probs, 1).view(-1, self._agents)
         state = self._joint_state(joint, None if states is None else th.as_tensor(states, device=self.device))
-        q = self.policy.q_values(joint, state, actions, target=True)
+        q = self._q_units(self.policy.q_values(joint, state, actions, target=True))
         return (probs.view(q.shape) * q).sum(-1)
 
     def _bootstrap_truncations(self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]) -> np.ndarray:
@@ -570,8 +577,24 @@ class COMA(OnPolicyAlgorithm):
         """Joint observations ``(B, N, ...)`` as agent rows ``(B * N, ...)``."""
         return map_obs(lambda x: x.flatten(0, 1), obs)
 
+    def _q_units(self, q: th.Tensor) -> th.Tensor:
+        """The critic's output in units of return: with ``normalize_q`` it learns ``Q`` standardised
+        by its targets' running mean and standard deviation, which this undoes."""
+        if not self.normalize_q:
+            return q
+        return q * float(np.sqrt(self.q_scale.var + 1e-8)) + float(self.q_scale.mean)
+
+    def _critic_targets(self, targets: th.Tensor) -> th.Tensor:
+        """What the critic's output is fitted to: the targets, standardised with ``normalize_q``
+        (after the running statistics took this rollout's targets in)."""
+        if not self.normalize_q:
+            return targets
+        self.q_scale.update(targets.flatten().cpu().numpy().astype(np.float64))
+        return (targets - float(self.q_scale.mean)) / float(np.sqrt(self.q_scale.var + 1e-8))
+
     def _q(self, data: dict[str, Any], idx: th.Tensor, target: bool = False) -> th.Tensor:
-        """The critic's ``Q(s, u_-i, .)`` ``(b, N, n)`` on joint steps ``idx`` of the rollout."""
+        """The critic's output ``(b, N, n)`` for ``Q(s, u_-i, .)`` on joint steps ``idx`` of the
+        rollout (standardised with ``normalize_q``: :meth:`_q_units` gives ``Q``)."""
         obs = self._take(data["obs"], idx)
         states = None if data["states"] is None else data["states"][idx]
         return self.policy.q_values(obs, self._joint_state(obs, states), data["actions"][idx], target=target)
@@ -584,7 +607,9 @@ class COMA(OnPolicyAlgorithm):
         flat = self.rollout_buffer.joint_steps()
         q_taken = th.cat(
             [
-                self._q(flat, idx, target=True).gather(-1, flat["actions"][idx].unsqueeze(-1)).squeeze(-1)
+                self._q_units(self._q(flat, idx, target=True))
+                .gather(-1, flat["actions"][idx].unsqueeze(-1))
+                .squeeze(-1)
                 for idx in th.arange(T * E).split(_SCORING_CHUNK)
             ]
         ).view(T, E, N)
@@ -673,6 +698,7 @@ class COMA(OnPolicyAlgorithm):
         update_learning_rate(self.policy.critic_optimizer, self.critic_lr_schedule(progress))
 
         targets = self._td_targets()
+        fitted = self._critic_targets(targets)
         data = self.rollout_buffer.joint_steps()
         actions = data["actions"]
         n_joint = actions.shape[0]
@@ -683,11 +709,11 @@ class COMA(OnPolicyAlgorithm):
             for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
                 q = self._q(data, idx)
                 q_taken = q.gather(-1, actions[idx].unsqueeze(-1)).squeeze(-1)
-                loss = F.mse_loss(q_taken, targets[idx])
+                loss = F.mse_loss(q_taken, fitted[idx])
                 self._critic_step(loss)
                 critic_losses.append(loss.item())
                 if epoch == self.n_critic_epochs - 1:
-                    q_all[idx] = q.detach()
+                    q_all[idx] = self._q_units(q.detach())
 
         advantage, old_log_prob = self._advantages(data, q_all, targets)
         actor_losses, entropies, clipped = [], [], []
@@ -706,7 +732,9 @@ class COMA(OnPolicyAlgorithm):
 
         self.logger.record("train/clip_fraction", float(np.mean(clipped)))
         q_taken_flat = q_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
-        self.logger.record("train/critic_loss", float(np.mean(critic_losses)))
+        self.logger.record("train/critic_loss", float(np.mean(critic_losses)))  # standardised with normalize_q
+        if self.normalize_q:
+            self.logger.record("train/q_target_std", float(np.sqrt(self.q_scale.var)))
         self.logger.record("train/actor_loss", float(np.mean(actor_losses)))
         self.logger.record("train/q_mean", float(q_taken_flat.mean()))
         self.logger.record("train/advantage_mean", float(advantage.mean()))

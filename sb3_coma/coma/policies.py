@@ -25,7 +25,7 @@ from typing import Any
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.preprocessing import is_image_space, preprocess_obs
+from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first, preprocess_obs
 from stable_baselines3.common.torch_layers import (
     BaseFeaturesExtractor,
     CombinedExtractor,
@@ -118,6 +118,50 @@ def one_hot_others(actions: th.Tensor, n_actions: int) -> th.Tensor:
     return (one_hot[:, None] * others[None, :, :, None]).flatten(2)
 
 
+#: The smallest image side NatureCNN's convolutions (8 stride 4, 4 stride 2, 3) leave a pixel of.
+_NATURE_CNN_MIN_SIDE = 36
+
+
+def _check_extractor_fits(
+    policy: str, extractor: type[BaseFeaturesExtractor], space: spaces.Space, kwargs: Mapping[str, Any]
+) -> None:
+    """SB3's one-input extractors on what the actor reads: ``NatureCNN`` (``CnnPolicy``) needs one
+    image ``Box`` its three convolutions fit in, ``FlattenExtractor`` (``MlpPolicy``) anything but
+    a ``Dict`` of several entries. One line naming the policy, the space and what reads it,
+    instead of NatureCNN's bare ``AssertionError`` (or torch's size error) at construction or
+    ``FlattenExtractor``'s ``AttributeError`` at the first step. Any other extractor is its own business.
+
+    :raises ValueError: naming the policy and the space
+    """
+    if extractor not in (NatureCNN, FlattenExtractor):
+        return
+    image = extractor is NatureCNN and is_image_space(
+        space, check_channels=False, normalized_image=bool(kwargs.get("normalized_image"))
+    )  # NatureCNN's own test
+    shape = tuple(space.shape or ())
+    sides = shape[1:] if image and is_image_space_channels_first(space) else shape[:2]  # type: ignore[arg-type]
+    if isinstance(space, spaces.Dict):
+        problem = (
+            f"reads one Box, but the actor's observation is a Dict of {sorted(space.spaces)} (besides 'state' / "
+            "'action_mask'); use 'MultiInputPolicy' for a Dict observation (in the UAV world, uav_ipp: "
+            "'UavCnnPolicy' or 'CBAMPolicy')"
+        )
+    elif extractor is NatureCNN and not image:
+        problem = (
+            f"reads an image Box (channels, height, width) of uint8 in [0, 255], but the actor's observation is "
+            f"{space}; pass features_extractor_kwargs=dict(normalized_image=True) for float images, or use "
+            "'MlpPolicy' for a vector"
+        )
+    elif extractor is NatureCNN and min(sides) < _NATURE_CNN_MIN_SIDE:
+        problem = (
+            f"needs images of at least {_NATURE_CNN_MIN_SIDE} x {_NATURE_CNN_MIN_SIDE} pixels, but the actor's "
+            f"observation is {space}; use 'MlpPolicy', or a features_extractor_class for small images"
+        )
+    else:
+        return
+    raise ValueError(f"policy {policy!r} ({extractor.__name__}) {problem}")
+
+
 class COMAPolicy(BasePolicy):
     """Shared actor ``pi(u | o_i)`` and centralised critic ``Q(s, u_-i, .)`` for ``Discrete(n)`` agents.
 
@@ -188,6 +232,8 @@ class COMAPolicy(BasePolicy):
         self.ortho_init = ortho_init
         #: What the actor reads (the observation without ``state`` / ``action_mask``).
         self.actor_space = actor_observation_space(observation_space)
+        extractor = self.features_extractor_class
+        _check_extractor_fits(type(self).__name__, extractor, self.actor_space, self.features_extractor_kwargs)
         self._build(lr_schedule, critic_lr_schedule or lr_schedule)
 
     # ------------------------------------------------------------ set-up

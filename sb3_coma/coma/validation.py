@@ -15,6 +15,7 @@ import torch as th
 from gymnasium import spaces
 
 from sb3_coma.common.joint import KEY_MASK
+from sb3_coma.common.numbers import is_flag, is_real, is_whole
 
 
 def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) -> None:
@@ -63,7 +64,7 @@ def check_total_timesteps(value: Any, what: str = "total_timesteps") -> int:
     given = value
     if isinstance(value, float) and math.isfinite(value) and value.is_integer():
         value = int(value)
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_JOINT_STEPS:
+    if not is_whole(value) or not 1 <= value <= MAX_JOINT_STEPS:
         raise ValueError(f"{what} must be a whole number of joint steps from 1 to {MAX_JOINT_STEPS:.0e}, got {given!r}")
     return int(value)
 
@@ -141,21 +142,13 @@ _ACCELERATORS = {"cuda": "CUDA", "mps": "MPS (Apple GPU)"}
 ADVANTAGES = ("return", "q")
 
 
-def _is_int(value: Any) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
-
-
 def _start(rate: Any) -> Any:
     """A learning rate's starting value (SB3 schedules are called with the remaining progress)."""
     return rate(1.0) if callable(rate) else rate
 
 
 def _positive(value: Any) -> bool:
-    return _is_number(value) and 0.0 < value < math.inf
+    return is_real(value) and 0.0 < value < math.inf
 
 
 #: COMA's constructor arguments, one rule per group: (names, accepts, what is allowed). Each rule
@@ -164,22 +157,22 @@ _ARGUMENT_RULES: tuple[tuple[tuple[str, ...], Callable[[Any], bool], str], ...] 
     (("learning_rate", "critic_learning_rate"), lambda v: _positive(_start(v)), "be a finite positive number"),
     (
         ("gamma", "td_lambda", "exploration_initial_eps", "exploration_final_eps"),
-        lambda v: _is_number(v) and 0.0 <= v <= 1.0,
+        lambda v: is_real(v) and 0.0 <= v <= 1.0,
         "lie in [0, 1]",
     ),
-    (("exploration_fraction", "kl_fraction"), lambda v: _is_number(v) and 0.0 < v <= 1.0, "lie in (0, 1]"),
+    (("exploration_fraction", "kl_fraction"), lambda v: is_real(v) and 0.0 < v <= 1.0, "lie in (0, 1]"),
     (
         ("batch_size", "n_critic_epochs", "n_epochs", "target_update_interval", "stats_window_size"),
         lambda v: v >= 1,
         "be >= 1",
     ),
     (("n_steps",), lambda v: v is None or v >= 1, "be None or >= 1"),
-    (("ent_coef", "kl_coef"), lambda v: _is_number(v) and v >= 0, "be a number >= 0"),
+    (("ent_coef", "kl_coef"), lambda v: is_real(v) and v >= 0, "be a number >= 0"),
     (("clip_range",), lambda v: v is None or _positive(v), "be None or a positive number"),
     (("max_grad_norm",), _positive, "be positive"),
-    (("normalize_advantage",), lambda v: isinstance(v, (bool, np.bool_)), "be True or False"),
+    (("normalize_advantage", "normalize_q"), is_flag, "be True or False"),
     (("advantage",), lambda v: v in ADVANTAGES, f"be one of {ADVANTAGES}"),
-    (("seed",), lambda v: v is None or (_is_int(v) and v >= 0), "be None or an integer >= 0"),
+    (("seed",), lambda v: v is None or (is_whole(v) and v >= 0), "be None or an integer >= 0"),
 )
 #: The counts among them: a value of another type is a ``TypeError`` ("must be an int").
 _COUNTS = frozenset(
@@ -194,7 +187,7 @@ def check_coma_arguments(args: dict[str, Any]) -> None:
     for names, accepts, allowed in _ARGUMENT_RULES:
         for name in names:
             value = args[name]
-            not_int = name in _COUNTS and value is not None and not _is_int(value)
+            not_int = name in _COUNTS and value is not None and not is_whole(value)
             if not_int or not accepts(value):
                 error = TypeError if not_int else ValueError
                 raise error(f"{name} must {'be an int' if not_int else allowed}, got {value!r}")

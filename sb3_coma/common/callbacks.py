@@ -44,6 +44,7 @@ from sb3_coma.common.checkpoints import (
     find_checkpoints,
 )
 from sb3_coma.common.joint import resolve_n_agents
+from sb3_coma.common.numbers import is_real, is_whole
 
 #: Columns of the per-mission metrics CSV.
 METRIC_COLUMNS = ("episode", "timesteps", "env_copy", "reward", "length", "f1", "entropy", "wall_time")
@@ -53,12 +54,12 @@ METRIC_COLUMNS = ("episode", "timesteps", "env_copy", "reward", "length", "f1", 
 def _agents_per_copy(model: Any, env: Any = None) -> int:
     """Agents per env copy: COMA's ``n_agents``, else the vec env's attribute, else 1."""
     n = getattr(model, "n_agents", None)
-    if isinstance(n, int) and n > 0:
-        return n
+    if is_whole(n) and n > 0:
+        return int(n)
     if env is not None:
         n = getattr(env, "n_agents", None)
-        if isinstance(n, int) and n > 0:
-            return n
+        if is_whole(n) and n > 0:
+            return int(n)
     return 1
 
 
@@ -100,7 +101,7 @@ def _check_counts(optional: Sequence[str] = (), **counts: Any) -> None:
     for name, value in counts.items():
         if value is None and name in optional:
             continue
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        if not is_whole(value) or value < 1:
             allowed = "an integer >= 1" + (" or None" if name in optional else "")
             raise ValueError(f"{name} must be {allowed}, got {value!r}")
 
@@ -309,7 +310,7 @@ class JointCheckpointCallback(BaseCallback):
         self.save_freq = int(save_freq)
         self.save_path = Path(save_path)
         self.name_prefix = name_prefix
-        self.keep_last = keep_last
+        self.keep_last = None if keep_last is None else int(keep_last)
         self.saved: list[Path] = []
         self._last_saved = 0
 
@@ -384,7 +385,9 @@ class StopOnTargetCallback(BaseCallback):
         for name, value, allowed in (("metric", metric, self.METRICS), ("mode", mode, ("below", "above"))):
             if value not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
-        _check_counts(window=window)
+        _check_counts(("min_missions",), window=window, min_missions=min_missions)
+        if not is_real(threshold):
+            raise ValueError(f"threshold must be a number, got {threshold!r}")
         self.metric = metric
         self.threshold = float(threshold)
         self.mode = mode
@@ -516,7 +519,7 @@ class ProgressLinesCallback(BaseCallback):
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose)
-        if not (isinstance(every, (int, float)) and 0 < every <= 1):
+        if not (is_real(every) and 0 < every <= 1):
             raise ValueError(f"every must be a fraction in (0, 1], got {every!r}")
         self.every = float(every)
         self.label = label
@@ -606,8 +609,8 @@ class MissionEvalCallback(EvalCallback):
         eval_seed: int | None = None,
         select_after: int = 0,
     ) -> None:
-        _check_counts(n_eval_missions=n_eval_missions)
-        if eval_seed is not None and (isinstance(eval_seed, bool) or not isinstance(eval_seed, (int, np.integer))):
+        _check_counts(eval_freq=eval_freq, n_eval_missions=n_eval_missions)
+        if eval_seed is not None and not is_whole(eval_seed):
             raise ValueError(f"eval_seed must be an integer or None, got {eval_seed!r}")
         self.eval_seed = None if eval_seed is None else int(eval_seed)
         self.select_after = int(select_after)

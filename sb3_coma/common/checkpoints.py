@@ -28,6 +28,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from sb3_coma.common.numbers import is_whole
+
 #: rl-zoo3's checkpoint prefix: ``rl_model_<steps>_steps.zip``.
 CHECKPOINT_PREFIX = "rl_model"
 _CHECKPOINT_RE = re.compile(r"^(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip$")
@@ -261,7 +263,7 @@ def validate_checkpoint(path: str | os.PathLike[str]) -> CheckpointInfo:
             f"(SB3 writes only {sorted(_COMA_MEMBERS)}); it is not loaded"
         )
     steps = data.get("num_timesteps") or 0
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+    if not is_whole(steps) or steps < 0:
         # resume and newest_model() count joint steps from it: a hand-edited or foreign value
         # would otherwise fail as a bare int() error or pick the wrong checkpoint.
         raise CheckpointError(
@@ -271,8 +273,8 @@ def validate_checkpoint(path: str | os.PathLike[str]) -> CheckpointInfo:
     n_agents = data.get("n_agents")
     return CheckpointInfo(
         path=p,
-        num_timesteps=steps,
-        n_agents=int(n_agents) if isinstance(n_agents, int) else None,
+        num_timesteps=int(steps),
+        n_agents=int(n_agents) if is_whole(n_agents) else None,
         policy=policy,
         sb3_version=version,
     )

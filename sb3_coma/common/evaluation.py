@@ -55,6 +55,7 @@ import torch as th
 
 from sb3_coma.baselines import Planner
 from sb3_coma.common.memory import release_freed_memory
+from sb3_coma.common.numbers import is_whole
 from uav_ipp.maps import TRANSFORMS, split_scenes
 
 #: Budget fractions of the paper's Table I and their column labels.
@@ -379,7 +380,7 @@ def _run_batch(
 
 
 def _check_int(name: str, value: Any, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+    if not is_whole(value) or value < minimum:
         raise ValueError(f"{name}={value!r}: must be an integer >= {minimum}")
     return int(value)
 

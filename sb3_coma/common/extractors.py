@@ -38,6 +38,8 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
+from sb3_coma.common.numbers import is_flag, is_whole
+
 #: Width of the learned encoder of the per-action gains (``gain_inputs=True``: COMA's UAV actor and
 #: the PPO baselines' ``MapsExtractor``): the gains are mapped to this many features before they
 #: join the trunk's features.
@@ -124,11 +126,14 @@ def _map_space(observation_space: spaces.Space, key: str | None) -> spaces.Box:
 
 
 def _is_count(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+    return is_whole(value) and value >= 1
 
 
 def _is_finite(value: Any) -> bool:
-    """A finite number, or anything ``float()`` turns into one (a YAML string such as ``"0.5"``)."""
+    """A finite number, or anything ``float()`` turns into one (a YAML string such as ``"0.5"``);
+    not a flag (``float(True)`` is 1.0)."""
+    if is_flag(value):
+        return False
     try:
         return math.isfinite(float(value))
     except (TypeError, ValueError):
@@ -153,6 +158,7 @@ class _Trunk(BaseFeaturesExtractor):
         # One row per argument: (name, value, accepted, what is allowed).
         rules = (
             ("features_dim", features_dim, _is_count(features_dim), "an integer >= 1"),
+            ("reduction", reduction, _is_count(reduction), "an integer >= 1"),
             (
                 "channels",
                 channels,
@@ -160,11 +166,12 @@ class _Trunk(BaseFeaturesExtractor):
                 "three widths (conv1, conv2, conv3), integers >= 1",
             ),
             ("gate_bias", gate_bias, _is_finite(gate_bias), "a number (finite)"),
-            ("residual", residual, isinstance(residual, bool), "true or false"),
+            ("residual", residual, is_flag(residual), "true or false"),
         )
         for name, value, accepted, allowed in rules:
             if not accepted:
                 raise ValueError(f"{name} must be {allowed}, got {value!r}")
+        features_dim, reduction, residual = int(features_dim), int(reduction), bool(residual)
         super().__init__(observation_space, features_dim)
         self.key = key if isinstance(observation_space, spaces.Dict) else None
         in_ch, height, width = box.shape

@@ -19,6 +19,8 @@ from stable_baselines3.common.preprocessing import get_flattened_obs_dim, prepro
 from stable_baselines3.common.type_aliases import PyTorchObs
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_coma.common.numbers import is_whole
+
 #: Observation key of the global state an env provides to every agent (the critic's input).
 KEY_STATE = "state"
 #: Observation key of the valid-action mask (sb3-contrib's other convention is ``action_masks()``).
@@ -131,7 +133,7 @@ def resolve_n_agents(env: VecEnv) -> int:
             n_agents = values[0] if values else None
         except Exception:  # any failure means "the env does not say"
             n_agents = None
-    if isinstance(n_agents, bool) or not isinstance(n_agents, int) or n_agents < 1:
+    if not is_whole(n_agents) or n_agents < 1:
         raise ValueError(
             f"the vec env does not expose `n_agents` (agents per env copy) as a positive int (got {n_agents!r}); "
             "COMA cannot regroup its rows into joint steps. Build it with sb3_coma.make_marl_vec_env(parallel_env) "
@@ -142,7 +144,7 @@ def resolve_n_agents(env: VecEnv) -> int:
             f"num_envs={env.num_envs} is not a multiple of n_agents={n_agents}: the vec env must hold "
             "whole env copies (agent a of copy e at index e * n_agents + a)"
         )
-    return n_agents
+    return int(n_agents)
 
 
 def resolve_state_source(env: VecEnv, n_agents: int) -> tuple[str, spaces.Space]:

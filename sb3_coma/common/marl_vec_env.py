@@ -32,6 +32,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 from sb3_coma.common.joint import STATE_SOURCES
+from sb3_coma.common.numbers import is_whole
 
 # Private info keys of the channel between _InfoChannel (inside each copy) and MarlVecEnv.
 _RESET_KEY = "_marl_reset_info"
@@ -251,15 +252,11 @@ class MarlVecEnv(VecEnv):
 
 
 # ---------------------------------------------------------------------- checks
-def _is_int(value: Any) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-
-
 def _check_options(n_envs: Any, state: Any, seed: Any) -> None:
     """:func:`make_marl_vec_env`'s own options, one (value, rule, what is allowed) row each."""
     rules = (
-        ("n_envs", n_envs, _is_int(n_envs) and n_envs >= 1, "an integer >= 1 (env copies)"),
-        ("seed", seed, seed is None or (_is_int(seed) and seed >= 0), "None or an integer >= 0"),
+        ("n_envs", n_envs, is_whole(n_envs) and n_envs >= 1, "an integer >= 1 (env copies)"),
+        ("seed", seed, seed is None or (is_whole(seed) and seed >= 0), "None or an integer >= 0"),
         ("state", state, state == "auto" or state in STATE_SOURCES, f"'auto' or one of {STATE_SOURCES}"),
     )
     for name, value, ok, allowed in rules:

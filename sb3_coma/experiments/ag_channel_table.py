@@ -24,6 +24,7 @@ import numpy as np
 
 from sb3_coma.app.evaluation import Method, Missions
 from sb3_coma.app.evaluation import fly as fly_method
+from uav_ipp.config import count_value
 
 #: The final metrics of one mission, in table order.
 KEYS = ("f1", "entropy", "team_f1", "team_entropy")
@@ -41,7 +42,7 @@ def fly(name: str, trials: int, **options: Any) -> np.ndarray:
 def main(argv: Sequence[str] | None = None) -> int:
     """Fly AG under every (noise, decoder) setting of every map and print one table row each."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--trials", type=int, default=10)
+    parser.add_argument("--trials", type=count_value, default=10)
     parser.add_argument("--maps", nargs="+", default=["env1", "env2", "env3"])
     args = parser.parse_args(argv)
     print(f"AG (class weighting, greedy), split=paper, {args.trials} trials, 100 % budget, mean +- std")

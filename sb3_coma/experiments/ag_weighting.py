@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from sb3_coma.app.roles import AG_WEIGHTING_MISSIONS, AG_WEIGHTING_SEED, AG_WEIGHTING_SPLIT
+from sb3_coma.common.numbers import is_whole
 
 #: The picker's validation missions (``sb3_coma.app.roles``, where the report reads them too):
 #: first env seed (seeds VALIDATION_SEED .. + n - 1), missions per weighting and map, split.
@@ -40,7 +41,7 @@ _FIXED = ("split",)
 
 def _at_least(value: object, least: int) -> bool:
     """Whether ``value`` is an integer (not a bool) of at least ``least``."""
-    return isinstance(value, int) and not isinstance(value, bool) and value >= least
+    return is_whole(value) and value >= least
 
 
 def validation_options(noise: str = "moderate", **env_options: Any) -> dict[str, Any]:

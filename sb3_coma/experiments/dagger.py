@@ -32,16 +32,19 @@ from sb3_coma.baselines import make_planner
 from sb3_coma.coma import COMA
 from sb3_coma.stats.paired import holm_adjust, paired_difference
 from sb3_coma.uav.imitation import clone_teacher
+from uav_ipp.config import count_or_none_value, count_value, seed_value
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The command-line options (module docstring)."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="env3")
-    parser.add_argument("--rounds", type=int, default=8, help="DAgger rounds")
-    parser.add_argument("--missions", type=int, default=128, help="missions per DAgger round")
+    parser.add_argument("--rounds", type=count_value, default=8, help="DAgger rounds")
+    parser.add_argument("--missions", type=count_value, default=128, help="missions per DAgger round")
     parser.add_argument("--from", dest="source", default=None, help="a clone to fine-tune instead of cloning")
-    parser.add_argument("--finetune", type=int, default=0, help="COMA joint steps after cloning (0: none)")
+    parser.add_argument(
+        "--finetune", type=count_or_none_value, default=0, help="COMA joint steps after cloning (0: none)"
+    )
     parser.add_argument("--kl", type=float, default=1.0, help="starting weight of the KL pull while fine-tuning")
     parser.add_argument(
         "--kl-fraction", type=float, default=0.5, help="share of the fine-tuning over which the pull decays"
@@ -56,10 +59,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="fraction of the fine-tuning during which only the critic learns (actor learning rate 0)",
     )
     parser.add_argument(
-        "--missions-eval", type=int, default=None, help="missions of the comparison (default: the protocol's)"
+        "--missions-eval", type=count_value, default=None, help="missions of the comparison (default: the protocol's)"
     )
     add_split_argument(parser)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=seed_value, default=0)
     parser.add_argument(
         "--observation", choices=("v2", "v3"), default=None, help="env option observation (default: the config's)"
     )

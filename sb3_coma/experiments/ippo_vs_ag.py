@@ -52,7 +52,11 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import uav_ipp
 from sb3_coma import COMA
-from sb3_coma.app.arguments import add_env_argument, add_out_argument, add_threads_argument
+from sb3_coma.app.arguments import (
+    add_env_argument,
+    add_out_argument,
+    add_threads_argument,
+)
 from sb3_coma.app.config import eval_copies
 from sb3_coma.app.evaluation import Method, Missions, fly
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
@@ -60,6 +64,7 @@ from sb3_coma.common.callbacks import MissionEvalCallback
 from sb3_coma.common.evaluation import PROTOCOLS, VALIDATION_SEED, validation_missions
 from sb3_coma.mappo.mappo import make_ippo, make_mappo, missions_of, timesteps_for_missions
 from sb3_coma.stats.paired import paired_difference
+from uav_ipp.config import count_or_none_value, count_value, seed_value
 
 #: Final metrics reported, in table order.
 METRICS = ("f1", "entropy", "team_f1", "team_entropy")
@@ -114,10 +119,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--algo", default="ippo", choices=["ippo", "mappo", "coma"])
     add_env_argument(p)
-    p.add_argument("--missions", type=int, default=1000, help="training missions (SB3 timesteps / (n_uavs * budget))")
-    p.add_argument("--n-envs", type=int, default=8, help="env copies (vec-env rows = n_envs * n_uavs)")
-    p.add_argument("--uavs", type=int, default=4)
-    p.add_argument("--budget", type=int, default=15)
+    p.add_argument(
+        "--missions", type=count_value, default=1000, help="training missions (SB3 timesteps / (n_uavs * budget))"
+    )
+    p.add_argument("--n-envs", type=count_value, default=8, help="env copies (vec-env rows = n_envs * n_uavs)")
+    p.add_argument("--uavs", type=count_value, default=4)
+    p.add_argument("--budget", type=count_value, default=15)
     p.add_argument("--noise", default="moderate", choices=["none", "moderate", "loud"])
     p.add_argument("--fusion", default="mean", choices=["mean", "sendfuse"])
     p.add_argument("--reward", default="metrics", help="env reward option (COMA's shipped models use 'metrics')")
@@ -127,36 +134,36 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         action="store_true",
         help="the actor also reads the on-board action_gain as inputs (COMA, IPPO and MAPPO alike)",
     )
-    p.add_argument("--seed", type=int, default=0, help="training seed (PPO and the training env)")
+    p.add_argument("--seed", type=seed_value, default=0, help="training seed (PPO and the training env)")
     p.add_argument(
-        "--eval-missions", type=int, default=None, help="missions of the comparison (default: the protocol's; 0: none)"
+        "--eval-missions",
+        type=count_or_none_value,
+        default=None,
+        help="missions of the comparison (default: the protocol's; 0: none)",
     )
     add_split_argument(p)
     p.add_argument(
         "--val-freq",
-        type=int,
+        type=count_or_none_value,
         default=3000,
         help="joint steps between validations (split train, env seeds 1000+, as `sb3-coma train --eval-freq`); "
         "the best one is best_model.zip and is the model compared (0: none, the last model)",
     )
     p.add_argument(
-        "--val-missions", type=int, default=None, help="missions per validation (default: 4 per train scene)"
+        "--val-missions", type=count_value, default=None, help="missions per validation (default: 4 per train scene)"
     )
-    p.add_argument("--workers", type=int, default=1, help="worker processes stepping the env copies")
+    p.add_argument("--workers", type=count_value, default=1, help="worker processes stepping the env copies")
     p.add_argument(
-        "--eval-seed", type=int, default=None, help="trial k flies env seed eval_seed + k (default: the protocol's)"
+        "--eval-seed",
+        type=seed_value,
+        default=None,
+        help="trial k flies env seed eval_seed + k (default: the protocol's)",
     )
     add_threads_argument(p)
     add_out_argument(p, "/tmp/marl_baselines")
     args = p.parse_args(argv)
     if args.val_missions is None:
         args.val_missions = validation_missions(args.env)
-    for name in ("missions", "n_envs", "uavs", "budget", "val_missions", "workers", "threads"):
-        if getattr(args, name) < 1:
-            p.error(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 1")
-    for name in ("eval_missions", "val_freq"):
-        if (getattr(args, name) or 0) < 0:
-            p.error(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 0")
     if args.workers > args.n_envs:
         p.error(f"--workers {args.workers}: more worker processes than env copies ({args.n_envs})")
     return args

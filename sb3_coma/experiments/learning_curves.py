@@ -78,6 +78,7 @@ from sb3_coma.app.validation_flights import MissionScores, Validation, fly_valid
 from sb3_coma.baselines import make_planner
 from sb3_coma.common.evaluation import PROTOCOLS
 from sb3_coma.experiments.figure_style import method_styles
+from uav_ipp.config import seed_value
 
 #: The TensorBoard scalars ``MissionEvalCallback`` logs at each evaluation.
 TAGS: dict[str, str] = {"f1": "eval/mean_f1", "entropy": "eval/mean_entropy"}
@@ -452,7 +453,10 @@ def main(argv: Sequence[str] | None = None) -> list[GroupCurve]:
     parser.add_argument("--out", default="docs/figures/learning_curves.png", help="figure file (PNG)")
     parser.add_argument("--table", default=None, help="also write the Markdown table to this file")
     parser.add_argument(
-        "--eval-seed", type=int, default=None, help="validation env seed (default: the run's --eval-seed, else 1000)"
+        "--eval-seed",
+        type=seed_value,
+        default=None,
+        help="validation env seed (default: the run's --eval-seed, else 1000)",
     )
     args = parser.parse_args(argv)
     specs = parse_groups(args.groups)

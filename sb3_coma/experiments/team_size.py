@@ -25,6 +25,7 @@ import numpy as np
 from sb3_coma import load_pretrained
 from sb3_coma.app.arguments import add_env_argument, add_missions_argument
 from sb3_coma.app.evaluation import Missions, fly, resolve_method
+from uav_ipp.config import count_value
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -32,7 +33,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_env_argument(parser)
     add_missions_argument(parser, 10, "method and team size")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[2, 3, 4, 5, 6, 8])
+    parser.add_argument("--sizes", type=count_value, nargs="+", default=[2, 3, 4, 5, 6, 8])
     args = parser.parse_args(argv)
     # Flying the model with K != its 4 UAVs is the point here: silence evaluate's team-size warning.
     warnings.filterwarnings("ignore", message=r".* was trained with \d+ UAVs but flies with", category=UserWarning)

@@ -44,6 +44,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
 from sb3_coma.common.extractors import GAIN_ENCODER_DIM, CBAMExtractor, CnnExtractor
+from sb3_coma.common.logger import use_folderless_logger
 from sb3_coma.common.masking import mask_logits
 from sb3_coma.mappo.central_value import CentralStateVecEnv, CentralValuePolicy
 from uav_ipp import layout
@@ -309,7 +310,7 @@ def _make(policy: type[IPPOPolicy] | type[MAPPOPolicy], venv: VecEnv, ppo_kwargs
     _check_venv(venv, policy.needs)
     kwargs = {**DEFAULT_PPO_KWARGS, "device": "cpu", **ppo_kwargs}
     kwargs.pop("policy", None)
-    return PPO(policy, venv, **kwargs)
+    return use_folderless_logger(PPO(policy, venv, **kwargs))
 
 
 def _is_uav(venv: VecEnv) -> bool:
@@ -329,7 +330,7 @@ def make_ippo(venv: VecEnv, **ppo_kwargs: Any) -> PPO:
     """
     if not _is_uav(venv):
         kwargs = dict(ppo_kwargs)
-        return PPO(kwargs.pop("policy", "MlpPolicy"), venv, **kwargs)
+        return use_folderless_logger(PPO(kwargs.pop("policy", "MlpPolicy"), venv, **kwargs))
     return _make(IPPOPolicy, venv, ppo_kwargs)
 
 
@@ -342,5 +343,5 @@ def make_mappo(venv: VecEnv, **ppo_kwargs: Any) -> PPO:
     state COMA's critic reads + the agent's one-hot id). Arguments as :func:`make_ippo`.
     """
     if not _is_uav(venv):
-        return PPO(CentralValuePolicy, CentralStateVecEnv(venv), **ppo_kwargs)
+        return use_folderless_logger(PPO(CentralValuePolicy, CentralStateVecEnv(venv), **ppo_kwargs))
     return _make(MAPPOPolicy, venv, ppo_kwargs)

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 import torch
 
 from sb3_coma.sendfuse.network import DEFAULT_GRID_SIZE, SenDFuseNet, tune_cpu_allocator
+from uav_ipp.config import count_value
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -20,11 +21,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     an idle core would give.
     """
     parser = argparse.ArgumentParser(description="Time SenDFuseNet.fuse for one multi-UAV step.")
-    parser.add_argument("--uavs", type=int, default=4, help="fusions per step (B)")
-    parser.add_argument("--sources", type=int, default=4, help="received maps per fusion (n)")
-    parser.add_argument("--grid", type=int, default=DEFAULT_GRID_SIZE, help="R")
-    parser.add_argument("--threads", type=int, default=1, help="torch.set_num_threads")
-    parser.add_argument("--repeats", type=int, default=500)
+    parser.add_argument("--uavs", type=count_value, default=4, help="fusions per step (B)")
+    parser.add_argument("--sources", type=count_value, default=4, help="received maps per fusion (n)")
+    parser.add_argument("--grid", type=count_value, default=DEFAULT_GRID_SIZE, help="R")
+    parser.add_argument("--threads", type=count_value, default=1, help="torch.set_num_threads")
+    parser.add_argument("--repeats", type=count_value, default=500)
     parser.add_argument(
         "--tune-malloc", action="store_true", help="call tune_cpu_allocator() first (as the env wrapper may)"
     )

@@ -42,6 +42,7 @@ import numpy as np
 
 import uav_ipp
 from uav_ipp import layout
+from uav_ipp.config import is_whole
 from uav_ipp.maps import GroundTruth, star_map
 
 #: Noise presets in the order used by :attr:`PairDataset.preset` (index into this tuple).
@@ -303,8 +304,9 @@ def generate_pairs(
     """
     config = config or PairConfig()
     config.validate()
-    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
+    if not is_whole(n_samples) or n_samples < 1:
         raise ValueError(f"n_samples must be a positive int, got {n_samples!r}")
+    n_samples = int(n_samples)
     presets, preset_p = _normalised(config.noise_mix, NOISE_PRESETS, "noise presets")
     kinds, kind_p = _normalised(config.map_mix, MAP_KINDS, "map kinds")
     rng = np.random.default_rng(seed)

@@ -15,6 +15,8 @@ from typing import NamedTuple
 from pytorch_msssim import ssim
 from torch import Tensor, nn
 
+from uav_ipp.config import is_real, is_whole
+
 #: Default (w_mse, w_mae, w_ssim) = (10, 1, 0.5): each term contributes about a third of the loss
 #: on a *trained* reconstruction, i.e. w_i ~ 1 / E[term_i], normalised to w_mae = 1 and rounded.
 #: Balancing at convergence rather than at initialisation because that is where the weighting
@@ -48,10 +50,9 @@ class SenDFuseLossTerms(NamedTuple):
 
 
 def _check_weight(name: str, value: float) -> float:
-    value = float(value)
-    if not math.isfinite(value) or value < 0.0:
+    if not is_real(value) or not math.isfinite(value) or value < 0.0:
         raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-    return value
+    return float(value)
 
 
 class SenDFuseLoss(nn.Module):
@@ -79,9 +80,9 @@ class SenDFuseLoss(nn.Module):
         self.w_ssim = _check_weight("w_ssim", w_ssim)
         if self.w_mse + self.w_mae + self.w_ssim == 0.0:
             raise ValueError("at least one of w_mse, w_mae, w_ssim must be > 0")
-        if isinstance(win_size, bool) or not isinstance(win_size, int) or win_size < 1 or win_size % 2 == 0:
+        if not is_whole(win_size) or win_size < 1 or win_size % 2 == 0:
             raise ValueError(f"win_size must be a positive odd int, got {win_size!r}")
-        self.win_size = win_size
+        self.win_size = int(win_size)
 
     @staticmethod
     def _as_nchw(x: Tensor, name: str) -> Tensor:

@@ -55,6 +55,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from uav_ipp.config import is_flag, is_whole
+
 #: Name of the layer layout below; stored in weight files so a future layout change is detected.
 ARCHITECTURE = "nestfuse3-residual-v2"
 #: Side of the communication grid the shipped weights are trained for (docs/design.md §3).
@@ -80,18 +82,18 @@ DECODER_DEPTHS: tuple[int, int, int] = (1, 1, 1)  # D1_1, D2_1, D1_2
 
 def _check_grid_size(grid_size: Any) -> int:
     """Validate R early: the two 2x poolings and 2x upsamplings only round-trip when 4 | R."""
-    if isinstance(grid_size, bool) or not isinstance(grid_size, int) or grid_size < 4 or grid_size % 4:
+    if not is_whole(grid_size) or grid_size < 4 or grid_size % 4:
         raise ValueError(
             f"grid_size must be an int, a positive multiple of 4 (the encoder halves the map twice: "
             f"R, R/2, R/4), got {grid_size!r}; e.g. 44 = 4 x 11 for the 11 x 11 lattice"
         )
-    return grid_size
+    return int(grid_size)
 
 
 def _check_alpha(alpha: Any) -> float:
     """``alpha`` mixes two convex combinations; outside [0, 1] the result is no longer convex."""
     try:
-        value = math.nan if isinstance(alpha, bool) else float(alpha)
+        value = math.nan if is_flag(alpha) else float(alpha)
     except (TypeError, ValueError):
         value = math.nan
     if not 0.0 <= value <= 1.0:  # also rejects NaN, hence a bool or anything that is not a number
@@ -111,18 +113,16 @@ class SenDFuseConfig:
     channels: tuple[int, ...] = DEFAULT_CHANNELS  # N_SCALES widths, checked in __post_init__
 
     def __post_init__(self) -> None:
-        _check_grid_size(self.grid_size)
+        object.__setattr__(self, "grid_size", _check_grid_size(self.grid_size))
         try:
             channels = tuple(self.channels)
         except TypeError:
             channels = ()
-        if len(channels) != N_SCALES or not all(
-            isinstance(c, int) and not isinstance(c, bool) and c > 0 for c in channels
-        ):
+        if len(channels) != N_SCALES or not all(is_whole(c) and c > 0 for c in channels):
             raise ValueError(
                 f"channels must be {N_SCALES} positive ints (one width per encoder scale), got {self.channels!r}"
             )
-        object.__setattr__(self, "channels", channels)
+        object.__setattr__(self, "channels", tuple(int(c) for c in channels))
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict of the fields (for logs and comparisons)."""

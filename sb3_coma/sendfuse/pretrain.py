@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from uav_ipp.config import is_real, is_whole
+
 from .data import NOISE_PRESETS, PairConfig, PairDataset, collect_fusions, generate_pairs
 from .loss import SenDFuseLoss
 from .network import SenDFuseNet
@@ -67,14 +69,15 @@ class PretrainConfig:
         """Reject bad values with a message naming the option (the CLI turns it into a user error)."""
 
         def count(v: Any) -> bool:
-            return isinstance(v, int) and not isinstance(v, bool) and v >= 1
+            return is_whole(v) and v >= 1
 
         # One row per option: (name as the CLI spells it, accepted, what is allowed).
         rules = [(f"--{name}", count(getattr(self, name)), "a positive integer") for name in _COUNTS]
         rules += [
-            ("--lr", math.isfinite(self.lr) and self.lr > 0, "a positive number"),
-            ("val_fraction", 0.0 <= self.val_fraction < 1.0, "in [0, 1)"),
-            ("final_lr_fraction", 0.0 < self.final_lr_fraction <= 1.0, "in (0, 1]"),
+            ("--seed", is_whole(self.seed) and 0 <= self.seed < 2**32, "an integer from 0 to 2**32 - 1"),
+            ("--lr", is_real(self.lr) and math.isfinite(self.lr) and self.lr > 0, "a positive number"),
+            ("val_fraction", is_real(self.val_fraction) and 0.0 <= self.val_fraction < 1.0, "in [0, 1)"),
+            ("final_lr_fraction", is_real(self.final_lr_fraction) and 0.0 < self.final_lr_fraction <= 1.0, "in (0, 1]"),
             (
                 "calibration_scales",
                 bool(self.calibration_scales) and all(math.isfinite(c) and c > 0 for c in self.calibration_scales),

@@ -16,7 +16,7 @@ from gymnasium.vector import VectorEnv
 
 from sb3_coma.sendfuse.network import SenDFuseNet
 from sb3_coma.sendfuse.weights import default_weights_path, load_weights
-from uav_ipp.config import ConfigError
+from uav_ipp.config import ConfigError, is_real
 from uav_ipp.fusion import FusionWrapper
 
 #: Agents fused per forward pass. Training batches (8 copies x 4 UAVs) fit in one; an evaluation
@@ -46,9 +46,7 @@ class SenDFuseFusionWrapper(FusionWrapper):
         alpha: float | None = None,
         device: str = "cpu",
     ) -> None:
-        if alpha is not None and (
-            isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0.0 <= alpha <= 1.0
-        ):
+        if alpha is not None and not (is_real(alpha) and 0.0 <= alpha <= 1.0):
             raise ConfigError(
                 f"invalid option fusion_kwargs alpha={alpha!r}: a number in [0, 1] "
                 "(weight of channel vs spatial attention), or None for the network's own"

@@ -31,6 +31,7 @@ import torch as th
 import torch.nn.functional as F
 
 from sb3_coma.common.checkpoints import atomic_write
+from sb3_coma.common.numbers import is_real, is_whole
 from uav_ipp import layout
 
 
@@ -240,9 +241,9 @@ def _logits(policy: Any, tensors: dict[str, th.Tensor | None], idx: th.Tensor, d
 
 def _check_arguments(model: Any, missions_per_round: Any, rounds: Any, epochs: Any, beta_decay: float) -> None:
     for name, value in (("missions_per_round", missions_per_round), ("rounds", rounds), ("epochs", epochs)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        if not is_whole(value) or value < 1:
             raise ValueError(f"{name}={value!r}: must be an integer >= 1")
-    if not 0.0 <= beta_decay <= 1.0:
+    if not (is_real(beta_decay) and 0.0 <= beta_decay <= 1.0):
         raise ValueError(f"beta_decay={beta_decay!r}: must be in [0, 1]")
     if model.env is None:
         raise ValueError("clone_teacher needs a model with an env (COMA(..., env))")

@@ -25,6 +25,7 @@ from torch import nn
 from sb3_coma.coma.policies import COMAPolicy
 from sb3_coma.common.extractors import GAIN_ENCODER_DIM, CBAMExtractor, CnnExtractor
 from sb3_coma.common.masking import mask_logits
+from sb3_coma.common.numbers import is_flag, is_real, plain
 from uav_ipp import layout
 
 #: FOOTPRINT marks the current cell with 1.0 and earlier visits with 0.5; anything above this
@@ -164,7 +165,7 @@ class _Actor(_Head):
 
 def _is_positive(value: Any) -> bool:
     """A finite number > 0 (not a bool): the rule of ``correction_bound`` and ``gain_prior_speed``."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < math.inf
+    return is_real(value) and 0 < value < math.inf
 
 
 def _correction_bound(value: Any) -> float | None:
@@ -180,7 +181,7 @@ def _gain_input_size(value: Any, observation_space: spaces.Dict) -> int:
     """How many ``action_gain`` values the actor's network reads (0: none), with errors that name
     the bad value."""
     space = observation_space.spaces.get(layout.KEY_GAIN)
-    if not isinstance(value, bool) or (value and space is None):
+    if not is_flag(value) or (value and space is None):
         raise ValueError(
             f"gain_inputs={value!r}: must be true or false, and gain_inputs=True needs "
             f"observation[{layout.KEY_GAIN!r}]: make the env with action_gain=True"
@@ -188,14 +189,21 @@ def _gain_input_size(value: Any, observation_space: spaces.Dict) -> int:
     return int(math.prod(space.shape or (0,))) if value and space is not None else 0
 
 
+def _weight(value: Any) -> float:
+    """One weight of a ``gain_prior`` list as a float; a flag is refused (``TypeError``)."""
+    if is_flag(value):
+        raise TypeError(f"{value!r} is a flag, not a weight")
+    return float(value)
+
+
 def _prior_init(gain_prior: Any, speed: Any, observation_space: spaces.Dict) -> tuple[float, ...]:
     """The starting weight of each ``action_gain`` row (empty: no prior), with errors that name the
     bad value. A single number applies to every row."""
     if not _is_positive(speed):
         raise ValueError(f"gain_prior_speed={speed!r}: must be a finite number > 0")
-    scalar = isinstance(gain_prior, (int, float)) and not isinstance(gain_prior, bool)
+    scalar = is_real(gain_prior)
     try:
-        weights = [float(gain_prior)] if scalar else [float(w) for w in gain_prior]
+        weights = [float(gain_prior)] if scalar else [_weight(w) for w in gain_prior]
     except (TypeError, ValueError):
         weights = []
     if not weights or not all(w >= 0.0 and math.isfinite(w) for w in weights):
@@ -329,7 +337,9 @@ class UavCOMAPolicy(COMAPolicy):
         self.gain_inputs = self.gain_input_size > 0
         #: The starting weight of each gain row (empty without a prior).
         self.gain_prior_init = _prior_init(gain_prior, gain_prior_speed, observation_space)
-        self.gain_prior = gain_prior if isinstance(gain_prior, (int, float)) else [float(w) for w in gain_prior]
+        self.gain_prior = (
+            plain(gain_prior) if is_real(gain_prior) else [float(w) for w in cast("Sequence[float]", gain_prior)]
+        )
         self.gain_prior_speed = float(gain_prior_speed)
         # The generic COMAPolicy.__init__ builds the generic networks: skip it, set what it would.
         BasePolicy.__init__(

@@ -22,6 +22,7 @@ from sb3_coma.app.arguments import (
     add_seed_argument,
     add_threads_argument,
     add_workers_argument,
+    count_value,
 )
 from sb3_coma.cli import UserError, set_threads
 
@@ -45,10 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_env_argument(parser)
     parser.add_argument("--noises", default="none,moderate,loud", help="comma-separated noise levels")
-    parser.add_argument("--trials", type=int, default=10, help="missions per model and noise level (default 10)")
+    parser.add_argument(
+        "--trials", type=count_value, default=10, help="missions per model and noise level (default 10)"
+    )
     add_seed_argument(parser)
-    parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
-    parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
+    parser.add_argument("--uavs", type=count_value, default=None, help="number of UAVs (env default 4)")
+    parser.add_argument("--budget", type=count_value, default=None, help="decisions per UAV (env default 15)")
     add_out_argument(parser, "results/ablation")
     parser.add_argument(
         "--training-logs", default=None, help="directory with {fusion}_{extractor} run dirs or CSVs for the reward plot"
@@ -58,12 +61,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # here, not at module level: the parser alone must load neither torch nor matplotlib
+    from sb3_coma.app.methods import split_label
     from sb3_coma.experiments import ablation, plots
     from sb3_coma.stats.tables import write_per_step_csv, write_table_csv
 
     set_threads(args.threads)
-    pairs = [spec.split("=", 1) for spec in args.model]
-    bad = [spec for spec, p in zip(args.model, pairs) if len(p) != 2 or not p[1].strip()]
+    pairs = [split_label(spec) for spec in args.model]  # an existing path is a path, "=" and all
+    bad = [spec for spec, (label, _) in zip(args.model, pairs) if label is None]
     rules = (  # one table, one raise: (flag, what was given, allowed)
         ("--trials", args.trials, args.trials >= 1, ">= 1"),
         ("--seed", args.seed, args.seed >= 0, ">= 0"),
@@ -73,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     for flag, given, ok, allowed in rules:
         if not ok:
             raise UserError(f"{flag} must be {allowed}, got {given!r}")
-    source: dict[str, str] | str = {k.strip(): v.strip() for k, v in pairs} if args.model else args.models
+    source: dict[str, str] | str = {str(k): v for k, v in pairs} if args.model else args.models
     noises = [n.strip() for n in args.noises.split(",") if n.strip()]
     options = {k: v for k, v in (("n_uavs", args.uavs), ("budget", args.budget)) if v is not None}
     logs = ablation.find_training_logs(args.training_logs) if args.training_logs else None

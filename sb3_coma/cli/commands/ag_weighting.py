@@ -16,7 +16,13 @@ import argparse
 import json
 from pathlib import Path
 
-from sb3_coma.app.arguments import add_env_argument, add_missions_argument, add_seed_argument, add_workers_argument
+from sb3_coma.app.arguments import (
+    add_env_argument,
+    add_missions_argument,
+    add_seed_argument,
+    add_workers_argument,
+    count_value,
+)
 from sb3_coma.experiments.ag_weighting import VALIDATION_MISSIONS, VALIDATION_SEED, pick_ag_weighting
 
 NAME = "ag-weighting"
@@ -32,8 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_missions_argument(parser, VALIDATION_MISSIONS, "weighting (validation missions)")
     add_seed_argument(parser, VALIDATION_SEED, note="; smaller seeds are refused: they are the protocols'")
     parser.add_argument("--noise", default="moderate", help="channel noise (default moderate)")
-    parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
-    parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
+    parser.add_argument("--uavs", type=count_value, default=None, help="number of UAVs (env default 4)")
+    parser.add_argument("--budget", type=count_value, default=None, help="decisions per UAV (env default 15)")
     parser.add_argument("--json", default=None, metavar="PATH", help="also write the measurements as JSON")
 
 

@@ -9,6 +9,7 @@ import numpy as np
 import uav_ipp
 from sb3_coma.app.arguments import add_env_argument, add_seed_argument
 from uav_ipp import layout
+from uav_ipp.config import count_value
 
 NAME = "demo"
 HELP = "fly one mission with random valid actions and print F1 / entropy per step"
@@ -17,8 +18,8 @@ HELP = "fly one mission with random valid actions and print F1 / entropy per ste
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_env_argument(parser)
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud")
-    parser.add_argument("--uavs", type=int, default=4)
-    parser.add_argument("--budget", type=int, default=15)
+    parser.add_argument("--uavs", type=count_value, default=4, help="number of UAVs (default 4)")
+    parser.add_argument("--budget", type=count_value, default=15, help="decisions per UAV (default 15)")
     add_seed_argument(parser)
 
 

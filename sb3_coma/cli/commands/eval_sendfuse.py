@@ -7,6 +7,7 @@ import sys
 
 from sb3_coma.app.arguments import add_missions_argument, add_seed_argument, default_map
 from sb3_coma.cli import UserError
+from uav_ipp.config import count_value
 
 NAME = "eval-sendfuse"
 HELP = "compare SenDFuse with the naive mean fusion (MSE vs the noise-free fused map) on held-out maps"
@@ -28,8 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_missions_argument(parser, 20, "noise preset")
     add_seed_argument(parser)
-    parser.add_argument("--uavs", type=int, default=4, help="number of UAVs (default 4)")
-    parser.add_argument("--budget", type=int, default=15, help="decisions per UAV (default 15)")
+    parser.add_argument("--uavs", type=count_value, default=4, help="number of UAVs (default 4)")
+    parser.add_argument("--budget", type=count_value, default=15, help="decisions per UAV (default 15)")
     parser.add_argument(
         "--noise",
         nargs="+",

@@ -22,7 +22,13 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_coma.app.arguments import add_out_argument, add_seed_argument, add_threads_argument, add_workers_argument
+from sb3_coma.app.arguments import (
+    add_out_argument,
+    add_seed_argument,
+    add_threads_argument,
+    add_workers_argument,
+    count_value,
+)
 from sb3_coma.cli import UserError, set_threads
 
 if TYPE_CHECKING:
@@ -77,7 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", default="moderate", help="channel noise: none, moderate, loud (default moderate)")
     parser.add_argument(
         "--trials",
-        type=int,
+        type=count_value,
         default=None,
         help="missions per method (default 10; with --protocol the protocol's: paper 10, unseen 50, "
         "validation 4 per train scene)",
@@ -91,11 +97,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "default: the env options as given (split paper)",
     )
     add_seed_argument(parser, default=None)
-    parser.add_argument("--uavs", type=int, default=None, help="number of UAVs (env default 4)")
-    parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
+    parser.add_argument("--uavs", type=count_value, default=None, help="number of UAVs (env default 4)")
+    parser.add_argument("--budget", type=count_value, default=None, help="decisions per UAV (env default 15)")
     parser.add_argument("--map-path", default=None, help="your own map image (with --valuable)")
     parser.add_argument("--valuable", default=None, help="rule that marks valuable pixels of --map-path")
-    parser.add_argument("--n-envs", type=int, default=None, help="missions flown at once (default 10)")
+    parser.add_argument("--n-envs", type=count_value, default=None, help="missions flown at once (default 10)")
     add_out_argument(parser, "results")
     parser.add_argument(
         "--training-log",
@@ -106,7 +112,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--agents-per-episode",
-        type=int,
+        type=count_value,
         default=1,
         help="rows per mission in a VecMonitor CSV training log (n UAVs), averaged",
     )
@@ -115,12 +121,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _labelled(spec: str, default: str) -> tuple[str, str]:
-    """``"label=path"`` -> (label, path); a bare path gets ``default`` (or its own name for baselines)."""
-    if "=" in spec:
-        label, value = spec.split("=", 1)
-        if label.strip() and value.strip():
-            return label.strip(), value.strip()
-    return default, spec.strip()
+    """``"label=path"`` -> (label, path); a bare path gets ``default`` (or its own name for baselines).
+    A path that exists is a path, ``=`` and all (``app.methods.split_label``)."""
+    from sb3_coma.app.methods import split_label
+
+    label, value = split_label(spec)
+    return label or default, value
 
 
 def _methods(args: argparse.Namespace) -> list[tuple[str | None, str]]:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sb3_coma.cli import UserError
+from uav_ipp.config import count_value
 
 if TYPE_CHECKING:  # the export imports torch and onnx: run() imports it, --help never does
     from sb3_coma.app.export import ModelSource
@@ -49,7 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "the run folder's config.yml; needed for a bare .zip)",
     )
     parser.add_argument(
-        "--opset", type=int, default=None, help="ONNX opset (default 17; from 17 to the newest onnx and torch write)"
+        "--opset",
+        type=count_value,
+        default=None,
+        help="ONNX opset (default 17; from 17 to the newest onnx and torch write)",
     )
     parser.add_argument(
         "--no-verify", action="store_true", help="skip the onnxruntime-vs-PyTorch check of the written files"

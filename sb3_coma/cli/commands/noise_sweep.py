@@ -28,6 +28,7 @@ from sb3_coma.app.arguments import (
     add_seed_argument,
     add_threads_argument,
     add_workers_argument,
+    count_value,
 )
 from sb3_coma.cli import UserError, set_threads
 
@@ -59,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("paper", "train", "test"),
         help="where the missions come from (default test, with random starts)",
     )
-    parser.add_argument("--budget", type=int, default=None, help="decisions per UAV (env default 15)")
+    parser.add_argument("--budget", type=count_value, default=None, help="decisions per UAV (env default 15)")
     parser.add_argument("--grid", action="store_true", help="the full grid (96 settings) instead of one axis at a time")
     parser.add_argument("--quick", action="store_true", help="smoke run: a few settings, 2 missions")
     add_out_argument(parser, "results/noise_sweep")

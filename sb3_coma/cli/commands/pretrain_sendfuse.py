@@ -15,6 +15,7 @@ from types import SimpleNamespace
 
 from sb3_coma.app.arguments import add_threads_argument
 from sb3_coma.cli import UserError
+from uav_ipp.config import count_value, seed_value
 
 NAME = "pretrain-sendfuse"
 HELP = "pre-train the SenDFuse denoising autoencoder on env-generated data and save its weights"
@@ -34,19 +35,21 @@ PRETRAIN_DEFAULTS = SimpleNamespace(samples=12_000, epochs=3, batch=32, lr=2e-3,
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     d = PRETRAIN_DEFAULTS
     parser.add_argument(
-        "--samples", type=int, default=d.samples, help=f"training pairs to generate (default {d.samples})"
+        "--samples", type=count_value, default=d.samples, help=f"training pairs to generate (default {d.samples})"
     )
-    parser.add_argument("--epochs", type=int, default=d.epochs, help=f"passes over the pairs (default {d.epochs})")
-    parser.add_argument("--batch", type=int, default=d.batch, help=f"batch size (default {d.batch})")
+    parser.add_argument(
+        "--epochs", type=count_value, default=d.epochs, help=f"passes over the pairs (default {d.epochs})"
+    )
+    parser.add_argument("--batch", type=count_value, default=d.batch, help=f"batch size (default {d.batch})")
     parser.add_argument("--lr", type=float, default=d.lr, help=f"Adam learning rate, cosine-decayed (default {d.lr:g})")
     parser.add_argument(
-        "--seed", type=int, default=d.seed, help=f"seed of data, initialisation and batches (default {d.seed})"
+        "--seed", type=seed_value, default=d.seed, help=f"seed of data, initialisation and batches (default {d.seed})"
     )
     add_threads_argument(parser)
     parser.add_argument("--no-calibrate", action="store_true", help="skip the fusion-scale calibration")
     parser.add_argument(
         "--calibration-fusions",
-        type=int,
+        type=count_value,
         default=d.calibration_fusions,
         help=f"fusions flown to calibrate the fusion scale (default {d.calibration_fusions})",
     )

@@ -23,6 +23,7 @@ from sb3_coma.app.arguments import (
     add_workers_argument,
 )
 from sb3_coma.cli import UserError, set_threads
+from uav_ipp.config import count_or_none_value, count_value
 
 # The study and the config checks import torch, rl_zoo3 and matplotlib: the functions below import
 # them, so that building the parser (``--help``) does not.
@@ -67,20 +68,20 @@ def _add_protocol_arguments(parser: argparse.ArgumentParser) -> None:
     add_env_argument(parser, several=True)
     parser.add_argument(
         "--trials",
-        type=int,
+        type=count_value,
         default=10,
         help="missions per method of the paper protocol and the ablation (default 10; --quick: 2)",
     )
     parser.add_argument(
         "--unseen-missions",
-        type=int,
+        type=count_or_none_value,
         default=None,
         metavar="N",
         help="missions per method of the unseen protocol (default 50; 0 skips it; --quick: 2)",
     )
     parser.add_argument(
         "--sweep-missions",
-        type=int,
+        type=count_or_none_value,
         default=None,
         metavar="N",
         help="missions per setting of the noise sweep (default 50, the unseen protocol's missions; 0 skips "
@@ -93,7 +94,9 @@ def _add_protocol_arguments(parser: argparse.ArgumentParser) -> None:
 def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """Which models fly and how: --train and its options, --quick, --ship, --record, sampled or argmax."""
     parser.add_argument("--train", action="store_true", help="retrain each env's model through the zoo config first")
-    parser.add_argument("--timesteps", type=int, default=None, help="with --train: joint steps (default: the config's)")
+    parser.add_argument(
+        "--timesteps", type=count_value, default=None, help="with --train: joint steps (default: the config's)"
+    )
     parser.add_argument(
         "--fusion",
         default=None,
@@ -154,7 +157,7 @@ def _add_section_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--wide-trials",
-        type=int,
+        type=count_or_none_value,
         default=None,
         metavar="N",
         help="missions of the paired check of the verdicts: COMA vs AG per env and the full "

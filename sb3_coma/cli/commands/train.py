@@ -12,6 +12,7 @@ import yaml
 
 from sb3_coma.app.arguments import add_threads_argument
 from sb3_coma.cli import UserError, set_threads
+from uav_ipp.config import count_value, integer_type, seed_value
 
 # The trainer, its config and the checks import torch and rl_zoo3: the functions below import
 # them, so that building the parser (``--help``) does not.
@@ -110,7 +111,9 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="total joint steps to reach (default: the config's n_timesteps)",
     )
-    parser.add_argument("--seed", type=int, default=None, help="seed of model and env (default: random, recorded)")
+    parser.add_argument(
+        "--seed", type=seed_value, default=None, help="seed of model and env (default: random, recorded)"
+    )
     parser.add_argument(
         "--resume",
         default=None,
@@ -130,7 +133,7 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="run folder (default runs/<env id>[-<variant>]_<n>; never reuses a non-empty folder)",
     )
-    parser.add_argument("--n-envs", type=int, default=None, help="env copies (default: the config's n_envs)")
+    parser.add_argument("--n-envs", type=count_value, default=None, help="env copies (default: the config's n_envs)")
     parser.add_argument(
         "--set",
         dest="overrides",
@@ -161,13 +164,13 @@ def _add_schedule_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--eval-missions",
-        type=int,
+        type=count_value,
         default=None,
         help="missions per evaluation (default: the validation protocol's, 4 per train scene: env3 48, env2 36)",
     )
     parser.add_argument(
         "--eval-seed",
-        type=int,
+        type=seed_value,
         default=None,
         metavar="SEED",
         help="env seed of the validation missions, the same at every evaluation "
@@ -184,7 +187,7 @@ def _add_schedule_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "-v",
         "--verbose",
-        type=int,
+        type=integer_type(0, 2),
         default=1,
         choices=(0, 1, 2),
         help="0 quiet, 1 run information (default), 2 also SB3's training tables",

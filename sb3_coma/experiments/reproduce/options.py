@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+from sb3_coma.common.numbers import is_whole
 from sb3_coma.experiments import report
 
 T = TypeVar("T")
@@ -146,7 +147,7 @@ class ReproduceOptions:
 
         def count(name: str, least: int) -> bool:
             value = getattr(self, name)
-            return isinstance(value, int) and not isinstance(value, bool) and value >= least
+            return is_whole(value) and value >= least
 
         rules: list[tuple[str, bool, str]] = [
             ("env_names", bool(self.env_names), "a non-empty list of maps"),
