@@ -22,6 +22,7 @@ import pytest
 from sb3_coma.app import pretrained
 from sb3_coma.app.config import default_config_path
 from sb3_coma.experiments import user_maps
+from sb3_coma.experiments.marl_benchmark import TRAINED
 from sb3_coma.sendfuse import weights
 from uav_ipp.maps import build_shipped_maps, scenes, shipped
 
@@ -66,6 +67,7 @@ def _runtime_files() -> dict[str, list[Path]]:
         "SenDFuse weights": sendfuse,
         "user-map images": user,
         "default zoo config": [default_config_path()],
+        "learner benchmark configs": [default_config_path(f"marl/{learner}.yml") for learner in TRAINED],
     }
     return {category: sorted({p.resolve() for p in paths}) for category, paths in found.items()}
 

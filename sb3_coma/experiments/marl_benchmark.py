@@ -21,15 +21,19 @@ temporary name and moved into place):
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import importlib
 import json
 import os
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -37,38 +41,78 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 LEARNERS = ("coma", "mappo", "ippo", "random")
-#: PPO settings for IPPO and MAPPO (per row: 8 copies x N agents x 128 steps per rollout), close to
-#: the MAPPO paper's MPE settings; COMA runs with the library's defaults.
-PPO_KWARGS: dict[str, Any] = {"n_steps": 128, "batch_size": 256, "n_epochs": 10, "ent_coef": 0.01}
+#: The learned ones: each has its settings per task in ``zoo_configs/marl/<learner>.yml``.
+TRAINED = LEARNERS[:3]
 N_ENVS = 8
 EVAL_EPISODES = 100
 EVAL_SEED = 100_000
+#: Points of a record's training curve.
+CURVE_POINTS = 100
+#: Where the learners' configs live below ``zoo_configs/`` (a checkout's, else the installed copy).
+CONFIGS = "marl"
 
 
 @dataclass(frozen=True)
 class Task:
-    """A cooperative env and how long each learner trains on it (joint steps)."""
+    """A cooperative env and how long each learner trains on it (joint steps).
 
+    ``key`` names it in file names and ``--tasks``; ``name`` is the env's own id, as the tables
+    show it; ``maker`` builds a fresh PettingZoo ``ParallelEnv`` (module-level, so a worker
+    process can build it from the key alone)."""
+
+    key: str
     name: str
     joint_steps: int
+    maker: Callable[[], Any]
 
     def make(self) -> Any:
         """A fresh PettingZoo ``ParallelEnv`` of this task."""
-        if self.name == "simple_spread":
-            from mpe2 import simple_spread_v3
-
-            return simple_spread_v3.parallel_env(N=3, max_cycles=25, continuous_actions=False)
-        import gymnasium
-        import lbforaging  # noqa: F401  (registers the Foraging ids)
-
-        from sb3_coma.common.gymnasium_marl import GymnasiumMultiAgentToParallel
-
-        return GymnasiumMultiAgentToParallel(gymnasium.make(self.name, disable_env_checker=True))
+        return self.maker()
 
 
+def _simple_spread() -> Any:
+    from mpe2 import simple_spread_v3
+
+    return simple_spread_v3.parallel_env(N=3, max_cycles=25, continuous_actions=False)
+
+
+def _simple_reference() -> Any:
+    from mpe2 import simple_reference_v3
+
+    return simple_reference_v3.parallel_env(max_cycles=25, continuous_actions=False)
+
+
+def _gymnasium_task(env_id: str, registers: str) -> Any:
+    """A gymnasium multi-agent env (Tuple spaces) as a ParallelEnv; ``registers`` is the module
+    whose import registers ``env_id`` (``lbforaging``, ``rware``)."""
+    import gymnasium
+
+    from sb3_coma.common.gymnasium_marl import GymnasiumMultiAgentToParallel
+
+    importlib.import_module(registers)
+    return GymnasiumMultiAgentToParallel(gymnasium.make(env_id, disable_env_checker=True))
+
+
+#: The benchmark's tasks; each learner's settings for them are in ``zoo_configs/marl/<learner>.yml``.
 TASKS = {
-    "simple_spread": Task("simple_spread", 300_000),
-    "lbf": Task("Foraging-5x5-2p-1f-coop-v3", 200_000),
+    task.key: task
+    for task in (
+        Task("simple_spread", "simple_spread", 300_000, _simple_spread),
+        Task("simple_reference", "simple_reference", 300_000, _simple_reference),
+        Task(
+            "lbf",
+            "Foraging-5x5-2p-1f-coop-v3",
+            200_000,
+            partial(_gymnasium_task, "Foraging-5x5-2p-1f-coop-v3", "lbforaging"),
+        ),
+        Task(
+            "lbf_8x8",
+            "Foraging-8x8-2p-2f-coop-v3",
+            300_000,
+            partial(_gymnasium_task, "Foraging-8x8-2p-2f-coop-v3", "lbforaging"),
+        ),
+        Task("rware_tiny", "rware-tiny-2ag-v2", 500_000, partial(_gymnasium_task, "rware-tiny-2ag-v2", "rware")),
+    )
 }
 
 
@@ -108,16 +152,33 @@ def _vec_env(task: Task, seed: int, learner: str) -> tuple[VecEnv, TeamReturns]:
     return (CentralStateVecEnv(recorder) if learner == "mappo" else recorder), recorder
 
 
-def _model(learner: str, venv: VecEnv, seed: int) -> Any:
+def learner_settings(learner: str, task: Task) -> dict[str, Any]:
+    """``learner``'s constructor arguments for ``task``: its entry in ``zoo_configs/marl/<learner>.yml``
+    (rl-zoo's layout: one file per algorithm, one entry per env id), ``policy`` included."""
+    from sb3_coma.app.config import default_config_path, read_config_file
+
+    path = default_config_path(f"{CONFIGS}/{learner}.yml")
+    entries = read_config_file(path)
+    if task.name not in entries:
+        raise ValueError(f"{path} has no entry {task.name!r}; it has {sorted(entries)}")
+    return dict(entries[task.name])
+
+
+def _model(learner: str, venv: VecEnv, seed: int, task: Task) -> Any:
     from stable_baselines3 import PPO
 
     from sb3_coma import COMA
+    from sb3_coma.common.logger import use_folderless_logger
     from sb3_coma.mappo.central_value import CentralValuePolicy
 
+    settings = learner_settings(learner, task)
+    policy = settings.pop("policy")
     if learner == "coma":
-        return COMA("MlpPolicy", venv, seed=seed, device="cpu")
-    policy = CentralValuePolicy if learner == "mappo" else "MlpPolicy"
-    return PPO(policy, venv, seed=seed, device="cpu", **PPO_KWARGS)
+        return COMA(policy, venv, seed=seed, device="cpu", **settings)
+    ppo = PPO(
+        CentralValuePolicy if policy == "CentralValuePolicy" else policy, venv, seed=seed, device="cpu", **settings
+    )
+    return use_folderless_logger(ppo)  # no SB3-<timestamp> folder in the temp dir
 
 
 def _act(model: Any) -> Callable[[Any, VecEnv], np.ndarray]:
@@ -126,10 +187,13 @@ def _act(model: Any) -> Callable[[Any, VecEnv], np.ndarray]:
     return lambda obs, venv: model.predict(obs, deterministic=True)[0]
 
 
-def evaluate_team_return(task: Task, learner: str, model: Any, episodes: int = EVAL_EPISODES) -> list[float]:
-    """Team returns of ``episodes`` evaluation episodes (seeds of their own)."""
-    venv, recorder = _vec_env(task, EVAL_SEED, learner)
-    venv.action_space.seed(EVAL_SEED)
+def evaluate_team_return(
+    task: Task, learner: str, model: Any, episodes: int = EVAL_EPISODES, seed: int = EVAL_SEED
+) -> list[float]:
+    """Team returns of ``episodes`` evaluation episodes (env seeds from ``seed``: the benchmark's
+    reported ones by default, a study's validation ones otherwise)."""
+    venv, recorder = _vec_env(task, seed, learner)
+    venv.action_space.seed(seed)
     act = _act(model)
     obs = venv.reset()
     while len(recorder.episodes) < episodes:
@@ -143,28 +207,34 @@ def _joint_to_learn(learner: str, task: Task, n_agents: int) -> int:
     return task.joint_steps * (n_agents if learner in ("ippo", "mappo") else 1)
 
 
-def run_one(task_key: str, learner: str, seed: int) -> dict[str, Any]:
-    """Train one (task, learner, seed) and evaluate it; the record of :func:`main`'s table."""
+def run_one(task: Task, learner: str, seed: int, episodes: int = EVAL_EPISODES) -> dict[str, Any]:
+    """Train one (task, learner, seed) and evaluate it; the record of :func:`main`'s table (a few
+    kB: the training curve is kept as the mean of the last 100 episodes at :data:`CURVE_POINTS`
+    points, not episode by episode)."""
     import torch as th
 
     th.set_num_threads(1)
-    task = TASKS[task_key]
     start = time.perf_counter()
     model = None
-    curve: list[tuple[int, float]] = []
+    curve: list[tuple[float, float]] = []
+    late = None
     if learner != "random":
         venv, recorder = _vec_env(task, seed, learner)
-        model = _model(learner, venv, seed)
+        model = _model(learner, venv, seed, task)
         model.learn(_joint_to_learn(learner, task, recorder.n_agents))
-        curve = recorder.episodes
+        grid = np.linspace(task.joint_steps / CURVE_POINTS, task.joint_steps, CURVE_POINTS)
+        curve = [(float(x), float(y)) for x, y in zip(grid, _smoothed(recorder.episodes, grid))]
+        late = float(np.mean([ret for _, ret in recorder.episodes[-100:]])) if recorder.episodes else None
         venv.close()
-    returns = evaluate_team_return(task, learner, model)
+    returns = evaluate_team_return(task, learner, model, episodes)
     return {
         "task": task.name,
         "learner": learner,
         "seed": seed,
         "joint_steps": task.joint_steps if model is not None else 0,
         "final_return": float(np.mean(returns)),
+        "episode_returns": [round(r, 4) for r in returns],
+        "late_training_return": late,
         "curve": curve,
         "seconds": time.perf_counter() - start,
     }
@@ -178,23 +248,30 @@ def _write_json(path: Path, data: Any) -> None:
     os.replace(tmp, path)
 
 
-def _job(args: tuple[str, str, int, str]) -> str:
-    task_key, learner, seed, folder = args
-    target = Path(folder) / f"{task_key}-{learner}-{seed}.json"
-    _write_json(target, run_one(task_key, learner, seed))
+def _job(args: tuple[Task, str, int, int, str]) -> str:
+    task, learner, seed, episodes, folder = args
+    target = Path(folder) / f"{task.key}-{learner}-{seed}.json"
+    _write_json(target, run_one(task, learner, seed, episodes))
     return target.name
 
 
-def train_phase(out: Path, tasks: list[str], seeds: list[int], workers: int) -> None:
-    """Every missing (task, learner, seed) record, ``workers`` at a time."""
+def train_phase(
+    out: Path,
+    tasks: list[Task],
+    seeds: list[int],
+    workers: int,
+    episodes: int = EVAL_EPISODES,
+    learners: tuple[str, ...] = LEARNERS,
+) -> None:
+    """Every missing (task, learner, seed) record of ``learners``, ``workers`` at a time."""
     runs = out / "runs"
     runs.mkdir(parents=True, exist_ok=True)
     todo = [
-        (task, learner, seed, str(runs))
+        (task, learner, seed, episodes, str(runs))
         for task in tasks
-        for learner in LEARNERS
-        for seed in (seeds if learner != "random" else seeds[:1])
-        if not (runs / f"{task}-{learner}-{seed}.json").exists()
+        for seed in seeds
+        for learner in learners
+        if (learner != "random" or seed == seeds[0]) and not (runs / f"{task.key}-{learner}-{seed}.json").exists()
     ]
     print(f"train: {len(todo)} runs to do", flush=True)
     with ProcessPoolExecutor(max_workers=workers) as pool:
@@ -202,17 +279,18 @@ def train_phase(out: Path, tasks: list[str], seeds: list[int], workers: int) -> 
             print(f"  done {name}", flush=True)
 
 
-def _learn_rate(learner: str, joint_steps: int) -> float:
-    """Joint steps per second of ``learn()`` on simple_spread (seed 0)."""
+def _learn_rate(learner: str, task: Task) -> float:
+    """Joint steps per second of ``learn()`` for ``task.joint_steps`` joint steps (seed 0)."""
     import torch as th
 
     th.set_num_threads(1)
-    task = Task("simple_spread", joint_steps)
     venv, recorder = _vec_env(task, 0, learner)
-    model = _model(learner, venv, 0)
+    model = _model(learner, venv, 0, task)
     start = time.perf_counter()
     model.learn(_joint_to_learn(learner, task, recorder.n_agents))
-    return joint_steps / (time.perf_counter() - start)
+    seconds = time.perf_counter() - start
+    venv.close()
+    return task.joint_steps / seconds
 
 
 def _import_seconds(module: str) -> float:
@@ -221,24 +299,25 @@ def _import_seconds(module: str) -> float:
     return time.perf_counter() - start
 
 
-def speed_phase(out: Path, joint_steps: int = 20_000, repeats: int = 3) -> dict[str, float]:
-    """COMA against SB3's PPO (``learn()`` joint steps/s, same ``n_envs``) and ``import sb3_coma``
-    against ``import stable_baselines3`` (process wall time), interleaved, medians of ``repeats``."""
-    rates: dict[str, list[float]] = {"coma": [], "ippo": []}
-    imports: dict[str, list[float]] = {"sb3_coma": [], "stable_baselines3": []}
-    for _ in range(repeats):
-        for learner in rates:
-            rates[learner].append(_learn_rate(learner, joint_steps))
-        for module in imports:
-            imports[module].append(_import_seconds(module))
-    speed = {
-        "coma_joint_steps_per_s": float(np.median(rates["coma"])),
-        "ppo_joint_steps_per_s": float(np.median(rates["ippo"])),
-        "import_sb3_coma_s": float(np.median(imports["sb3_coma"])),
-        "import_stable_baselines3_s": float(np.median(imports["stable_baselines3"])),
+def speed_phase(out: Path, tasks: list[Task], joint_steps: int = 10_240, repeats: int = 3) -> dict[str, Any]:
+    """Per task, COMA (its benchmark settings) against SB3's PPO (IPPO's settings) in ``learn()``
+    joint steps/s, same ``n_envs``, interleaved, medians of ``repeats``; and ``import sb3_coma``
+    against ``import stable_baselines3`` (process wall time). Ratios compare across machines."""
+    speed: dict[str, Any] = {"joint_steps": joint_steps, "repeats": repeats, "tasks": {}}
+    for task in tasks:
+        short = dataclasses.replace(task, joint_steps=joint_steps)
+        rates: dict[str, list[float]] = {"coma": [], "ippo": []}
+        for _ in range(repeats):
+            for learner in rates:
+                rates[learner].append(_learn_rate(learner, short))
+        coma, ppo = float(np.median(rates["coma"])), float(np.median(rates["ippo"]))
+        speed["tasks"][task.name] = {"coma_joint_steps_per_s": coma, "ppo_joint_steps_per_s": ppo, "ratio": coma / ppo}
+    imports = {
+        module: float(np.median([_import_seconds(module) for _ in range(repeats)]))
+        for module in ("sb3_coma", "stable_baselines3")
     }
-    speed["learn_ratio_coma_over_ppo"] = speed["coma_joint_steps_per_s"] / speed["ppo_joint_steps_per_s"]
-    speed["import_ratio_sb3_coma_over_sb3"] = speed["import_sb3_coma_s"] / speed["import_stable_baselines3_s"]
+    speed["import_sb3_coma_s"], speed["import_stable_baselines3_s"] = imports["sb3_coma"], imports["stable_baselines3"]
+    speed["import_ratio"] = imports["sb3_coma"] / imports["stable_baselines3"]
     _write_json(out / "speed.json", speed)
     print(json.dumps(speed, indent=1), flush=True)
     return speed
@@ -248,7 +327,7 @@ def _records(out: Path) -> list[dict[str, Any]]:
     return [json.loads(path.read_text()) for path in sorted((out / "runs").glob("*.json"))]
 
 
-def _smoothed(curve: list[list[float]], grid: np.ndarray, window: int = 100) -> np.ndarray:
+def _smoothed(curve: Sequence[Sequence[float]], grid: np.ndarray, window: int = 100) -> np.ndarray:
     """The mean team return of the last ``window`` episodes finished by each grid point."""
     steps = np.array([s for s, _ in curve])
     values = np.array([r for _, r in curve])
@@ -268,11 +347,11 @@ def _plot(records: list[dict[str, Any]], target: Path) -> None:
 
     tasks = sorted({r["task"] for r in records})
     colours = {"coma": "tab:red", "mappo": "tab:blue", "ippo": "tab:green", "random": "tab:gray"}
-    fig, axes = plt.subplots(1, len(tasks), figsize=(6 * len(tasks), 4.2), squeeze=False)
-    for ax, task in zip(axes[0], tasks):
+    columns = min(3, len(tasks))
+    rows = -(-len(tasks) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(5.5 * columns, 4.0 * rows), squeeze=False)
+    for ax, task in zip(axes.flat, tasks):
         mine = [r for r in records if r["task"] == task]
-        horizon = max((r["joint_steps"] for r in mine), default=1)
-        grid = np.linspace(horizon / 50, horizon, 50)
         for learner in LEARNERS:
             runs = [r for r in mine if r["learner"] == learner]
             if learner == "random" and runs:
@@ -280,60 +359,149 @@ def _plot(records: list[dict[str, Any]], target: Path) -> None:
                 continue
             if not runs:
                 continue
-            curves = np.array([_smoothed(r["curve"], grid) for r in runs])
-            ax.plot(grid, np.nanmean(curves, 0), color=colours[learner], label=f"{learner.upper()} ({len(runs)} seeds)")
-            ax.fill_between(grid, np.nanmin(curves, 0), np.nanmax(curves, 0), color=colours[learner], alpha=0.2)
+            grid = np.array([x for x, _ in runs[0]["curve"]])
+            curves = np.array([[np.nan if y is None else y for _, y in r["curve"]] for r in runs])
+            with warnings.catch_warnings():  # grid points before any episode ended are NaN in every seed
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
+            ax.plot(grid, mean, color=colours[learner], label=f"{learner.upper()} ({len(runs)} seeds)")
+            ax.fill_between(grid, low, high, color=colours[learner], alpha=0.2)
         ax.set(title=task, xlabel="joint env steps", ylabel="team return (last 100 training episodes)")
         ax.legend(loc="lower right", fontsize=8)
+    for ax in list(axes.flat)[len(tasks) :]:
+        ax.set_visible(False)
     fig.text(0.5, 0.005, "line: mean over seeds; band: min..max over seeds", ha="center", fontsize=8)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     handle, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".png")
     os.close(handle)
-    fig.savefig(tmp, dpi=110)
+    fig.savefig(tmp, dpi=100)
     plt.close(fig)
     os.replace(tmp, target)
 
 
-def report_phase(out: Path) -> str:
-    """``results.md`` and ``curves.png`` from the records in ``out`` (written, not typed)."""
-    records = _records(out)
-    lines = [
-        "# COMA, MAPPO, IPPO and random on third-party cooperative envs",
-        "",
-        "Generated by `python -m sb3_coma.experiments.marl_benchmark` (do not edit). Final team return: mean",
-        f"over {EVAL_EPISODES} evaluation episodes (their own seeds, most likely actions) of the final policy;",
-        "mean and standard deviation over training seeds. Same joint env steps for every learner. Last 100",
-        "training episodes: the team return of the sampled (exploring) policy at the end of training, mean over",
-        "seeds. Train minutes: wall time of one run, two runs sharing the machine's two cores.",
-        "",
-        "| task | learner | seeds | joint steps | final team return | std over seeds | per seed | last 100 training episodes | train minutes |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
+def seed_paired_verdict(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> str:
+    """COMA minus MAPPO, paired by training seed (both flew the same evaluation episodes): the mean
+    difference with its 95 % t interval over seeds (``seeds - 1`` degrees of freedom), and which
+    learner it favours, or "tie" when the interval holds 0."""
+    from sb3_coma.stats.paired import t_ppf
+
+    by_seed = {r["seed"]: r["final_return"] for r in b}
+    diffs = np.array([r["final_return"] - by_seed[r["seed"]] for r in a if r["seed"] in by_seed])
+    if len(diffs) < 2:
+        return "- (fewer than 2 shared seeds)"
+    half = t_ppf(0.975, len(diffs) - 1) * diffs.std(ddof=1) / np.sqrt(len(diffs))
+    low, high = diffs.mean() - half, diffs.mean() + half
+    word = "COMA better" if low > 0 else "MAPPO better" if high < 0 else "tie"
+    return f"{diffs.mean():+.2f} [{low:+.2f}, {high:+.2f}]: {word}"
+
+
+def _within_spread(coma: list[float], mappo: list[float]) -> str:
+    """The issue's bar: COMA's mean final return is at least MAPPO's mean minus MAPPO's seed std."""
+    if len(mappo) < 2 or not coma:
+        return "-"
+    return "yes" if np.mean(coma) >= np.mean(mappo) - np.std(mappo, ddof=1) else "no"
+
+
+def _table_rows(records: list[dict[str, Any]]) -> list[str]:
+    lines = []
     for task in sorted({r["task"] for r in records}):
         for learner in LEARNERS:
-            runs = [r for r in records if r["task"] == task and r["learner"] == learner]
+            runs = sorted(
+                (r for r in records if r["task"] == task and r["learner"] == learner), key=lambda r: r["seed"]
+            )
             if not runs:
                 continue
             finals = [r["final_return"] for r in runs]
-            per_seed = ", ".join(f"{f:.2f}" for f in finals)
-            late = [np.mean([ret for _, ret in r["curve"][-100:]]) for r in runs if r["curve"]]
+            late = [r["late_training_return"] for r in runs if r.get("late_training_return") is not None]
             lines.append(
                 f"| {task} | {learner.upper()} | {len(runs)} | {runs[0]['joint_steps']:,} | {np.mean(finals):.2f} | "
-                f"{np.std(finals, ddof=1) if len(finals) > 1 else 0.0:.2f} | {per_seed} | "
+                f"{np.std(finals, ddof=1) if len(finals) > 1 else 0.0:.2f} | {', '.join(f'{f:.2f}' for f in finals)} | "
                 f"{f'{np.mean(late):.2f}' if late else '-'} | {np.mean([r['seconds'] for r in runs]) / 60:.1f} |"
             )
-    speed_path = out / "speed.json"
-    if speed_path.exists():
-        speed = json.loads(speed_path.read_text())
-        lines += [
-            "",
-            "## Speed (same run, same machine: compare the ratios)",
-            "",
-            f"- `learn()` on simple_spread, {N_ENVS} copies: COMA {speed['coma_joint_steps_per_s']:.0f} joint steps/s, "
-            f"SB3 PPO {speed['ppo_joint_steps_per_s']:.0f}: ratio {speed['learn_ratio_coma_over_ppo']:.2f}",
-            f"- `import sb3_coma` {speed['import_sb3_coma_s']:.2f} s, `import stable_baselines3` "
-            f"{speed['import_stable_baselines3_s']:.2f} s: ratio {speed['import_ratio_sb3_coma_over_sb3']:.2f}",
-        ]
+    return lines
+
+
+def _verdict_rows(records: list[dict[str, Any]]) -> list[str]:
+    lines = []
+    for task in sorted({r["task"] for r in records}):
+        coma = [r for r in records if r["task"] == task and r["learner"] == "coma"]
+        mappo = [r for r in records if r["task"] == task and r["learner"] == "mappo"]
+        random = [r["final_return"] for r in records if r["task"] == task and r["learner"] == "random"]
+        within = _within_spread([r["final_return"] for r in coma], [r["final_return"] for r in mappo])
+        above = "-" if not (random and coma) else f"{np.mean([r['final_return'] for r in coma]) - random[0]:+.2f}"
+        lines.append(f"| {task} | {seed_paired_verdict(coma, mappo)} | {within} | {above} |")
+    return lines
+
+
+def _speed_lines(out: Path) -> list[str]:
+    path = out / "speed.json"
+    if not path.exists():
+        return []
+    speed = json.loads(path.read_text())
+    lines = [
+        "",
+        "## Speed (same run, same machine: compare the ratios)",
+        "",
+        f"`learn()` for {speed['joint_steps']:,} joint steps, {N_ENVS} copies, one thread; COMA with its benchmark "
+        f"settings, SB3's PPO with IPPO's; medians of {speed['repeats']}, interleaved.",
+        "",
+        "| task | COMA joint steps/s | SB3 PPO joint steps/s | ratio COMA / PPO |",
+        "| --- | --- | --- | --- |",
+    ]
+    for task, row in speed["tasks"].items():
+        lines.append(
+            f"| {task} | {row['coma_joint_steps_per_s']:.0f} | {row['ppo_joint_steps_per_s']:.0f} | {row['ratio']:.2f} |"
+        )
+    lines += [
+        "",
+        f"`import sb3_coma` {speed['import_sb3_coma_s']:.2f} s, `import stable_baselines3` "
+        f"{speed['import_stable_baselines3_s']:.2f} s: ratio {speed['import_ratio']:.2f}",
+    ]
+    return lines
+
+
+HEADER = """# COMA, MAPPO, IPPO and random on third-party cooperative envs
+
+Generated by `python -m sb3_coma.experiments.marl_benchmark` (do not edit); the per-run records are
+in `runs/`. **Final team return**: the agents' rewards summed over every step of an episode and over
+the agents, mean over {episodes} evaluation episodes (env seeds from {eval_seed}, the same episodes for
+every learner and seed) of the final policy's most likely actions; then mean and standard deviation
+over training seeds (0, 1, ...). Same joint env steps for every learner (one step of every agent of one
+env copy). Last 100 training episodes: the team return of the sampled (exploring) policy at the end of
+training. Train minutes: wall time of one run, two runs sharing the machine's two cores.
+
+**Settings and tuning budget**: each learner's settings are its entry in `zoo_configs/marl/<learner>.yml`.
+{tuning}
+"""
+
+TUNING = (
+    "COMA's were chosen among the variants of `python -m sb3_coma.experiments.coma_study` on validation seeds and\n"
+    "episodes of simple_spread and Foraging-5x5 (docs/coma_study/study.md); MAPPO and IPPO run the MAPPO paper's\n"
+    "MPE settings, not tuned here: the tuning budget is NOT yet equal across learners."
+)
+
+
+def report_phase(out: Path, episodes: int = EVAL_EPISODES) -> str:
+    """``results.md`` and ``curves.png`` from the records in ``out`` (written, not typed)."""
+    records = _records(out)
+    lines = [
+        HEADER.format(episodes=episodes, eval_seed=EVAL_SEED, tuning=TUNING),
+        "| task | learner | seeds | joint steps | final team return | std over seeds | per seed | "
+        "last 100 training episodes | train minutes |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        *_table_rows(records),
+        "",
+        "## COMA against MAPPO",
+        "",
+        "Paired by training seed on the same evaluation episodes: COMA minus MAPPO, mean [95 % t interval over",
+        "seeds]; a tie when the interval holds 0. Within spread: COMA's mean is at least MAPPO's mean minus",
+        "MAPPO's standard deviation over seeds. Over random: COMA's mean minus random's.",
+        "",
+        "| task | COMA - MAPPO | within MAPPO's seed spread | COMA over random |",
+        "| --- | --- | --- | --- |",
+        *_verdict_rows(records),
+        *_speed_lines(out),
+    ]
     text = "\n".join(lines) + "\n"
     handle, tmp = tempfile.mkstemp(dir=out, prefix=".results.md.")
     with os.fdopen(handle, "w") as f:
@@ -344,7 +512,13 @@ def report_phase(out: Path) -> str:
     return text
 
 
-def main(argv: list[str] | None = None) -> int:
+#: ``--quick``: every budget cut to this many joint steps, one seed, a few evaluation episodes (CI).
+QUICK_STEPS, QUICK_EPISODES = 2_048, 4
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    from uav_ipp.config import count_value
+
     parser = argparse.ArgumentParser(
         prog="python -m sb3_coma.experiments.marl_benchmark", description=__doc__.split("\n\n")[0]
     )
@@ -353,26 +527,43 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--phases", default="train,speed,report", help="comma-separated: train, speed, report")
     parser.add_argument("--tasks", default=",".join(TASKS), help=f"comma-separated of {sorted(TASKS)}")
-    parser.add_argument("--seeds", type=int, default=3, help="training seeds per learner (0..seeds-1)")
-    parser.add_argument("--workers", type=int, default=2, help="runs trained side by side")
-    args = parser.parse_args(argv)
+    parser.add_argument("--learners", default=",".join(LEARNERS), help=f"comma-separated of {', '.join(LEARNERS)}")
+    parser.add_argument("--seeds", type=count_value, default=5, help="training seeds per learner (0..seeds-1)")
+    parser.add_argument("--workers", type=count_value, default=2, help="runs trained side by side")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"{QUICK_STEPS} joint steps per run, 1 seed, {QUICK_EPISODES} evaluation episodes (a check, not a result)",
+    )
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse(argv)
     phases = args.phases.split(",")
-    tasks = args.tasks.split(",")
-    for name, given, known in (("phase", phases, ("train", "speed", "report")), ("task", tasks, tuple(TASKS))):
+    keys, learners = args.tasks.split(","), tuple(args.learners.split(","))
+    choices = (
+        ("phase", phases, ("train", "speed", "report")),
+        ("task", keys, tuple(TASKS)),
+        ("learner", learners, LEARNERS),
+    )
+    for name, given, known in choices:
         bad = [g for g in given if g not in known]
         if bad:
             print(f"error: unknown {name} {bad[0]!r}; choose from {', '.join(known)}", file=sys.stderr)
             return 2
-    if args.seeds < 1 or args.workers < 1:
-        print(f"error: --seeds and --workers must be >= 1, got {args.seeds} and {args.workers}", file=sys.stderr)
-        return 2
+    tasks = [TASKS[key] for key in keys]
+    seeds, episodes = list(range(args.seeds)), EVAL_EPISODES
+    if args.quick:
+        tasks = [dataclasses.replace(task, joint_steps=QUICK_STEPS) for task in tasks]
+        seeds, episodes = [0], QUICK_EPISODES
     args.out.mkdir(parents=True, exist_ok=True)
     if "train" in phases:
-        train_phase(args.out, tasks, list(range(args.seeds)), args.workers)
+        train_phase(args.out, tasks, seeds, args.workers, episodes, learners)
     if "speed" in phases:
-        speed_phase(args.out)
+        speed_phase(args.out, tasks, joint_steps=QUICK_STEPS if args.quick else 10_240, repeats=1 if args.quick else 3)
     if "report" in phases:
-        print(report_phase(args.out))
+        print(report_phase(args.out, episodes))
     return 0
 
 

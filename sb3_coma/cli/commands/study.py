@@ -21,6 +21,7 @@ STUDIES: dict[str, str] = {
     "ag_channel_table": "AG with shared positions vs comm-only vs central, per map",
     "attribution": "each shipped warm-started model against its own DAgger clone, AG and COMA from scratch",
     "budget_sweep": "the shipped model, AG and AG-k3 at several budgets",
+    "coma_study": "why COMA trails MAPPO on third-party envs: COMA variants on validation seeds",
     "dagger": "DAgger from the oracle, optional COMA fine-tuning, paired against AG",
     "ippo_vs_ag": "train COMA, IPPO or MAPPO and fly it against AG and random",
     "learners_paired": "learners (each its best seed on validation) against each other and AG",

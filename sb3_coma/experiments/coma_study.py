@@ -1,0 +1,275 @@
+"""Why COMA trails MAPPO on the third-party tasks, measured one change at a time (issue #45).
+
+Each variant is the library's COMA with one group of settings changed (:data:`VARIANTS`); every
+variant trains on the same tasks with the same **validation** training seeds (1000, 1001, ...:
+never the benchmark's reported seeds 0..4) and is scored on validation episodes (env seeds from
+:data:`VALIDATION_EVAL_SEED`, not the benchmark's). What COMA logs at every update (critic loss,
+explained variance of Q against its TD(lambda) targets, the counterfactual advantage's spread,
+the policy's entropy, the clipped fraction) is kept per run as SB3's ``progress.csv``.
+
+Phases (resumable: a finished run's record is kept and skipped, files are moved into place whole):
+
+* ``train``: every missing (task, variant, seed) run, ``--workers`` side by side;
+* ``report``: ``study.md`` (validation return per variant and the diagnostics at the end of
+  training) and ``study.png`` (their curves) in ``--out``.
+
+``python -m sb3_coma.experiments.coma_study --out docs/coma_study`` runs both.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import shutil
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_coma.experiments.marl_benchmark import (
+    TASKS,
+    _joint_to_learn,
+    _model,
+    _vec_env,
+    _write_json,
+    evaluate_team_return,
+)
+
+#: The variants: COMA's constructor arguments that differ from the library's defaults.
+VARIANTS: dict[str, dict[str, Any]] = {
+    # Foerster et al.: the critic's Q(s, u) minus the counterfactual baseline, one plain policy-gradient step
+    "paper": {"advantage": "q", "clip_range": None, "n_epochs": 1},
+    "library": {},  # sb3-coma's defaults: 32 steps x 8 copies, 4 clipped epochs on the TD(lambda) return
+    "q_norm": {"normalize_q": True},  # the critic learns standardised Q (MAPPO's value normalisation)
+    "rollout_1024": {"n_steps": 128, "batch_size": 256},  # MAPPO's rollout: 1024 joint steps, 4 minibatches
+    "rollout_1024_epochs_10": {"n_steps": 128, "batch_size": 256, "n_epochs": 10},  # and MAPPO's 10 epochs
+    "rollout_1024_epochs_10_q_norm": {"n_steps": 128, "batch_size": 256, "n_epochs": 10, "normalize_q": True},
+    # the paper's COMA with a critic that can fit its targets: does the counterfactual Q advantage work then?
+    "paper_q_norm": {"advantage": "q", "clip_range": None, "n_epochs": 1, "normalize_q": True},
+    "q_advantage_q_norm": {"advantage": "q", "normalize_q": True},  # Q(s, u) - baseline, 4 clipped epochs
+    # MAPPO's trace decay (its GAE lambda 0.95) for the TD(lambda) targets, with MAPPO's rollout and epochs
+    "lambda_95_rollout_1024_epochs_10": {"n_steps": 128, "batch_size": 256, "n_epochs": 10, "td_lambda": 0.95},
+    "lambda_95_rollout_1024_epochs_10_q_norm": {
+        "n_steps": 128,
+        "batch_size": 256,
+        "n_epochs": 10,
+        "td_lambda": 0.95,
+        "normalize_q": True,
+    },
+}
+#: The reference every variant is measured against: MAPPO with its benchmark settings (not COMA).
+REFERENCE = "mappo"
+ARMS = (*VARIANTS, REFERENCE)
+#: Joint steps per study run (a third to a half of the benchmark's budget: enough to rank the variants).
+STUDY_STEPS = {"simple_spread": 150_000, "lbf": 100_000}
+#: First training seed of the study (validation seeds; the benchmark reports seeds 0, 1, ...).
+VALIDATION_TRAIN_SEED = 1000
+#: First env seed of the validation episodes (the benchmark's evaluation starts at 100_000).
+VALIDATION_EVAL_SEED = 200_000
+VALIDATION_EPISODES = 50
+#: What the report and the figure read from each run's progress.csv.
+DIAGNOSTICS = ("train/explained_variance", "train/advantage_std", "train/entropy", "train/critic_loss")
+
+
+def run_variant(task_key: str, variant: str, seed: int, folder: Path) -> dict[str, Any]:
+    """Train one (task, variant, seed), logging SB3's CSV to ``folder``; score it on validation episodes."""
+    import torch as th
+    from stable_baselines3.common.logger import configure
+
+    from sb3_coma import COMA
+
+    th.set_num_threads(1)
+    task = dataclasses.replace(TASKS[task_key], joint_steps=STUDY_STEPS[task_key])
+    start = time.perf_counter()
+    learner = REFERENCE if variant == REFERENCE else "coma"
+    venv, recorder = _vec_env(task, seed, learner)
+    if learner == REFERENCE:
+        model = _model(REFERENCE, venv, seed, task)
+    else:
+        model = COMA("MlpPolicy", venv, seed=seed, device="cpu", **VARIANTS[variant])
+    model.set_logger(configure(str(folder), ["csv"]))
+    model.learn(_joint_to_learn(learner, task, recorder.n_agents))
+    venv.close()
+    returns = evaluate_team_return(task, learner, model, VALIDATION_EPISODES, seed=VALIDATION_EVAL_SEED)
+    return {
+        "task": task.name,
+        "variant": variant,
+        "seed": seed,
+        "joint_steps": task.joint_steps,
+        "validation_return": float(np.mean(returns)),
+        "curve": recorder.episodes[:: max(1, len(recorder.episodes) // 400)],
+        "seconds": time.perf_counter() - start,
+    }
+
+
+def _job(args: tuple[str, str, int, str]) -> str:
+    task_key, variant, seed, out = args
+    name = f"{task_key}-{variant}-{seed}"
+    runs = Path(out) / "runs"
+    with tempfile.TemporaryDirectory(dir=runs, prefix=f".{name}.") as staging:
+        record = run_variant(task_key, variant, seed, Path(staging))
+        Path(staging, "progress.csv").replace(runs / f"{name}.csv")
+    _write_json(runs / f"{name}.json", record)
+    return name
+
+
+def train_phase(out: Path, tasks: list[str], seeds: int, workers: int) -> None:
+    """Every missing (task, variant, seed) record, ``workers`` at a time."""
+    runs = out / "runs"
+    runs.mkdir(parents=True, exist_ok=True)
+    todo = [
+        (task, variant, VALIDATION_TRAIN_SEED + k, str(out))
+        for k in range(seeds)  # every variant's first seed first: a first picture early
+        for task in tasks
+        for variant in ARMS
+        if not (runs / f"{task}-{variant}-{VALIDATION_TRAIN_SEED + k}.json").exists()
+    ]
+    for task, variant, seed, _ in todo:  # staging folders of runs that an interruption cut short
+        for stale in runs.glob(f".{task}-{variant}-{seed}.*"):
+            shutil.rmtree(stale)
+    print(f"train: {len(todo)} runs to do", flush=True)
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for name in pool.map(_job, todo):
+            print(f"  done {name}", flush=True)
+
+
+def _progress(path: Path) -> dict[str, np.ndarray]:
+    """A run's progress.csv as columns (steps under ``time/total_timesteps``)."""
+    with path.open() as f:
+        rows = list(csv.DictReader(f))
+    keys = ("time/total_timesteps", *DIAGNOSTICS)
+    return {k: np.array([float(r[k]) if r.get(k) not in (None, "") else np.nan for r in rows]) for k in keys}
+
+
+def _late(values: np.ndarray) -> float:
+    """The mean over the last tenth of training (diagnostics are noisy update to update)."""
+    tail = values[-max(1, len(values) // 10) :]
+    return float(np.nanmean(tail)) if np.isfinite(tail).any() else float("nan")
+
+
+def report_phase(out: Path) -> str:
+    """``study.md`` and ``study.png`` from the records in ``out`` (written, not typed)."""
+    records = [json.loads(p.read_text()) for p in sorted((out / "runs").glob("*.json"))]
+    lines = [
+        "# Why COMA trails MAPPO: one change at a time",
+        "",
+        "Generated by `python -m sb3_coma.experiments.coma_study` (do not edit). Every variant is the library's",
+        "COMA with the settings its name gives; same tasks, same validation training seeds for every variant",
+        f"(from {VALIDATION_TRAIN_SEED}), scored on {VALIDATION_EPISODES} validation episodes (env seeds from "
+        f"{VALIDATION_EVAL_SEED}, most likely",
+        "actions): nothing here uses the benchmark's reported seeds. Diagnostics: mean over the last tenth of",
+        "training of what COMA logs per update (explained variance of the critic's Q against its TD(lambda)",
+        "targets, the standard deviation of the counterfactual advantage, the policy's entropy, the critic's loss:",
+        "in standardised units for the `q_norm` variants).",
+        "",
+        "| task | variant | settings | seeds | validation return | per seed | explained variance | advantage std | "
+        "entropy | critic loss | train minutes |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for task in sorted({r["task"] for r in records}):
+        for variant in ARMS:
+            runs = [r for r in records if r["task"] == task and r["variant"] == variant]
+            if not runs:
+                continue
+            key = next(k for k, t in TASKS.items() if t.name == task)
+            diag = [_progress(out / "runs" / f"{key}-{variant}-{r['seed']}.csv") for r in runs]
+            late = {d: np.mean([_late(p[d]) for p in diag]) for d in DIAGNOSTICS}
+            finals = [r["validation_return"] for r in runs]
+            shown = ", ".join(f"{k}={v}" for k, v in VARIANTS.get(variant, {}).items()) or "defaults"
+            if variant == REFERENCE:
+                shown = "not COMA: MAPPO with its benchmark settings (zoo_configs/marl/mappo.yml)"
+            lines.append(
+                f"| {task} | {variant} | {shown} | {len(runs)} | {np.mean(finals):.2f} | "
+                f"{', '.join(f'{f:.2f}' for f in finals)} | {late['train/explained_variance']:.2f} | "
+                f"{late['train/advantage_std']:.3g} | {late['train/entropy']:.2f} | {late['train/critic_loss']:.3g} | "
+                f"{np.mean([r['seconds'] for r in runs]) / 60:.1f} |"
+            )
+    text = "\n".join(lines) + "\n"
+    _write_text(out / "study.md", text)
+    if records:
+        _plot(records, out)
+    return text
+
+
+def _write_text(path: Path, text: str) -> None:
+    staged = path.with_name(f".{path.name}.tmp")
+    staged.write_text(text)
+    staged.replace(path)
+
+
+def _plot(records: list[dict[str, Any]], out: Path) -> None:
+    """Team return and the diagnostics against joint steps, one row per task, mean over seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = sorted({r["task"] for r in records})
+    panels = ("team return", *DIAGNOSTICS)
+    fig, axes = plt.subplots(len(tasks), len(panels), figsize=(4.2 * len(panels), 3.4 * len(tasks)), squeeze=False)
+    colours = plt.get_cmap("tab10")
+    for row, task in zip(axes, tasks):
+        key = next(k for k, t in TASKS.items() if t.name == task)
+        for i, variant in enumerate(ARMS):
+            runs = [r for r in records if r["task"] == task and r["variant"] == variant]
+            if not runs:
+                continue
+            steps = np.concatenate([[s for s, _ in r["curve"]] for r in runs])
+            values = np.concatenate([[v for _, v in r["curve"]] for r in runs])
+            order = np.argsort(steps)
+            window = max(1, len(order) // 40)
+            smooth = np.convolve(values[order], np.ones(window) / window, mode="valid")
+            row[0].plot(steps[order][window - 1 :], smooth, color=colours(i), label=variant)
+            for ax, diag in zip(row[1:], DIAGNOSTICS if variant != REFERENCE else ()):  # COMA's own logs
+                progress = [_progress(out / "runs" / f"{key}-{variant}-{r['seed']}.csv") for r in runs]
+                n = min(len(p[diag]) for p in progress)
+                ax.plot(
+                    progress[0]["time/total_timesteps"][:n],
+                    np.nanmean([p[diag][:n] for p in progress], 0),
+                    color=colours(i),
+                    lw=1,
+                )
+        for ax, title in zip(row, panels):
+            ax.set(title=f"{task}: {title.removeprefix('train/')}", xlabel="joint env steps")
+        row[0].legend(fontsize=7)
+    fig.tight_layout()
+    staged = out / ".study.png.tmp.png"
+    fig.savefig(staged, dpi=90)
+    plt.close(fig)
+    staged.replace(out / "study.png")
+
+
+def main(argv: list[str] | None = None) -> int:
+    from uav_ipp.config import count_value
+
+    parser = argparse.ArgumentParser(
+        prog="python -m sb3_coma.experiments.coma_study", description=__doc__.split("\n\n")[0]
+    )
+    parser.add_argument("--out", type=Path, default=Path("docs/coma_study"), help="folder of records, table and figure")
+    parser.add_argument("--phases", default="train,report", help="comma-separated: train, report")
+    parser.add_argument("--tasks", default=",".join(STUDY_STEPS), help=f"comma-separated of {sorted(STUDY_STEPS)}")
+    parser.add_argument("--seeds", type=count_value, default=2, help="validation training seeds per variant")
+    parser.add_argument("--workers", type=count_value, default=2, help="runs trained side by side")
+    args = parser.parse_args(argv)
+    phases, tasks = args.phases.split(","), args.tasks.split(",")
+    for name, given, known in (("phase", phases, ("train", "report")), ("task", tasks, tuple(STUDY_STEPS))):
+        bad = [g for g in given if g not in known]
+        if bad:
+            print(f"error: unknown {name} {bad[0]!r}; choose from {', '.join(known)}", file=sys.stderr)
+            return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    if "train" in phases:
+        train_phase(args.out, tasks, args.seeds, args.workers)
+    if "report" in phases:
+        print(report_phase(args.out))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,80 @@
+"""The learner benchmark (sb3_coma.experiments.marl_benchmark) and the COMA study: configs, verdicts,
+a quick end-to-end run that resumes, and small records."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from sb3_coma.experiments import coma_study, marl_benchmark
+from sb3_coma.experiments.marl_benchmark import TASKS, TRAINED, learner_settings, seed_paired_verdict
+
+
+def _records(values: dict[int, float], learner: str) -> list[dict[str, Any]]:
+    return [{"seed": seed, "final_return": value, "learner": learner} for seed, value in values.items()]
+
+
+def test_every_learner_has_settings_for_every_task() -> None:
+    for learner in TRAINED:
+        for task in TASKS.values():
+            settings = learner_settings(learner, task)
+            assert "policy" in settings, (learner, task.name)
+    assert learner_settings("mappo", TASKS["lbf"])["policy"] == "CentralValuePolicy"
+
+
+def test_a_task_without_settings_is_named(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    (tmp_path / "coma.yml").write_text("simple_spread: {policy: MlpPolicy}\n")
+    import sb3_coma.app.config
+
+    monkeypatch.setattr(sb3_coma.app.config, "default_config_path", lambda name: tmp_path / Path(name).name)
+    with pytest.raises(ValueError, match=r"has no entry 'rware-tiny-2ag-v2'; it has \['simple_spread'\]"):
+        learner_settings("coma", TASKS["rware_tiny"])
+
+
+def test_the_verdict_is_paired_by_seed_and_a_tie_is_a_tie() -> None:
+    mappo = _records({0: -45.0, 1: -47.0, 2: -43.0}, "mappo")
+    # one seed better, one worse: the interval holds 0
+    assert seed_paired_verdict(_records({0: -44.0, 1: -48.0, 2: -43.0}, "coma"), mappo).endswith("tie")
+    # better on every seed by about 5, whatever the seeds' own spread: paired, so COMA better
+    assert seed_paired_verdict(_records({0: -40.0, 1: -42.2, 2: -37.9}, "coma"), mappo).endswith("COMA better")
+    assert seed_paired_verdict(_records({0: -50.0, 1: -52.1, 2: -48.2}, "coma"), mappo).endswith("MAPPO better")
+    assert "fewer than 2" in seed_paired_verdict(_records({0: -40.0}, "coma"), mappo)
+
+
+@pytest.mark.slow
+def test_a_quick_run_writes_the_table_and_resumes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--quick", "--tasks", "simple_spread,lbf", "--out", str(tmp_path), "--phases", "train,report"]
+    assert marl_benchmark.main([*argv, "--workers", "1"]) == 0
+    runs = sorted((tmp_path / "runs").glob("*.json"))
+    assert [p.name for p in runs] == [
+        f"{task}-{learner}-0.json" for task in ("lbf", "simple_spread") for learner in sorted(marl_benchmark.LEARNERS)
+    ]
+    assert max(p.stat().st_size for p in runs) < 20_000  # small enough to keep in git
+    record = json.loads((tmp_path / "runs" / "simple_spread-coma-0.json").read_text())
+    assert record["joint_steps"] == marl_benchmark.QUICK_STEPS and len(record["episode_returns"]) == 4
+    assert len(record["curve"]) == marl_benchmark.CURVE_POINTS
+    table = (tmp_path / "results.md").read_text()
+    for learner in ("COMA", "MAPPO", "IPPO", "RANDOM"):
+        assert f"| simple_spread | {learner} | 1 | " in table
+    assert "## COMA against MAPPO" in table and (tmp_path / "curves.png").exists()
+    capsys.readouterr()
+    assert marl_benchmark.main([*argv, "--workers", "1"]) == 0  # nothing left to train
+    assert "train: 0 runs to do" in capsys.readouterr().out
+
+
+def test_an_unknown_task_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    assert marl_benchmark.main(["--tasks", "pong"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"error: unknown task 'pong'; choose from {', '.join(TASKS)}"
+    ]
+
+
+def test_the_study_never_uses_the_reported_seeds() -> None:
+    """Variants are chosen on validation seeds and episodes; the benchmark reports seeds 0.. and
+    episodes from its own evaluation seed."""
+    assert coma_study.VALIDATION_TRAIN_SEED >= 100 and coma_study.VALIDATION_EVAL_SEED != marl_benchmark.EVAL_SEED
+    assert coma_study.VARIANTS["library"] == {} and "paper" in coma_study.VARIANTS
+    assert set(coma_study.STUDY_STEPS) <= set(TASKS)
