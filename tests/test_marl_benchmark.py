@@ -63,6 +63,13 @@ def test_a_quick_run_writes_the_table_and_resumes(tmp_path: Path, capsys: pytest
     capsys.readouterr()
     assert marl_benchmark.main([*argv, "--workers", "1"]) == 0  # nothing left to train
     assert "train: 0 runs to do" in capsys.readouterr().out
+    # a real run into the quick run's folder: refused before any training, nothing overwritten
+    before = {p.name: p.read_bytes() for p in runs}
+    real = ["--tasks", "simple_spread", "--learners", "random", "--seeds", "1", "--phases", "train"]
+    assert marl_benchmark.main([*real, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "simple_spread-" in err[0] and "this run asks" in err[0] and "another --out" in err[0]
+    assert {p.name: p.read_bytes() for p in sorted((tmp_path / "runs").glob("*.json"))} == before
 
 
 def test_an_unknown_task_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:

@@ -153,9 +153,12 @@ def _late(values: np.ndarray) -> float:
     return float(np.nanmean(tail)) if np.isfinite(tail).any() else float("nan")
 
 
-def report_phase(out: Path) -> str:
-    """``study.md`` and ``study.png`` from the records in ``out`` (written, not typed)."""
+def report_phase(out: Path, seeds: int) -> str:
+    """``study.md`` and ``study.png`` from the records in ``out`` of the first ``seeds`` validation
+    seeds (the same seeds for every arm, whatever else the folder holds), written, not typed."""
+    wanted = range(VALIDATION_TRAIN_SEED, VALIDATION_TRAIN_SEED + seeds)
     records = [json.loads(p.read_text()) for p in sorted((out / "runs").glob("*.json"))]
+    records = [r for r in records if r["seed"] in wanted]
     lines = [
         "# Why COMA trails MAPPO: one change at a time",
         "",
@@ -166,7 +169,8 @@ def report_phase(out: Path) -> str:
         "actions): nothing here uses the benchmark's reported seeds. Diagnostics: mean over the last tenth of",
         "training of what COMA logs per update (explained variance of the critic's Q against its TD(lambda)",
         "targets, the standard deviation of the counterfactual advantage, the policy's entropy, the critic's loss:",
-        "in standardised units for the `q_norm` variants).",
+        "in standardised units for the `q_norm` variants; `-`: not logged by MAPPO). Train minutes: wall time on a",
+        "machine shared with other jobs, not a speed figure (docs/marl_benchmark/results.md has those).",
         "",
         "| task | variant | settings | seeds | validation return | per seed | explained variance | advantage std | "
         "entropy | critic loss | train minutes |",
@@ -181,13 +185,14 @@ def report_phase(out: Path) -> str:
             diag = [_progress(out / "runs" / f"{key}-{variant}-{r['seed']}.csv") for r in runs]
             late = {d: np.mean([_late(p[d]) for p in diag]) for d in DIAGNOSTICS}
             finals = [r["validation_return"] for r in runs]
+            shown_late = {d: "-" if np.isnan(v) else f"{v:.3g}" for d, v in late.items()}
             shown = ", ".join(f"{k}={v}" for k, v in VARIANTS.get(variant, {}).items()) or "defaults"
             if variant == REFERENCE:
                 shown = "not COMA: MAPPO with its benchmark settings (zoo_configs/marl/mappo.yml)"
             lines.append(
                 f"| {task} | {variant} | {shown} | {len(runs)} | {np.mean(finals):.2f} | "
-                f"{', '.join(f'{f:.2f}' for f in finals)} | {late['train/explained_variance']:.2f} | "
-                f"{late['train/advantage_std']:.3g} | {late['train/entropy']:.2f} | {late['train/critic_loss']:.3g} | "
+                f"{', '.join(f'{f:.2f}' for f in finals)} | {shown_late['train/explained_variance']} | "
+                f"{shown_late['train/advantage_std']} | {shown_late['train/entropy']} | {shown_late['train/critic_loss']} | "
                 f"{np.mean([r['seconds'] for r in runs]) / 60:.1f} |"
             )
     text = "\n".join(lines) + "\n"
@@ -223,24 +228,35 @@ def _plot(records: list[dict[str, Any]], out: Path) -> None:
             steps = np.concatenate([[s for s, _ in r["curve"]] for r in runs])
             values = np.concatenate([[v for _, v in r["curve"]] for r in runs])
             order = np.argsort(steps)
-            window = max(1, len(order) // 40)
+            window = max(1, len(order) // 8)  # about 50 of the recorded episodes
             smooth = np.convolve(values[order], np.ones(window) / window, mode="valid")
-            row[0].plot(steps[order][window - 1 :], smooth, color=colours(i), label=variant)
+            colour = "black" if variant == REFERENCE else colours(i)  # tab10 has ten colours, one per variant
+            every = max(1, len(smooth) // 100)  # 100 points a line are enough for the eye and keep the file small
+            row[0].plot(
+                steps[order][window - 1 :: every],
+                smooth[::every],
+                color=colour,
+                label=variant,
+                lw=2 if variant == REFERENCE else 1,
+            )
             for ax, diag in zip(row[1:], DIAGNOSTICS if variant != REFERENCE else ()):  # COMA's own logs
                 progress = [_progress(out / "runs" / f"{key}-{variant}-{r['seed']}.csv") for r in runs]
                 n = min(len(p[diag]) for p in progress)
+                mean = np.nanmean([p[diag][:n] for p in progress], 0)
+                span = max(1, n // 30)  # updates per plotted point: the mean of each span (noisy update to update)
+                cut = n - n % span
                 ax.plot(
-                    progress[0]["time/total_timesteps"][:n],
-                    np.nanmean([p[diag][:n] for p in progress], 0),
+                    progress[0]["time/total_timesteps"][:cut:span],
+                    mean[:cut].reshape(-1, span).mean(1),
                     color=colours(i),
                     lw=1,
                 )
         for ax, title in zip(row, panels):
             ax.set(title=f"{task}: {title.removeprefix('train/')}", xlabel="joint env steps")
-        row[0].legend(fontsize=7)
+    axes[0][0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     staged = out / ".study.png.tmp.png"
-    fig.savefig(staged, dpi=90)
+    fig.savefig(staged, dpi=72)
     plt.close(fig)
     staged.replace(out / "study.png")
 
@@ -254,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("docs/coma_study"), help="folder of records, table and figure")
     parser.add_argument("--phases", default="train,report", help="comma-separated: train, report")
     parser.add_argument("--tasks", default=",".join(STUDY_STEPS), help=f"comma-separated of {sorted(STUDY_STEPS)}")
-    parser.add_argument("--seeds", type=count_value, default=2, help="validation training seeds per variant")
+    parser.add_argument("--seeds", type=count_value, default=1, help="validation training seeds per variant")
     parser.add_argument("--workers", type=count_value, default=2, help="runs trained side by side")
     args = parser.parse_args(argv)
     phases, tasks = args.phases.split(","), args.tasks.split(",")
@@ -267,7 +283,7 @@ def main(argv: list[str] | None = None) -> int:
     if "train" in phases:
         train_phase(args.out, tasks, args.seeds, args.workers)
     if "report" in phases:
-        print(report_phase(args.out))
+        print(report_phase(args.out, args.seeds))
     return 0
 
 

@@ -263,9 +263,12 @@ def train_phase(
     episodes: int = EVAL_EPISODES,
     learners: tuple[str, ...] = LEARNERS,
 ) -> None:
-    """Every missing (task, learner, seed) record of ``learners``, ``workers`` at a time."""
+    """Every missing (task, learner, seed) record of ``learners``, ``workers`` at a time. A record
+    already there is kept only if it was trained for this run's joint steps and evaluated on as
+    many episodes (a ``--quick`` record never passes for a real one, nor the other way round)."""
     runs = out / "runs"
     runs.mkdir(parents=True, exist_ok=True)
+    check_kept_records(runs, tasks, episodes)
     todo = [
         (task, learner, seed, episodes, str(runs))
         for task in tasks
@@ -277,6 +280,25 @@ def train_phase(
     with ProcessPoolExecutor(max_workers=workers) as pool:
         for name in pool.map(_job, todo):
             print(f"  done {name}", flush=True)
+
+
+class RecordMismatch(ValueError):
+    """A kept record of ``--out`` was made for another budget or evaluation than this run's."""
+
+
+def check_kept_records(runs: Path, tasks: list[Task], episodes: int) -> None:
+    """Refuse (one line naming the file) a record of these tasks made for other joint steps or
+    another number of evaluation episodes than this run asks: resuming must not mix them."""
+    for task in tasks:
+        for path in sorted(runs.glob(f"{task.key}-*.json")):
+            record = json.loads(path.read_text())
+            steps = 0 if record["learner"] == "random" else task.joint_steps
+            if record["joint_steps"] != steps or len(record["episode_returns"]) != episodes:
+                raise RecordMismatch(
+                    f"{path} holds a run of {record['joint_steps']:,} joint steps and "
+                    f"{len(record['episode_returns'])} evaluation episodes, this run asks {steps:,} and {episodes}: "
+                    "pass another --out (or --quick as that folder was made)"
+                )
 
 
 def _learn_rate(learner: str, task: Task) -> float:
@@ -468,7 +490,8 @@ the agents, mean over {episodes} evaluation episodes (env seeds from {eval_seed}
 every learner and seed) of the final policy's most likely actions; then mean and standard deviation
 over training seeds (0, 1, ...). Same joint env steps for every learner (one step of every agent of one
 env copy). Last 100 training episodes: the team return of the sampled (exploring) policy at the end of
-training. Train minutes: wall time of one run, two runs sharing the machine's two cores.
+training. Train minutes: wall time of one run on the recording machine, shared with other runs (not a speed
+figure: the speed table below is).
 
 **Settings and tuning budget**: each learner's settings are its entry in `zoo_configs/marl/<learner>.yml`.
 {tuning}
@@ -559,7 +582,11 @@ def main(argv: list[str] | None = None) -> int:
         seeds, episodes = [0], QUICK_EPISODES
     args.out.mkdir(parents=True, exist_ok=True)
     if "train" in phases:
-        train_phase(args.out, tasks, seeds, args.workers, episodes, learners)
+        try:
+            train_phase(args.out, tasks, seeds, args.workers, episodes, learners)
+        except RecordMismatch as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     if "speed" in phases:
         speed_phase(args.out, tasks, joint_steps=QUICK_STEPS if args.quick else 10_240, repeats=1 if args.quick else 3)
     if "report" in phases:
