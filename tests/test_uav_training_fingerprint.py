@@ -34,6 +34,7 @@ import pytest
 import torch as th
 
 from sb3_coma import COMA
+from sb3_coma.common.checkpoints import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
 ONE_UPDATE = ROOT / "tests" / "data" / "uav_one_update.json"
@@ -176,9 +177,7 @@ def main() -> int:
         "values": first,
         "spread": spread,
     }
-    staged = ONE_UPDATE.with_suffix(".json.tmp")
-    staged.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
-    staged.replace(ONE_UPDATE)
+    atomic_write_text(ONE_UPDATE, json.dumps(record, indent=1, sort_keys=True) + "\n")
     print(json.dumps(spread, indent=1))
     return 0
 

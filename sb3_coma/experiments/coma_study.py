@@ -32,12 +32,12 @@ from typing import Any
 
 import numpy as np
 
+from sb3_coma.common.checkpoints import atomic_write, atomic_write_text
 from sb3_coma.experiments.marl_benchmark import (
     TASKS,
     _joint_to_learn,
     _model,
     _vec_env,
-    _write_json,
     evaluate_team_return,
 )
 
@@ -115,7 +115,7 @@ def _job(args: tuple[str, str, int, str]) -> str:
     with tempfile.TemporaryDirectory(dir=runs, prefix=f".{name}.") as staging:
         record = run_variant(task_key, variant, seed, Path(staging))
         Path(staging, "progress.csv").replace(runs / f"{name}.csv")
-    _write_json(runs / f"{name}.json", record)
+    atomic_write_text(runs / f"{name}.json", json.dumps(record))
     return name
 
 
@@ -196,16 +196,10 @@ def report_phase(out: Path, seeds: int) -> str:
                 f"{np.mean([r['seconds'] for r in runs]) / 60:.1f} |"
             )
     text = "\n".join(lines) + "\n"
-    _write_text(out / "study.md", text)
+    atomic_write_text(out / "study.md", text)
     if records:
         _plot(records, out)
     return text
-
-
-def _write_text(path: Path, text: str) -> None:
-    staged = path.with_name(f".{path.name}.tmp")
-    staged.write_text(text)
-    staged.replace(path)
 
 
 def _plot(records: list[dict[str, Any]], out: Path) -> None:
@@ -255,10 +249,8 @@ def _plot(records: list[dict[str, Any]], out: Path) -> None:
             ax.set(title=f"{task}: {title.removeprefix('train/')}", xlabel="joint env steps")
     axes[0][0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    staged = out / ".study.png.tmp.png"
-    fig.savefig(staged, dpi=72)
+    atomic_write(out / "study.png", lambda handle: fig.savefig(handle, format="png", dpi=72))
     plt.close(fig)
-    staged.replace(out / "study.png")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -24,10 +24,8 @@ import argparse
 import dataclasses
 import importlib
 import json
-import os
 import subprocess
 import sys
-import tempfile
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -39,6 +37,8 @@ from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+
+from sb3_coma.common.checkpoints import atomic_write, atomic_write_text
 
 LEARNERS = ("coma", "mappo", "ippo", "random")
 #: The learned ones: each has its settings per task in ``zoo_configs/marl/<learner>.yml``.
@@ -240,18 +240,10 @@ def run_one(task: Task, learner: str, seed: int, episodes: int = EVAL_EPISODES) 
     }
 
 
-def _write_json(path: Path, data: Any) -> None:
-    """Write to a temporary file in the same folder, then move it into place (never half a file)."""
-    handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(handle, "w") as f:
-        json.dump(data, f)
-    os.replace(tmp, path)
-
-
 def _job(args: tuple[Task, str, int, int, str]) -> str:
     task, learner, seed, episodes, folder = args
     target = Path(folder) / f"{task.key}-{learner}-{seed}.json"
-    _write_json(target, run_one(task, learner, seed, episodes))
+    atomic_write_text(target, json.dumps(run_one(task, learner, seed, episodes)))
     return target.name
 
 
@@ -340,7 +332,7 @@ def speed_phase(out: Path, tasks: list[Task], joint_steps: int = 10_240, repeats
     }
     speed["import_sb3_coma_s"], speed["import_stable_baselines3_s"] = imports["sb3_coma"], imports["stable_baselines3"]
     speed["import_ratio"] = imports["sb3_coma"] / imports["stable_baselines3"]
-    _write_json(out / "speed.json", speed)
+    atomic_write_text(out / "speed.json", json.dumps(speed))
     print(json.dumps(speed, indent=1), flush=True)
     return speed
 
@@ -394,11 +386,8 @@ def _plot(records: list[dict[str, Any]], target: Path) -> None:
         ax.set_visible(False)
     fig.text(0.5, 0.005, "line: mean over seeds; band: min..max over seeds", ha="center", fontsize=8)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
-    handle, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".png")
-    os.close(handle)
-    fig.savefig(tmp, dpi=100)
+    atomic_write(target, lambda handle: fig.savefig(handle, format="png", dpi=100))
     plt.close(fig)
-    os.replace(tmp, target)
 
 
 def seed_paired_verdict(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> str:
@@ -526,10 +515,7 @@ def report_phase(out: Path, episodes: int = EVAL_EPISODES) -> str:
         *_speed_lines(out),
     ]
     text = "\n".join(lines) + "\n"
-    handle, tmp = tempfile.mkstemp(dir=out, prefix=".results.md.")
-    with os.fdopen(handle, "w") as f:
-        f.write(text)
-    os.replace(tmp, out / "results.md")
+    atomic_write_text(out / "results.md", text)
     if records:
         _plot(records, out / "curves.png")
     return text
