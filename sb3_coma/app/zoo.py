@@ -38,6 +38,7 @@ from typing import Any, cast
 
 import gymnasium
 import numpy as np
+import optuna
 import rl_zoo3.enjoy
 import rl_zoo3.train
 import torch as th
@@ -65,9 +66,17 @@ from sb3_coma.app.config import (
     resolve_world,
     validate_entry,
 )
+from sb3_coma.app.marl_tasks import MarlTask, is_marl_task_id, resolve_task
 from sb3_coma.app.runs import load_checkpoint
 from sb3_coma.app.training import check_device, mission_callbacks, record_env_options, selection_end
 from sb3_coma.app.warm_start import warm_start
+from sb3_coma.app.zoo_marl import (
+    MARL_ALGOS,
+    MarlExperimentManager,
+    prune_refused_batch,
+    register_marl_algos,
+    run_optimization,
+)
 from sb3_coma.app.zoo_sampler import register as register_sampler
 from sb3_coma.coma import COMA
 from sb3_coma.coma.progress import JointStepProgressBar
@@ -238,18 +247,10 @@ class ComaExperimentManager(ExperimentManager):
     def hyperparameters_optimization(self) -> None:
         # rl-zoo3's TrialEvalCallback counts agent-episodes; ask for whole missions.
         self.n_eval_episodes = int(self.n_eval_episodes) * self._agents()
-        try:
-            return super().hyperparameters_optimization()
-        except ImportError as exc:
-            # rl-zoo3 writes its report with study.trials_dataframe(), which needs pandas; the
-            # search itself is finished by then (and kept in --storage when one is given).
-            if "pandas" not in str(exc):
-                raise
-            print(
-                f"Optuna report not written: {exc.__class__.__name__}: pandas is not installed "
-                "(pip install pandas); the trials are kept in the study storage"
-            )
-            return None
+        run_optimization(super().hyperparameters_optimization)
+
+    def objective(self, trial: optuna.Trial) -> float:
+        return prune_refused_batch(super().objective, trial)
 
 
 # =========================================================================== argument parsers
@@ -283,8 +284,10 @@ _FREQUENCY = integer_type(None)
 _EXPERIMENT = integer_type(0, sentinels={-1: "no experiment folder"})
 
 
-def _common_arguments(parser: argparse.ArgumentParser, seed: int) -> None:
-    parser.add_argument("--algo", default=ALGO, choices=[ALGO], help="RL algorithm (coma)")
+def _common_arguments(parser: argparse.ArgumentParser, seed: int, algos: tuple[str, ...] = (ALGO,)) -> None:
+    parser.add_argument(
+        "--algo", default=ALGO, choices=list(algos), help=f"RL algorithm ({', '.join(algos)}; default {ALGO})"
+    )
     parser.add_argument("--env", default=DEFAULT_ENV_ID, help=f"environment id (default {DEFAULT_ENV_ID})")
     parser.add_argument("--seed", type=_SEED, default=seed, help=f"random generator seed (default {seed}; -1: random)")
     parser.add_argument("--device", default="auto", help="PyTorch device (auto, cpu, cuda ...)")
@@ -299,12 +302,18 @@ def train_parser() -> argparse.ArgumentParser:
     """rl-zoo3 2.9's ``train`` arguments (same names, defaults and meaning) plus ``--variant``."""
     parser = argparse.ArgumentParser(
         prog="python -m sb3_coma.zoo train",
-        description="rl-zoo3's train with COMA on a UavIpp env; steps are joint steps",
+        description="rl-zoo3's train with COMA on a UavIpp env, or with COMA, MAPPO or IPPO on a third-party "
+        "PettingZoo task (simple_spread, ..., or package.module:factory); steps are joint steps",
     )
-    _common_arguments(parser, seed=-1)
+    _common_arguments(parser, seed=-1, algos=tuple(MARL_ALGOS))
     add = parser.add_argument
     add("--variant", default=None, help="a key of the config's 'variants' mapping (e.g. mean-cnn)")
-    add("-conf", "--conf-file", default=None, help="YAML hyperparameters (default zoo_configs/coma.yml)")
+    add(
+        "-conf",
+        "--conf-file",
+        default=None,
+        help="YAML hyperparameters (default zoo_configs/coma.yml; a third-party task: zoo_configs/marl/<algo>.yml)",
+    )
     add("-params", "--hyperparams", nargs="+", action=_StoreDict, help="override hyperparameters (batch_size:64)")
     add("--eval-env-kwargs", nargs="+", action=_StoreDict, help="env options of the evaluation env")
     add("-tb", "--tensorboard-log", default="", help="TensorBoard log folder")
@@ -361,12 +370,13 @@ def enjoy_parser() -> argparse.ArgumentParser:
 
 # =========================================================================== train and enjoy
 def _check_env(env_id: str) -> None:
-    """One rule: a UavIpp env id (another registered env is rl-zoo3's, not COMA's)."""
-    if env_id in ENV_IDS:
+    """One rule: a UavIpp env id or a third-party task (another registered env is rl-zoo3's, not COMA's)."""
+    if env_id in ENV_IDS or is_marl_task_id(env_id):
         return
     close = difflib.get_close_matches(env_id, list(ENV_IDS) + list(gymnasium.registry), n=1)
     raise TrainingError(
-        f"--algo {ALGO} trains the UavIpp envs ({', '.join(ENV_IDS)}), not {env_id!r}"
+        f"--algo {ALGO} trains the UavIpp envs ({', '.join(ENV_IDS)}) and cooperative PettingZoo tasks "
+        f"(simple_spread, ..., package.module:factory), not the single-agent {env_id!r}"
         if env_id in gymnasium.registry
         else f"unknown env id {env_id!r}" + (f" (did you mean {close[0]!r}?)" if close else "")
     )
@@ -399,13 +409,21 @@ def train(args: argparse.Namespace) -> None:
     if problem is not None:
         raise TrainingError(problem)
     _start(args)
+    marl = args.env not in ENV_IDS
+    if marl and args.variant is not None:
+        raise TrainingError(f"--variant {args.variant}: variants are the UavIpp config's; a task's entry has none")
+    assert marl or args.algo == ALGO, args.algo  # main() sent another algo on a UavIpp env to its refusal
     register()
+    register_marl_algos()
     print("=" * 10, args.env, "=" * 10)
     print(f"Seed: {args.seed}")
-    manager = ComaExperimentManager(
+    manager_class: Callable[..., ExperimentManager] = MarlExperimentManager if marl else ComaExperimentManager
+    target: MarlTask | str = resolve_task(args.env) if marl else args.env
+    config = f"marl/{args.algo}.yml" if marl else "coma.yml"
+    manager = manager_class(
         args,
-        ALGO,
-        args.env,
+        args.algo,
+        target,
         args.log_folder,
         args.tensorboard_log,
         args.n_timesteps,
@@ -437,7 +455,7 @@ def train(args: argparse.Namespace) -> None:
         n_eval_envs=args.n_eval_envs,
         no_optim_plots=args.no_optim_plots,
         device=args.device,
-        config=args.conf_file or str(default_config_path()),
+        config=args.conf_file or str(default_config_path(config)),
         show_progress=args.progress,
         trial_id=args.trial_id,
     )
@@ -448,6 +466,33 @@ def train(args: argparse.Namespace) -> None:
     model, _ = results
     manager.learn(model)
     manager.save_trained_model(model)
+
+
+def train_marl_task(
+    env_id: str,
+    *,
+    config: str | None,
+    timesteps: int | None,
+    seed: int | None,
+    log_folder: str,
+    hyperparams: dict[str, Any],
+    eval_freq: int,
+    save_freq: int | None,
+    device: str,
+    verbose: int,
+    progress: bool,
+) -> None:
+    """``sb3-coma train --env <task>``: COMA on a third-party task through the zoo's own training
+    (:class:`MarlExperimentManager`), so both front doors give the same run for the same options."""
+    argv = ["--algo", ALGO, "--env", env_id, "-f", log_folder, "--seed", str(-1 if seed is None else seed)]
+    argv += ["--eval-freq", str(eval_freq or -1), "--device", device, "--verbose", str(verbose)]
+    argv += [] if config is None else ["-conf", config]
+    argv += [] if timesteps is None else ["-n", str(timesteps)]
+    argv += [] if save_freq is None else ["--save-freq", str(save_freq or -1)]
+    argv += ["--progress"] if progress else []
+    args = train_parser().parse_args(argv)
+    args.hyperparams = dict(hyperparams) or None
+    train(args)
 
 
 class _ZooLogLoader(yaml.SafeLoader):
@@ -630,7 +675,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     make_parser, run = COMMANDS[command]
     try:
-        if _option_value(rest, "--algo") not in (None, ALGO):
+        algo, env_id = _option_value(rest, "--algo"), _option_value(rest, "--env")
+        marl_training = command == "train" and algo in MARL_ALGOS and env_id is not None and is_marl_task_id(env_id)
+        if algo not in (None, ALGO) and not marl_training:
             _rl_zoo3(command, rest)
         else:
             run(make_parser().parse_args(rest))

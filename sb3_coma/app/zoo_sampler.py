@@ -9,8 +9,9 @@ hyperparameters, ``--trial-id``). With ``--storage sqlite:///coma.db --study-nam
 The space covers the optimiser side of COMA; the architecture (``policy``) and the environment
 (``env_kwargs``) stay as the config says, so a study answers "how to train this arm" and the
 ablation stays a comparison of arms. ``n_steps`` is left to COMA, which collects exactly one
-minibatch worth of joint steps per rollout (``ceil(batch_size / n_envs)`` steps per copy), so no
-sampled combination can be refused for a batch larger than its rollout.
+minibatch worth of joint steps per rollout (``ceil(batch_size / n_envs)`` steps per copy) when the
+config gives none; a config that fixes ``n_steps`` (the third-party tasks' entries) may make a
+sampled batch larger than its rollout, and the managers prune such a trial instead of failing.
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ def sample_coma_params(
     trial.suggest_float("one_minus_gamma", 1e-3, 0.1, log=True)  # gamma 0.9 .. 0.999
     trial.suggest_float("one_minus_td_lambda", 0.01, 0.5, log=True)  # lambda 0.5 .. 0.99
     trial.suggest_int("n_critic_epochs", 1, 4)
+    trial.suggest_categorical("n_epochs", [1, 4, 10])  # actor passes per rollout (docs/coma_study)
+    trial.suggest_categorical("clip_range", [0.1, 0.2, 0.3])
     trial.suggest_categorical("target_update_interval", [1, 2, 5, 10, 20])
     trial.suggest_float("ent_coef", 1e-6, 5e-2, log=True)
     trial.suggest_float("max_grad_norm", 0.5, 20.0, log=True)

@@ -69,10 +69,14 @@ def check_total_timesteps(value: Any, what: str = "total_timesteps") -> int:
     return int(value)
 
 
+class BatchLargerThanRollout(ValueError):
+    """``batch_size`` is more joint steps than one rollout holds (a search prunes such a trial)."""
+
+
 def check_batch_fits_rollout(batch_size: int, n_steps: int, n_copies: int) -> None:
     """A minibatch of joint steps cannot be larger than what one rollout collects."""
     if batch_size > n_steps * n_copies:
-        raise ValueError(
+        raise BatchLargerThanRollout(
             f"batch_size={batch_size} joint steps is larger than one rollout (n_steps={n_steps} x "
             f"{n_copies} env copies = {n_steps * n_copies} joint steps); raise n_steps or lower batch_size"
         )

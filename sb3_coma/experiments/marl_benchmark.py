@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib
 import json
 import subprocess
 import sys
@@ -31,13 +30,13 @@ import warnings
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from sb3_coma.app.marl_tasks import BENCHMARK_JOINT_STEPS, NAMED_TASKS
 from sb3_coma.common.checkpoints import atomic_write, atomic_write_text
 
 LEARNERS = ("coma", "mappo", "ippo", "random")
@@ -70,48 +69,16 @@ class Task:
         return self.maker()
 
 
-def _simple_spread() -> Any:
-    from mpe2 import simple_spread_v3
-
-    return simple_spread_v3.parallel_env(N=3, max_cycles=25, continuous_actions=False)
-
-
-def _simple_reference() -> Any:
-    from mpe2 import simple_reference_v3
-
-    return simple_reference_v3.parallel_env(max_cycles=25, continuous_actions=False)
-
-
-def _gymnasium_task(env_id: str, registers: str) -> Any:
-    """A gymnasium multi-agent env (Tuple spaces) as a ParallelEnv; ``registers`` is the module
-    whose import registers ``env_id`` (``lbforaging``, ``rware``)."""
-    import gymnasium
-
-    from sb3_coma.common.gymnasium_marl import GymnasiumMultiAgentToParallel
-
-    importlib.import_module(registers)
-    return GymnasiumMultiAgentToParallel(gymnasium.make(env_id, disable_env_checker=True))
-
-
-#: The benchmark's tasks; each learner's settings for them are in ``zoo_configs/marl/<learner>.yml``.
+#: The benchmark's tasks (their envs: ``sb3_coma.app.marl_tasks.NAMED_TASKS``, the ids the zoo trains);
+#: each learner's settings for them are in ``zoo_configs/marl/<learner>.yml``.
 TASKS = {
-    task.key: task
-    for task in (
-        Task("simple_spread", "simple_spread", 300_000, _simple_spread),
-        Task("simple_reference", "simple_reference", 300_000, _simple_reference),
-        Task(
-            "lbf",
-            "Foraging-5x5-2p-1f-coop-v3",
-            200_000,
-            partial(_gymnasium_task, "Foraging-5x5-2p-1f-coop-v3", "lbforaging"),
-        ),
-        Task(
-            "lbf_8x8",
-            "Foraging-8x8-2p-2f-coop-v3",
-            300_000,
-            partial(_gymnasium_task, "Foraging-8x8-2p-2f-coop-v3", "lbforaging"),
-        ),
-        Task("rware_tiny", "rware-tiny-2ag-v2", 500_000, partial(_gymnasium_task, "rware-tiny-2ag-v2", "rware")),
+    key: Task(key, name, BENCHMARK_JOINT_STEPS[name], NAMED_TASKS[name])
+    for key, name in (
+        ("simple_spread", "simple_spread"),
+        ("simple_reference", "simple_reference"),
+        ("lbf", "Foraging-5x5-2p-1f-coop-v3"),
+        ("lbf_8x8", "Foraging-8x8-2p-2f-coop-v3"),
+        ("rware_tiny", "rware-tiny-2ag-v2"),
     )
 }
 
@@ -232,6 +199,7 @@ def run_one(task: Task, learner: str, seed: int, episodes: int = EVAL_EPISODES) 
         "learner": learner,
         "seed": seed,
         "joint_steps": task.joint_steps if model is not None else 0,
+        "settings": _recorded_settings(learner, task),
         "final_return": float(np.mean(returns)),
         "episode_returns": [round(r, 4) for r in returns],
         "late_training_return": late,
@@ -278,12 +246,25 @@ class RecordMismatch(ValueError):
     """A kept record of ``--out`` was made for another budget or evaluation than this run's."""
 
 
+def _recorded_settings(learner: str, task: Task) -> dict[str, Any]:
+    """What a record keeps of its learner's settings (``{}`` for random): a kept record is reused
+    only while its config entry is unchanged."""
+    return {} if learner == "random" else learner_settings(learner, task)
+
+
 def check_kept_records(runs: Path, tasks: list[Task], episodes: int) -> None:
-    """Refuse (one line naming the file) a record of these tasks made for other joint steps or
-    another number of evaluation episodes than this run asks: resuming must not mix them."""
+    """Refuse (one line naming the file) a record of these tasks made for other joint steps,
+    another number of evaluation episodes or other settings than this run's config gives:
+    resuming must not mix them."""
     for task in tasks:
         for path in sorted(runs.glob(f"{task.key}-*.json")):
             record = json.loads(path.read_text())
+            wanted = _recorded_settings(record["learner"], task)
+            if record.get("settings") != wanted:
+                raise RecordMismatch(
+                    f"{path} was trained with settings {record.get('settings')}, the config now gives {wanted}: "
+                    "move that record away to retrain it, or restore the config it was made with"
+                )
             steps = 0 if record["learner"] == "random" else task.joint_steps
             if record["joint_steps"] != steps or len(record["episode_returns"]) != episodes:
                 raise RecordMismatch(

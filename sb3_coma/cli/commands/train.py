@@ -95,7 +95,9 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--env",
         default=None,
-        help="map: env1, env2, env3 or a gymnasium id (default env3; with --resume the run's own)",
+        help="map: env1, env2, env3 or a gymnasium id (default env3; with --resume the run's own); or a "
+        "third-party PettingZoo task: simple_spread, simple_reference, the LBF / RWARE ids of "
+        "zoo_configs/marl/coma.yml, or package.module:factory",
     )
     parser.add_argument(
         "--config", default=None, metavar="YAML", help="rl-zoo style hyperparameter file (default zoo_configs/coma.yml)"
@@ -224,13 +226,58 @@ def _overrides(args: argparse.Namespace) -> dict[str, object]:
     return overrides
 
 
+#: The options of a run in the UAV world that a third-party task's run (rl-zoo3's lifecycle) has not.
+_WORLD_ONLY_FLAGS = (
+    ("variant", "--variant"),
+    ("list_variants", "--list-variants"),
+    ("resume", "--resume"),
+    ("allow_change", "--allow-change"),
+    ("fork", "--fork"),
+    ("eval_missions", "--eval-missions"),
+    ("eval_seed", "--eval-seed"),
+    ("allow_test_split", "--allow-test-split"),
+)
+
+
+def _train_task(args: argparse.Namespace) -> int:
+    """COMA on a third-party PettingZoo task (``--env simple_spread`` or ``package.module:factory``)
+    through the zoo's training: config ``zoo_configs/marl/coma.yml``, run folder
+    ``<--run-dir or runs>/coma/<task>_<n>``."""
+    from sb3_coma.app.zoo import train_marl_task
+
+    used = [flag for dest, flag in _WORLD_ONLY_FLAGS if getattr(args, dest)]
+    if used:
+        raise UserError(f"{used[0]} is an option of the UAV world's runs, not of a third-party task ({args.env})")
+    dotted = [key for key in dict(args.overrides) if "." in key]
+    if dotted:
+        raise UserError(f"--set {dotted[0]}: a task's entry is overridden key by key (no dotted keys)")
+    hyperparams = dict(args.overrides) | ({} if args.n_envs is None else {"n_envs": args.n_envs})
+    train_marl_task(
+        args.env,
+        config=args.config,
+        timesteps=args.timesteps,
+        seed=args.seed,
+        log_folder=args.run_dir or "runs",
+        hyperparams=hyperparams,
+        eval_freq=args.eval_freq,
+        save_freq=args.save_freq,
+        device=args.device,
+        verbose=args.verbose,
+        progress=not args.no_progress,
+    )
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from sb3_coma.app import training
     from sb3_coma.app.config import checked_count, default_config_path, list_variants
+    from sb3_coma.app.marl_tasks import is_marl_task_id
     from sb3_coma.app.training import TrainingInterrupted
 
     set_threads(args.threads)
     _check_paths(args)
+    if args.env is not None and is_marl_task_id(args.env):
+        return _train_task(args)
     try:
         if args.list_variants:
             variants = list_variants(args.config or default_config_path())
