@@ -22,9 +22,10 @@ Choices the paper leaves open, as implemented here:
   expected value under the current policy, ``sum_u pi(u|o_i) Q_target(s, (u_-i, u))``, where
   ``u_-i`` are drawn from the current policy (no exploration). Episode ends cut the return;
   a time-limit truncation (``TimeLimit.truncated``) adds ``gamma * V(terminal state)`` instead.
-* Per rollout: ``n_critic_epochs`` passes of critic minibatch updates, then one pass of actor
-  updates (on-policy, so no more). The advantages use the critic's Q as scored in its last
-  epoch, just before each minibatch's own update, which saves a forward pass over the rollout.
+* Per rollout: ``n_critic_epochs`` passes of critic minibatch updates, then ``n_epochs`` passes
+  of actor updates. The advantages use the critic's Q as scored in its last epoch, just before
+  each minibatch's own update, which saves a forward pass over the rollout
+  (``advantage_before_critic_update=True``: as scored before the critic's first update).
 * An epoch's last minibatch holds the remainder when the rollout is not a multiple of it.
 * Exploration mixes the policy with the uniform distribution over *valid* actions; the actor
   loss uses the policy's own log-probabilities.
@@ -138,6 +139,11 @@ class COMA(OnPolicyAlgorithm):
     :param normalize_q: the critic learns ``Q`` in units of its targets' running mean and standard
         deviation (as MAPPO's value normalisation): its output layer works near 0 and 1 whatever
         the scale of the team's returns; ``False``: the critic outputs ``Q`` itself (the paper)
+    :param advantage_before_critic_update: score the counterfactual baseline with the critic as it
+        was when the rollout was collected (one extra forward pass), as PPO scores its advantages
+        with the values of collection time; ``False``: with the critic after this rollout's
+        ``n_critic_epochs`` (pymarl's order), which, when those epochs fit this rollout's own
+        returns, pulls the baseline toward them and shrinks the advantage (docs/training.md)
     :param target_update_interval: critic updates between target-critic synchronisations (a hard copy)
     :param exploration_initial_eps: initial weight of uniform-over-valid-actions exploration
     :param exploration_final_eps: final weight
@@ -194,6 +200,7 @@ class COMA(OnPolicyAlgorithm):
         max_grad_norm: float = 10.0,
         normalize_advantage: bool = True,
         normalize_q: bool = False,
+        advantage_before_critic_update: bool = False,
         target_update_interval: int = 4,
         exploration_initial_eps: float = 0.0,
         exploration_final_eps: float = 0.0,
@@ -248,6 +255,7 @@ class COMA(OnPolicyAlgorithm):
         self.td_lambda = td_lambda
         self.normalize_advantage = normalize_advantage
         self.normalize_q = bool(normalize_q)
+        self.advantage_before_critic_update = bool(advantage_before_critic_update)
         self.target_update_interval = target_update_interval
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
@@ -689,7 +697,8 @@ class COMA(OnPolicyAlgorithm):
         COMA's counterfactual advantage (``n_epochs``, clipped surrogate).
 
         The advantages use the critic's Q from its last epoch (each minibatch as scored just
-        before its own update), which saves a full extra forward pass over the rollout, and the
+        before its own update), which saves a full extra forward pass over the rollout, or with
+        ``advantage_before_critic_update`` the critic before this rollout's updates; and the
         policy as it was when the rollout was collected.
         """
         self.policy.set_training_mode(True)
@@ -704,6 +713,10 @@ class COMA(OnPolicyAlgorithm):
         n_joint = actions.shape[0]
         q_all = th.zeros(*actions.shape, self.policy.n_actions, device=self.device)
 
+        if self.advantage_before_critic_update:
+            with th.no_grad():
+                for idx in th.arange(n_joint, device=self.device).split(_SCORING_CHUNK):
+                    q_all[idx] = self._q_units(self._q(data, idx))
         critic_losses = []
         for epoch in range(self.n_critic_epochs):
             for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
@@ -712,7 +725,7 @@ class COMA(OnPolicyAlgorithm):
                 loss = F.mse_loss(q_taken, fitted[idx])
                 self._critic_step(loss)
                 critic_losses.append(loss.item())
-                if epoch == self.n_critic_epochs - 1:
+                if epoch == self.n_critic_epochs - 1 and not self.advantage_before_critic_update:
                     q_all[idx] = self._q_units(q.detach())
 
         advantage, old_log_prob = self._advantages(data, q_all, targets)
