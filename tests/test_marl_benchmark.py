@@ -85,3 +85,47 @@ def test_the_study_never_uses_the_reported_seeds() -> None:
     assert coma_study.VALIDATION_TRAIN_SEED >= 100 and coma_study.VALIDATION_EVAL_SEED != marl_benchmark.EVAL_SEED
     assert coma_study.VARIANTS["library"] == {} and "paper" in coma_study.VARIANTS
     assert set(coma_study.STUDY_STEPS) <= set(TASKS)
+
+
+def test_a_record_of_other_settings_is_refused_before_training(tmp_path: Path) -> None:
+    """Resuming reuses a kept record only while its learner's config entry is unchanged."""
+    task = TASKS["simple_spread"]
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    record = {
+        "learner": "coma",
+        "joint_steps": task.joint_steps,
+        "episode_returns": [0.0] * marl_benchmark.EVAL_EPISODES,
+    }
+    (runs / "simple_spread-coma-0.json").write_text(json.dumps(record | {"settings": learner_settings("coma", task)}))
+    marl_benchmark.check_kept_records(runs, [task], marl_benchmark.EVAL_EPISODES)  # the same settings: kept
+    stale = learner_settings("coma", task) | {"batch_size": 7}
+    (runs / "simple_spread-coma-0.json").write_text(json.dumps(record | {"settings": stale}))
+    with pytest.raises(marl_benchmark.RecordMismatch, match=r"'batch_size': 7.*the config now gives"):
+        marl_benchmark.check_kept_records(runs, [task], marl_benchmark.EVAL_EPISODES)
+
+
+def test_each_study_round_reports_only_its_own_arms(tmp_path: Path) -> None:
+    """Round 2 (critic_round) is its own table: round 1's variants stay out of it, and a variant
+    both rounds fly (the round's baseline) is read from the same records."""
+    (tmp_path / "runs").mkdir()
+    curve = [[0, -60.0], [1000, -50.0]]
+    for variant in ("paper", "rollout_1024_epochs_10", "minibatch_86"):
+        record = {
+            "task": "simple_spread",
+            "variant": variant,
+            "seed": coma_study.VALIDATION_TRAIN_SEED,
+            "settings": coma_study.VARIANTS[variant],
+            "validation_return": -50.0,
+            "seconds": 60.0,
+            "curve": curve,
+        }
+        name = f"simple_spread-{variant}-{coma_study.VALIDATION_TRAIN_SEED}"
+        (tmp_path / "runs" / f"{name}.json").write_text(json.dumps(record))
+        columns = ("time/total_timesteps", *coma_study.DIAGNOSTICS)
+        (tmp_path / "runs" / f"{name}.csv").write_text(",".join(columns) + "\n" + ",".join(["1"] * len(columns)) + "\n")
+    assert set(coma_study.ROUNDS["critic_round"]) >= {"rollout_1024_epochs_10", "minibatch_86"}
+    text = coma_study.report_phase(tmp_path, 1, "critic_round")
+    assert "| simple_spread | minibatch_86 |" in text and "| simple_spread | rollout_1024_epochs_10 |" in text
+    assert "| simple_spread | paper |" not in text and (tmp_path / "critic_round.md").read_text() == text
+    assert "| simple_spread | paper |" in coma_study.report_phase(tmp_path, 1, "study")

@@ -63,9 +63,62 @@ VARIANTS: dict[str, dict[str, Any]] = {
         "normalize_q": True,
     },
 }
+#: Round 2 (after round 1 found the critic unfit on simple_spread and sample use carrying Foraging): how
+#: many updates each network gets per rollout. Round 1's best gives the actor 4 minibatches x 10 epochs
+#: and the critic 4 x 2 = 8 steps per rollout, where MAPPO takes 12 minibatches (256 agent steps)
+#: x 10 epochs for both its policy and its value function.
+CRITIC_ROUND: dict[str, dict[str, Any]] = {
+    "critic_epochs_10": {"n_steps": 128, "batch_size": 256, "n_epochs": 10, "n_critic_epochs": 10},
+    "critic_epochs_10_q_norm": {
+        "n_steps": 128,
+        "batch_size": 256,
+        "n_epochs": 10,
+        "n_critic_epochs": 10,
+        "normalize_q": True,
+    },
+    # MAPPO's 12 minibatches a rollout (86 joint steps of 3 agents: 258 agent steps)
+    "minibatch_86": {"n_steps": 128, "batch_size": 86, "n_epochs": 10},
+    "minibatch_86_critic_epochs_10": {"n_steps": 128, "batch_size": 86, "n_epochs": 10, "n_critic_epochs": 10},
+    "minibatch_86_critic_epochs_10_q_norm": {
+        "n_steps": 128,
+        "batch_size": 86,
+        "n_epochs": 10,
+        "n_critic_epochs": 10,
+        "normalize_q": True,
+    },
+    "minibatch_86_critic_epochs_10_q_norm_lambda_95": {
+        "n_steps": 128,
+        "batch_size": 86,
+        "n_epochs": 10,
+        "n_critic_epochs": 10,
+        "normalize_q": True,
+        "td_lambda": 0.95,
+    },
+}
+VARIANTS.update(CRITIC_ROUND)
+#: Round 3 (after round 2 found that fitting the critic better made simple_spread worse, the
+#: advantage's spread shrinking as the critic's explained variance grew): the baseline scored with
+#: the critic of collection time (``advantage_before_critic_update``), each beside its round-2 twin.
+BASELINE_ROUND: dict[str, dict[str, Any]] = {
+    f"{twin}_before": {**VARIANTS[twin], "advantage_before_critic_update": True}
+    for twin in (
+        "rollout_1024_epochs_10",
+        "critic_epochs_10",
+        "minibatch_86",
+        "minibatch_86_critic_epochs_10_q_norm",
+    )
+}
+VARIANTS.update(BASELINE_ROUND)
 #: The reference every variant is measured against: MAPPO with its benchmark settings (not COMA).
 REFERENCE = "mappo"
 ARMS = (*VARIANTS, REFERENCE)
+#: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
+ROUNDS: dict[str, tuple[str, ...]] = {
+    "study": (*[v for v in VARIANTS if v not in CRITIC_ROUND and v not in BASELINE_ROUND], REFERENCE),
+    "critic_round": ("rollout_1024_epochs_10", *CRITIC_ROUND, REFERENCE),
+    "baseline_round": tuple(name for twin in BASELINE_ROUND for name in (twin.removesuffix("_before"), twin))
+    + (REFERENCE,),
+}
 #: Joint steps per study run (a third to a half of the benchmark's budget: enough to rank the variants).
 STUDY_STEPS = {"simple_spread": 150_000, "lbf": 100_000}
 #: First training seed of the study (validation seeds; the benchmark reports seeds 0, 1, ...).
@@ -119,15 +172,15 @@ def _job(args: tuple[str, str, int, str]) -> str:
     return name
 
 
-def train_phase(out: Path, tasks: list[str], seeds: int, workers: int) -> None:
-    """Every missing (task, variant, seed) record, ``workers`` at a time."""
+def train_phase(out: Path, tasks: list[str], seeds: int, workers: int, arms: tuple[str, ...] = ARMS) -> None:
+    """Every missing (task, variant, seed) record of ``arms``, ``workers`` at a time."""
     runs = out / "runs"
     runs.mkdir(parents=True, exist_ok=True)
     todo = [
         (task, variant, VALIDATION_TRAIN_SEED + k, str(out))
         for k in range(seeds)  # every variant's first seed first: a first picture early
         for task in tasks
-        for variant in ARMS
+        for variant in arms
         if not (runs / f"{task}-{variant}-{VALIDATION_TRAIN_SEED + k}.json").exists()
     ]
     for task, variant, seed, _ in todo:  # staging folders of runs that an interruption cut short
@@ -153,12 +206,14 @@ def _late(values: np.ndarray) -> float:
     return float(np.nanmean(tail)) if np.isfinite(tail).any() else float("nan")
 
 
-def report_phase(out: Path, seeds: int) -> str:
-    """``study.md`` and ``study.png`` from the records in ``out`` of the first ``seeds`` validation
-    seeds (the same seeds for every arm, whatever else the folder holds), written, not typed."""
+def report_phase(out: Path, seeds: int, round_name: str = "study") -> str:
+    """``<round>.md`` and ``<round>.png`` from the records in ``out`` of the round's arms and the first
+    ``seeds`` validation seeds (the same seeds for every arm, whatever else the folder holds),
+    written, not typed."""
+    arms = ROUNDS[round_name]
     wanted = range(VALIDATION_TRAIN_SEED, VALIDATION_TRAIN_SEED + seeds)
     records = [json.loads(p.read_text()) for p in sorted((out / "runs").glob("*.json"))]
-    records = [r for r in records if r["seed"] in wanted]
+    records = [r for r in records if r["seed"] in wanted and r["variant"] in arms]
     lines = [
         "# Why COMA trails MAPPO: one change at a time",
         "",
@@ -177,7 +232,7 @@ def report_phase(out: Path, seeds: int) -> str:
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for task in sorted({r["task"] for r in records}):
-        for variant in ARMS:
+        for variant in arms:
             runs = [r for r in records if r["task"] == task and r["variant"] == variant]
             if not runs:
                 continue
@@ -196,13 +251,13 @@ def report_phase(out: Path, seeds: int) -> str:
                 f"{np.mean([r['seconds'] for r in runs]) / 60:.1f} |"
             )
     text = "\n".join(lines) + "\n"
-    atomic_write_text(out / "study.md", text)
+    atomic_write_text(out / f"{round_name}.md", text)
     if records:
-        _plot(records, out)
+        _plot(records, out, arms, out / f"{round_name}.png")
     return text
 
 
-def _plot(records: list[dict[str, Any]], out: Path) -> None:
+def _plot(records: list[dict[str, Any]], out: Path, arms: tuple[str, ...], figure: Path) -> None:
     """Team return and the diagnostics against joint steps, one row per task, mean over seeds."""
     import matplotlib
 
@@ -215,7 +270,7 @@ def _plot(records: list[dict[str, Any]], out: Path) -> None:
     colours = plt.get_cmap("tab10")
     for row, task in zip(axes, tasks):
         key = next(k for k, t in TASKS.items() if t.name == task)
-        for i, variant in enumerate(ARMS):
+        for i, variant in enumerate(arms):
             runs = [r for r in records if r["task"] == task and r["variant"] == variant]
             if not runs:
                 continue
@@ -249,7 +304,7 @@ def _plot(records: list[dict[str, Any]], out: Path) -> None:
             ax.set(title=f"{task}: {title.removeprefix('train/')}", xlabel="joint env steps")
     axes[0][0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    atomic_write(out / "study.png", lambda handle: fig.savefig(handle, format="png", dpi=72))
+    atomic_write(figure, lambda handle: fig.savefig(handle, format="png", dpi=72))
     plt.close(fig)
 
 
@@ -264,18 +319,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tasks", default=",".join(STUDY_STEPS), help=f"comma-separated of {sorted(STUDY_STEPS)}")
     parser.add_argument("--seeds", type=count_value, default=1, help="validation training seeds per variant")
     parser.add_argument("--workers", type=count_value, default=2, help="runs trained side by side")
+    parser.add_argument(
+        "--round", default="study", help=f"which table: {', '.join(ROUNDS)} (written as <round>.md and .png)"
+    )
     args = parser.parse_args(argv)
     phases, tasks = args.phases.split(","), args.tasks.split(",")
-    for name, given, known in (("phase", phases, ("train", "report")), ("task", tasks, tuple(STUDY_STEPS))):
+    for name, given, known in (
+        ("phase", phases, ("train", "report")),
+        ("task", tasks, tuple(STUDY_STEPS)),
+        ("round", [args.round], tuple(ROUNDS)),
+    ):
         bad = [g for g in given if g not in known]
         if bad:
             print(f"error: unknown {name} {bad[0]!r}; choose from {', '.join(known)}", file=sys.stderr)
             return 2
     args.out.mkdir(parents=True, exist_ok=True)
     if "train" in phases:
-        train_phase(args.out, tasks, args.seeds, args.workers)
+        train_phase(args.out, tasks, args.seeds, args.workers, ROUNDS[args.round])
     if "report" in phases:
-        print(report_phase(args.out, args.seeds))
+        print(report_phase(args.out, args.seeds, args.round))
     return 0
 
 
