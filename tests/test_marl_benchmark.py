@@ -129,3 +129,35 @@ def test_each_study_round_reports_only_its_own_arms(tmp_path: Path) -> None:
     assert "| simple_spread | minibatch_86 |" in text and "| simple_spread | rollout_1024_epochs_10 |" in text
     assert "| simple_spread | paper |" not in text and (tmp_path / "critic_round.md").read_text() == text
     assert "| simple_spread | paper |" in coma_study.report_phase(tmp_path, 1, "study")
+
+
+def test_the_summary_says_each_verdict_and_the_bar(tmp_path: Path) -> None:
+    records = [
+        *({"task": "t", **r} for r in _records({0: -44.0, 1: -48.0, 2: -43.0}, "coma")),
+        *({"task": "t", **r} for r in _records({0: -45.0, 1: -47.0, 2: -43.0}, "mappo")),
+        {"task": "t", "seed": 0, "final_return": -80.0, "learner": "random"},
+    ]
+    speed = {"tasks": {"t": {"ratio": 1.25}, "u": {"ratio": 0.9}}}
+    text = marl_benchmark.summary_paragraph(records, speed)
+    assert "t (3 seeds): COMA -45.00, MAPPO -45.00, COMA minus MAPPO +0.00" in text and ": tie" in text
+    assert "within MAPPO's seed spread (or above) on 1 of 1 tasks (t)" in text and "t +35.00" in text
+    assert "0.90 to 1.25 on 2 tasks" in text
+    readme = tmp_path / "README.md"
+    start, end = marl_benchmark.README_MARKERS
+    readme.write_text(f"# head\n{start}\nold text\n{end}\ntail\n")
+    marl_benchmark.write_readme_block(readme, text)
+    assert readme.read_text() == f"# head\n{start}\n{text}\n{end}\ntail\n"
+    readme.write_text("no markers\n")
+    with pytest.raises(ValueError, match="no <!-- marl-benchmark:start"):
+        marl_benchmark.write_readme_block(readme, text)
+
+
+def test_the_readme_quotes_the_benchmark_as_its_records_give_it() -> None:
+    """README's paragraph is the one the report writes from the records in git: never typed."""
+    root = Path(__file__).resolve().parents[1]
+    out = root / "docs" / "marl_benchmark"
+    readme = (root / "README.md").read_text(encoding="utf-8")
+    start, end = marl_benchmark.README_MARKERS
+    quoted = readme.split(start, 1)[1].split(end, 1)[0].strip()
+    assert quoted == marl_benchmark.summary_paragraph(marl_benchmark._records(out), marl_benchmark._speed(out))
+    assert quoted in (out / "results.md").read_text(encoding="utf-8")

@@ -116,8 +116,7 @@ ARMS = (*VARIANTS, REFERENCE)
 ROUNDS: dict[str, tuple[str, ...]] = {
     "study": (*[v for v in VARIANTS if v not in CRITIC_ROUND and v not in BASELINE_ROUND], REFERENCE),
     "critic_round": ("rollout_1024_epochs_10", *CRITIC_ROUND, REFERENCE),
-    "baseline_round": tuple(name for twin in BASELINE_ROUND for name in (twin.removesuffix("_before"), twin))
-    + (REFERENCE,),
+    "baseline_round": (*(name for twin in BASELINE_ROUND for name in (twin.removesuffix("_before"), twin)), REFERENCE),
 }
 #: Joint steps per study run (a third to a half of the benchmark's budget: enough to rank the variants).
 STUDY_STEPS = {"simple_spread": 150_000, "lbf": 100_000}

@@ -425,11 +425,68 @@ def _verdict_rows(records: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def _speed_lines(out: Path) -> list[str]:
+#: README's paragraph on this benchmark lies between these markers; ``report`` writes it (``--readme``).
+README_MARKERS = (
+    "<!-- marl-benchmark:start (written by python -m sb3_coma.experiments.marl_benchmark) -->",
+    "<!-- marl-benchmark:end -->",
+)
+
+
+def summary_paragraph(records: list[dict[str, Any]], speed: dict[str, Any] | None) -> str:
+    """The benchmark in one paragraph, from the records (README quotes it; nobody types it)."""
+    parts, within_tasks, above = [], [], []
+    for task in sorted({r["task"] for r in records}):
+        finals = {
+            learner: [r["final_return"] for r in records if r["task"] == task and r["learner"] == learner]
+            for learner in LEARNERS
+        }
+        coma = [r for r in records if r["task"] == task and r["learner"] == "coma"]
+        mappo = [r for r in records if r["task"] == task and r["learner"] == "mappo"]
+        if not (coma and mappo):
+            continue
+        seeds = min(len(coma), len(mappo))
+        verdict = seed_paired_verdict(coma, mappo)
+        parts.append(
+            f"{task} ({seeds} seed{'s' if seeds > 1 else ''}): COMA {np.mean(finals['coma']):.2f}, MAPPO {np.mean(finals['mappo']):.2f}, "
+            f"COMA minus MAPPO {verdict}"
+        )
+        if _within_spread(finals["coma"], finals["mappo"]) == "yes":
+            within_tasks.append(task)
+        if finals["random"]:
+            above.append(f"{task} {np.mean(finals['coma']) - finals['random'][0]:+.2f}")
+    text = "COMA against MAPPO, paired by training seed (mean [95 % t interval]): " + "; ".join(parts) + ". "
+    text += f"COMA's mean is within MAPPO's seed spread (or above) on {len(within_tasks)} of {len(parts)} tasks"
+    text += f" ({', '.join(within_tasks)})" if within_tasks else ""
+    text += f"; COMA minus random: {', '.join(above)}." if above else "."
+    if speed is not None:
+        ratios = [row["ratio"] for row in speed["tasks"].values()]
+        text += (
+            f" `learn()` joint steps/s, COMA over SB3's PPO in the same run: {min(ratios):.2f} to {max(ratios):.2f}"
+            f" on {len(ratios)} tasks."
+        )
+    return text
+
+
+def write_readme_block(readme: Path, paragraph: str) -> None:
+    """Replace the text between :data:`README_MARKERS` in ``readme`` (atomically) by ``paragraph``."""
+    text = readme.read_text(encoding="utf-8")
+    start, end = README_MARKERS
+    if start not in text or end not in text:
+        raise ValueError(f"{readme} has no {start} ... {end} block to write")
+    head, rest = text.split(start, 1)
+    _old, tail = rest.split(end, 1)
+    atomic_write_text(readme, f"{head}{start}\n{paragraph}\n{end}{tail}")
+
+
+def _speed(out: Path) -> dict[str, Any] | None:
     path = out / "speed.json"
-    if not path.exists():
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def _speed_lines(out: Path) -> list[str]:
+    speed = _speed(out)
+    if speed is None:
         return []
-    speed = json.loads(path.read_text())
     lines = [
         "",
         "## Speed (same run, same machine: compare the ratios)",
@@ -468,9 +525,10 @@ figure: the speed table below is).
 """
 
 TUNING = (
-    "COMA's were chosen among the variants of `python -m sb3_coma.experiments.coma_study` on validation seeds and\n"
-    "episodes of simple_spread and Foraging-5x5 (docs/coma_study/study.md); MAPPO and IPPO run the MAPPO paper's\n"
-    "MPE settings, not tuned here: the tuning budget is NOT yet equal across learners."
+    "COMA's were chosen among the variants of `python -m sb3_coma.experiments.coma_study` (three rounds, one\n"
+    "validation seed per variant) on validation seeds and episodes of simple_spread and Foraging-5x5\n"
+    "(docs/coma_study/); MAPPO and IPPO run the MAPPO paper's MPE settings, not tuned here: the tuning\n"
+    "budget is NOT equal across learners (COMA had a study, MAPPO and IPPO none)."
 )
 
 
@@ -494,6 +552,10 @@ def report_phase(out: Path, episodes: int = EVAL_EPISODES) -> str:
         "| --- | --- | --- | --- |",
         *_verdict_rows(records),
         *_speed_lines(out),
+        "",
+        "## Summary",
+        "",
+        summary_paragraph(records, _speed(out)),
     ]
     text = "\n".join(lines) + "\n"
     atomic_write_text(out / "results.md", text)
@@ -520,6 +582,12 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--learners", default=",".join(LEARNERS), help=f"comma-separated of {', '.join(LEARNERS)}")
     parser.add_argument("--seeds", type=count_value, default=5, help="training seeds per learner (0..seeds-1)")
     parser.add_argument("--workers", type=count_value, default=2, help="runs trained side by side")
+    parser.add_argument(
+        "--readme",
+        type=Path,
+        default=None,
+        help="with the report phase: write its summary between the benchmark's markers of this README",
+    )
     parser.add_argument(
         "--quick",
         action="store_true",
@@ -558,6 +626,12 @@ def main(argv: list[str] | None = None) -> int:
         speed_phase(args.out, tasks, joint_steps=QUICK_STEPS if args.quick else 10_240, repeats=1 if args.quick else 3)
     if "report" in phases:
         print(report_phase(args.out, episodes))
+        if args.readme is not None:
+            try:
+                write_readme_block(args.readme, summary_paragraph(_records(args.out), _speed(args.out)))
+            except (OSError, ValueError) as exc:
+                print(f"error: --readme {args.readme}: {exc}", file=sys.stderr)
+                return 2
     return 0
 
 
