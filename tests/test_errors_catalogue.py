@@ -477,6 +477,12 @@ def _save_on_full_disk(files: Files):
         return atomic_save(model, previous)
 
 
+def _task(env_id: str):
+    from sb3_coma.app.marl_tasks import resolve_task
+
+    return resolve_task(env_id)
+
+
 def _zoo_args(argv: list[str]):
     from sb3_coma.app import zoo
 
@@ -520,6 +526,7 @@ def _errors():
 
 
 CheckpointError, DiskFullError, SenDFuseWeightsError, TrainingError = _errors()
+from sb3_coma.coma.validation import BatchLargerThanRollout  # noqa: E402  (after the world's imports, as _errors)
 
 
 def _v3_types():
@@ -1162,7 +1169,7 @@ CASES: list[Case | CliCase] = [
         C,
         "COMA(..., batch_size=64, n_steps=8)",
         lambda f: _coma(f, batch_size=64, n_steps=8),
-        ValueError,
+        BatchLargerThanRollout,  # a ValueError; a hyperparameter search prunes such a trial
         ("batch_size=64", "n_steps=8"),
         "raise n_steps or lower batch_size",
     ),
@@ -1415,6 +1422,33 @@ CASES: list[Case | CliCase] = [
         TrainingError,
         ("batch_size", "'abc'"),
         "quote text",
+    ),
+    Case(
+        "zoo-task-module-missing",
+        Z,
+        "python -m sb3_coma.zoo train --env no_such_pkg_xyz.envs:make_team",
+        lambda f: _task("no_such_pkg_xyz.envs:make_team"),
+        TrainingError,
+        ("no_such_pkg_xyz.envs:make_team", "'no_such_pkg_xyz'"),
+        "cannot import",
+    ),
+    Case(
+        "zoo-task-not-callable",
+        Z,
+        "python -m sb3_coma.zoo train --env json:__name__",
+        lambda f: _task("json:__name__"),
+        TrainingError,
+        ("json:__name__", "'__name__'"),
+        "has no callable",
+    ),
+    Case(
+        "zoo-task-env-kwargs-refused",
+        Z,
+        "python -m sb3_coma.zoo train --env simple_spread --env-kwargs n_agents:4",
+        lambda f: _task("simple_spread").agents({"n_agents": 4}),
+        TrainingError,
+        ("simple_spread", "{'n_agents': 4}"),
+        "unexpected keyword",
     ),
     # ------------------------------------------------------------------ model files
     Case(
