@@ -129,7 +129,9 @@ class COMA(OnPolicyAlgorithm):
         plain policy gradient (the paper)
     :param advantage: first term of the counterfactual advantage ``A_i = X - sum_u' pi(u'|o_i)
         Q(s, (u_-i, u'))``: ``"return"``, the TD(lambda) return of the joint action taken
-        (measured to learn, docs/training.md), or ``"q"``, the critic's ``Q(s, u)`` (the paper)
+        (measured to learn, docs/training.md), ``"q"``, the critic's ``Q(s, u)`` (the paper), or
+        ``"gae"``, the lambda-return bootstrapped with that same baseline at every step (GAE with
+        the counterfactual baseline as the value)
     :param n_critic_epochs: passes of critic minibatch updates over each rollout
     :param gamma: discount factor
     :param td_lambda: TD(lambda) trace decay for the critic targets
@@ -659,8 +661,22 @@ class COMA(OnPolicyAlgorithm):
         logits = self.policy.masked_logits(self._rows(data["obs"]), mask.flatten(0, 1))
         log_probs = th.log_softmax(logits, dim=-1).view(*actions.shape, -1)
         q_advantage, baseline, _ = counterfactual_advantage(q_all, actions, log_probs.exp())
-        advantage = targets - baseline if self.advantage == "return" else q_advantage
+        if self.advantage == "gae":
+            advantage = self._gae_over_baseline(baseline)
+        else:
+            advantage = targets - baseline if self.advantage == "return" else q_advantage
         return advantage, log_probs.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+
+    def _gae_over_baseline(self, baseline: th.Tensor) -> th.Tensor:
+        """GAE(lambda) with the counterfactual baseline as the value (``advantage="gae"``):
+        ``sum_k (gamma lambda)^k delta_t+k``, ``delta_t = r_t + gamma b_i(t+1) - b_i(t)``; each step's
+        bootstrap is the baseline itself (an expectation over the agent's own next action), not the
+        Q of the joint action taken next, as MAPPO's GAE bootstraps with ``V`` (docs/training.md)."""
+        data = self.rollout_buffer.time_major()
+        values = baseline.view(data["actions"].shape)
+        next_values = th.cat([values[1:], data["bootstrap"][None]], dim=0)
+        returns = td_lambda_targets(data["rewards"], data["dones"], next_values, self.gamma, self.td_lambda)
+        return (returns - values).flatten(0, 1)
 
     def _actor_loss(
         self, data: dict[str, Any], idx: th.Tensor, advantage: th.Tensor, old_log_prob: th.Tensor

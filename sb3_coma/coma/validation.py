@@ -143,7 +143,7 @@ _ACCELERATORS = {"cuda": "CUDA", "mps": "MPS (Apple GPU)"}
 
 #: COMA's advantage estimators: ``"return"`` (TD(lambda) return minus the counterfactual baseline,
 #: the default) and ``"q"`` (the paper's ``Q(s, u)`` minus the baseline).
-ADVANTAGES = ("return", "q")
+ADVANTAGES = ("return", "q", "gae")
 
 
 def _start(rate: Any) -> Any:

@@ -1,10 +1,12 @@
-"""``COMA(advantage_before_critic_update=True)``: the counterfactual baseline is scored with the critic
-as it was when the rollout was collected, not after this rollout's critic epochs."""
+"""COMA's advantage options: ``advantage_before_critic_update=True`` scores the counterfactual
+baseline with the critic as it was when the rollout was collected, not after this rollout's critic
+epochs; ``advantage="gae"`` is GAE(lambda) with that baseline as the value."""
 
 from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import pytest
 import torch as th
 from pettingzoo import ParallelEnv
@@ -67,3 +69,40 @@ def test_the_option_is_a_flag() -> None:
     env = make_marl_vec_env(_spread, n_envs=2, seed=0)
     with pytest.raises(ValueError, match="advantage_before_critic_update must be True or False"):
         COMA("MlpPolicy", env, advantage_before_critic_update="yes", device="cpu")
+
+
+def test_gae_over_the_baseline_is_the_textbook_recursion() -> None:
+    """``A_t = delta_t + gamma lambda (1 - d_t) A_t+1``, ``delta_t = r_t + gamma (1 - d_t) b_t+1 - b_t``,
+    ``b_T`` the rollout's bootstrap: hand-rolled in numpy against the model's tensors."""
+    model = COMA(
+        "MlpPolicy",
+        make_marl_vec_env(_spread, n_envs=2, seed=1),
+        seed=1,
+        device="cpu",
+        advantage="gae",
+        td_lambda=0.9,
+        gamma=0.95,
+        n_steps=30,
+        batch_size=20,
+    )
+    model._setup_learn(60)
+    model.collect_rollouts(model.env, model._init_callback(None), model.rollout_buffer, model.n_steps)
+    data = model.rollout_buffer.time_major()
+    T, E, N = data["actions"].shape
+    assert data["dones"].sum() > 0  # the rollout holds an episode end (25-step episodes, 30 steps)
+    baseline = th.randn(T * E, N, generator=th.Generator().manual_seed(0))
+    got = model._gae_over_baseline(baseline).view(T, E, N).numpy()
+    r, d = data["rewards"].numpy(), data["dones"].numpy()
+    v = np.concatenate([baseline.view(T, E, N).numpy(), data["bootstrap"].numpy()[None]])
+    expected, ahead = np.zeros((T, E, N)), np.zeros((E, N))
+    for t in range(T - 1, -1, -1):
+        delta = r[t] + 0.95 * (1 - d[t]) * v[t + 1] - v[t]
+        ahead = delta + 0.95 * 0.9 * (1 - d[t]) * ahead
+        expected[t] = ahead
+    np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-4)
+
+
+def test_gae_trains() -> None:
+    env = make_marl_vec_env(_spread, n_envs=2, seed=0)
+    model = COMA("MlpPolicy", env, advantage="gae", seed=0, device="cpu", **FAST).learn(64)
+    assert model.num_timesteps == 64 and np.isfinite(model.logger.name_to_value["train/advantage_std"])
