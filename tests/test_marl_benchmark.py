@@ -161,3 +161,15 @@ def test_the_readme_quotes_the_benchmark_as_its_records_give_it() -> None:
     quoted = readme.split(start, 1)[1].split(end, 1)[0].strip()
     assert quoted == marl_benchmark.summary_paragraph(marl_benchmark._records(out), marl_benchmark._speed(out))
     assert quoted in (out / "results.md").read_text(encoding="utf-8")
+
+
+def test_a_report_never_shrinks_a_table_made_from_records_this_folder_lacks(tmp_path: Path) -> None:
+    """Run records stay out of git: on a fresh machine a report of one task must not overwrite the
+    round's table of two tasks made elsewhere."""
+    (tmp_path / "runs").mkdir()
+    table = tmp_path / "critic_round.md"
+    table.write_text("| task | variant |\n| --- | --- |\n| Foraging-5x5-2p-1f-coop-v3 | minibatch_86 |\n")
+    with pytest.raises(coma_study.TableWouldShrink, match="first: Foraging-5x5-2p-1f-coop-v3 / minibatch_86"):
+        coma_study.report_phase(tmp_path, 1, "critic_round")
+    assert "minibatch_86" in table.read_text()  # untouched
+    assert coma_study.main(["--out", str(tmp_path), "--phases", "report", "--round", "critic_round"]) == 2

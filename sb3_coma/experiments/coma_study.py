@@ -223,6 +223,21 @@ def _late(values: np.ndarray) -> float:
     return float(np.nanmean(tail)) if np.isfinite(tail).any() else float("nan")
 
 
+class TableWouldShrink(ValueError):
+    """A round's table lists rows whose records this folder does not hold (run records stay out of git)."""
+
+
+def _rows_without_records(table: Path, records: list[dict[str, Any]]) -> list[tuple[str, str]]:
+    """(task, variant) rows of an existing ``table`` that ``records`` cannot write again: a report
+    made on another machine is not overwritten by a smaller one."""
+    if not table.exists():
+        return []
+    have = {(r["task"], r["variant"]) for r in records}
+    rows = [line.split("|")[1:3] for line in table.read_text().splitlines() if line.startswith("| ")]
+    listed = [(task.strip(), variant.strip()) for task, variant in rows if task.strip() not in ("task", "---")]
+    return [row for row in listed if row not in have]
+
+
 def report_phase(out: Path, seeds: int, round_name: str = "study") -> str:
     """``<round>.md`` and ``<round>.png`` from the records in ``out`` of the round's arms and the first
     ``seeds`` validation seeds (the same seeds for every arm, whatever else the folder holds),
@@ -231,6 +246,12 @@ def report_phase(out: Path, seeds: int, round_name: str = "study") -> str:
     wanted = range(VALIDATION_TRAIN_SEED, VALIDATION_TRAIN_SEED + seeds)
     records = [json.loads(p.read_text()) for p in sorted((out / "runs").glob("*.json"))]
     records = [r for r in records if r["seed"] in wanted and r["variant"] in arms]
+    lost = _rows_without_records(out / f"{round_name}.md", records)
+    if lost:
+        raise TableWouldShrink(
+            f"{out / f'{round_name}.md'} has rows whose records are not in {out / 'runs'} "
+            f"(first: {lost[0][0]} / {lost[0][1]}): train them (--phases train) or pass another --out"
+        )
     lines = [
         "# Why COMA trails MAPPO: one change at a time",
         "",
@@ -354,7 +375,11 @@ def main(argv: list[str] | None = None) -> int:
     if "train" in phases:
         train_phase(args.out, tasks, args.seeds, args.workers, ROUNDS[args.round])
     if "report" in phases:
-        print(report_phase(args.out, args.seeds, args.round))
+        try:
+            print(report_phase(args.out, args.seeds, args.round))
+        except TableWouldShrink as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     return 0
 
 
