@@ -145,6 +145,17 @@ VALIDATION_EVAL_SEED = 200_000
 VALIDATION_EPISODES = 50
 #: What the report and the figure read from each run's progress.csv.
 DIAGNOSTICS = ("train/explained_variance", "train/advantage_std", "train/entropy", "train/critic_loss")
+#: SB3's mean episode return of the last 100 training episodes, per agent row (sampled actions).
+TRAINING_RETURN = "rollout/ep_rew_mean"
+
+
+def _dip(progress: dict[str, np.ndarray]) -> tuple[float, float, float]:
+    """The training return at the first update, its lowest over the first half, and at the end:
+    a critic that misleads the actor shows as a fall before the rise (docs/training.md)."""
+    values = progress[TRAINING_RETURN][np.isfinite(progress[TRAINING_RETURN])]
+    if values.size == 0:
+        return (float("nan"),) * 3
+    return float(values[0]), float(values[: max(1, values.size // 2)].min()), float(values[-1])
 
 
 def run_variant(task_key: str, variant: str, seed: int, folder: Path) -> dict[str, Any]:
@@ -213,7 +224,7 @@ def _progress(path: Path) -> dict[str, np.ndarray]:
     """A run's progress.csv as columns (steps under ``time/total_timesteps``)."""
     with path.open() as f:
         rows = list(csv.DictReader(f))
-    keys = ("time/total_timesteps", *DIAGNOSTICS)
+    keys = ("time/total_timesteps", TRAINING_RETURN, *DIAGNOSTICS)
     return {k: np.array([float(r[k]) if r.get(k) not in (None, "") else np.nan for r in rows]) for k in keys}
 
 
@@ -262,12 +273,14 @@ def report_phase(out: Path, seeds: int, round_name: str = "study") -> str:
         "actions): nothing here uses the benchmark's reported seeds. Diagnostics: mean over the last tenth of",
         "training of what COMA logs per update (explained variance of the critic's Q against its TD(lambda)",
         "targets, the standard deviation of the counterfactual advantage, the policy's entropy, the critic's loss:",
-        "in standardised units for the `q_norm` variants; `-`: not logged by MAPPO). Train minutes: wall time on a",
-        "machine shared with other jobs, not a speed figure (docs/marl_benchmark/results.md has those).",
+        "in standardised units for the `q_norm` variants; `-`: not logged by MAPPO). Training return: SB3's mean",
+        "return per agent of the last 100 training episodes (sampled actions) at the first update, its lowest over",
+        "the first half of training, and at the end. Train minutes: wall time on a machine shared with other jobs,",
+        "not a speed figure (docs/marl_benchmark/results.md has those).",
         "",
         "| task | variant | settings | seeds | validation return | per seed | explained variance | advantage std | "
-        "entropy | critic loss | train minutes |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "entropy | critic loss | training return: first / lowest in first half / last | train minutes |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for task in sorted({r["task"] for r in records}):
         for variant in arms:
@@ -279,6 +292,7 @@ def report_phase(out: Path, seeds: int, round_name: str = "study") -> str:
             late = {d: np.mean([_late(p[d]) for p in diag]) for d in DIAGNOSTICS}
             finals = [r["validation_return"] for r in runs]
             shown_late = {d: "-" if np.isnan(v) else f"{v:.3g}" for d, v in late.items()}
+            dip = " / ".join(f"{np.mean(v):.1f}" for v in zip(*(_dip(p) for p in diag)))
             shown = ", ".join(f"{k}={v}" for k, v in VARIANTS.get(variant, {}).items()) or "defaults"
             if variant == REFERENCE:
                 shown = "not COMA: MAPPO with its benchmark settings (zoo_configs/marl/mappo.yml)"
@@ -286,7 +300,7 @@ def report_phase(out: Path, seeds: int, round_name: str = "study") -> str:
                 f"| {task} | {variant} | {shown} | {len(runs)} | {np.mean(finals):.2f} | "
                 f"{', '.join(f'{f:.2f}' for f in finals)} | {shown_late['train/explained_variance']} | "
                 f"{shown_late['train/advantage_std']} | {shown_late['train/entropy']} | {shown_late['train/critic_loss']} | "
-                f"{np.mean([r['seconds'] for r in runs]) / 60:.1f} |"
+                f"{dip} | {np.mean([r['seconds'] for r in runs]) / 60:.1f} |"
             )
     text = "\n".join(lines) + "\n"
     atomic_write_text(out / f"{round_name}.md", text)
