@@ -376,7 +376,7 @@ def test_clipped_and_plain_actor_updates_train() -> None:
 @pytest.mark.parametrize(
     "kwargs,match",
     [
-        ({"advantage": "gae"}, "advantage"),
+        ({"advantage": "ppo"}, "advantage"),
         ({"clip_range": 0}, "clip_range"),
         ({"clip_range": True}, "clip_range"),
         ({"n_epochs": 0}, "n_epochs"),

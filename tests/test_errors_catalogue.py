@@ -1194,10 +1194,10 @@ CASES: list[Case | CliCase] = [
     Case(
         "coma-advantage-unknown",
         C,
-        "COMA(..., advantage='gae')",
-        lambda f: _coma(f, advantage="gae"),
+        "COMA(..., advantage='ppo')",
+        lambda f: _coma(f, advantage="ppo"),
         ValueError,
-        ("advantage", "'gae'"),
+        ("advantage", "'ppo'"),
         "must be one of",
     ),
     Case(
