@@ -43,6 +43,17 @@ generic = COMA("MlpPolicy", spread, n_steps=16, batch_size=16, seed=0).learn(64)
 generic.save("spread.zip")
 assert COMA.load("spread.zip", env=spread).predict(spread.reset())[0].shape == (6,)
 
+# the zoo on a third-party task from the installed wheel: its default config (zoo_configs/marl/,
+# installed as data) and a tiny budget, into a folder of this smoke test's own
+zoo_argv = ["train", "--algo", "coma", "--env", "simple_spread", "-n", "64", "-f", "zoo_logs", "--seed", "0"]
+zoo = subprocess.run(
+    [sys.executable, "-m", "sb3_coma.zoo", *zoo_argv, "-params", "n_steps:8", "n_envs:2", "batch_size:16"],
+    capture_output=True,
+    text=True,
+)
+assert zoo.returncode == 0, zoo.stderr[-2000:]
+assert pathlib.Path("zoo_logs/coma/simple_spread_1/simple_spread.zip").is_file()
+
 model = sb3_coma.load_pretrained("env3")
 result = sb3_coma.evaluate(model, env="env3", n_trials=1, n_envs=1)
 f1 = np.asarray(result.f1)
