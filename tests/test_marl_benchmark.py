@@ -141,6 +141,11 @@ def test_the_summary_says_each_verdict_and_the_bar(tmp_path: Path) -> None:
     text = marl_benchmark.summary_paragraph(records, speed)
     assert "t (3 seeds): COMA -45.00, MAPPO -45.00, COMA minus MAPPO +0.00" in text and ": tie" in text
     assert "within MAPPO's seed spread (or above) on 1 of 1 tasks (t)" in text and "t +35.00" in text
+    assert "Both (within the spread and above random) on 1 of 1 (t)." in text
+    below_random = [r | {"final_return": -40.0} if r["learner"] == "random" else r for r in records]
+    assert "Both (within the spread and above random) on 0 of 1." in marl_benchmark.summary_paragraph(
+        below_random, speed
+    )
     assert "0.90 to 1.25 on 2 tasks" in text
     readme = tmp_path / "README.md"
     start, end = marl_benchmark.README_MARKERS

@@ -434,7 +434,7 @@ README_MARKERS = (
 
 def summary_paragraph(records: list[dict[str, Any]], speed: dict[str, Any] | None) -> str:
     """The benchmark in one paragraph, from the records (README quotes it; nobody types it)."""
-    parts, within_tasks, above = [], [], []
+    parts, within_tasks, above, bar_tasks = [], [], [], []
     for task in sorted({r["task"] for r in records}):
         finals = {
             learner: [r["final_return"] for r in records if r["task"] == task and r["learner"] == learner]
@@ -450,14 +450,20 @@ def summary_paragraph(records: list[dict[str, Any]], speed: dict[str, Any] | Non
             f"{task} ({seeds} seed{'s' if seeds > 1 else ''}): COMA {np.mean(finals['coma']):.2f}, MAPPO {np.mean(finals['mappo']):.2f}, "
             f"COMA minus MAPPO {verdict}"
         )
+        over_random = np.mean(finals["coma"]) - finals["random"][0] if finals["random"] else float("nan")
         if _within_spread(finals["coma"], finals["mappo"]) == "yes":
             within_tasks.append(task)
+            if over_random > 0:
+                bar_tasks.append(task)
         if finals["random"]:
-            above.append(f"{task} {np.mean(finals['coma']) - finals['random'][0]:+.2f}")
+            above.append(f"{task} {over_random:+.2f}")
     text = "COMA against MAPPO, paired by training seed (mean [95 % t interval]): " + "; ".join(parts) + ". "
     text += f"COMA's mean is within MAPPO's seed spread (or above) on {len(within_tasks)} of {len(parts)} tasks"
     text += f" ({', '.join(within_tasks)})" if within_tasks else ""
     text += f"; COMA minus random: {', '.join(above)}." if above else "."
+    text += f" Both (within the spread and above random) on {len(bar_tasks)} of {len(parts)}" + (
+        f" ({', '.join(bar_tasks)})." if bar_tasks else "."
+    )
     if speed is not None:
         ratios = [row["ratio"] for row in speed["tasks"].values()]
         text += (
