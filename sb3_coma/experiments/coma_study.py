@@ -126,15 +126,26 @@ GAE_ROUND: dict[str, dict[str, Any]] = {
     },
 }
 VARIANTS.update(GAE_ROUND)
+#: Round 5 (after rounds 3-4 found COMA's sampled policy level with MAPPO's in training but still
+#: near uniform, so its most likely actions weaker): a smaller entropy bonus on simple_spread's entry.
+ENTROPY_ROUND: dict[str, dict[str, Any]] = {
+    f"rollout_1024_epochs_10_before_ent_{name}": {**VARIANTS["rollout_1024_epochs_10_before"], "ent_coef": value}
+    for name, value in (("0.001", 0.001), ("0", 0.0))
+}
+VARIANTS.update(ENTROPY_ROUND)
 #: The reference every variant is measured against: MAPPO with its benchmark settings (not COMA).
 REFERENCE = "mappo"
 ARMS = (*VARIANTS, REFERENCE)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
 ROUNDS: dict[str, tuple[str, ...]] = {
-    "study": (*[v for v in VARIANTS if not any(v in r for r in (CRITIC_ROUND, BASELINE_ROUND, GAE_ROUND))], REFERENCE),
+    "study": (
+        *[v for v in VARIANTS if not any(v in r for r in (CRITIC_ROUND, BASELINE_ROUND, GAE_ROUND, ENTROPY_ROUND))],
+        REFERENCE,
+    ),
     "critic_round": ("rollout_1024_epochs_10", *CRITIC_ROUND, REFERENCE),
     "baseline_round": (*(name for twin in BASELINE_ROUND for name in (twin.removesuffix("_before"), twin)), REFERENCE),
     "gae_round": ("rollout_1024_epochs_10", *GAE_ROUND, REFERENCE),
+    "entropy_round": ("rollout_1024_epochs_10_before", *ENTROPY_ROUND, REFERENCE),
 }
 #: Joint steps per study run (a third to a half of the benchmark's budget: enough to rank the variants).
 STUDY_STEPS = {"simple_spread": 150_000, "lbf": 100_000}
