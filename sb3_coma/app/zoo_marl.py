@@ -117,9 +117,10 @@ class MarlExperimentManager(ExperimentManager):
             hyperparams["policy"] = f"{CentralValuePolicy.__module__}.{CentralValuePolicy.__name__}"
         processed = super()._preprocess_hyperparams(hyperparams)
         if self._counts_agent_steps:
+            # PPO's own count; rl-zoo3 spaces the search's evaluations as n_timesteps / n_evaluations
+            # / n_envs vec steps, so a run of PPO still evaluates n_evaluations times (and the median
+            # pruner's warm-up, n_evaluations // 3, counts those evaluations): n_evaluations stays.
             self.n_timesteps *= self.n_agents
-            if self.n_evaluations is not None:  # rl-zoo3's pruning evaluations, spaced in calls
-                self.n_evaluations *= self.n_agents
         return processed
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:

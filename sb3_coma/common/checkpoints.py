@@ -161,6 +161,22 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
     return atomic_write(path, lambda handle: handle.write(data))
 
 
+def write_between_markers(path: str | os.PathLike[str], markers: tuple[str, str], text: str) -> bool:
+    """Replace what lies between ``markers`` (start, end) in the text file ``path`` by ``text``,
+    atomically: how a generated paragraph reaches a hand-written file (README). ``False`` when the
+    file or its markers are missing (nothing is written then)."""
+    target = Path(path)
+    if not target.is_file():
+        return False
+    content = target.read_text(encoding="utf-8")
+    start, end = markers
+    if start not in content or end not in content.split(start, 1)[1]:
+        return False
+    head, rest = content.split(start, 1)
+    atomic_write_text(target, f"{head}{start}\n{text.strip()}\n{end}{rest.split(end, 1)[1]}")
+    return True
+
+
 def folder_write_problem(path: str | os.PathLike[str]) -> str | None:
     """Why files cannot be written into the folder ``path`` (made when missing), or ``None``.
 

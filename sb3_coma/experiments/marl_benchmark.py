@@ -37,7 +37,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_coma.app.marl_tasks import BENCHMARK_JOINT_STEPS, NAMED_TASKS
-from sb3_coma.common.checkpoints import atomic_write, atomic_write_text
+from sb3_coma.common.checkpoints import atomic_write, atomic_write_text, write_between_markers
 
 LEARNERS = ("coma", "mappo", "ippo", "random")
 #: The learned ones: each has its settings per task in ``zoo_configs/marl/<learner>.yml``.
@@ -475,13 +475,8 @@ def summary_paragraph(records: list[dict[str, Any]], speed: dict[str, Any] | Non
 
 def write_readme_block(readme: Path, paragraph: str) -> None:
     """Replace the text between :data:`README_MARKERS` in ``readme`` (atomically) by ``paragraph``."""
-    text = readme.read_text(encoding="utf-8")
-    start, end = README_MARKERS
-    if start not in text or end not in text:
-        raise ValueError(f"{readme} has no {start} ... {end} block to write")
-    head, rest = text.split(start, 1)
-    _old, tail = rest.split(end, 1)
-    atomic_write_text(readme, f"{head}{start}\n{paragraph}\n{end}{tail}")
+    if not write_between_markers(readme, README_MARKERS, paragraph):
+        raise ValueError(f"{readme} has no {README_MARKERS[0]} ... {README_MARKERS[1]} block to write")
 
 
 def _speed(out: Path) -> dict[str, Any] | None:

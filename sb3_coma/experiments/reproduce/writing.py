@@ -21,6 +21,7 @@ import numpy as np
 
 from sb3_coma.app import pretrained as pt
 from sb3_coma.baselines.adaptive_gain import default_weighting
+from sb3_coma.common.checkpoints import write_between_markers
 from sb3_coma.experiments import plots as pl
 from sb3_coma.experiments import report
 from sb3_coma.experiments.reproduce.options import ABLATION_ENV, DEFAULT_ENVS, Folders, ReproduceOptions
@@ -165,18 +166,7 @@ def _write_docs(docs: Path, record: RunRecord, figures: Sequence[Path], say: Cal
 def write_readme_block(readme: Path, text: str) -> bool:
     """Replace what lies between :data:`README_MARKERS` in ``readme`` by ``text`` (atomically);
     ``False`` when the file or its markers are missing (nothing is written then)."""
-    if not readme.is_file():
-        return False
-    content = readme.read_text(encoding="utf-8")
-    start, end = README_MARKERS
-    if start not in content or end not in content.split(start, 1)[1]:
-        return False
-    head, rest = content.split(start, 1)
-    tail = rest.split(end, 1)[1]
-    staging = readme.with_name(readme.name + ".tmp")
-    staging.write_text(f"{head}{start}\n{text.strip()}\n{end}{tail}", encoding="utf-8")
-    staging.replace(readme)
-    return True
+    return write_between_markers(readme, README_MARKERS, text)
 
 
 def _jsonable(value: Any) -> Any:
