@@ -23,14 +23,18 @@ def _spread(**kwargs: Any) -> ParallelEnv:
     return simple_spread_v3.parallel_env(N=3, max_cycles=25, continuous_actions=False, **kwargs)
 
 
-def _scored_q(before: bool, monkeypatch: pytest.MonkeyPatch) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
-    """(Q the advantages read, the critic's Q of the rollout before train(), after train())."""
+def _scored_q(
+    before: bool, monkeypatch: pytest.MonkeyPatch, normalize_q: bool = False
+) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    """(Q the advantages read, the critic's Q of the rollout before train(), after train()), all in
+    units of return (``normalize_q``: each with the running statistics of its own time)."""
     model = COMA(
         "MlpPolicy",
         make_marl_vec_env(_spread, n_envs=2, seed=0),
         seed=0,
         device="cpu",
         advantage_before_critic_update=before,
+        normalize_q=normalize_q,
         **FAST,
     )
     model.learn(32)  # one rollout collected and trained; the next one is scored below
@@ -39,7 +43,7 @@ def _scored_q(before: bool, monkeypatch: pytest.MonkeyPatch) -> tuple[th.Tensor,
     data = model.rollout_buffer.joint_steps()
     everything = th.arange(data["actions"].shape[0])
     with th.no_grad():
-        q_before = model._q(data, everything).clone()
+        q_before = model._q_units(model._q(data, everything)).clone()
     seen: list[th.Tensor] = []
     real = model._advantages
 
@@ -50,7 +54,7 @@ def _scored_q(before: bool, monkeypatch: pytest.MonkeyPatch) -> tuple[th.Tensor,
     monkeypatch.setattr(model, "_advantages", spy)
     model.train()
     with th.no_grad():
-        q_after = model._q(data, everything)
+        q_after = model._q_units(model._q(data, everything))
     return seen[0], q_before, q_after
 
 
@@ -58,6 +62,13 @@ def test_the_baseline_reads_the_critic_of_collection_time(monkeypatch: pytest.Mo
     scored, before, after = _scored_q(True, monkeypatch)
     assert th.allclose(scored, before, atol=1e-6)
     assert not th.allclose(scored, after, atol=1e-3)  # the critic did move in between
+
+
+def test_a_standardised_critic_is_read_in_the_units_it_was_trained_in(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With ``normalize_q`` the critic of collection time learnt Q in units of the statistics before
+    this rollout's targets moved them: its baseline is scored with those, not the updated ones."""
+    scored, before, _after = _scored_q(True, monkeypatch, normalize_q=True)
+    assert th.allclose(scored, before, atol=1e-5)
 
 
 def test_by_default_it_reads_the_critic_of_the_last_epoch(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -188,3 +188,28 @@ def test_dagger_experiment_command_writes_a_model_and_a_paired_report(tmp_path):
     assert (out / "clone.zip").is_file() and report["dagger_rounds"][0]["states"] == 8 * 15 * 4
     assert {"f1", "entropy"} == {d["metric"] for d in report["comparison"]["vs_ag"]}
     assert set(report["comparison"]["finals"]) == {str(out / "clone.zip"), "ag", "oracle"}
+    # the same clone fine-tuned with one of COMA's settings changed: the saved model carries it
+    tuned = tmp_path / "t"
+    argv = ["--env", "env1", "--from", str(out / "clone.zip"), "--finetune", "256", "--missions-eval", "2"]
+    argv += ["--set", "n_epochs=1", "--set", "advantage_before_critic_update=true", "--out", str(tuned)]
+    assert dagger.main(argv) == 0
+    model = COMA.load(tuned / "finetuned.zip", device="cpu")
+    assert model.n_epochs == 1 and model.advantage_before_critic_update is True and model.num_timesteps >= 256
+
+
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ("n_epoch=3", "'n_epoch' is not a COMA argument"),
+        ("seed=3", "'seed' is not a COMA argument"),
+        ("kl_coef=2", "--kl"),
+        ("n_epochs=0", "n_epochs must be >= 1, got 0"),
+        ("n_epochs", "expected KEY=VALUE"),
+    ],
+)
+def test_dagger_refuses_a_setting_coma_has_not_in_one_line(setting, message, capsys):
+    from sb3_coma.experiments import dagger
+
+    with pytest.raises(SystemExit) as stop:
+        dagger.parse_args(["--out", "x", "--set", setting])
+    assert stop.value.code == 2 and message in capsys.readouterr().err

@@ -5,7 +5,7 @@ thing in ``sb3-coma evaluate``, ``reproduce``, ``noise-sweep``, ``ablation``, ``
 the studies' own ``main()``: one flag, one help text, one rule for the default, written here so
 that a change (a clearer help, a new check) reaches every parser at once. It lives in the
 application layer because both the command line (layer 4) and the studies (layer 3) build
-parsers; it imports only ``argparse``, the integer types of ``uav_ipp.config`` (the world's rules for a user's numbers)
+parsers; it imports only ``argparse``, ``yaml`` (``--set`` values), the integer types of ``uav_ipp.config`` (the world's rules for a user's numbers)
 and the world's default map name, none of which loads Stable-Baselines3 or torch, so
 ``sb3-coma --help`` stays quick (tests/test_cli_lazy.py).
 """
@@ -14,7 +14,23 @@ from __future__ import annotations
 
 import argparse
 
+import yaml
+
 from uav_ipp.config import count_value, seed_value
+
+
+def set_value(text: str) -> tuple[str, object]:
+    """argparse type of ``--set KEY=VALUE``: the value read as YAML (``10``, ``true``, ``[1, 2]``),
+    kept as text where it is not YAML, so a config key and a constructor argument take one spelling."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        parsed = yaml.safe_load(value) if value.strip() else None
+    except yaml.YAMLError:
+        parsed = value
+    return key.strip(), parsed
+
 
 #: ``--env`` of the commands that fly several maps: all three families, comma separated.
 ALL_MAPS = "env1,env2,env3"

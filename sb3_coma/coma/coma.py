@@ -723,16 +723,16 @@ class COMA(OnPolicyAlgorithm):
         update_learning_rate(self.policy.critic_optimizer, self.critic_lr_schedule(progress))
 
         targets = self._td_targets()
-        fitted = self._critic_targets(targets)
         data = self.rollout_buffer.joint_steps()
         actions = data["actions"]
         n_joint = actions.shape[0]
         q_all = th.zeros(*actions.shape, self.policy.n_actions, device=self.device)
 
-        if self.advantage_before_critic_update:
-            with th.no_grad():
+        if self.advantage_before_critic_update:  # in the units the critic was trained in (normalize_q):
+            with th.no_grad():  # before this rollout's targets move the running statistics
                 for idx in th.arange(n_joint, device=self.device).split(_SCORING_CHUNK):
                     q_all[idx] = self._q_units(self._q(data, idx))
+        fitted = self._critic_targets(targets)
         critic_losses = []
         for epoch in range(self.n_critic_epochs):
             for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):

@@ -3,6 +3,8 @@
     python -m sb3_coma.experiments.dagger --env env3 --rounds 8 --missions 128 --out runs/dagger_env3
     python -m sb3_coma.experiments.dagger --env env3 --from runs/dagger_env3/clone.zip \\
         --finetune 18000 --kl 1.0 --out runs/dagger_env3_ft
+    python -m sb3_coma.experiments.dagger --env env3 --from runs/dagger_env3/clone.zip \\
+        --finetune 18000 --kl 1.0 --set n_epochs=10 --out runs/dagger_env3_ft_epochs_10
 
 Builds the model of the map's config entry (``zoo_configs/coma.yml``: the same networks, inputs
 and settings as ``sb3-coma train``), clones the oracle into its actor with
@@ -11,12 +13,15 @@ fine-tunes it with COMA for ``--finetune`` joint steps under a KL pull toward th
 decays to zero over the first half (``kl_coef=--kl``), then flies the model, AG and the oracle on
 the same ``--missions-eval`` missions (``--split``: the validation missions by default, on which
 recipes are chosen; ``--split test`` reports only) and prints the paired verdicts (scene-clustered t test, Holm over the table). Writes ``clone.zip`` or
-``finetuned.zip`` and ``report.json`` into ``--out``.
+``finetuned.zip`` and ``report.json`` into ``--out``. ``--set NAME=VALUE`` changes one of COMA's
+constructor arguments for the fine-tuning (the same clone fine-tuned two ways is a paired comparison
+of the two settings: issue #45, docs/training.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import sys
 import time
@@ -25,11 +30,13 @@ from typing import Any
 
 import torch as th
 
+from sb3_coma.app.arguments import set_value
 from sb3_coma.app.evaluation import evaluate
 from sb3_coma.app.roles import TEST_SPLIT_NOTE, add_split_argument, protocol_for_split
 from sb3_coma.app.training import build_model, make_training_env, plan_run, record_env_options
 from sb3_coma.baselines import make_planner
 from sb3_coma.coma import COMA
+from sb3_coma.coma.validation import check_coma_arguments
 from sb3_coma.stats.paired import holm_adjust, paired_difference
 from sb3_coma.uav.imitation import clone_teacher
 from uav_ipp.config import count_or_none_value, count_value, seed_value
@@ -66,15 +73,57 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--observation", choices=("v2", "v3"), default=None, help="env option observation (default: the config's)"
     )
+    parser.add_argument(
+        "--set",
+        dest="settings",
+        action="append",
+        type=set_value,
+        default=[],
+        metavar="NAME=VALUE",
+        help="a COMA constructor argument of the fine-tuning, e.g. --set n_epochs=10 (repeatable)",
+    )
     parser.add_argument("--out", required=True, help="output folder")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    try:
+        args.settings = coma_settings(dict(args.settings))
+    except (TypeError, ValueError) as exc:
+        parser.error(f"--set: {exc}")
+    return args
+
+
+#: COMA's arguments that ``--set`` may not change: the run's identity and objects, set by the command.
+_NOT_SETTINGS = frozenset(
+    {"self", "policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
+    | {"learning_rate", "kl_coef", "kl_fraction"}  # --lr, --kl and --kl-fraction
+)
+
+
+def coma_settings(pairs: dict[str, Any]) -> dict[str, Any]:
+    """``pairs`` checked as COMA constructor arguments: each name one of them, each value one COMA
+    accepts (checked with COMA's own rules against its defaults), so a typo fails before the clone
+    is loaded and not as an attribute that nothing reads."""
+    parameters = inspect.signature(COMA.__init__).parameters
+    unknown = sorted(set(pairs) - (set(parameters) - _NOT_SETTINGS))
+    if unknown:
+        raise ValueError(
+            f"{unknown[0]!r} is not a COMA argument this command can set (--lr, --kl and --kl-fraction set theirs)"
+        )
+    defaults = {name: p.default for name, p in parameters.items() if p.default is not inspect.Parameter.empty}
+    check_coma_arguments(defaults | pairs)
+    return pairs
 
 
 def _clone(args: argparse.Namespace, plan: Any, venv: Any) -> tuple[COMA, dict[str, Any]]:
     if args.source:
         custom = {"learning_rate": args.lr} if args.lr else {}
         return COMA.load(
-            args.source, env=venv, device="cpu", kl_coef=args.kl, kl_fraction=args.kl_fraction, **custom
+            args.source,
+            env=venv,
+            device="cpu",
+            kl_coef=args.kl,
+            kl_fraction=args.kl_fraction,
+            **custom,
+            **args.settings,
         ), {}
     model = build_model(plan, venv, device="cpu")
     model.kl_coef, model.kl_fraction = args.kl, args.kl_fraction
@@ -103,8 +152,8 @@ def main(argv: list[str] | None = None) -> int:
     th.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    overrides = {"env_kwargs.observation": args.observation} if args.observation else None
-    plan = plan_run(env=args.env, seed=args.seed, device="cpu", overrides=overrides)
+    overrides = {"env_kwargs.observation": args.observation} if args.observation else {}
+    plan = plan_run(env=args.env, seed=args.seed, device="cpu", overrides=overrides | args.settings or None)
     venv = make_training_env(plan.cfg, seed=args.seed, workers=1)  # the oracle reads the env's state
     model, record = _clone(args, plan, venv)
     record_env_options(model, plan.cfg.world)

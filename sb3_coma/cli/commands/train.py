@@ -8,9 +8,7 @@ import signal
 import sys
 from pathlib import Path
 
-import yaml
-
-from sb3_coma.app.arguments import add_threads_argument
+from sb3_coma.app.arguments import add_threads_argument, set_value
 from sb3_coma.cli import UserError, set_threads
 from uav_ipp.config import count_value, integer_type, seed_value
 
@@ -27,17 +25,6 @@ DESCRIPTION = (
     "(a change of it is refused unless --allow-change); one process trains in a run folder at a time. "
     "Timesteps are joint steps (one per env copy per step): the paper's 1200 missions x 15 = 18000."
 )
-
-
-def _parse_set(text: str) -> tuple[str, object]:
-    key, sep, value = text.partition("=")
-    if not sep or not key.strip():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    try:
-        parsed = yaml.safe_load(value) if value.strip() else None
-    except yaml.YAMLError:
-        parsed = value
-    return key.strip(), parsed
 
 
 def _joint_steps(text: str) -> int:
@@ -140,7 +127,7 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
         "--set",
         dest="overrides",
         action="append",
-        type=_parse_set,
+        type=set_value,
         default=[],
         metavar="KEY=VALUE",
         help="override a config key (YAML value), dots reach into mappings: "
