@@ -263,11 +263,23 @@ class TestErrors:
             COMA(dict, FakeUavVecEnv())
 
 
-@pytest.mark.parametrize("truncate", [False, True])
-def test_time_limit_truncation_is_bootstrapped(truncate: bool, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A truncated mission adds gamma * V(terminal state) to its last reward; a terminated one does not."""
+@pytest.mark.parametrize(("truncate", "bootstrap"), [(False, True), (True, True), (True, False)])
+def test_time_limit_truncation_is_bootstrapped(
+    truncate: bool, bootstrap: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A truncated mission adds gamma * V(terminal state) to its last reward; a terminated one does
+    not, nor a truncated one with ``bootstrap_time_limits=False``."""
     venv = FakeUavVecEnv(n_envs=2, n_agents=2, budget=3, truncate=truncate)
-    model = COMA("UavCnnPolicy", venv, batch_size=12, n_steps=6, gamma=0.5, seed=0, policy_kwargs=SMALL)
+    model = COMA(
+        "UavCnnPolicy",
+        venv,
+        batch_size=12,
+        n_steps=6,
+        gamma=0.5,
+        seed=0,
+        policy_kwargs=SMALL,
+        bootstrap_time_limits=bootstrap,
+    )
     rewards_seen: list[np.ndarray] = []
     original_step = venv.step_wait
 
@@ -285,7 +297,7 @@ def test_time_limit_truncation_is_bootstrapped(truncate: bool, monkeypatch: pyte
     stored = model.rollout_buffer.rewards.reshape(6, 4)
     env_rewards = np.stack(rewards_seen)
     bonus = np.zeros_like(env_rewards)
-    if truncate:
+    if truncate and bootstrap:
         bonus[[2, 5]] = 0.5 * 3.0  # missions end after steps 3 and 6
     assert np.allclose(stored, env_rewards + bonus)
     assert model.rollout_buffer.dones.reshape(6, 4)[[2, 5]].all()

@@ -21,7 +21,8 @@ Choices the paper leaves open, as implemented here:
 * Rollouts end mid-mission; the last TD(lambda) target is bootstrapped with the target critic's
   expected value under the current policy, ``sum_u pi(u|o_i) Q_target(s, (u_-i, u))``, where
   ``u_-i`` are drawn from the current policy (no exploration). Episode ends cut the return;
-  a time-limit truncation (``TimeLimit.truncated``) adds ``gamma * V(terminal state)`` instead.
+  a time-limit truncation (``TimeLimit.truncated``) adds ``gamma * V(terminal state)`` instead
+  (``bootstrap_time_limits=False``: a time limit ends the return like any episode end).
 * Per rollout: ``n_critic_epochs`` passes of critic minibatch updates, then ``n_epochs`` passes
   of actor updates. The advantages use the critic's Q as scored in its last epoch, just before
   each minibatch's own update, which saves a forward pass over the rollout
@@ -146,6 +147,11 @@ class COMA(OnPolicyAlgorithm):
         with the values of collection time; ``False``: with the critic after this rollout's
         ``n_critic_epochs`` (pymarl's order), which, when those epochs fit this rollout's own
         returns, pulls the baseline toward them and shrinks the advantage (docs/training.md)
+    :param bootstrap_time_limits: where a time limit cut the episode, add ``gamma * V(terminal
+        state)`` to the last reward, the return the episode would have had (Pardo et al. 2018);
+        ``False``: the return stops there as at a true end (the MAPPO authors' code on MPE), so the
+        critic's value of the last state, a guess about steps nobody flew, is not part of any
+        advantage (docs/training.md, round 7)
     :param target_update_interval: critic updates between target-critic synchronisations (a hard copy)
     :param exploration_initial_eps: initial weight of uniform-over-valid-actions exploration
     :param exploration_final_eps: final weight
@@ -203,6 +209,7 @@ class COMA(OnPolicyAlgorithm):
         normalize_advantage: bool = True,
         normalize_q: bool = False,
         advantage_before_critic_update: bool = False,
+        bootstrap_time_limits: bool = True,
         target_update_interval: int = 4,
         exploration_initial_eps: float = 0.0,
         exploration_final_eps: float = 0.0,
@@ -258,6 +265,7 @@ class COMA(OnPolicyAlgorithm):
         self.normalize_advantage = normalize_advantage
         self.normalize_q = bool(normalize_q)
         self.advantage_before_critic_update = bool(advantage_before_critic_update)
+        self.bootstrap_time_limits = bool(bootstrap_time_limits)
         self.target_update_interval = target_update_interval
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
@@ -563,7 +571,8 @@ class COMA(OnPolicyAlgorithm):
             if not callback.on_step():
                 return False
             self._update_info_buffer(infos, dones)
-            rewards = self._bootstrap_truncations(rewards, dones, infos)
+            if self.bootstrap_time_limits:
+                rewards = self._bootstrap_truncations(rewards, dones, infos)
             buffer.add(self._last_obs, masks, actions, rewards, dones, self._last_states)  # type: ignore[arg-type]
             self._last_obs = new_obs  # type: ignore[assignment]
             self._last_states = self._current_states()

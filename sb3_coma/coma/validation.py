@@ -174,7 +174,11 @@ _ARGUMENT_RULES: tuple[tuple[tuple[str, ...], Callable[[Any], bool], str], ...] 
     (("ent_coef", "kl_coef"), lambda v: is_real(v) and v >= 0, "be a number >= 0"),
     (("clip_range",), lambda v: v is None or _positive(v), "be None or a positive number"),
     (("max_grad_norm",), _positive, "be positive"),
-    (("normalize_advantage", "normalize_q", "advantage_before_critic_update"), is_flag, "be True or False"),
+    (
+        ("normalize_advantage", "normalize_q", "advantage_before_critic_update", "bootstrap_time_limits"),
+        is_flag,
+        "be True or False",
+    ),
     (("advantage",), lambda v: v in ADVANTAGES, f"be one of {ADVANTAGES}"),
     (("seed",), lambda v: v is None or (is_whole(v) and v >= 0), "be None or an integer >= 0"),
 )
