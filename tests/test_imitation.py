@@ -191,10 +191,11 @@ def test_dagger_experiment_command_writes_a_model_and_a_paired_report(tmp_path):
     # the same clone fine-tuned with one of COMA's settings changed: the saved model carries it
     tuned = tmp_path / "t"
     argv = ["--env", "env1", "--from", str(out / "clone.zip"), "--finetune", "256", "--missions-eval", "2"]
-    argv += ["--set", "n_epochs=1", "--set", "advantage_before_critic_update=true", "--out", str(tuned)]
-    assert dagger.main(argv) == 0
+    argv += ["--set", "n_epochs=1", "--set", "advantage_before_critic_update=true", "--set", "n_steps=40"]
+    assert dagger.main([*argv, "--out", str(tuned)]) == 0
     model = COMA.load(tuned / "finetuned.zip", device="cpu")
-    assert model.n_epochs == 1 and model.advantage_before_critic_update is True and model.num_timesteps >= 256
+    assert model.n_epochs == 1 and model.advantage_before_critic_update is True
+    assert model.n_steps == 40 and model.num_timesteps == 40 * 8  # one rollout of 40 steps x 8 copies
 
 
 @pytest.mark.parametrize(
@@ -202,6 +203,7 @@ def test_dagger_experiment_command_writes_a_model_and_a_paired_report(tmp_path):
     [
         ("n_epoch=3", "'n_epoch' is not a COMA argument"),
         ("seed=3", "'seed' is not a COMA argument"),
+        ("policy_kwargs={}", "the networks are the clone's"),
         ("kl_coef=2", "--kl"),
         ("n_epochs=0", "n_epochs must be >= 1, got 0"),
         ("n_epochs", "expected KEY=VALUE"),

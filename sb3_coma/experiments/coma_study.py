@@ -159,6 +159,23 @@ TIME_LIMIT_ROUND: dict[str, dict[str, Any]] = {
     for twin in ("rollout_1024_epochs_10_before", "before_q_norm", "critic_epochs_10_before")
 }
 VARIANTS.update(TIME_LIMIT_ROUND)
+#: Round 8 (after rounds 6-7 found a critic that fits hurting wherever the return bootstraps from it:
+#: with trace decay below 1, ``G_lambda - b = (Q(s, u) - b) + TD errors``, so the critic's own
+#: judgement of the action taken, errors included, steers the actor, as in the paper's Q advantage):
+#: the Monte-Carlo return (trace decay 1), which holds no critic term but the time-limit bootstrap
+#: (dropped in the last two), minus a baseline that ten critic epochs fit: the advantage is then
+#: unbiased whatever the critic's errors, and the fitted baseline only lowers its variance.
+_MONTE_CARLO = {**_ENTRY, "td_lambda": 1.0, "n_critic_epochs": 10}
+MONTE_CARLO_ROUND: dict[str, dict[str, Any]] = {
+    "before_lambda_1_critic_epochs_10_q_norm": {**_MONTE_CARLO, "normalize_q": True},
+    "before_lambda_1_critic_epochs_10_q_norm_no_time_limit_bootstrap": {
+        **_MONTE_CARLO,
+        "normalize_q": True,
+        "bootstrap_time_limits": False,
+    },
+    "before_lambda_1_critic_epochs_10_no_time_limit_bootstrap": {**_MONTE_CARLO, "bootstrap_time_limits": False},
+}
+VARIANTS.update(MONTE_CARLO_ROUND)
 #: The reference every variant is measured against: MAPPO with its benchmark settings (not COMA).
 REFERENCE = "mappo"
 ARMS = (*VARIANTS, REFERENCE)
@@ -169,7 +186,16 @@ ROUNDS: dict[str, tuple[str, ...]] = {
             v
             for v in VARIANTS
             if not any(
-                v in r for r in (CRITIC_ROUND, BASELINE_ROUND, GAE_ROUND, ENTROPY_ROUND, FIT_ROUND, TIME_LIMIT_ROUND)
+                v in r
+                for r in (
+                    CRITIC_ROUND,
+                    BASELINE_ROUND,
+                    GAE_ROUND,
+                    ENTROPY_ROUND,
+                    FIT_ROUND,
+                    TIME_LIMIT_ROUND,
+                    MONTE_CARLO_ROUND,
+                )
             )
         ],
         REFERENCE,
@@ -179,6 +205,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "gae_round": ("rollout_1024_epochs_10", *GAE_ROUND, REFERENCE),
     "entropy_round": ("rollout_1024_epochs_10_before", *ENTROPY_ROUND, REFERENCE),
     "fit_round": ("rollout_1024_epochs_10_before", *FIT_ROUND, REFERENCE),
+    "monte_carlo_round": ("rollout_1024_epochs_10_before", "before_lambda_1", *MONTE_CARLO_ROUND, REFERENCE),
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,

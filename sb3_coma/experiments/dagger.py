@@ -95,6 +95,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 _NOT_SETTINGS = frozenset(
     {"self", "policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
     | {"learning_rate", "kl_coef", "kl_fraction"}  # --lr, --kl and --kl-fraction
+    | {"policy_kwargs"}  # the networks are the clone's
 )
 
 
@@ -106,7 +107,8 @@ def coma_settings(pairs: dict[str, Any]) -> dict[str, Any]:
     unknown = sorted(set(pairs) - (set(parameters) - _NOT_SETTINGS))
     if unknown:
         raise ValueError(
-            f"{unknown[0]!r} is not a COMA argument this command can set (--lr, --kl and --kl-fraction set theirs)"
+            f"{unknown[0]!r} is not a COMA argument this command can set "
+            "(--lr, --kl and --kl-fraction set theirs; the networks are the clone's)"
         )
     defaults = {name: p.default for name, p in parameters.items() if p.default is not inspect.Parameter.empty}
     check_coma_arguments(defaults | pairs)
@@ -116,6 +118,9 @@ def coma_settings(pairs: dict[str, Any]) -> dict[str, Any]:
 def _clone(args: argparse.Namespace, plan: Any, venv: Any) -> tuple[COMA, dict[str, Any]]:
     if args.source:
         custom = {"learning_rate": args.lr} if args.lr else {}
+        settings = dict(args.settings)
+        if "n_steps" in settings:  # a loaded model sizes its rollouts from the requested steps
+            settings["n_steps_requested"] = settings.pop("n_steps")
         return COMA.load(
             args.source,
             env=venv,
@@ -123,7 +128,7 @@ def _clone(args: argparse.Namespace, plan: Any, venv: Any) -> tuple[COMA, dict[s
             kl_coef=args.kl,
             kl_fraction=args.kl_fraction,
             **custom,
-            **args.settings,
+            **settings,
         ), {}
     model = build_model(plan, venv, device="cpu")
     model.kl_coef, model.kl_fraction = args.kl, args.kl_fraction

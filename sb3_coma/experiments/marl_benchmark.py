@@ -526,7 +526,7 @@ figure: the speed table below is).
 """
 
 TUNING = (
-    "COMA's were chosen among the variants of `python -m sb3_coma.experiments.coma_study` (five rounds, one\n"
+    "COMA's were chosen among the variants of `python -m sb3_coma.experiments.coma_study` (eight rounds, one\n"
     "validation seed per variant) on validation seeds and episodes of simple_spread and Foraging-5x5\n"
     "(docs/coma_study/); MAPPO and IPPO run the MAPPO paper's MPE settings, not tuned here: the tuning\n"
     "budget is NOT equal across learners (COMA had a study, MAPPO and IPPO none)."
