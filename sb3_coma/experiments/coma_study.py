@@ -205,6 +205,8 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "gae_round": ("rollout_1024_epochs_10", *GAE_ROUND, REFERENCE),
     "entropy_round": ("rollout_1024_epochs_10_before", *ENTROPY_ROUND, REFERENCE),
     "fit_round": ("rollout_1024_epochs_10_before", *FIT_ROUND, REFERENCE),
+    # the choice between the two best variants on simple_spread, on three validation seeds (--seeds 3)
+    "choice_round": ("rollout_1024_epochs_10_before", "before_lambda_95_q_norm"),
     "monte_carlo_round": ("rollout_1024_epochs_10_before", "before_lambda_1", *MONTE_CARLO_ROUND, REFERENCE),
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
