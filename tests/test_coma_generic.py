@@ -51,6 +51,16 @@ def test_mlp_policy_on_simple_spread_trains_saves_loads_predicts(tmp_path: Path)
     _roundtrip(model, venv, tmp_path)
 
 
+def test_load_with_n_steps_sets_the_rollout_length(tmp_path: Path) -> None:
+    """``COMA.load(path, n_steps=...)`` sizes the rollouts as the constructor's ``n_steps`` does."""
+    venv = make_marl_vec_env(_spread, n_envs=2, seed=0)
+    COMA("MlpPolicy", venv, seed=0, device="cpu", **FAST).save(tmp_path / "model.zip")
+    loaded = COMA.load(tmp_path / "model.zip", env=venv, device="cpu", n_steps=24)
+    assert loaded.n_steps == 24 and loaded.rollout_buffer.n_steps == 24
+    loaded.learn(48)
+    assert loaded.num_timesteps == 48  # one rollout of 24 steps x 2 copies
+
+
 def test_mlp_critic_input_sizes_follow_the_state_source() -> None:
     """COMA's critic input: state + own observation (18) + one-hot id (3) + others' one-hot actions (3 x 5)."""
     for state, width in (("env", 54), ("concat", 3 * 18)):

@@ -825,7 +825,11 @@ class COMA(OnPolicyAlgorithm):
     ) -> SelfCOMA:
         """SB3's ``load``, after checking a shipped model's file against its recorded SHA-256
         (:mod:`sb3_coma.common.shipped`): no path reaches a replaced shipped zip unchecked. A model
-        saved by sb3-coma 0.2 names its UAV policy by the class's old home; it loads as that class."""
+        saved by sb3-coma 0.2 names its UAV policy by the class's old home; it loads as that class.
+        ``n_steps=...`` among ``kwargs`` sets the rollout length as the constructor's does (the
+        buffer is sized from the requested steps, so SB3's plain attribute update would be lost)."""
+        if "n_steps" in kwargs:
+            kwargs["n_steps_requested"] = kwargs.pop("n_steps")
         named = path if isinstance(path, (str, os.PathLike)) else getattr(path, "name", None)
         if isinstance(named, (str, os.PathLike)):  # a path, or a file object opened from one
             check_shipped_file(named)

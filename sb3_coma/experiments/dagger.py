@@ -118,9 +118,6 @@ def coma_settings(pairs: dict[str, Any]) -> dict[str, Any]:
 def _clone(args: argparse.Namespace, plan: Any, venv: Any) -> tuple[COMA, dict[str, Any]]:
     if args.source:
         custom = {"learning_rate": args.lr} if args.lr else {}
-        settings = dict(args.settings)
-        if "n_steps" in settings:  # a loaded model sizes its rollouts from the requested steps
-            settings["n_steps_requested"] = settings.pop("n_steps")
         return COMA.load(
             args.source,
             env=venv,
@@ -128,7 +125,7 @@ def _clone(args: argparse.Namespace, plan: Any, venv: Any) -> tuple[COMA, dict[s
             kl_coef=args.kl,
             kl_fraction=args.kl_fraction,
             **custom,
-            **settings,
+            **args.settings,
         ), {}
     model = build_model(plan, venv, device="cpu")
     model.kl_coef, model.kl_fraction = args.kl, args.kl_fraction
