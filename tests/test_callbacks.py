@@ -19,7 +19,13 @@ from sb3_coma.common.callbacks import (
     StopOnTargetCallback,
     truncate_metrics_csv,
 )
-from sb3_coma.common.checkpoints import CheckpointError, atomic_save, find_checkpoints, validate_checkpoint
+from sb3_coma.common.checkpoints import (
+    CheckpointError,
+    atomic_save,
+    atomic_write_text,
+    find_checkpoints,
+    validate_checkpoint,
+)
 
 N_AGENTS, BUDGET = 2, 3
 
@@ -222,6 +228,22 @@ def test_atomic_save_keeps_previous_file(tmp_path):
         atomic_save(_Partial(b"junk", fail=False), dest)
     assert dest.read_bytes() == b"previous"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.zip"]
+
+
+def test_an_atomic_write_keeps_the_replaced_files_mode_and_gives_a_new_one_the_umasks(tmp_path):
+    """The temporary file is made 0600; what lands is readable as ``open(path, "w")`` would make it
+    (results, tables and the README shared with a group stay readable)."""
+    import os
+
+    mask = os.umask(0o022)
+    os.umask(mask)
+    made = atomic_write_text(tmp_path / "new.md", "a")
+    assert made.stat().st_mode & 0o777 == 0o666 & ~mask
+    kept = tmp_path / "kept.md"
+    kept.write_text("x")
+    kept.chmod(0o640)
+    atomic_write_text(kept, "y")
+    assert kept.read_text() == "y" and kept.stat().st_mode & 0o777 == 0o640
 
 
 @pytest.mark.parametrize("eval_seed", [None, 7])

@@ -412,3 +412,39 @@ def test_predict_checks_the_observation_at_the_api_boundary() -> None:
         model.predict({k: v for k, v in obs.items() if k != "action_mask"})
     with pytest.raises(TypeError, match="observation dict"):
         model.predict(obs["local"])
+
+
+def test_adam_takes_its_fused_kernel_unless_the_caller_chose_an_implementation() -> None:
+    from sb3_coma.coma.policies import optimizer_implementation
+
+    assert optimizer_implementation(th.optim.Adam, {"eps": 1e-5}) == {"eps": 1e-5, "fused": True}
+    assert optimizer_implementation(th.optim.Adam, {"foreach": False}) == {"foreach": False}
+    assert optimizer_implementation(th.optim.Adam, {"fused": False}) == {"fused": False}
+    assert optimizer_implementation(th.optim.RMSprop, {}) == {}
+    model = make("MlpPolicy", policy_kwargs={})
+    for name in ("optimizer", "critic_optimizer"):
+        assert getattr(model.policy, name).param_groups[0]["fused"] is True
+    assert model.policy.optimizer_kwargs == {}  # what is saved is what the caller passed
+    chosen = make("MlpPolicy", policy_kwargs={"optimizer_kwargs": {"foreach": True}})
+    assert chosen.policy.optimizer.param_groups[0]["fused"] in (None, False)
+    assert chosen.policy.optimizer.param_groups[0]["foreach"] is True
+
+
+def test_the_fused_adam_steps_as_the_looped_one_with_the_callers_settings() -> None:
+    """The same update on the same gradients (up to float rounding), the caller's ``eps`` kept.
+    Whole trainings are not compared: a rounding difference flips a sampled action sooner or later."""
+    kwargs = {"eps": 1e-3, "betas": (0.8, 0.9)}
+    fused = make("MlpPolicy", policy_kwargs={"optimizer_kwargs": kwargs})
+    looped = make("MlpPolicy", policy_kwargs={"optimizer_kwargs": {**kwargs, "fused": False}})
+    looped.policy.load_state_dict(fused.policy.state_dict())
+    generator = th.Generator().manual_seed(0)
+    for _ in range(3):
+        gradients = [th.randn(p.shape, generator=generator) * 1e-2 for p in fused.policy.actor.parameters()]
+        for model in (fused, looped):
+            for parameter, gradient in zip(model.policy.actor.parameters(), gradients):
+                parameter.grad = gradient.clone()
+            model.policy.optimizer.step()
+    for a, b in zip(fused.policy.actor.parameters(), looped.policy.actor.parameters()):
+        assert th.allclose(a, b, rtol=0, atol=1e-6)
+    start = make("MlpPolicy", policy_kwargs={"optimizer_kwargs": kwargs}).policy.actor.parameters()
+    assert any(not th.equal(a, b) for a, b in zip(fused.policy.actor.parameters(), start))

@@ -178,3 +178,45 @@ def test_a_report_never_shrinks_a_table_made_from_records_this_folder_lacks(tmp_
         coma_study.report_phase(tmp_path, 1, "critic_round")
     assert "minibatch_86" in table.read_text()  # untouched
     assert coma_study.main(["--out", str(tmp_path), "--phases", "report", "--round", "critic_round"]) == 2
+
+
+def test_a_ppo_learners_variant_changes_its_benchmark_entry_and_nothing_else(tmp_path: Path) -> None:
+    """MAPPO's tuning round (issue #45, item 2): each arm is MAPPO's zoo entry with one change; the
+    report names the learner and the change."""
+    assert coma_study.learner_of("mappo_lr_7e-4") == "mappo" and coma_study.learner_of("minibatch_86") == "coma"
+    arms = coma_study.ROUNDS["mappo_round"]
+    assert arms[0] == coma_study.REFERENCE and all(coma_study.learner_of(a) == "mappo" for a in arms)
+    task = TASKS["simple_spread"]
+    venv, _ = marl_benchmark._vec_env(task, 0, "mappo")
+    model = marl_benchmark._model("mappo", venv, 0, task, coma_study.PPO_VARIANTS["mappo_epochs_5"][1])
+    entry = learner_settings("mappo", task)
+    assert model.n_epochs == 5 and entry["n_epochs"] == 10
+    assert model.batch_size == entry["batch_size"] and model.n_steps == entry["n_steps"]
+    venv.close()
+    (tmp_path / "runs").mkdir()
+    name = f"simple_spread-mappo_epochs_5-{coma_study.VALIDATION_TRAIN_SEED}"
+    record = {"task": "simple_spread", "variant": "mappo_epochs_5", "seed": coma_study.VALIDATION_TRAIN_SEED}
+    record |= {"validation_return": -47.0, "seconds": 60.0, "curve": [[0, -60.0], [1000, -50.0]]}
+    (tmp_path / "runs" / f"{name}.json").write_text(json.dumps(record))
+    (tmp_path / "runs" / f"{name}.csv").write_text("time/total_timesteps,rollout/ep_rew_mean\n1,-20\n")
+    text = coma_study.report_phase(tmp_path, 1, "mappo_round")
+    assert "| simple_spread | mappo_epochs_5 | not COMA: MAPPO with its benchmark settings" in text
+    assert "n_epochs=5 | 1 | -47.00 |" in text
+
+
+def test_the_tuning_budget_is_counted_from_the_round_tables(tmp_path: Path) -> None:
+    """Each learner's validation runs per task, from the tables in git: a variant flown by two rounds
+    counts once, with the most seeds either shows; a row of no known variant counts for nothing."""
+    head = "| task | variant | settings | seeds | validation return |\n| --- | --- | --- | --- | --- |\n"
+    (tmp_path / "study.md").write_text(
+        head + "| simple_spread | paper | x | 1 | -60 |\n| simple_spread | mappo | x | 1 | -47 |\n"
+    )
+    (tmp_path / "later_round.md").write_text(
+        head
+        + "| simple_spread | paper | x | 3 | -60 |\n| simple_spread | mappo_lr_7e-4 | x | 1 | -46 |\n"
+        + "| simple_spread | no_such_variant | x | 9 | -1 |\n| lbf | paper | x | seeds | -1 |\n"
+    )
+    assert coma_study.tuning_runs(tmp_path) == {("coma", "simple_spread"): 3, ("mappo", "simple_spread"): 2}
+    text = marl_benchmark.tuning_paragraph(tmp_path)
+    assert "COMA: simple_spread 3; MAPPO: simple_spread 2; IPPO: none." in text
+    assert "The budget is NOT equal across learners" in text

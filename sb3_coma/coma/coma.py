@@ -645,12 +645,14 @@ class COMA(OnPolicyAlgorithm):
                 "training stopped before the weights were changed. Lower the learning rates or check the inputs."
             )
 
-    def _critic_step(self, loss: th.Tensor) -> None:
+    def _critic_step(self, loss: th.Tensor, parameters: list[th.nn.Parameter]) -> None:
+        """One critic update; ``parameters`` are the critic's, listed once per ``train()`` (listing
+        walks every module: a visible cost at 10+ small updates per rollout)."""
         self._check_finite("critic", loss)
         opt = self.policy.critic_optimizer
         opt.zero_grad(set_to_none=True)
         loss.backward()
-        th.nn.utils.clip_grad_norm_(self.policy.critic.parameters(), self.max_grad_norm)
+        th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
         opt.step()
         self._n_critic_updates += 1
         if self._n_critic_updates % self.target_update_interval == 0:
@@ -742,13 +744,15 @@ class COMA(OnPolicyAlgorithm):
                 for idx in th.arange(n_joint, device=self.device).split(_SCORING_CHUNK):
                     q_all[idx] = self._q_units(self._q(data, idx))
         fitted = self._critic_targets(targets)
+        critic_parameters = list(self.policy.critic.parameters())
+        actor_parameters = list(self.policy.actor.parameters())
         critic_losses = []
         for epoch in range(self.n_critic_epochs):
             for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
                 q = self._q(data, idx)
                 q_taken = q.gather(-1, actions[idx].unsqueeze(-1)).squeeze(-1)
                 loss = F.mse_loss(q_taken, fitted[idx])
-                self._critic_step(loss)
+                self._critic_step(loss, critic_parameters)
                 critic_losses.append(loss.item())
                 if epoch == self.n_critic_epochs - 1 and not self.advantage_before_critic_update:
                     q_all[idx] = self._q_units(q.detach())
@@ -761,7 +765,7 @@ class COMA(OnPolicyAlgorithm):
                 self._check_finite("actor", loss)
                 self.policy.optimizer.zero_grad(set_to_none=True)
                 loss.backward()
-                th.nn.utils.clip_grad_norm_(self.policy.actor.parameters(), self.max_grad_norm)
+                th.nn.utils.clip_grad_norm_(actor_parameters, self.max_grad_norm)
                 self.policy.optimizer.step()
                 actor_losses.append(loss.item())
                 entropies.append(entropy)

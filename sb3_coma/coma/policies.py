@@ -62,6 +62,17 @@ def _net_arch(net_arch: list[int] | dict[str, list[int]] | None) -> dict[str, li
     raise ValueError(f"net_arch={net_arch!r}: must be a list of layer sizes or a dict with 'pi' / 'qf' lists")
 
 
+def optimizer_implementation(optimizer_class: type[th.optim.Optimizer], kwargs: dict[str, Any]) -> dict[str, Any]:
+    """``kwargs`` with Adam's fused kernel when the caller chose no implementation (``fused`` /
+    ``foreach``): COMA takes 10+ small updates per rollout of two networks, and on a CPU the default
+    per-tensor Adam loop costs about three times the fused step (docs/design.md, "Speed"). Same
+    algorithm; the float rounding differs from the loop's, so runs are reproducible per version."""
+    chose = {"fused", "foreach"} & set(kwargs)
+    if optimizer_class is th.optim.Adam and not chose:
+        return {**kwargs, "fused": True}
+    return dict(kwargs)
+
+
 class ActorNet(nn.Module):
     """A features extractor, hidden layers and one logit per action."""
 
@@ -278,12 +289,13 @@ class COMAPolicy(BasePolicy):
         self.critic_target = copy.deepcopy(self.critic)
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
+        kwargs = optimizer_implementation(self.optimizer_class, self.optimizer_kwargs)
         # SB3 types optimizer_class as Optimizer's own class, whose __init__ has no lr (SB3 ignores it too)
         self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
-            self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+            self.actor.parameters(), lr=lr_schedule(1), **kwargs
         )
         self.critic_optimizer = self.optimizer_class(  # type: ignore[call-arg]
-            self.critic.parameters(), lr=critic_lr_schedule(1), **self.optimizer_kwargs
+            self.critic.parameters(), lr=critic_lr_schedule(1), **kwargs
         )
 
     def _shared_constructor_parameters(self) -> dict[str, Any]:

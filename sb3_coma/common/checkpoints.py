@@ -106,6 +106,17 @@ def fsync_path(path: str | os.PathLike[str]) -> None:
         os.close(fd)
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it and putting it back: at import, before any thread)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+#: The mode of a file :func:`atomic_write` creates: what ``open(path, "w")`` would give it.
+_NEW_FILE_MODE = 0o666 & ~_umask()
+
+
 def atomic_write(
     path: str | os.PathLike[str],
     write: Callable[[BinaryIO], Any],
@@ -122,6 +133,7 @@ def atomic_write(
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
     existed = final.exists()
+    mode = final.stat().st_mode & 0o7777 if existed else _NEW_FILE_MODE
     fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
     tmp = Path(tmp_name)
     try:
@@ -129,6 +141,7 @@ def atomic_write(
             write(handle)
             handle.flush()
             os.fsync(handle.fileno())
+        os.chmod(tmp, mode)  # mkstemp makes 0600: keep the replaced file's mode, or give the umask's
         if check is not None:
             check(tmp)
         os.replace(tmp, final)

@@ -32,13 +32,14 @@ from typing import Any
 
 import numpy as np
 
-from sb3_coma.common.checkpoints import atomic_write, atomic_write_text
+from sb3_coma.common.checkpoints import atomic_write_text
 from sb3_coma.experiments.marl_benchmark import (
     TASKS,
     _joint_to_learn,
     _model,
     _vec_env,
     evaluate_team_return,
+    save_palette_png,
 )
 
 #: The variants: COMA's constructor arguments that differ from the library's defaults.
@@ -176,9 +177,38 @@ MONTE_CARLO_ROUND: dict[str, dict[str, Any]] = {
     "before_lambda_1_critic_epochs_10_no_time_limit_bootstrap": {**_MONTE_CARLO, "bootstrap_time_limits": False},
 }
 VARIANTS.update(MONTE_CARLO_ROUND)
+#: Round 10 (after round 9 found simple_spread's entry ahead on simple_reference and behind on
+#: Foraging-5x5): its two changes of the advantage (the baseline of collection time; the standardised
+#: critic with trace decay 0.95) at the Foraging entry's 12 minibatches, flown on the tasks of round 9.
+MINIBATCH_ROUND: dict[str, dict[str, Any]] = {
+    "minibatch_86_before_lambda_95_q_norm": {**VARIANTS["minibatch_86_before"], "td_lambda": 0.95, "normalize_q": True}
+}
+VARIANTS.update(MINIBATCH_ROUND)
 #: The reference every variant is measured against: MAPPO with its benchmark settings (not COMA).
 REFERENCE = "mappo"
-ARMS = (*VARIANTS, REFERENCE)
+#: What the PPO learners' first rounds change of their benchmark entries (zoo_configs/marl/<learner>.yml):
+#: what the MAPPO paper's MPE settings fix, its learning rate (7e-4 in the paper's MPE runs), minibatch
+#: size, epochs, clipping and entropy bonus.
+PPO_CHANGES: dict[str, dict[str, Any]] = {
+    "lr_7e-4": {"learning_rate": 7e-4},
+    "lr_1e-4": {"learning_rate": 1e-4},
+    "batch_1024": {"batch_size": 1024},
+    "epochs_5": {"n_epochs": 5},
+    "epochs_15": {"n_epochs": 15},
+    "clip_0.1": {"clip_range": 0.1},
+    "ent_0": {"ent_coef": 0.0},
+}
+#: The PPO learners' variants, their share of the tuning budget (issue #45, item 2): name -> (learner,
+#: its settings changed from its benchmark entry); ``mappo`` and ``ippo`` are the entries themselves.
+PPO_VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
+    **{learner: (learner, {}) for learner in (REFERENCE, "ippo")},
+    **{
+        f"{learner}_{name}": (learner, change)
+        for learner in (REFERENCE, "ippo")
+        for name, change in PPO_CHANGES.items()
+    },
+}
+ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
 ROUNDS: dict[str, tuple[str, ...]] = {
     "study": (
@@ -195,6 +225,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     FIT_ROUND,
                     TIME_LIMIT_ROUND,
                     MONTE_CARLO_ROUND,
+                    MINIBATCH_ROUND,
                 )
             )
         ],
@@ -208,13 +239,22 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     # the choice between the two best variants on simple_spread, on three validation seeds (--seeds 3)
     "choice_round": ("rollout_1024_epochs_10_before", "before_lambda_95_q_norm"),
     "monte_carlo_round": ("rollout_1024_epochs_10_before", "before_lambda_1", *MONTE_CARLO_ROUND, REFERENCE),
+    # the simple_spread entry against the entry the unstudied tasks took by mean rank, on the tasks that
+    # took it (--tasks simple_reference,lbf,lbf_8x8 --seeds 3): does round 6's choice carry over?
+    "transfer_round": ("minibatch_86", "before_lambda_95_q_norm"),
+    "minibatch_round": ("minibatch_86", "before_lambda_95_q_norm", "minibatch_86_before", *MINIBATCH_ROUND),
+    # MAPPO's and IPPO's own first rounds on simple_spread (--tasks simple_spread): the entry and seven changes
+    "mappo_round": tuple(name for name, (learner, _) in PPO_VARIANTS.items() if learner == "mappo"),
+    "ippo_round": tuple(name for name, (learner, _) in PPO_VARIANTS.items() if learner == "ippo"),
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
     ),
 }
 #: Joint steps per study run (a third to a half of the benchmark's budget: enough to rank the variants).
-STUDY_STEPS = {"simple_spread": 150_000, "lbf": 100_000}
+STUDY_STEPS = {"simple_spread": 150_000, "lbf": 100_000, "simple_reference": 150_000, "lbf_8x8": 150_000}
+#: The tasks of rounds 1 and 2 (``--tasks`` default); the others are flown when a round names them.
+FIRST_TASKS = ("simple_spread", "lbf")
 #: First training seed of the study (validation seeds; the benchmark reports seeds 0, 1, ...).
 VALIDATION_TRAIN_SEED = 1000
 #: First env seed of the validation episodes (the benchmark's evaluation starts at 100_000).
@@ -235,6 +275,11 @@ def _dip(progress: dict[str, np.ndarray]) -> tuple[float, float, float]:
     return float(values[0]), float(values[: max(1, values.size // 2)].min()), float(values[-1])
 
 
+def learner_of(variant: str) -> str:
+    """Which learner flies ``variant``: ``coma`` or the PPO learner that :data:`PPO_VARIANTS` names."""
+    return PPO_VARIANTS[variant][0] if variant in PPO_VARIANTS else "coma"
+
+
 def run_variant(task_key: str, variant: str, seed: int, folder: Path) -> dict[str, Any]:
     """Train one (task, variant, seed), logging SB3's CSV to ``folder``; score it on validation episodes."""
     import torch as th
@@ -245,10 +290,10 @@ def run_variant(task_key: str, variant: str, seed: int, folder: Path) -> dict[st
     th.set_num_threads(1)
     task = dataclasses.replace(TASKS[task_key], joint_steps=STUDY_STEPS[task_key])
     start = time.perf_counter()
-    learner = REFERENCE if variant == REFERENCE else "coma"
+    learner = learner_of(variant)
     venv, recorder = _vec_env(task, seed, learner)
-    if learner == REFERENCE:
-        model = _model(REFERENCE, venv, seed, task)
+    if learner != "coma":
+        model = _model(learner, venv, seed, task, PPO_VARIANTS[variant][1])
     else:
         model = COMA("MlpPolicy", venv, seed=seed, device="cpu", **VARIANTS[variant])
     model.set_logger(configure(str(folder), ["csv"]))
@@ -371,8 +416,12 @@ def report_phase(out: Path, seeds: int, round_name: str = "study") -> str:
             shown_late = {d: "-" if np.isnan(v) else f"{v:.3g}" for d, v in late.items()}
             dip = " / ".join(f"{np.mean(v):.1f}" for v in zip(*(_dip(p) for p in diag)))
             shown = ", ".join(f"{k}={v}" for k, v in VARIANTS.get(variant, {}).items()) or "defaults"
-            if variant == REFERENCE:
-                shown = "not COMA: MAPPO with its benchmark settings (zoo_configs/marl/mappo.yml)"
+            learner = learner_of(variant)
+            if learner != "coma":
+                changed = "".join(f", {k}={v}" for k, v in PPO_VARIANTS[variant][1].items())
+                shown = (
+                    f"not COMA: {learner.upper()} with its benchmark settings (zoo_configs/marl/{learner}.yml){changed}"
+                )
             lines.append(
                 f"| {task} | {variant} | {shown} | {len(runs)} | {np.mean(finals):.2f} | "
                 f"{', '.join(f'{f:.2f}' for f in finals)} | {shown_late['train/explained_variance']} | "
@@ -384,6 +433,21 @@ def report_phase(out: Path, seeds: int, round_name: str = "study") -> str:
     if records:
         _plot(records, out, arms, out / f"{round_name}.png")
     return text
+
+
+def tuning_runs(folder: Path) -> dict[tuple[str, str], int]:
+    """Validation runs per (learner, task) that the round tables in ``folder`` report (the tables are in
+    git, the run records are not): a variant counts once per task, with the most seeds any table shows."""
+    seeds: dict[tuple[str, str], int] = {}
+    for table in sorted(folder.glob("*.md")):
+        for line in table.read_text().splitlines():
+            cells = [cell.strip() for cell in line.split("|")[1:-1]]
+            if len(cells) > 3 and cells[3].isdigit() and (cells[1] in VARIANTS or cells[1] in PPO_VARIANTS):
+                seeds[(cells[0], cells[1])] = max(seeds.get((cells[0], cells[1]), 0), int(cells[3]))
+    runs: dict[tuple[str, str], int] = {}
+    for (task, variant), count in seeds.items():
+        runs[(learner_of(variant), task)] = runs.get((learner_of(variant), task), 0) + count
+    return runs
 
 
 def _plot(records: list[dict[str, Any]], out: Path, arms: tuple[str, ...], figure: Path) -> None:
@@ -417,7 +481,7 @@ def _plot(records: list[dict[str, Any]], out: Path, arms: tuple[str, ...], figur
                 label=variant,
                 lw=2 if variant == REFERENCE else 1,
             )
-            for ax, diag in zip(row[1:], DIAGNOSTICS if variant != REFERENCE else ()):  # COMA's own logs
+            for ax, diag in zip(row[1:], DIAGNOSTICS if learner_of(variant) == "coma" else ()):  # COMA's own logs
                 progress = [_progress(out / "runs" / f"{key}-{variant}-{r['seed']}.csv") for r in runs]
                 n = min(len(p[diag]) for p in progress)
                 mean = np.nanmean([p[diag][:n] for p in progress], 0)
@@ -433,7 +497,7 @@ def _plot(records: list[dict[str, Any]], out: Path, arms: tuple[str, ...], figur
             ax.set(title=f"{task}: {title.removeprefix('train/')}", xlabel="joint env steps")
     axes[0][0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    atomic_write(figure, lambda handle: fig.savefig(handle, format="png", dpi=72))
+    save_palette_png(fig, figure, dpi=72)
     plt.close(fig)
 
 
@@ -445,7 +509,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, default=Path("docs/coma_study"), help="folder of records, table and figure")
     parser.add_argument("--phases", default="train,report", help="comma-separated: train, report")
-    parser.add_argument("--tasks", default=",".join(STUDY_STEPS), help=f"comma-separated of {sorted(STUDY_STEPS)}")
+    parser.add_argument("--tasks", default=",".join(FIRST_TASKS), help=f"comma-separated of {sorted(STUDY_STEPS)}")
     parser.add_argument("--seeds", type=count_value, default=1, help="validation training seeds per variant")
     parser.add_argument("--workers", type=count_value, default=2, help="runs trained side by side")
     parser.add_argument(

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import io
 import json
 import subprocess
 import sys
@@ -131,14 +132,15 @@ def learner_settings(learner: str, task: Task) -> dict[str, Any]:
     return dict(entries[task.name])
 
 
-def _model(learner: str, venv: VecEnv, seed: int, task: Task) -> Any:
+def _model(learner: str, venv: VecEnv, seed: int, task: Task, changes: dict[str, Any] | None = None) -> Any:
+    """``learner``'s model with its benchmark entry for ``task``, ``changes`` applied over it (a study's variant)."""
     from stable_baselines3 import PPO
 
     from sb3_coma import COMA
     from sb3_coma.common.logger import use_folderless_logger
     from sb3_coma.mappo.central_value import CentralValuePolicy
 
-    settings = learner_settings(learner, task)
+    settings = {**learner_settings(learner, task), **(changes or {})}
     policy = settings.pop("policy")
     if learner == "coma":
         return COMA(policy, venv, seed=seed, device="cpu", **settings)
@@ -367,8 +369,19 @@ def _plot(records: list[dict[str, Any]], target: Path) -> None:
         ax.set_visible(False)
     fig.text(0.5, 0.005, "line: mean over seeds; band: min..max over seeds", ha="center", fontsize=8)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
-    atomic_write(target, lambda handle: fig.savefig(handle, format="png", dpi=100))
+    save_palette_png(fig, target, dpi=100)
     plt.close(fig)
+
+
+def save_palette_png(fig: Any, target: Path, dpi: int) -> None:
+    """``fig`` as a PNG of at most 128 colours, written atomically: line plots need no more, and the
+    file is about a third of the full-colour one (these figures live in git)."""
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=dpi)
+    image = Image.open(buffer).convert("RGB").convert("P", palette=Image.Palette.ADAPTIVE, colors=128)
+    atomic_write(target, lambda handle: image.save(handle, format="PNG", optimize=True))
 
 
 def seed_paired_verdict(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> str:
@@ -525,19 +538,37 @@ figure: the speed table below is).
 {tuning}
 """
 
-TUNING = (
-    "COMA's were chosen among the variants of `python -m sb3_coma.experiments.coma_study` (eight rounds, one\n"
-    "validation seed per variant) on validation seeds and episodes of simple_spread and Foraging-5x5\n"
-    "(docs/coma_study/); MAPPO and IPPO run the MAPPO paper's MPE settings, not tuned here: the tuning\n"
-    "budget is NOT equal across learners (COMA had a study, MAPPO and IPPO none)."
-)
+
+def tuning_paragraph(study: Path) -> str:
+    """How many validation runs chose each learner's settings, per task, counted from the study's round
+    tables in ``study`` (written, not typed), and whether that budget is equal across learners."""
+    from sb3_coma.experiments.coma_study import tuning_runs
+
+    runs = tuning_runs(study)
+    tasks = sorted({task for _, task in runs})
+    learners = [learner for learner in LEARNERS if learner != "random"]
+    per_learner = []
+    for learner in learners:
+        counts = [f"{task} {runs[(learner, task)]}" for task in tasks if (learner, task) in runs]
+        per_learner.append(f"{learner.upper()}: {', '.join(counts) or 'none'}")
+    equal = all(len({runs.get((learner, task), 0) for learner in learners}) == 1 for task in tasks)
+    verdict = "equal across learners" if equal else "NOT equal across learners"
+    return (
+        "Settings were chosen on validation seeds and episodes only (`python -m sb3_coma.experiments.coma_study`, "
+        f"{study}/, one table a round). Tuning budget in validation runs per task (one variant on one seed, "
+        f"counted from those tables): {'; '.join(per_learner)}. The budget is {verdict}; where a learner has "
+        "no runs, its entry was not tuned on that task (each entry's comment in the config says where it "
+        "comes from)."
+    )
 
 
-def report_phase(out: Path, episodes: int = EVAL_EPISODES) -> str:
-    """``results.md`` and ``curves.png`` from the records in ``out`` (written, not typed)."""
+def report_phase(out: Path, episodes: int = EVAL_EPISODES, study: Path | None = None) -> str:
+    """``results.md`` and ``curves.png`` from the records in ``out`` and the tuning budget from the study's
+    tables in ``study`` (default: ``coma_study`` beside ``out``), written, not typed."""
     records = _records(out)
+    tuning = tuning_paragraph(out.parent / "coma_study" if study is None else study)
     lines = [
-        HEADER.format(episodes=episodes, eval_seed=EVAL_SEED, tuning=TUNING),
+        HEADER.format(episodes=episodes, eval_seed=EVAL_SEED, tuning=tuning),
         "| task | learner | seeds | joint steps | final team return | std over seeds | per seed | "
         "last 100 training episodes | train minutes |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
