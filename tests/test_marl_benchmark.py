@@ -180,18 +180,22 @@ def test_a_report_never_shrinks_a_table_made_from_records_this_folder_lacks(tmp_
     assert coma_study.main(["--out", str(tmp_path), "--phases", "report", "--round", "critic_round"]) == 2
 
 
-def test_a_ppo_learners_variant_changes_its_benchmark_entry_and_nothing_else(tmp_path: Path) -> None:
-    """MAPPO's tuning round (issue #45, item 2): each arm is MAPPO's zoo entry with one change; the
-    report names the learner and the change."""
+def test_a_ppo_learners_variant_changes_the_mappo_papers_settings_and_nothing_else(tmp_path: Path) -> None:
+    """MAPPO's tuning round (issue #45, item 2): each arm is the MAPPO paper's MPE settings with one
+    change, fixed in the study (not read from the zoo entry, which the study's own choice may change);
+    the report names the learner and the change."""
     assert coma_study.learner_of("mappo_lr_7e-4") == "mappo" and coma_study.learner_of("minibatch_86") == "coma"
     arms = coma_study.ROUNDS["mappo_round"]
     assert arms[0] == coma_study.REFERENCE and all(coma_study.learner_of(a) == "mappo" for a in arms)
+    assert all(coma_study.learner_of(a) == "ippo" for a in coma_study.ROUNDS["ippo_round"])
     task = TASKS["simple_spread"]
     venv, _ = marl_benchmark._vec_env(task, 0, "mappo")
-    model = marl_benchmark._model("mappo", venv, 0, task, coma_study.PPO_VARIANTS["mappo_epochs_5"][1])
-    entry = learner_settings("mappo", task)
-    assert model.n_epochs == 5 and entry["n_epochs"] == 10
-    assert model.batch_size == entry["batch_size"] and model.n_steps == entry["n_steps"]
+    model = marl_benchmark._model("mappo", venv, 0, task, coma_study.ppo_settings("mappo_epochs_5"))
+    paper = coma_study.MAPPO_PAPER_MPE
+    assert model.n_epochs == 5 and paper["n_epochs"] == 10
+    assert model.batch_size == paper["batch_size"] and model.n_steps == paper["n_steps"]
+    assert model.clip_range(1.0) == 0.2  # SB3's default: the zoo entry's own clipping does not leak in
+    assert type(model.policy).__name__ == "CentralValuePolicy"
     venv.close()
     (tmp_path / "runs").mkdir()
     name = f"simple_spread-mappo_epochs_5-{coma_study.VALIDATION_TRAIN_SEED}"
@@ -200,7 +204,9 @@ def test_a_ppo_learners_variant_changes_its_benchmark_entry_and_nothing_else(tmp
     (tmp_path / "runs" / f"{name}.json").write_text(json.dumps(record))
     (tmp_path / "runs" / f"{name}.csv").write_text("time/total_timesteps,rollout/ep_rew_mean\n1,-20\n")
     text = coma_study.report_phase(tmp_path, 1, "mappo_round")
-    assert "| simple_spread | mappo_epochs_5 | not COMA: MAPPO with its benchmark settings" in text
+    assert (
+        "| simple_spread | mappo_epochs_5 | not COMA: MAPPO with the MAPPO paper's MPE settings, n_epochs=5 |" in text
+    )
     assert "n_epochs=5 | 1 | -47.00 |" in text
 
 

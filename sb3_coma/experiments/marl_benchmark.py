@@ -132,15 +132,16 @@ def learner_settings(learner: str, task: Task) -> dict[str, Any]:
     return dict(entries[task.name])
 
 
-def _model(learner: str, venv: VecEnv, seed: int, task: Task, changes: dict[str, Any] | None = None) -> Any:
-    """``learner``'s model with its benchmark entry for ``task``, ``changes`` applied over it (a study's variant)."""
+def _model(learner: str, venv: VecEnv, seed: int, task: Task, settings: dict[str, Any] | None = None) -> Any:
+    """``learner``'s model with its benchmark entry for ``task``, or with ``settings`` (constructor
+    arguments, policy included: a study's variant) instead."""
     from stable_baselines3 import PPO
 
     from sb3_coma import COMA
     from sb3_coma.common.logger import use_folderless_logger
     from sb3_coma.mappo.central_value import CentralValuePolicy
 
-    settings = {**learner_settings(learner, task), **(changes or {})}
+    settings = dict(learner_settings(learner, task) if settings is None else settings)
     policy = settings.pop("policy")
     if learner == "coma":
         return COMA(policy, venv, seed=seed, device="cpu", **settings)
