@@ -65,8 +65,9 @@ def _net_arch(net_arch: list[int] | dict[str, list[int]] | None) -> dict[str, li
 def optimizer_implementation(optimizer_class: type[th.optim.Optimizer], kwargs: dict[str, Any]) -> dict[str, Any]:
     """``kwargs`` with Adam's fused kernel when the caller chose no implementation (``fused`` /
     ``foreach``): COMA takes 10+ small updates per rollout of two networks, and on a CPU the default
-    per-tensor Adam loop costs about three times the fused step (docs/design.md, "Speed"). Same
-    algorithm; the float rounding differs from the loop's, so runs are reproducible per version."""
+    per-tensor Adam loop is the slower step (docs/design.md, "Speed"; the figure that counts is the
+    ``learn()`` speed table of docs/marl_benchmark/results.md). Same algorithm; the float rounding
+    differs from the loop's, so runs are reproducible per version."""
     chose = {"fused", "foreach"} & set(kwargs)
     if optimizer_class is th.optim.Adam and not chose:
         return {**kwargs, "fused": True}
