@@ -1201,6 +1201,15 @@ CASES: list[Case | CliCase] = [
         "must be one of",
     ),
     Case(
+        "coma-v_return-uav-policy",
+        C,
+        "COMA('UavCnnPolicy', uav_env, advantage='v_return')",
+        lambda f: _coma(f, advantage="v_return"),
+        ValueError,
+        ("advantage='v_return'", "UavCnnPolicy"),
+        "needs a policy with a state value",
+    ),
+    Case(
         "coma-clip_range-zero",
         C,
         "COMA(..., clip_range=0)",

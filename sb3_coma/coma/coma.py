@@ -132,7 +132,10 @@ class COMA(OnPolicyAlgorithm):
         Q(s, (u_-i, u'))``: ``"return"``, the TD(lambda) return of the joint action taken
         (measured to learn, docs/training.md), ``"q"``, the critic's ``Q(s, u)`` (the paper), or
         ``"gae"``, the lambda-return bootstrapped with that same baseline at every step (GAE with
-        the counterfactual baseline as the value)
+        the counterfactual baseline as the value), or ``"v_return"``, the lambda-return bootstrapped
+        with a state value ``V_i(s)`` fitted beside the critic (the policy's ``value_net``): MAPPO's
+        return, so the critic's errors at the actions taken enter the advantage only through the
+        baseline, which does not depend on the agent's own action (docs/training.md, round 11)
     :param n_critic_epochs: passes of critic minibatch updates over each rollout
     :param gamma: discount factor
     :param td_lambda: TD(lambda) trace decay for the critic targets
@@ -337,6 +340,7 @@ class COMA(OnPolicyAlgorithm):
             self.n_envs = self.env.num_envs
         self.n_copies = self.n_envs // self._agents
         self._resolve_state()
+        value_kwargs = self._state_value_kwargs()
         # A rollout must hold at least one minibatch of joint steps. The constructor rejects an
         # explicit n_steps that is too short; a model loaded onto an env with fewer copies (e.g.
         # evaluation on 2 copies of a model trained on 8) stretches its rollouts instead, so the
@@ -364,8 +368,23 @@ class COMA(OnPolicyAlgorithm):
             n_agents=self.n_agents,
             state_space=self.state_space,
             **self.policy_kwargs,
+            **value_kwargs,
         )
         self.policy = self.policy.to(self.device)
+
+    def _state_value_kwargs(self) -> dict[str, Any]:
+        """``{"state_value": True}`` for the policy when the advantage bootstraps with ``V(s)``.
+
+        :raises ValueError: a policy that cannot build one (the UAV world's image critic)
+        """
+        if self.advantage != "v_return":
+            return {}
+        if not getattr(self.policy_class, "supports_state_value", False):
+            raise ValueError(
+                f"advantage='v_return' needs a policy with a state value V(s) (MlpPolicy, CnnPolicy, "
+                f"MultiInputPolicy); {self.policy_class.__name__} has none"
+            )
+        return {"state_value": True}
 
     def _setup_lr_schedule(self) -> None:
         """SB3's actor schedule, held at 0 over the first ``critic_warmup`` of ``learn()``: rebuilt
@@ -494,9 +513,14 @@ class COMA(OnPolicyAlgorithm):
         """``V_i(s) = sum_u pi(u|o_i) Q_target(s, (u_-i, u))`` per agent of every copy in ``obs``.
 
         The other agents' actions ``u_-i`` are drawn from the current policy (no exploration),
-        so this is the on-policy value of the state the rollout stopped in.
+        so this is the on-policy value of the state the rollout stopped in. With
+        ``advantage="v_return"`` it is the fitted state value ``V_i(s)`` itself, so that its
+        returns bootstrap with ``V`` wherever they bootstrap, as MAPPO's.
         """
         joint = self._grouped(obs)
+        if self.policy.value_net is not None:
+            state = self._joint_state(joint, None if states is None else th.as_tensor(states, device=self.device))
+            return self._q_units(self.policy.state_values(joint, state))
         rows = map_obs(lambda x: x.flatten(0, 1), joint)
         probs = self.policy.action_probs(rows, th.as_tensor(masks, device=self.device))
         actions = th.multinomial(probs, 1).view(-1, self._agents)
@@ -597,19 +621,24 @@ class COMA(OnPolicyAlgorithm):
         return map_obs(lambda x: x.flatten(0, 1), obs)
 
     def _q_units(self, q: th.Tensor) -> th.Tensor:
-        """The critic's output in units of return: with ``normalize_q`` it learns ``Q`` standardised
-        by its targets' running mean and standard deviation, which this undoes."""
+        """The critic's output in units of return: with ``normalize_q`` it learns ``Q`` (and ``V``)
+        standardised by its targets' running mean and standard deviation, which this undoes."""
         if not self.normalize_q:
             return q
         return q * float(np.sqrt(self.q_scale.var + 1e-8)) + float(self.q_scale.mean)
 
+    def _standardised(self, returns: th.Tensor) -> th.Tensor:
+        """``returns`` in the critic's units (standardised by the running statistics with ``normalize_q``)."""
+        if not self.normalize_q:
+            return returns
+        return (returns - float(self.q_scale.mean)) / float(np.sqrt(self.q_scale.var + 1e-8))
+
     def _critic_targets(self, targets: th.Tensor) -> th.Tensor:
         """What the critic's output is fitted to: the targets, standardised with ``normalize_q``
         (after the running statistics took this rollout's targets in)."""
-        if not self.normalize_q:
-            return targets
-        self.q_scale.update(targets.flatten().cpu().numpy().astype(np.float64))
-        return (targets - float(self.q_scale.mean)) / float(np.sqrt(self.q_scale.var + 1e-8))
+        if self.normalize_q:
+            self.q_scale.update(targets.flatten().cpu().numpy().astype(np.float64))
+        return self._standardised(targets)
 
     def _q(self, data: dict[str, Any], idx: th.Tensor, target: bool = False) -> th.Tensor:
         """The critic's output ``(b, N, n)`` for ``Q(s, u_-i, .)`` on joint steps ``idx`` of the
@@ -617,6 +646,31 @@ class COMA(OnPolicyAlgorithm):
         obs = self._take(data["obs"], idx)
         states = None if data["states"] is None else data["states"][idx]
         return self.policy.q_values(obs, self._joint_state(obs, states), data["actions"][idx], target=target)
+
+    def _v(self, data: dict[str, Any], idx: th.Tensor) -> th.Tensor:
+        """The state value ``V_i(s)`` ``(b, N)`` on joint steps ``idx`` (critic's units)."""
+        obs = self._take(data["obs"], idx)
+        states = None if data["states"] is None else data["states"][idx]
+        return self.policy.state_values(obs, self._joint_state(obs, states))
+
+    @th.no_grad()
+    def _state_value_returns(self) -> tuple[th.Tensor, th.Tensor] | None:
+        """``advantage="v_return"``: the state values of collection time and the TD(lambda) returns
+        bootstrapped with them, each ``(T * E, N)`` in units of return (``None`` otherwise).
+
+        Read before this rollout's targets move the running statistics, in the units ``V`` was
+        trained in; the rollout's last row bootstraps with ``V`` too (:meth:`_expected_target_values`)."""
+        if self.advantage != "v_return":
+            return None
+        data = self.rollout_buffer.time_major()
+        T, E, N = data["actions"].shape
+        flat = self.rollout_buffer.joint_steps()
+        values = th.cat([self._q_units(self._v(flat, idx)) for idx in th.arange(T * E).split(_SCORING_CHUNK)]).view(
+            T, E, N
+        )
+        next_values = th.cat([values[1:], data["bootstrap"][None]], dim=0)
+        returns = td_lambda_targets(data["rewards"], data["dones"], next_values, self.gamma, self.td_lambda)
+        return values.flatten(0, 1), returns.flatten(0, 1)
 
     @th.no_grad()
     def _td_targets(self) -> th.Tensor:
@@ -660,13 +714,14 @@ class COMA(OnPolicyAlgorithm):
             self._n_target_updates += 1
 
     @th.no_grad()
-    def _advantages(self, data: dict[str, Any], q_all: th.Tensor, targets: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    def _advantages(self, data: dict[str, Any], q_all: th.Tensor, returns: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """COMA's advantage ``(T * E, N)`` per agent and the log-probability of the taken action
         under the policy that collected the rollout.
 
         ``A_i = X - b_i`` with the counterfactual baseline ``b_i = sum_u' pi(u'|o_i) Q(s, (u_-i, u'))``
-        over valid actions; ``X`` is the TD(lambda) return of the joint action taken
-        (``advantage="return"``) or the critic's ``Q(s, u)`` (``"q"``, the paper).
+        over valid actions; ``X`` is ``returns``, the TD(lambda) return of the joint action taken
+        (``advantage="return"``; bootstrapped with ``V_i(s)`` for ``"v_return"``), or the critic's
+        ``Q(s, u)`` (``"q"``, the paper).
         """
         mask, actions = data["mask"], data["actions"]
         logits = self.policy.masked_logits(self._rows(data["obs"]), mask.flatten(0, 1))
@@ -675,7 +730,7 @@ class COMA(OnPolicyAlgorithm):
         if self.advantage == "gae":
             advantage = self._gae_over_baseline(baseline)
         else:
-            advantage = targets - baseline if self.advantage == "return" else q_advantage
+            advantage = q_advantage if self.advantage == "q" else returns - baseline
         return advantage, log_probs.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
 
     def _gae_over_baseline(self, baseline: th.Tensor) -> th.Tensor:
@@ -734,42 +789,21 @@ class COMA(OnPolicyAlgorithm):
         update_learning_rate(self.policy.critic_optimizer, self.critic_lr_schedule(progress))
 
         targets = self._td_targets()
+        state_value = self._state_value_returns()
         data = self.rollout_buffer.joint_steps()
         actions = data["actions"]
-        n_joint = actions.shape[0]
         q_all = th.zeros(*actions.shape, self.policy.n_actions, device=self.device)
-
         if self.advantage_before_critic_update:  # in the units the critic was trained in (normalize_q):
             with th.no_grad():  # before this rollout's targets move the running statistics
-                for idx in th.arange(n_joint, device=self.device).split(_SCORING_CHUNK):
+                for idx in th.arange(actions.shape[0], device=self.device).split(_SCORING_CHUNK):
                     q_all[idx] = self._q_units(self._q(data, idx))
         fitted = self._critic_targets(targets)
-        critic_parameters = list(self.policy.critic.parameters())
-        actor_parameters = list(self.policy.actor.parameters())
-        critic_losses = []
-        for epoch in range(self.n_critic_epochs):
-            for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
-                q = self._q(data, idx)
-                q_taken = q.gather(-1, actions[idx].unsqueeze(-1)).squeeze(-1)
-                loss = F.mse_loss(q_taken, fitted[idx])
-                self._critic_step(loss, critic_parameters)
-                critic_losses.append(loss.item())
-                if epoch == self.n_critic_epochs - 1 and not self.advantage_before_critic_update:
-                    q_all[idx] = self._q_units(q.detach())
+        fitted_values = None if state_value is None else self._standardised(state_value[1])
+        critic_losses = self._fit_critic(data, fitted, fitted_values, q_all)
 
-        advantage, old_log_prob = self._advantages(data, q_all, targets)
-        actor_losses, entropies, clipped = [], [], []
-        for _ in range(self.n_epochs):
-            for idx in self.rollout_buffer.minibatch_indices(n_joint, self.batch_size):
-                loss, entropy, clip_fraction = self._actor_loss(data, idx, advantage[idx], old_log_prob[idx])
-                self._check_finite("actor", loss)
-                self.policy.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                th.nn.utils.clip_grad_norm_(actor_parameters, self.max_grad_norm)
-                self.policy.optimizer.step()
-                actor_losses.append(loss.item())
-                entropies.append(entropy)
-                clipped.append(clip_fraction)
+        returns = targets if state_value is None else state_value[1]
+        advantage, old_log_prob = self._advantages(data, q_all, returns)
+        actor_losses, entropies, clipped = self._fit_actor(data, advantage, old_log_prob)
         self._n_updates += 1
 
         self.logger.record("train/clip_fraction", float(np.mean(clipped)))
@@ -785,6 +819,9 @@ class COMA(OnPolicyAlgorithm):
             "train/explained_variance",
             float(explained_variance(q_taken_flat.flatten().cpu().numpy(), targets.flatten().cpu().numpy())),
         )
+        if state_value is not None:
+            values, value_returns = (x.flatten().cpu().numpy() for x in state_value)
+            self.logger.record("train/value_explained_variance", float(explained_variance(values, value_returns)))
         self.logger.record("train/epsilon", self.exploration_rate)
         self.logger.record("train/kl_weight", self._kl_weight())
         self.logger.record("train/entropy", float(np.mean(entropies)))
@@ -795,6 +832,47 @@ class COMA(OnPolicyAlgorithm):
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/learning_rate", self.lr_schedule(progress))
         self.logger.record("train/critic_learning_rate", self.critic_lr_schedule(progress))
+
+    def _fit_critic(
+        self, data: dict[str, Any], fitted: th.Tensor, fitted_values: th.Tensor | None, q_all: th.Tensor
+    ) -> list[float]:
+        """``n_critic_epochs`` of minibatch updates of Q on the taken joint actions (and of ``V``
+        with ``advantage="v_return"``, on the same minibatches by the same optimizer); without
+        ``advantage_before_critic_update``, the last epoch fills ``q_all``. Returns the losses."""
+        actions = data["actions"]
+        parameters = self.policy.critic_parameters()
+        losses = []
+        for epoch in range(self.n_critic_epochs):
+            for idx in self.rollout_buffer.minibatch_indices(actions.shape[0], self.batch_size):
+                q = self._q(data, idx)
+                q_taken = q.gather(-1, actions[idx].unsqueeze(-1)).squeeze(-1)
+                loss = F.mse_loss(q_taken, fitted[idx])
+                if fitted_values is not None:
+                    loss = loss + F.mse_loss(self._v(data, idx), fitted_values[idx])
+                self._critic_step(loss, parameters)
+                losses.append(loss.item())
+                if epoch == self.n_critic_epochs - 1 and not self.advantage_before_critic_update:
+                    q_all[idx] = self._q_units(q.detach())
+        return losses
+
+    def _fit_actor(
+        self, data: dict[str, Any], advantage: th.Tensor, old_log_prob: th.Tensor
+    ) -> tuple[list[float], list[float], list[float]]:
+        """``n_epochs`` of actor minibatch updates; returns the losses, entropies and clip fractions."""
+        parameters = list(self.policy.actor.parameters())
+        losses, entropies, clipped = [], [], []
+        for _ in range(self.n_epochs):
+            for idx in self.rollout_buffer.minibatch_indices(advantage.shape[0], self.batch_size):
+                loss, entropy, clip_fraction = self._actor_loss(data, idx, advantage[idx], old_log_prob[idx])
+                self._check_finite("actor", loss)
+                self.policy.optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
+                self.policy.optimizer.step()
+                losses.append(loss.item())
+                entropies.append(entropy)
+                clipped.append(clip_fraction)
+        return losses, entropies, clipped
 
     # ----------------------------------------------------------- logging
     def dump_logs(self, iteration: int = 0) -> None:

@@ -197,12 +197,21 @@ class COMAPolicy(BasePolicy):
     :param ortho_init: orthogonal initialisation as in SB3's A2C/PPO (0.01 on the actor's output,
         so the first policy is near-uniform over valid actions)
     :param normalize_images: divide image observations by 255 (SB3's convention)
+    :param state_value: also build ``value_net``, a per-agent state value ``V_i(s)`` (the critic's
+        input without the others' actions, one output) that COMA's ``advantage="v_return"``
+        bootstraps its returns with; trained by the critic's optimizer. COMA sets it from its
+        ``advantage``
     """
 
     #: The shared actor, the critic and its target (world-specific policies build their own modules).
     actor: nn.Module
     critic: nn.Module
     critic_target: nn.Module
+    #: ``V_i(s)`` (``state_value=True``), else ``None`` (an instance attribute: a class-level default
+    #: would hide the registered module from ``nn.Module``'s attribute lookup).
+    value_net: nn.Module | None
+    #: Whether the policy can build ``value_net`` (a world-specific critic input has no generic ``V``).
+    supports_state_value: bool = True
 
     def __init__(
         self,
@@ -223,6 +232,7 @@ class COMAPolicy(BasePolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
         ortho_init: bool = True,
         normalize_images: bool = True,
+        state_value: bool = False,
     ) -> None:
         super().__init__(
             observation_space,
@@ -242,6 +252,7 @@ class COMAPolicy(BasePolicy):
         self.critic_features_extractor_kwargs = dict(critic_features_extractor_kwargs or {})
         self.n_actions = int(action_space.n)
         self.ortho_init = ortho_init
+        self.state_value = bool(state_value)
         #: What the actor reads (the observation without ``state`` / ``action_mask``).
         self.actor_space = actor_observation_space(observation_space)
         extractor = self.features_extractor_class
@@ -277,16 +288,32 @@ class COMAPolicy(BasePolicy):
             obs_extractor = self.features_extractor_class(self.actor_space, **self.features_extractor_kwargs)
         extra = self.n_agents + self.n_agents * self.n_actions
         critic = CriticNet(self._state_extractor(), obs_extractor, extra, qf, self.activation_fn, self.n_actions)
+        value_net = self._value_net() if self.state_value else None
         if self.ortho_init:
-            for module in (actor, critic):
-                module.apply(partial(BasePolicy.init_weights, gain=math.sqrt(2)))
+            for module in (actor, critic, value_net):
+                if module is not None:
+                    module.apply(partial(BasePolicy.init_weights, gain=math.sqrt(2)))
             nn.init.orthogonal_(actor.head.weight, gain=0.01)
             nn.init.orthogonal_(critic.head.weight, gain=1.0)
-        self.actor, self.critic = actor, critic
+            if value_net is not None:
+                nn.init.orthogonal_(value_net.head.weight, gain=1.0)
+        self.actor, self.critic, self.value_net = actor, critic, value_net
         self._finish_build(lr_schedule, critic_lr_schedule)
+
+    def _value_net(self) -> CriticNet:
+        """``V_i(s)``: the critic's network with the agent's one-hot id in place of id and the
+        others' actions, and one output (its own extractors: V and Q do not share weights)."""
+        obs_extractor = None
+        if self.critic_obs:
+            obs_extractor = self.features_extractor_class(self.actor_space, **self.features_extractor_kwargs)
+        return CriticNet(
+            self._state_extractor(), obs_extractor, self.n_agents, self.net_arch["qf"], self.activation_fn, 1
+        )
 
     def _finish_build(self, lr_schedule: Schedule, critic_lr_schedule: Schedule) -> None:
         """Target critic (a frozen copy) and the two optimizers."""
+        if not hasattr(self, "value_net"):  # a world-specific _build builds none
+            self.value_net = None
         self.critic_target = copy.deepcopy(self.critic)
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
@@ -296,8 +323,13 @@ class COMAPolicy(BasePolicy):
             self.actor.parameters(), lr=lr_schedule(1), **kwargs
         )
         self.critic_optimizer = self.optimizer_class(  # type: ignore[call-arg]
-            self.critic.parameters(), lr=critic_lr_schedule(1), **kwargs
+            self.critic_parameters(), lr=critic_lr_schedule(1), **kwargs
         )
+
+    def critic_parameters(self) -> list[nn.Parameter]:
+        """What the critic's optimizer trains: the critic's parameters and ``value_net``'s, if any."""
+        modules = [self.critic] if self.value_net is None else [self.critic, self.value_net]
+        return [p for module in modules for p in module.parameters()]
 
     def _shared_constructor_parameters(self) -> dict[str, Any]:
         """What every COMA policy saves to be rebuilt (``load``); subclasses add their own options."""
@@ -323,12 +355,15 @@ class COMAPolicy(BasePolicy):
             "net_arch": self.net_arch,
             "activation_fn": self.activation_fn,
             "critic_obs": self.critic_obs,
+            "state_value": self.state_value,
         }
 
     def set_training_mode(self, mode: bool) -> None:
         """Train/eval mode for actor and critic; the target critic always stays in eval mode."""
         self.actor.train(mode)
         self.critic.train(mode)
+        if self.value_net is not None:
+            self.value_net.train(mode)
         self.training = mode
 
     def log_values(self) -> dict[str, float]:
@@ -370,6 +405,15 @@ class COMAPolicy(BasePolicy):
         return self.act(observation, None if mask is None else mask.float(), deterministic=deterministic)
 
     # ------------------------------------------------------------ critic
+    def _state_rows(self, obs: PyTorchObs, state: th.Tensor) -> tuple[Any, Any]:
+        """The preprocessed state and (``critic_obs``) own observation of every agent row, ``B * N``."""
+        assert self.state_space is not None
+        flat_state = preprocess_obs(state.flatten(0, 1), self.state_space, self.normalize_images)
+        own = None
+        if self.critic_obs:
+            own = self._actor_input(map_obs(lambda x: x.flatten(0, 1), obs))
+        return flat_state, own
+
     def critic_features(self, obs: PyTorchObs, state: th.Tensor, actions: th.Tensor) -> tuple[Any, ...]:
         """The critic's inputs for every agent of every joint step, rows ``B * N``.
 
@@ -380,12 +424,16 @@ class COMAPolicy(BasePolicy):
         batch, n_agents = actions.shape
         ids = th.eye(n_agents, device=actions.device).expand(batch, n_agents, n_agents)
         extra = th.cat([ids, one_hot_others(actions, self.n_actions)], dim=2).flatten(0, 1)
-        assert self.state_space is not None
-        flat_state = preprocess_obs(state.flatten(0, 1), self.state_space, self.normalize_images)
-        own = None
-        if self.critic_obs:
-            own = self._actor_input(map_obs(lambda x: x.flatten(0, 1), obs))
-        return flat_state, own, extra
+        return (*self._state_rows(obs, state), extra)
+
+    def state_values(self, obs: PyTorchObs, state: th.Tensor) -> th.Tensor:
+        """``V_i(s)`` of every agent of every joint step, ``(B, N)``, from joint observations
+        ``(B, N, ...)`` and the state per agent row (needs ``state_value=True``)."""
+        if self.value_net is None:
+            raise RuntimeError(f"{type(self).__name__} was built without a state value (state_value=False)")
+        batch, n_agents = state.shape[:2]
+        ids = th.eye(n_agents, device=state.device).expand(batch, n_agents, n_agents).flatten(0, 1)
+        return self.value_net(*self._state_rows(obs, state), ids).view(batch, n_agents)
 
     def q_values(self, obs: PyTorchObs, state: th.Tensor, actions: th.Tensor, target: bool = False) -> th.Tensor:
         """``Q(s, u_-i, .)`` for every agent of every joint step: ``(B, N, n)`` in one pass."""

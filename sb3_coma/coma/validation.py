@@ -142,8 +142,9 @@ def check_device(device: Any) -> None:
 _ACCELERATORS = {"cuda": "CUDA", "mps": "MPS (Apple GPU)"}
 
 #: COMA's advantage estimators: ``"return"`` (TD(lambda) return minus the counterfactual baseline,
-#: the default) and ``"q"`` (the paper's ``Q(s, u)`` minus the baseline).
-ADVANTAGES = ("return", "q", "gae")
+#: the default), ``"q"`` (the paper's ``Q(s, u)`` minus the baseline), ``"gae"`` (the return
+#: bootstrapped with the baseline) and ``"v_return"`` (bootstrapped with a fitted state value).
+ADVANTAGES = ("return", "q", "gae", "v_return")
 
 
 def _start(rate: Any) -> Any:

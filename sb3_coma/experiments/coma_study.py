@@ -184,6 +184,40 @@ MINIBATCH_ROUND: dict[str, dict[str, Any]] = {
     "minibatch_86_before_lambda_95_q_norm": {**VARIANTS["minibatch_86_before"], "td_lambda": 0.95, "normalize_q": True}
 }
 VARIANTS.update(MINIBATCH_ROUND)
+#: Round 11 (after rounds 2-8 found a fitted critic hurting wherever the return bootstraps from its Q,
+#: and the benchmark's curves showing simple_spread's entry falling below random for its first third):
+#: the return bootstrapped with a state value V_i(s) fitted beside Q (``advantage="v_return"``, MAPPO's
+#: return), so Q enters the advantage only through the counterfactual baseline; with the critic's two
+#: epochs (the default) and with ten (MAPPO fits its V with ten).
+STATE_VALUE_ROUND: dict[str, dict[str, Any]] = {
+    "before_lambda_95_q_norm_v_return": {**VARIANTS["before_lambda_95_q_norm"], "advantage": "v_return"},
+    "before_lambda_95_q_norm_v_return_critic_epochs_10": {
+        **VARIANTS["before_lambda_95_q_norm"],
+        "advantage": "v_return",
+        "n_critic_epochs": 10,
+    },
+}
+VARIANTS.update(STATE_VALUE_ROUND)
+#: The probe of round 11 (``coma_probes.PROBES``: not a COMA): the same settings, with V_i(s) itself as
+#: the baseline, MAPPO's advantage, so that beside ``before_lambda_95_q_norm_v_return`` only the baseline
+#: differs.
+VARIANTS["before_lambda_95_q_norm_v_baseline"] = dict(STATE_VALUE_ROUND["before_lambda_95_q_norm_v_return"])
+#: Round 12 (after round 11's probe found MAPPO's own advantage no better than COMA's inside COMA's
+#: trainer): how the trainer steps, where it differs from SB3's PPO under MAPPO: the gradient-norm clip
+#: (COMA 10, PPO 0.5), and with it PPO's 12 minibatches a rollout (86 joint steps) and Adam's eps 1e-5.
+_PPO_STEPS = {"max_grad_norm": 0.5, "batch_size": 86, "policy_kwargs": {"optimizer_kwargs": {"eps": 1e-5}}}
+STEP_ROUND: dict[str, dict[str, Any]] = {
+    "before_lambda_95_q_norm_grad_0.5": {**VARIANTS["before_lambda_95_q_norm"], "max_grad_norm": 0.5},
+    "before_lambda_95_q_norm_ppo_steps": {**VARIANTS["before_lambda_95_q_norm"], **_PPO_STEPS},
+    "before_lambda_95_q_norm_v_baseline_ppo_steps": {**VARIANTS["before_lambda_95_q_norm_v_baseline"], **_PPO_STEPS},
+}
+VARIANTS.update(STEP_ROUND)
+#: Variants flown by a class of :mod:`sb3_coma.experiments.coma_probes` (named, so that importing the
+#: study loads no torch) instead of :class:`~sb3_coma.COMA`.
+PROBES: dict[str, str] = {
+    "before_lambda_95_q_norm_v_baseline": "StateValueBaselineCOMA",
+    "before_lambda_95_q_norm_v_baseline_ppo_steps": "StateValueBaselineCOMA",
+}
 #: The reference every variant is measured against: MAPPO with the MAPPO paper's MPE settings (not COMA;
 #: its benchmark entry until MAPPO's own round changed simple_spread's).
 REFERENCE = "mappo"
@@ -231,6 +265,9 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     TIME_LIMIT_ROUND,
                     MONTE_CARLO_ROUND,
                     MINIBATCH_ROUND,
+                    STATE_VALUE_ROUND,
+                    STEP_ROUND,
+                    PROBES,
                 )
             )
         ],
@@ -253,6 +290,26 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "ippo_round": tuple(name for name, (learner, _) in PPO_VARIANTS.items() if learner == "ippo"),
     # the choice between MAPPO's entry and the two variants ahead of it in its round, on three seeds
     "mappo_choice_round": (REFERENCE, "mappo_epochs_15", "mappo_clip_0.1"),
+    # the same choice on Foraging-5x5 (--tasks lbf --seeds 3): the three variants ahead there
+    "mappo_foraging_choice_round": (REFERENCE, "mappo_epochs_15", "mappo_lr_7e-4", "mappo_ent_0"),
+    # the choice between IPPO's entry and the variant ahead of it in its round, on three seeds
+    "ippo_choice_round": ("ippo", "ippo_epochs_15"),
+    # simple_spread's entry against its return bootstrapped with V(s), on three seeds (--seeds 3)
+    "state_value_round": (
+        "before_lambda_95_q_norm",
+        *STATE_VALUE_ROUND,
+        "before_lambda_95_q_norm_v_baseline",
+        REFERENCE,
+        "mappo_clip_0.1",
+    ),
+    # how COMA's trainer steps (round 12), beside the entry and round 11's probe, on three seeds
+    "step_round": (
+        "before_lambda_95_q_norm",
+        "before_lambda_95_q_norm_v_baseline",
+        *STEP_ROUND,
+        REFERENCE,
+        "mappo_clip_0.1",
+    ),
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
@@ -308,7 +365,10 @@ def run_variant(task_key: str, variant: str, seed: int, folder: Path) -> dict[st
     if learner != "coma":
         model = _model(learner, venv, seed, task, ppo_settings(variant))
     else:
-        model = COMA("MlpPolicy", venv, seed=seed, device="cpu", **VARIANTS[variant])
+        from sb3_coma.experiments import coma_probes
+
+        algorithm = getattr(coma_probes, PROBES[variant]) if variant in PROBES else COMA
+        model = algorithm("MlpPolicy", venv, seed=seed, device="cpu", **VARIANTS[variant])
     model.set_logger(configure(str(folder), ["csv"]))
     model.learn(_joint_to_learn(learner, task, recorder.n_agents))
     venv.close()
@@ -429,6 +489,8 @@ def report_phase(out: Path, seeds: int, round_name: str = "study") -> str:
             shown_late = {d: "-" if np.isnan(v) else f"{v:.3g}" for d, v in late.items()}
             dip = " / ".join(f"{np.mean(v):.1f}" for v in zip(*(_dip(p) for p in diag)))
             shown = ", ".join(f"{k}={v}" for k, v in VARIANTS.get(variant, {}).items()) or "defaults"
+            if variant in PROBES:
+                shown = f"probe, not COMA: {PROBES[variant]} (V_i(s) as the baseline), {shown}"
             learner = learner_of(variant)
             if learner != "coma":
                 changed = "".join(f", {k}={v}" for k, v in PPO_VARIANTS[variant][1].items())

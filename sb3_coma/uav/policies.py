@@ -308,6 +308,8 @@ class UavCOMAPolicy(COMAPolicy):
 
     actor: _Actor
     critic: _Head
+    #: The UAV critic reads the others' actions drawn into its image: it has no generic ``V(s)``.
+    supports_state_value = False
 
     def __init__(
         self,
