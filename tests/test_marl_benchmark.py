@@ -84,7 +84,29 @@ def test_the_study_never_uses_the_reported_seeds() -> None:
     episodes from its own evaluation seed."""
     assert coma_study.VALIDATION_TRAIN_SEED >= 100 and coma_study.VALIDATION_EVAL_SEED != marl_benchmark.EVAL_SEED
     assert coma_study.VARIANTS["library"] == {} and "paper" in coma_study.VARIANTS
-    assert set(coma_study.STUDY_STEPS) <= set(TASKS)
+    for key in coma_study.STUDY_STEPS:  # each study task is a benchmark task, for part or all of its budget
+        task = coma_study.study_task(key)
+        base = TASKS[key.removesuffix(coma_study.WHOLE_BUDGET_SUFFIX)]
+        assert task.maker is base.maker and task.joint_steps <= base.joint_steps
+
+
+def test_a_whole_budget_task_is_its_benchmark_task_named_apart_and_counted_as_it(tmp_path: Path) -> None:
+    whole = coma_study.study_task("simple_spread_full")
+    half = coma_study.study_task("simple_spread")
+    assert whole.joint_steps == TASKS["simple_spread"].joint_steps == 2 * half.joint_steps
+    assert whole.name == "simple_spread (whole budget)" and whole.key == "simple_spread_full"
+    (tmp_path / "runs").mkdir()
+    for task, steps in (("simple_spread", half), ("simple_spread_full", whole)):
+        name = f"{task}-before_lambda_95_q_norm-{coma_study.VALIDATION_TRAIN_SEED}"
+        record = {"task": steps.name, "variant": "before_lambda_95_q_norm", "seed": coma_study.VALIDATION_TRAIN_SEED}
+        record |= {"validation_return": -50.0, "seconds": 60.0, "curve": [[0, -60.0], [1000, -50.0]]}
+        (tmp_path / "runs" / f"{name}.json").write_text(json.dumps(record))
+        (tmp_path / "runs" / f"{name}.csv").write_text("time/total_timesteps,rollout/ep_rew_mean\n1,-20\n")
+    text = coma_study.report_phase(tmp_path, 1, "whole_budget_round")
+    assert "| simple_spread | before_lambda_95_q_norm |" in text
+    assert "| simple_spread (whole budget) | before_lambda_95_q_norm |" in text
+    # the budget counts runs per task: the whole-budget run is one more on simple_spread
+    assert coma_study.tuning_runs(tmp_path) == {("coma", "simple_spread"): 2}
 
 
 def test_a_record_of_other_settings_is_refused_before_training(tmp_path: Path) -> None:
@@ -189,13 +211,18 @@ def test_a_ppo_learners_variant_changes_the_mappo_papers_settings_and_nothing_el
     assert arms[0] == coma_study.REFERENCE and all(coma_study.learner_of(a) == "mappo" for a in arms)
     assert all(coma_study.learner_of(a) == "ippo" for a in coma_study.ROUNDS["ippo_round"])
     task = TASKS["simple_spread"]
-    venv, _ = marl_benchmark._vec_env(task, 0, "mappo")
-    model = marl_benchmark._model("mappo", venv, 0, task, coma_study.ppo_settings("mappo_epochs_5"))
+    model, venv, _ = marl_benchmark._trainee("mappo", task, 0, coma_study.ppo_settings("mappo_epochs_5"))
     paper = coma_study.MAPPO_PAPER_MPE
     assert model.n_epochs == 5 and paper["n_epochs"] == 10
     assert model.batch_size == paper["batch_size"] and model.n_steps == paper["n_steps"]
     assert model.clip_range(1.0) == 0.2  # SB3's default: the zoo entry's own clipping does not leak in
-    assert type(model.policy).__name__ == "CentralValuePolicy"
+    assert type(model.policy).__name__ == "CentralValuePolicy" and model.get_vec_normalize_env() is None
+    venv.close()
+    # the value-normalisation arm: SB3's VecNormalize on the rewards alone, the paper's settings otherwise
+    model, venv, _ = marl_benchmark._trainee("mappo", task, 0, coma_study.ppo_settings("mappo_norm_reward"))
+    normalizer = model.get_vec_normalize_env()
+    assert normalizer is venv and normalizer.norm_reward and not normalizer.norm_obs
+    assert model.n_epochs == paper["n_epochs"] and model.clip_range(1.0) == 0.2
     venv.close()
     (tmp_path / "runs").mkdir()
     name = f"simple_spread-mappo_epochs_5-{coma_study.VALIDATION_TRAIN_SEED}"
@@ -226,3 +253,59 @@ def test_the_tuning_budget_is_counted_from_the_round_tables(tmp_path: Path) -> N
     text = marl_benchmark.tuning_paragraph(tmp_path)
     assert "COMA: simple_spread 3; MAPPO: simple_spread 2; IPPO: none." in text
     assert "The budget is NOT equal across learners" in text
+
+
+def test_an_entrys_normalize_key_is_read_as_rl_zoo_reads_it() -> None:
+    split = marl_benchmark.split_normalize
+    entry = {"policy": "MlpPolicy", "n_epochs": 10}
+    assert split(entry) == (entry, None)
+    assert split({**entry, "normalize": False}) == (entry, None)
+    assert split({**entry, "normalize": True}) == (entry, {})
+    as_zoo_writes_it = "{'norm_obs': False, 'norm_reward': True}"
+    assert split({**entry, "normalize": as_zoo_writes_it}) == (entry, {"norm_obs": False, "norm_reward": True})
+    # the discount of the normaliser's running return is the learner's own
+    with_gamma = {**entry, "gamma": 0.95, "normalize": {"norm_obs": False}}
+    assert split(with_gamma) == ({**entry, "gamma": 0.95}, {"norm_obs": False, "gamma": 0.95})
+
+
+def test_a_normalized_entry_trains_on_scaled_rewards_and_is_scored_on_the_envs_own() -> None:
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    task = marl_benchmark.dataclasses.replace(TASKS["simple_spread"], joint_steps=256)
+    settings = {"policy": "CentralValuePolicy", "n_steps": 32, "batch_size": 64, "normalize": True}
+    model, venv, recorder = marl_benchmark._trainee("mappo", task, 0, settings)
+    assert isinstance(venv, VecNormalize) and model.get_vec_normalize_env() is venv
+    model.learn(256 * recorder.n_agents)
+    assert venv.ret_rms.count > 1 and venv.obs_rms["state"].count > 1  # the statistics were fitted
+    assert all(ret < 0 for _, ret in recorder.episodes)  # the recorder sees MPE's own (negative) rewards
+    statistics = venv.obs_rms["state"].mean.copy()
+    returns = marl_benchmark.evaluate_team_return(task, "mappo", model, episodes=2, seed=7)
+    assert len(returns) == 2 and all(ret < 0 for ret in returns)
+    # scoring froze a copy of the statistics: the model's own are untouched, and still training
+    assert (venv.obs_rms["state"].mean == statistics).all() and venv.training and venv.norm_reward
+    venv.close()
+
+
+def test_the_tables_word_on_actor_depth_holds_for_the_benchmarks_entries() -> None:
+    """results.md says COMA's and IPPO's actors have two 64-unit tanh layers and MAPPO's one more."""
+    from torch import nn
+
+    def hidden_layers(model: Any) -> list[int]:
+        policy = model.policy
+        if hasattr(policy, "actor"):  # COMA: its actor network, less the output head
+            modules = [m for m in policy.actor.modules() if isinstance(m, nn.Linear)][:-1]
+        else:  # SB3's PPO: the actor's extractor, then its MlpExtractor branch
+            modules = [
+                m
+                for part in (policy.pi_features_extractor, policy.mlp_extractor.policy_net)
+                for m in part.modules()
+                if isinstance(m, nn.Linear)
+            ]
+        return [m.out_features for m in modules]
+
+    task = TASKS["simple_spread"]
+    for learner, expected in (("coma", [64, 64]), ("ippo", [64, 64]), ("mappo", [64, 64, 64])):
+        model, venv, _ = marl_benchmark._trainee(learner, task, 0)
+        assert hidden_layers(model) == expected, learner
+        venv.close()
+    assert "MAPPO's (`CentralValuePolicy`) reads its\nkeys through one more" in marl_benchmark.HEADER

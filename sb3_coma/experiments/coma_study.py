@@ -26,6 +26,7 @@ import shutil
 import sys
 import tempfile
 import time
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -35,8 +36,9 @@ import numpy as np
 from sb3_coma.common.checkpoints import atomic_write_text
 from sb3_coma.experiments.marl_benchmark import (
     TASKS,
+    Task,
     _joint_to_learn,
-    _model,
+    _trainee,
     _vec_env,
     evaluate_team_return,
     save_palette_png,
@@ -212,11 +214,57 @@ STEP_ROUND: dict[str, dict[str, Any]] = {
     "before_lambda_95_q_norm_v_baseline_ppo_steps": {**VARIANTS["before_lambda_95_q_norm_v_baseline"], **_PPO_STEPS},
 }
 VARIANTS.update(STEP_ROUND)
+#: Round 13 (after round 12 found neither the gradient clip nor PPO's minibatches closing the gap, and the
+#: logs showing the entry's policy losing entropy faster than MAPPO's in the first tenth of training and
+#: its return falling further): the actor's step size, which no round had changed: PPO's clipping at
+#: 0.1 (MAPPO's best change in its own round) and a third of the actor's learning rate (1e-4).
+ACTOR_STEP_ROUND: dict[str, dict[str, Any]] = {
+    "before_lambda_95_q_norm_clip_0.1": {**VARIANTS["before_lambda_95_q_norm"], "clip_range": 0.1},
+    "before_lambda_95_q_norm_lr_1e-4": {**VARIANTS["before_lambda_95_q_norm"], "learning_rate": 1e-4},
+}
+VARIANTS.update(ACTOR_STEP_ROUND)
+#: Round 15 (after reading MAPPO's policy: SB3's actor behind :class:`~sb3_coma.mappo.central_value.KeysExtractor`,
+#: whose own tanh layer comes before PPO's two 64-unit layers, so MAPPO's actor has three hidden layers
+#: where COMA's and IPPO's have two, and on simple_spread both two-layer learners sit about 20 below
+#: MAPPO in the benchmark): the entry with MAPPO's actor depth, three 64-unit tanh layers.
+ACTOR_DEPTH_ROUND: dict[str, dict[str, Any]] = {
+    "before_lambda_95_q_norm_pi_64x3": {
+        **VARIANTS["before_lambda_95_q_norm"],
+        "policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}},
+    },
+}
+VARIANTS.update(ACTOR_DEPTH_ROUND)
+#: Round 16 (after MAPPO's value-normalisation arm showed MAPPO falling as COMA does once its V fits
+#: early: its entropy drops within the first tenth of training, its return with it; MAPPO's own V, fitted
+#: on raw returns, explains nothing for the first fifth, and its entropy falls slowly): a larger entropy
+#: bonus, to hold COMA's policy open while its fitted critic sharpens the advantage early.
+ENTROPY_HOLD_ROUND: dict[str, dict[str, Any]] = {
+    f"before_lambda_95_q_norm_ent_{value}": {**VARIANTS["before_lambda_95_q_norm"], "ent_coef": value}
+    for value in (0.03, 0.1)
+}
+VARIANTS.update(ENTROPY_HOLD_ROUND)
+#: The probe of round 14 (after round 12's probe with PPO's stepping, whose actor then differs from
+#: MAPPO's in nothing but the fitted V_i it reads its advantage from, still trailing MAPPO): that V_i
+#: fitted the way SB3's PPO fits MAPPO's, in the return's own units (no ``normalize_q``), at the actor's
+#: learning rate 3e-4, ten epochs a rollout and 64-unit layers. Closing the gap here puts it in how V is
+#: fitted; not closing it puts it in what V reads (the state and the agent's observation, where MAPPO's
+#: reads the state and the agent's id).
+VALUE_FIT_ROUND: dict[str, dict[str, Any]] = {
+    "v_baseline_ppo_steps_mappo_value_fit": {
+        **VARIANTS["before_lambda_95_q_norm_v_baseline_ppo_steps"],
+        "normalize_q": False,
+        "critic_learning_rate": 3e-4,
+        "n_critic_epochs": 10,
+        "policy_kwargs": {"optimizer_kwargs": {"eps": 1e-5}, "net_arch": {"pi": [64, 64], "qf": [64, 64]}},
+    },
+}
+VARIANTS.update(VALUE_FIT_ROUND)
 #: Variants flown by a class of :mod:`sb3_coma.experiments.coma_probes` (named, so that importing the
 #: study loads no torch) instead of :class:`~sb3_coma.COMA`.
 PROBES: dict[str, str] = {
     "before_lambda_95_q_norm_v_baseline": "StateValueBaselineCOMA",
     "before_lambda_95_q_norm_v_baseline_ppo_steps": "StateValueBaselineCOMA",
+    "v_baseline_ppo_steps_mappo_value_fit": "StateValueBaselineCOMA",
 }
 #: The reference every variant is measured against: MAPPO with the MAPPO paper's MPE settings (not COMA;
 #: its benchmark entry until MAPPO's own round changed simple_spread's).
@@ -247,6 +295,14 @@ PPO_VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
         for name, change in PPO_CHANGES.items()
     },
 }
+#: MAPPO's value normalisation (after its rounds' logs showed its V explaining none of the return's
+#: variance on simple_reference in any arm, and on simple_spread where its steps are fewer or smaller:
+#: SB3's PPO fits V on the raw returns, where the MAPPO paper standardises them): SB3's own
+#: ``VecNormalize`` on the rewards only (rl-zoo3's ``normalize`` key), so V fits returns of unit scale.
+PPO_VARIANTS["mappo_norm_reward"] = (REFERENCE, {"normalize": {"norm_obs": False, "norm_reward": True}})
+#: MAPPO's actor at COMA's and IPPO's depth (round 15's twin): the extractor's tanh layer and one 64-unit
+#: layer, two hidden layers where MAPPO's policy otherwise has three.
+PPO_VARIANTS["mappo_pi_64x2"] = (REFERENCE, {"policy_kwargs": {"net_arch": {"pi": [64], "vf": [64, 64]}}})
 ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
 ROUNDS: dict[str, tuple[str, ...]] = {
@@ -267,6 +323,10 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     MINIBATCH_ROUND,
                     STATE_VALUE_ROUND,
                     STEP_ROUND,
+                    ACTOR_STEP_ROUND,
+                    VALUE_FIT_ROUND,
+                    ACTOR_DEPTH_ROUND,
+                    ENTROPY_HOLD_ROUND,
                     PROBES,
                 )
             )
@@ -286,12 +346,20 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "transfer_round": ("minibatch_86", "before_lambda_95_q_norm"),
     "minibatch_round": ("minibatch_86", "before_lambda_95_q_norm", "minibatch_86_before", *MINIBATCH_ROUND),
     # MAPPO's and IPPO's own first rounds on simple_spread (--tasks simple_spread): the entry and seven changes
-    "mappo_round": tuple(name for name, (learner, _) in PPO_VARIANTS.items() if learner == "mappo"),
-    "ippo_round": tuple(name for name, (learner, _) in PPO_VARIANTS.items() if learner == "ippo"),
+    "mappo_round": (REFERENCE, *(f"{REFERENCE}_{name}" for name in PPO_CHANGES)),
+    "ippo_round": ("ippo", *(f"ippo_{name}" for name in PPO_CHANGES)),
+    # MAPPO's value normalisation beside the paper's settings and the entry, on three seeds, on
+    # simple_spread (--tasks simple_spread --seeds 3) and on simple_reference (--tasks simple_reference)
+    "mappo_value_norm_round": (REFERENCE, "mappo_clip_0.1", "mappo_norm_reward"),
+    "mappo_reference_value_norm_round": (REFERENCE, "mappo_lr_1e-4", "mappo_norm_reward"),
     # the choice between MAPPO's entry and the two variants ahead of it in its round, on three seeds
     "mappo_choice_round": (REFERENCE, "mappo_epochs_15", "mappo_clip_0.1"),
     # the same choice on Foraging-5x5 (--tasks lbf --seeds 3): the three variants ahead there
     "mappo_foraging_choice_round": (REFERENCE, "mappo_epochs_15", "mappo_lr_7e-4", "mappo_ent_0"),
+    # the same choice on simple_reference (--tasks simple_reference --seeds 3) and Foraging-8x8
+    # (--tasks lbf_8x8 --seeds 3): the variants ahead of the entry there in MAPPO's round
+    "mappo_reference_choice_round": (REFERENCE, "mappo_batch_1024", "mappo_epochs_5", "mappo_lr_1e-4"),
+    "mappo_foraging_8x8_choice_round": (REFERENCE, "mappo_lr_7e-4", "mappo_epochs_15"),
     # the choice between IPPO's entry and the variant ahead of it in its round, on three seeds
     "ippo_choice_round": ("ippo", "ippo_epochs_15"),
     # simple_spread's entry against its return bootstrapped with V(s), on three seeds (--seeds 3)
@@ -310,6 +378,23 @@ ROUNDS: dict[str, tuple[str, ...]] = {
         REFERENCE,
         "mappo_clip_0.1",
     ),
+    # the actor's step size (round 13), beside the entry and MAPPO, on three seeds (--seeds 3)
+    "actor_step_round": ("before_lambda_95_q_norm", *ACTOR_STEP_ROUND, REFERENCE, "mappo_clip_0.1"),
+    # round 12's probe with V fitted as SB3's PPO fits MAPPO's (round 14), on three seeds (--seeds 3)
+    "value_fit_round": (
+        "before_lambda_95_q_norm",
+        "before_lambda_95_q_norm_v_baseline_ppo_steps",
+        *VALUE_FIT_ROUND,
+        REFERENCE,
+    ),
+    # the entry with MAPPO's actor depth (round 15), on three seeds (--seeds 3)
+    "actor_depth_round": ("before_lambda_95_q_norm", *ACTOR_DEPTH_ROUND, REFERENCE, "mappo_pi_64x2"),
+    # the entry against round 3's entry (the two best of simple_spread's validation runs on seed 1000 at
+    # half the budget; the latter's return dips least early), at the whole budget
+    # (--tasks simple_spread_full --seeds 3)
+    "whole_budget_round": ("before_lambda_95_q_norm", "rollout_1024_epochs_10_before"),
+    # a larger entropy bonus for the entry (round 16), on three seeds (--tasks simple_spread --seeds 3)
+    "entropy_hold_round": ("before_lambda_95_q_norm", *ENTROPY_HOLD_ROUND, REFERENCE, "mappo_norm_reward"),
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
@@ -317,6 +402,11 @@ ROUNDS: dict[str, tuple[str, ...]] = {
 }
 #: Joint steps per study run (a third to a half of the benchmark's budget: enough to rank the variants).
 STUDY_STEPS = {"simple_spread": 150_000, "lbf": 100_000, "simple_reference": 150_000, "lbf_8x8": 150_000}
+#: Study tasks flown at the benchmark's whole budget (key: the task's with this suffix), for a choice
+#: between variants that half the budget ranks close: on simple_spread the benchmark's curves of COMA
+#: and MAPPO part after 150k joint steps (COMA gains little more, MAPPO keeps rising).
+WHOLE_BUDGET_SUFFIX = "_full"
+STUDY_STEPS[f"simple_spread{WHOLE_BUDGET_SUFFIX}"] = TASKS["simple_spread"].joint_steps
 #: The tasks of rounds 1 and 2 (``--tasks`` default); the others are flown when a round names them.
 FIRST_TASKS = ("simple_spread", "lbf")
 #: First training seed of the study (validation seeds; the benchmark reports seeds 0, 1, ...).
@@ -350,6 +440,19 @@ def ppo_settings(variant: str) -> dict[str, Any]:
     return {"policy": PPO_POLICIES[learner], **MAPPO_PAPER_MPE, **change}
 
 
+#: What a whole-budget task's name adds to its benchmark task's name.
+WHOLE_BUDGET_LABEL = " (whole budget)"
+
+
+def study_task(key: str) -> Task:
+    """The benchmark's task of a study key, trained for the study's steps; a whole-budget key names
+    its task apart (``simple_spread (whole budget)``), so that its table rows and records stay apart."""
+    base = TASKS[key.removesuffix(WHOLE_BUDGET_SUFFIX)]
+    if key == base.key:
+        return dataclasses.replace(base, joint_steps=STUDY_STEPS[key])
+    return dataclasses.replace(base, key=key, name=f"{base.name}{WHOLE_BUDGET_LABEL}", joint_steps=STUDY_STEPS[key])
+
+
 def run_variant(task_key: str, variant: str, seed: int, folder: Path) -> dict[str, Any]:
     """Train one (task, variant, seed), logging SB3's CSV to ``folder``; score it on validation episodes."""
     import torch as th
@@ -358,15 +461,15 @@ def run_variant(task_key: str, variant: str, seed: int, folder: Path) -> dict[st
     from sb3_coma import COMA
 
     th.set_num_threads(1)
-    task = dataclasses.replace(TASKS[task_key], joint_steps=STUDY_STEPS[task_key])
+    task = study_task(task_key)
     start = time.perf_counter()
     learner = learner_of(variant)
-    venv, recorder = _vec_env(task, seed, learner)
     if learner != "coma":
-        model = _model(learner, venv, seed, task, ppo_settings(variant))
+        model, venv, recorder = _trainee(learner, task, seed, ppo_settings(variant))
     else:
         from sb3_coma.experiments import coma_probes
 
+        venv, recorder = _vec_env(task, seed, learner)
         algorithm = getattr(coma_probes, PROBES[variant]) if variant in PROBES else COMA
         model = algorithm("MlpPolicy", venv, seed=seed, device="cpu", **VARIANTS[variant])
     model.set_logger(configure(str(folder), ["csv"]))
@@ -482,7 +585,7 @@ def report_phase(out: Path, seeds: int, round_name: str = "study") -> str:
             runs = [r for r in records if r["task"] == task and r["variant"] == variant]
             if not runs:
                 continue
-            key = next(k for k, t in TASKS.items() if t.name == task)
+            key = next(k for k in STUDY_STEPS if study_task(k).name == task)
             diag = [_progress(out / "runs" / f"{key}-{variant}-{r['seed']}.csv") for r in runs]
             late = {d: np.mean([_late(p[d]) for p in diag]) for d in DIAGNOSTICS}
             finals = [r["validation_return"] for r in runs]
@@ -518,7 +621,8 @@ def tuning_runs(folder: Path) -> dict[tuple[str, str], int]:
             if len(cells) > 3 and cells[3].isdigit() and (cells[1] in VARIANTS or cells[1] in PPO_VARIANTS):
                 seeds[(cells[0], cells[1])] = max(seeds.get((cells[0], cells[1]), 0), int(cells[3]))
     runs: dict[tuple[str, str], int] = {}
-    for (task, variant), count in seeds.items():
+    for (name, variant), count in seeds.items():
+        task = name.removesuffix(WHOLE_BUDGET_LABEL)  # a whole-budget run is a run on its task
         runs[(learner_of(variant), task)] = runs.get((learner_of(variant), task), 0) + count
     return runs
 
@@ -535,7 +639,7 @@ def _plot(records: list[dict[str, Any]], out: Path, arms: tuple[str, ...], figur
     fig, axes = plt.subplots(len(tasks), len(panels), figsize=(4.2 * len(panels), 3.4 * len(tasks)), squeeze=False)
     colours = plt.get_cmap("tab10")
     for row, task in zip(axes, tasks):
-        key = next(k for k, t in TASKS.items() if t.name == task)
+        key = next(k for k in STUDY_STEPS if study_task(k).name == task)
         for i, variant in enumerate(arms):
             runs = [r for r in records if r["task"] == task and r["variant"] == variant]
             if not runs:
@@ -557,7 +661,9 @@ def _plot(records: list[dict[str, Any]], out: Path, arms: tuple[str, ...], figur
             for ax, diag in zip(row[1:], DIAGNOSTICS if learner_of(variant) == "coma" else ()):  # COMA's own logs
                 progress = [_progress(out / "runs" / f"{key}-{variant}-{r['seed']}.csv") for r in runs]
                 n = min(len(p[diag]) for p in progress)
-                mean = np.nanmean([p[diag][:n] for p in progress], 0)
+                with warnings.catch_warnings():  # an update no seed logged (the first row: no update yet) stays NaN
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    mean = np.nanmean([p[diag][:n] for p in progress], 0)
                 span = max(1, n // 30)  # updates per plotted point: the mean of each span (noisy update to update)
                 cut = n - n % span
                 ax.plot(

@@ -21,9 +21,11 @@ temporary name and moved into place):
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import io
 import json
+import pickle
 import subprocess
 import sys
 import time
@@ -110,14 +112,37 @@ class TeamReturns(VecEnvWrapper):
         return obs, rewards, dones, infos
 
 
-def _vec_env(task: Task, seed: int, learner: str) -> tuple[VecEnv, TeamReturns]:
-    """The task's vec env for ``learner`` and the recorder inside it."""
+def _vec_env(
+    task: Task, seed: int, learner: str, normalize: dict[str, Any] | None = None
+) -> tuple[VecEnv, TeamReturns]:
+    """The task's vec env for ``learner`` and the recorder inside it (which sees the env's own
+    rewards), under SB3's ``VecNormalize(**normalize)`` when an entry asks for it."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
     from sb3_coma import make_marl_vec_env
     from sb3_coma.mappo.central_value import CentralStateVecEnv
 
     base = make_marl_vec_env(task.make, n_envs=N_ENVS, seed=seed)
     recorder = TeamReturns(base, base.n_agents)  # type: ignore[attr-defined]
-    return (CentralStateVecEnv(recorder) if learner == "mappo" else recorder), recorder
+    venv: VecEnv = CentralStateVecEnv(recorder) if learner == "mappo" else recorder
+    return (venv if normalize is None else VecNormalize(venv, **normalize)), recorder
+
+
+def split_normalize(settings: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """An entry's constructor arguments and, apart, ``VecNormalize``'s keyword arguments from its
+    ``normalize`` key, read as rl-zoo3 reads it (``true``, or a dict of ``VecNormalize``'s arguments,
+    also as the string rl-zoo3's configs write: ``"{'norm_obs': False, 'norm_reward': True}"``; the
+    entry's ``gamma`` is the normaliser's), so that an entry trains the same here as through the zoo."""
+    constructor = dict(settings)
+    normalize = constructor.pop("normalize", False)
+    if isinstance(normalize, str):
+        normalize = ast.literal_eval(normalize)
+    if normalize is False:
+        return constructor, None
+    kwargs = {} if normalize is True else dict(normalize)
+    if "gamma" in constructor:
+        kwargs["gamma"] = constructor["gamma"]
+    return constructor, kwargs
 
 
 def learner_settings(learner: str, task: Task) -> dict[str, Any]:
@@ -132,16 +157,25 @@ def learner_settings(learner: str, task: Task) -> dict[str, Any]:
     return dict(entries[task.name])
 
 
-def _model(learner: str, venv: VecEnv, seed: int, task: Task, settings: dict[str, Any] | None = None) -> Any:
-    """``learner``'s model with its benchmark entry for ``task``, or with ``settings`` (constructor
-    arguments, policy included: a study's variant) instead."""
+def _trainee(
+    learner: str, task: Task, seed: int, settings: dict[str, Any] | None = None
+) -> tuple[Any, VecEnv, TeamReturns]:
+    """``learner``'s model on a fresh vec env of ``task``, with its benchmark entry or with ``settings``
+    (an entry's keys: a study's variant) instead; and that env and its recorder."""
+    constructor, normalize = split_normalize(learner_settings(learner, task) if settings is None else settings)
+    venv, recorder = _vec_env(task, seed, learner, normalize)
+    return _model(learner, venv, seed, constructor), venv, recorder
+
+
+def _model(learner: str, venv: VecEnv, seed: int, settings: dict[str, Any]) -> Any:
+    """``learner``'s model with ``settings`` (constructor arguments, policy included)."""
     from stable_baselines3 import PPO
 
     from sb3_coma import COMA
     from sb3_coma.common.logger import use_folderless_logger
     from sb3_coma.mappo.central_value import CentralValuePolicy
 
-    settings = dict(learner_settings(learner, task) if settings is None else settings)
+    settings = dict(settings)
     policy = settings.pop("policy")
     if learner == "coma":
         return COMA(policy, venv, seed=seed, device="cpu", **settings)
@@ -163,6 +197,12 @@ def evaluate_team_return(
     """Team returns of ``episodes`` evaluation episodes (env seeds from ``seed``: the benchmark's
     reported ones by default, a study's validation ones otherwise)."""
     venv, recorder = _vec_env(task, seed, learner)
+    normalizer = None if model is None else model.get_vec_normalize_env()
+    if normalizer is not None:  # the trained observation statistics, frozen; rewards as the env gives them
+        frozen = pickle.loads(pickle.dumps(normalizer))  # VecNormalize pickles without its env (SB3's save)
+        frozen.set_venv(venv)
+        frozen.training, frozen.norm_reward = False, False
+        venv = frozen
     venv.action_space.seed(seed)
     act = _act(model)
     obs = venv.reset()
@@ -189,8 +229,7 @@ def run_one(task: Task, learner: str, seed: int, episodes: int = EVAL_EPISODES) 
     curve: list[tuple[float, float]] = []
     late = None
     if learner != "random":
-        venv, recorder = _vec_env(task, seed, learner)
-        model = _model(learner, venv, seed, task)
+        model, venv, recorder = _trainee(learner, task, seed)
         model.learn(_joint_to_learn(learner, task, recorder.n_agents))
         grid = np.linspace(task.joint_steps / CURVE_POINTS, task.joint_steps, CURVE_POINTS)
         curve = [(float(x), float(y)) for x, y in zip(grid, _smoothed(recorder.episodes, grid))]
@@ -282,8 +321,7 @@ def _learn_rate(learner: str, task: Task) -> float:
     import torch as th
 
     th.set_num_threads(1)
-    venv, recorder = _vec_env(task, 0, learner)
-    model = _model(learner, venv, 0, task)
+    model, venv, recorder = _trainee(learner, task, 0)
     start = time.perf_counter()
     model.learn(_joint_to_learn(learner, task, recorder.n_agents))
     seconds = time.perf_counter() - start
@@ -536,6 +574,8 @@ training. Train minutes: wall time of one run on the recording machine, shared w
 figure: the speed table below is).
 
 **Settings and tuning budget**: each learner's settings are its entry in `zoo_configs/marl/<learner>.yml`.
+Actors: COMA's and IPPO's have two hidden layers of 64 tanh units; MAPPO's (`CentralValuePolicy`) reads its
+keys through one more (docs/design.md; the COMA study's round 15 measures what it is worth).
 {tuning}
 """
 
