@@ -393,6 +393,9 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     # half the budget; the latter's return dips least early), at the whole budget
     # (--tasks simple_spread_full --seeds 3)
     "whole_budget_round": ("before_lambda_95_q_norm", "rollout_1024_epochs_10_before"),
+    # COMA's entry against MAPPO at COMA's actor depth (round 15's twin), at the whole budget
+    # (--tasks simple_spread_full --seeds 3): the benchmark's comparison with actors of equal depth
+    "whole_budget_depth_round": ("before_lambda_95_q_norm", "mappo_pi_64x2"),
     # a larger entropy bonus for the entry (round 16), on three seeds (--tasks simple_spread --seeds 3)
     "entropy_hold_round": ("before_lambda_95_q_norm", *ENTROPY_HOLD_ROUND, REFERENCE, "mappo_norm_reward"),
     "time_limit_round": (
