@@ -263,9 +263,12 @@ def test_an_entrys_normalize_key_is_read_as_rl_zoo_reads_it() -> None:
     assert split({**entry, "normalize": True}) == (entry, {})
     as_zoo_writes_it = "{'norm_obs': False, 'norm_reward': True}"
     assert split({**entry, "normalize": as_zoo_writes_it}) == (entry, {"norm_obs": False, "norm_reward": True})
+    as_an_expression = "dict(norm_obs=False, norm_reward=True)"  # the other form rl-zoo3's own comment shows
+    assert split({**entry, "normalize": as_an_expression}) == (entry, {"norm_obs": False, "norm_reward": True})
     # the discount of the normaliser's running return is the learner's own
     with_gamma = {**entry, "gamma": 0.95, "normalize": {"norm_obs": False}}
     assert split(with_gamma) == ({**entry, "gamma": 0.95}, {"norm_obs": False, "gamma": 0.95})
+    assert with_gamma["normalize"] == {"norm_obs": False}  # the caller's entry is left as it was
 
 
 def test_a_normalized_entry_trains_on_scaled_rewards_and_is_scored_on_the_envs_own() -> None:

@@ -21,7 +21,6 @@ temporary name and moved into place):
 from __future__ import annotations
 
 import argparse
-import ast
 import dataclasses
 import io
 import json
@@ -130,19 +129,17 @@ def _vec_env(
 
 def split_normalize(settings: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any] | None]:
     """An entry's constructor arguments and, apart, ``VecNormalize``'s keyword arguments from its
-    ``normalize`` key, read as rl-zoo3 reads it (``true``, or a dict of ``VecNormalize``'s arguments,
-    also as the string rl-zoo3's configs write: ``"{'norm_obs': False, 'norm_reward': True}"``; the
+    ``normalize`` key (``None``: no normaliser), read by rl-zoo3's own ``_preprocess_normalization``
+    (``true``, a dict, or a Python string such as ``"dict(norm_obs=False, norm_reward=True)"``; the
     entry's ``gamma`` is the normaliser's), so that an entry trains the same here as through the zoo."""
-    constructor = dict(settings)
-    normalize = constructor.pop("normalize", False)
-    if isinstance(normalize, str):
-        normalize = ast.literal_eval(normalize)
-    if normalize is False:
-        return constructor, None
-    kwargs = {} if normalize is True else dict(normalize)
-    if "gamma" in constructor:
-        kwargs["gamma"] = constructor["gamma"]
-    return constructor, kwargs
+    from copy import deepcopy
+    from types import SimpleNamespace
+
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    reader = SimpleNamespace(normalize=False, normalize_kwargs={})  # ExperimentManager's initial state
+    constructor = ExperimentManager._preprocess_normalization(reader, deepcopy(settings))  # type: ignore[arg-type]
+    return constructor, (dict(reader.normalize_kwargs) if reader.normalize else None)
 
 
 def learner_settings(learner: str, task: Task) -> dict[str, Any]:
