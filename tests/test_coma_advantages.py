@@ -117,3 +117,32 @@ def test_gae_trains() -> None:
     env = make_marl_vec_env(_spread, n_envs=2, seed=0)
     model = COMA("MlpPolicy", env, advantage="gae", seed=0, device="cpu", **FAST).learn(64)
     assert model.num_timesteps == 64 and np.isfinite(model.logger.name_to_value["train/advantage_std"])
+
+
+def _baseline_explained_variance(advantage: str, silent_critic: bool) -> float | None:
+    model = COMA(
+        "MlpPolicy",
+        make_marl_vec_env(_spread, n_envs=2, seed=0),
+        seed=0,
+        device="cpu",
+        advantage=advantage,
+        advantage_before_critic_update=True,
+        critic_learning_rate=1e-12,  # the critic as built, for one rollout
+        **FAST,
+    )
+    if silent_critic:  # Q = 0 everywhere: the baseline is 0 and explains none of the return
+        with th.no_grad():
+            model.policy.critic.head.weight.zero_()
+            model.policy.critic.head.bias.zero_()
+    model.learn(32)
+    return model.logger.name_to_value.get("train/baseline_explained_variance")
+
+
+def test_the_baseline_explained_variance_is_what_the_baseline_removes_of_the_returns_variance() -> None:
+    """Logged as 1 - Var(X - b) / Var(X), X the advantage's first term: 0 for a baseline of zeros,
+    something else for the critic as built; not logged for GAE, whose first term is no single return."""
+    assert _baseline_explained_variance("return", silent_critic=True) == pytest.approx(0.0, abs=1e-6)
+    built = _baseline_explained_variance("return", silent_critic=False)
+    assert built is not None and abs(built) > 1e-3
+    assert _baseline_explained_variance("q", silent_critic=False) is not None
+    assert _baseline_explained_variance("gae", silent_critic=False) is None

@@ -391,12 +391,43 @@ def test_clipped_and_plain_actor_updates_train() -> None:
         ({"advantage": "ppo"}, "advantage"),
         ({"clip_range": 0}, "clip_range"),
         ({"clip_range": True}, "clip_range"),
+        ({"clip_range": lambda progress: -0.1}, "clip_range must be None, a positive number or a schedule of one"),
         ({"n_epochs": 0}, "n_epochs"),
     ],
 )
 def test_bad_actor_update_options(kwargs, match) -> None:
     with pytest.raises(ValueError, match=match):
         make(**kwargs)
+
+
+def test_the_clip_range_may_be_a_schedule_as_ppos(tmp_path: Path) -> None:
+    """rl-zoo3 reads an entry's ``clip_range`` (``0.1``, ``lin_0.2``) as a schedule of the remaining
+    progress: COMA clips with its value at each update, logs it and saves it."""
+    from rl_zoo3.utils import SimpleLinearSchedule
+
+    model = make(clip_range=SimpleLinearSchedule(0.2), n_epochs=2)
+    logger, out = capture_logger()
+    model.set_logger(logger)
+    model.learn(48)
+    # three rollouts of 16 joint steps; each update's clip is logged before the next rollout
+    assert out.series("train/clip_range") == pytest.approx([0.2 * 2 / 3, 0.2 / 3])
+    model._current_progress_remaining = 0.5
+    assert model._clip_range_now() == pytest.approx(0.1)
+    model.save(tmp_path / "m.zip")
+    loaded = COMA.load(tmp_path / "m.zip", device="cpu")
+    loaded._current_progress_remaining = 0.25
+    assert loaded._clip_range_now() == pytest.approx(0.05)
+    assert make(clip_range=None)._clip_range_now() is None
+
+
+def test_the_zoos_schedules_keep_comas_plain_gradient_and_make_its_rates_schedules() -> None:
+    from sb3_coma.app.zoo_marl import preprocess_schedules
+
+    read = preprocess_schedules({"clip_range": None, "learning_rate": 1e-3, "critic_learning_rate": "lin_1e-3"})
+    assert read["clip_range"] is None and read["learning_rate"](0.5) == 1e-3
+    assert read["critic_learning_rate"](0.5) == pytest.approx(5e-4)
+    clipped = preprocess_schedules({"clip_range": 0.1})["clip_range"]
+    assert make(clip_range=clipped)._clip_range_now() == pytest.approx(0.1)  # COMA takes rl-zoo3's constant
 
 
 def test_predict_checks_the_observation_at_the_api_boundary() -> None:

@@ -22,7 +22,7 @@ def _spread(**kwargs: Any) -> ParallelEnv:
     return simple_spread_v3.parallel_env(N=3, max_cycles=25, continuous_actions=False, **kwargs)
 
 
-def _model(normalize_q: bool, seed: int = 0) -> COMA:
+def _model(normalize_q: bool | str, seed: int = 0) -> COMA:
     return COMA(
         "MlpPolicy",
         make_marl_vec_env(_spread, n_envs=2, seed=seed),
@@ -74,5 +74,41 @@ def test_the_scale_is_saved_with_the_model(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("value", ["yes", 1, None])
 def test_only_a_flag_is_a_flag(value: Any) -> None:
-    with pytest.raises(ValueError, match=rf"normalize_q must be True or False, got {value!r}"):
+    with pytest.raises(ValueError, match=rf"normalize_q must be True, False or 'popart', got {value!r}"):
         COMA("MlpPolicy", make_marl_vec_env(_spread, n_envs=1, seed=0), normalize_q=value, **FAST)
+
+
+def _critic_outputs(model: COMA) -> tuple[th.Tensor, th.Tensor]:
+    """Q in return units of the critic and of its target on the last rollout's first joint steps."""
+    data, idx = model.rollout_buffer.joint_steps(), th.arange(6)
+    with th.no_grad():
+        return model._q_units(model._q(data, idx)), model._q_units(model._q(data, idx, target=True))
+
+
+@pytest.mark.parametrize("normalize_q", [True, "popart"])
+def test_popart_keeps_the_critics_outputs_where_they_were_when_the_statistics_move(normalize_q: bool | str) -> None:
+    model = _model(normalize_q)
+    model.learn(64)
+    before = _critic_outputs(model)
+    scale = (model.q_scale.mean, model.q_scale.var)
+    model._critic_targets(th.tensor([[-300.0, -310.0, -290.0], [-100.0, -120.0, -110.0]]))  # a scale 10x larger
+    assert (model.q_scale.mean, model.q_scale.var) != scale
+    after = _critic_outputs(model)
+    preserved = all(th.allclose(a, b, rtol=1e-4, atol=1e-3) for a, b in zip(before, after))
+    assert preserved is (normalize_q == "popart")  # plain running statistics read the same layer at the new scale
+
+
+def test_popart_trains_and_is_saved_with_the_model(tmp_path: Path) -> None:
+    model = _model("popart")
+    model.learn(96)
+    assert model.normalize_q == "popart" and model.q_scale.count > 1
+    assert np.isfinite(model.logger.name_to_value["train/q_mean"])
+    model.save(tmp_path / "m.zip")
+    assert COMA.load(tmp_path / "m.zip", device="cpu").normalize_q == "popart"
+
+
+def test_a_critic_without_a_linear_head_is_refused_in_one_line() -> None:
+    model = _model("popart")
+    model.policy.critic.head = th.nn.Sequential(th.nn.Linear(128, 5))
+    with pytest.raises(TypeError, match="MlpPolicy: a critic's head is not one linear layer"):
+        model.policy.critic_output_layers()

@@ -1216,7 +1216,7 @@ CASES: list[Case | CliCase] = [
         lambda f: _coma(f, clip_range=0),
         ValueError,
         ("clip_range", "got 0"),
-        "None or a positive number",
+        "None, a positive number or a schedule of one",
     ),
     Case(
         "coma-max_grad_norm-zero",

@@ -202,6 +202,45 @@ def test_a_report_never_shrinks_a_table_made_from_records_this_folder_lacks(tmp_
     assert coma_study.main(["--out", str(tmp_path), "--phases", "report", "--round", "critic_round"]) == 2
 
 
+def test_round_17_changes_one_setting_of_the_entry_per_variant() -> None:
+    """PopArt and the entry without the time-limit bootstrap, each beside the entry it changes."""
+    entry = coma_study.VARIANTS["before_lambda_95_q_norm"]
+    changed = {
+        name: {key for key in {*settings, *entry} if settings.get(key) != entry.get(key)}
+        for name, settings in coma_study.SCALE_ROUND.items()
+    }
+    assert changed == {
+        "before_lambda_95_q_norm_popart": {"normalize_q"},
+        "before_lambda_95_q_norm_no_time_limit_bootstrap": {"bootstrap_time_limits"},
+    }
+    assert coma_study.SCALE_ROUND["before_lambda_95_q_norm_popart"]["normalize_q"] == "popart"
+    assert {"before_lambda_95_q_norm", coma_study.REFERENCE} <= set(coma_study.ROUNDS["scale_round"])
+    assert not set(coma_study.SCALE_ROUND) & set(coma_study.ROUNDS["study"])
+
+
+@pytest.mark.parametrize("learner", ["coma", "mappo"])
+def test_an_entrys_linear_schedule_trains_as_the_zoo_reads_it(learner: str) -> None:
+    """The benchmark and the study build a model from an entry as rl-zoo3 does: ``lin_<x>`` is its
+    linear schedule from x to 0 (COMA's critic rate too), a number stays that number."""
+    task = TASKS["simple_spread"]
+    settings = learner_settings(learner, task) | {"learning_rate": "lin_3e-4"}
+    if learner == "coma":
+        settings["critic_learning_rate"] = "lin_1e-3"
+    model, venv, _ = marl_benchmark._trainee(learner, task, 0, settings)
+    venv.close()
+    assert model.lr_schedule(1.0) == pytest.approx(3e-4) and model.lr_schedule(0.25) == pytest.approx(7.5e-5)
+    if learner == "coma":
+        assert model.critic_lr_schedule(0.5) == pytest.approx(5e-4)
+    assert settings["learning_rate"] == "lin_3e-4"  # the caller's entry is not rewritten
+
+
+def test_a_study_variant_with_a_linear_schedule_is_the_entry_with_both_rates_annealed() -> None:
+    entry = coma_study.VARIANTS["before_lambda_95_q_norm"]
+    annealed = coma_study.LATE_STEP_ROUND["before_lambda_95_q_norm_lin_lr"]
+    assert annealed == entry | {"learning_rate": "lin_3e-4", "critic_learning_rate": "lin_1e-3"}
+    assert {"before_lambda_95_q_norm", "mappo_pi_64x2"} <= set(coma_study.ROUNDS["late_step_round"])
+
+
 def test_a_ppo_learners_variant_changes_the_mappo_papers_settings_and_nothing_else(tmp_path: Path) -> None:
     """MAPPO's tuning round (issue #45, item 2): each arm is the MAPPO paper's MPE settings with one
     change, fixed in the study (not read from the zoo entry, which the study's own choice may change);

@@ -58,6 +58,14 @@ def test_each_learner_trains_a_named_task_in_joint_steps(tmp_path, algo, policy,
         assert type(model.policy).__name__ == "CentralValuePolicy"
 
 
+def test_an_entrys_linear_schedules_train_comas_two_learning_rates(tmp_path):
+    """``lin_<x>`` for ``learning_rate`` (rl-zoo3's) and for COMA's ``critic_learning_rate`` alike."""
+    entry = {"policy": "MlpPolicy", **TINY, "learning_rate": "lin_3e-4", "critic_learning_rate": "lin_1e-3"}
+    assert _train("--algo", "coma", "--env", TASK, "-conf", _config(tmp_path, {TASK: entry}), "-f", "logs") == 0
+    model = COMA.load(tmp_path / "logs" / "coma" / f"{TASK}_1" / f"{TASK}.zip", device="cpu")
+    assert model.lr_schedule(0.5) == pytest.approx(1.5e-4) and model.critic_lr_schedule(0.5) == pytest.approx(5e-4)
+
+
 def test_the_shipped_configs_train_every_named_task_by_default(tmp_path, capsys):
     """No -conf: zoo_configs/marl/<algo>.yml, the benchmark's entry (its budget cut by -n)."""
     rc = _train("--algo", "coma", "--env", TASK, "-n", "64", "-params", "n_steps:8", "n_envs:2", "batch_size:16")

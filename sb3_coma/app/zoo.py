@@ -59,7 +59,6 @@ from sb3_coma.app.config import (
     default_config_path,
     make_vec_env_from_kwargs,
     make_world_vec_env,
-    parse_schedule,
     read_config_file,
     resolve_policy_kwargs,
     resolve_workers,
@@ -73,6 +72,7 @@ from sb3_coma.app.warm_start import warm_start
 from sb3_coma.app.zoo_marl import (
     MARL_ALGOS,
     MarlExperimentManager,
+    preprocess_schedules,
     prune_refused_batch,
     register_marl_algos,
     run_optimization,
@@ -154,11 +154,7 @@ class ComaExperimentManager(ExperimentManager):
 
     @staticmethod
     def _preprocess_schedules(hyperparams: dict[str, Any]) -> dict[str, Any]:
-        critic = hyperparams.pop("critic_learning_rate", None)
-        hyperparams = ExperimentManager._preprocess_schedules(hyperparams)
-        if critic is not None:
-            hyperparams["critic_learning_rate"] = parse_schedule(critic)
-        return hyperparams
+        return preprocess_schedules(hyperparams)
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
         # where the training copies run: ours to read, not COMA's arguments

@@ -31,7 +31,7 @@ from rl_zoo3.utils import ALGOS
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_coma.app.config import TrainingError
+from sb3_coma.app.config import TrainingError, parse_schedule
 from sb3_coma.app.marl_tasks import BENCHMARK_JOINT_STEPS, MarlTask
 from sb3_coma.coma import COMA
 from sb3_coma.coma.validation import BatchLargerThanRollout
@@ -44,6 +44,23 @@ MARL_ALGOS: dict[str, type] = {"coma": COMA, "mappo": PPO, "ippo": PPO}
 DEFAULT_COPIES = 8
 #: Seed offset of the evaluation env: its episodes are not the training copies' ones.
 EVAL_SEED_OFFSET = 10_000
+
+
+def preprocess_schedules(hyperparams: dict[str, Any]) -> dict[str, Any]:
+    """rl-zoo3's schedules (``"lin_<x>"`` strings and numbers, its own ``_preprocess_schedules`` for
+    its keys) and COMA's ``critic_learning_rate`` read the same way, and ``clip_range: null`` left as
+    COMA's plain policy gradient (rl-zoo3 refuses a ``None``), so an entry trains the same through
+    every route (the zoo for the UAV world and for third-party tasks, the learner benchmark, the study)."""
+    critic = hyperparams.pop("critic_learning_rate", None)
+    unclipped = "clip_range" in hyperparams and hyperparams["clip_range"] is None  # COMA's plain gradient
+    if unclipped:
+        del hyperparams["clip_range"]
+    hyperparams = ExperimentManager._preprocess_schedules(hyperparams)
+    if critic is not None:
+        hyperparams["critic_learning_rate"] = parse_schedule(critic)
+    if unclipped:
+        hyperparams["clip_range"] = None
+    return hyperparams
 
 
 def register_marl_algos() -> None:
@@ -111,6 +128,10 @@ class MarlExperimentManager(ExperimentManager):
         if "n_timesteps" not in hyperparams and self.n_timesteps <= 0:
             raise TrainingError(f"{self.config} [{self.task.env_id}] has no n_timesteps: add it or pass -n")
         return hyperparams, saved
+
+    @staticmethod
+    def _preprocess_schedules(hyperparams: dict[str, Any]) -> dict[str, Any]:
+        return preprocess_schedules(hyperparams)
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
         if hyperparams.get("policy") == CentralValuePolicy.__name__:  # rl-zoo3 imports a dotted name

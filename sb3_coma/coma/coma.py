@@ -67,6 +67,7 @@ from sb3_coma.coma.policies import CnnPolicy, COMAPolicy, MlpPolicy, MultiInputP
 from sb3_coma.coma.progress import JointStepProgressBar
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
+    POPART,
     check_batch_fits_rollout,
     check_coma_arguments,
     check_device,
@@ -126,8 +127,8 @@ class COMA(OnPolicyAlgorithm):
     :param batch_size: minibatch size in joint steps (all agents of a step stay together)
     :param n_epochs: passes of actor minibatch updates over each rollout
     :param clip_range: PPO-style clip of the probability ratio in the actor's surrogate, so several
-        passes cannot move the policy far from the one that collected the rollout; ``None``: the
-        plain policy gradient (the paper)
+        passes cannot move the policy far from the one that collected the rollout, float or schedule
+        of the remaining progress (as PPO's); ``None``: the plain policy gradient (the paper)
     :param advantage: first term of the counterfactual advantage ``A_i = X - sum_u' pi(u'|o_i)
         Q(s, (u_-i, u'))``: ``"return"``, the TD(lambda) return of the joint action taken
         (measured to learn, docs/training.md), ``"q"``, the critic's ``Q(s, u)`` (the paper), or
@@ -144,7 +145,11 @@ class COMA(OnPolicyAlgorithm):
     :param normalize_advantage: standardise advantages per actor minibatch
     :param normalize_q: the critic learns ``Q`` in units of its targets' running mean and standard
         deviation (as MAPPO's value normalisation): its output layer works near 0 and 1 whatever
-        the scale of the team's returns; ``False``: the critic outputs ``Q`` itself (the paper)
+        the scale of the team's returns; ``False``: the critic outputs ``Q`` itself (the paper);
+        ``"popart"``: the same, and whenever a rollout moves the statistics the critic's (and its
+        target's) output layer is rescaled so that its outputs in units of return stay where they
+        were (PopArt, van Hasselt et al. 2016): early in training, when the targets' scale grows
+        several-fold, the critic is otherwise read at a scale it was not fitted at
     :param advantage_before_critic_update: score the counterfactual baseline with the critic as it
         was when the rollout was collected (one extra forward pass), as PPO scores its advantages
         with the values of collection time; ``False``: with the critic after this rollout's
@@ -202,7 +207,7 @@ class COMA(OnPolicyAlgorithm):
         n_steps: int | None = None,
         batch_size: int = 64,
         n_epochs: int = 4,
-        clip_range: float | None = 0.2,
+        clip_range: float | Schedule | None = 0.2,
         advantage: str = "return",
         n_critic_epochs: int = 2,
         gamma: float = 0.99,
@@ -210,7 +215,7 @@ class COMA(OnPolicyAlgorithm):
         ent_coef: float = 0.01,
         max_grad_norm: float = 10.0,
         normalize_advantage: bool = True,
-        normalize_q: bool = False,
+        normalize_q: bool | str = False,
         advantage_before_critic_update: bool = False,
         bootstrap_time_limits: bool = True,
         target_update_interval: int = 4,
@@ -266,7 +271,7 @@ class COMA(OnPolicyAlgorithm):
         self.advantage = advantage
         self.td_lambda = td_lambda
         self.normalize_advantage = normalize_advantage
-        self.normalize_q = bool(normalize_q)
+        self.normalize_q: bool | str = normalize_q if normalize_q == POPART else bool(normalize_q)
         self.advantage_before_critic_update = bool(advantage_before_critic_update)
         self.bootstrap_time_limits = bool(bootstrap_time_limits)
         self.target_update_interval = target_update_interval
@@ -332,6 +337,7 @@ class COMA(OnPolicyAlgorithm):
         """Build schedules, buffer and policy from attributes alone (``load`` relies on that)."""
         self._setup_lr_schedule()
         self.critic_lr_schedule = FloatSchedule(self.critic_learning_rate)
+        self.clip_range_schedule = None if self.clip_range is None else FloatSchedule(self.clip_range)
         self.exploration_schedule = LinearSchedule(
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
         )
@@ -625,7 +631,8 @@ class COMA(OnPolicyAlgorithm):
         standardised by its targets' running mean and standard deviation, which this undoes."""
         if not self.normalize_q:
             return q
-        return q * float(np.sqrt(self.q_scale.var + 1e-8)) + float(self.q_scale.mean)
+        mean, std = self._q_statistics()
+        return q * std + mean
 
     def _standardised(self, returns: th.Tensor) -> th.Tensor:
         """``returns`` in the critic's units (standardised by the running statistics with ``normalize_q``)."""
@@ -637,8 +644,15 @@ class COMA(OnPolicyAlgorithm):
         """What the critic's output is fitted to: the targets, standardised with ``normalize_q``
         (after the running statistics took this rollout's targets in)."""
         if self.normalize_q:
+            before = self._q_statistics()
             self.q_scale.update(targets.flatten().cpu().numpy().astype(np.float64))
+            if self.normalize_q == POPART:
+                self.policy.preserve_critic_outputs(*before, *self._q_statistics())
         return self._standardised(targets)
+
+    def _q_statistics(self) -> tuple[float, float]:
+        """The mean and standard deviation that :meth:`_q_units` reads the critic's output with."""
+        return float(self.q_scale.mean), float(np.sqrt(self.q_scale.var + 1e-8))
 
     def _q(self, data: dict[str, Any], idx: th.Tensor, target: bool = False) -> th.Tensor:
         """The critic's output ``(b, N, n)`` for ``Q(s, u_-i, .)`` on joint steps ``idx`` of the
@@ -760,8 +774,9 @@ class COMA(OnPolicyAlgorithm):
         ratio = th.exp(log_probs.gather(-1, b_actions.unsqueeze(-1)).squeeze(-1) - old_log_prob.flatten())
         surrogate = ratio * advantage
         clip_fraction = 0.0
-        if self.clip_range is not None:
-            low, high = 1.0 - self.clip_range, 1.0 + self.clip_range
+        clip_range = self._clip_range_now()
+        if clip_range is not None:
+            low, high = 1.0 - clip_range, 1.0 + clip_range
             surrogate = th.min(surrogate, th.clamp(ratio, low, high) * advantage)
             clip_fraction = float(((ratio < low) | (ratio > high)).float().mean())
         entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
@@ -773,6 +788,12 @@ class COMA(OnPolicyAlgorithm):
                 ref = th.log_softmax(self.policy.masked_logits(obs, mask, actor=self.reference_actor), dim=-1)
             loss = loss + kl_weight * (ref.exp() * (ref - log_probs)).sum(-1).mean()
         return loss, entropy.item(), clip_fraction
+
+    def _clip_range_now(self) -> float | None:
+        """The clip of the probability ratio at this point of ``learn()`` (``None``: no clipping)."""
+        if self.clip_range_schedule is None:
+            return None
+        return float(self.clip_range_schedule(self._current_progress_remaining))
 
     def train(self) -> None:
         """Per rollout: the critic on TD(lambda) targets (``n_critic_epochs``), then the actor on
@@ -807,6 +828,9 @@ class COMA(OnPolicyAlgorithm):
         self._n_updates += 1
 
         self.logger.record("train/clip_fraction", float(np.mean(clipped)))
+        clip_range = self._clip_range_now()
+        if clip_range is not None:
+            self.logger.record("train/clip_range", clip_range)
         q_taken_flat = q_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
         self.logger.record("train/critic_loss", float(np.mean(critic_losses)))  # standardised with normalize_q
         if self.normalize_q:
@@ -819,6 +843,13 @@ class COMA(OnPolicyAlgorithm):
             "train/explained_variance",
             float(explained_variance(q_taken_flat.flatten().cpu().numpy(), targets.flatten().cpu().numpy())),
         )
+        if self.advantage != "gae":  # the advantage's first term X (return or Q) minus the baseline
+            first = q_taken_flat if self.advantage == "q" else returns
+            baseline = (first - advantage).flatten().cpu().numpy()
+            self.logger.record(
+                "train/baseline_explained_variance",
+                float(explained_variance(baseline, first.flatten().cpu().numpy())),
+            )
         if state_value is not None:
             values, value_returns = (x.flatten().cpu().numpy() for x in state_value)
             self.logger.record("train/value_explained_variance", float(explained_variance(values, value_returns)))

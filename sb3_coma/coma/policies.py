@@ -20,7 +20,7 @@ import copy
 import math
 from collections.abc import Mapping
 from functools import partial
-from typing import Any
+from typing import Any, cast
 
 import torch as th
 from gymnasium import spaces
@@ -442,6 +442,28 @@ class COMAPolicy(BasePolicy):
         return net(*self.critic_features(obs, state, actions)).view(batch, n_agents, self.n_actions)
 
     @th.no_grad()
+    def critic_output_layers(self) -> list[nn.Linear]:
+        """The last linear layer of the critic, its target and ``value_net`` (if any): what
+        :meth:`preserve_critic_outputs` rescales. A world-specific policy whose critic has no
+        ``head`` layer overrides this."""
+        modules = [self.critic, self.critic_target, self.value_net]
+        heads = [module.head for module in modules if module is not None]
+        if not all(isinstance(head, nn.Linear) for head in heads):
+            raise TypeError(
+                f"{type(self).__name__}: a critic's head is not one linear layer; override critic_output_layers"
+            )
+        return cast(list[nn.Linear], heads)
+
+    @th.no_grad()
+    def preserve_critic_outputs(self, old_mean: float, old_std: float, new_mean: float, new_std: float) -> None:
+        """Rescale the output layers so that ``output * std + mean`` is unchanged when the critic's
+        standardisation moves from ``(old_mean, old_std)`` to ``(new_mean, new_std)`` (PopArt's
+        "preserving outputs precisely", van Hasselt et al. 2016): ``w' = w s / s'`` and
+        ``b' = (b s + m - m') / s'``."""
+        for layer in self.critic_output_layers():
+            layer.weight.mul_(old_std / new_std)
+            layer.bias.mul_(old_std).add_(old_mean - new_mean).div_(new_std)
+
     def sync_target(self) -> None:
         """Copy the critic into the target critic."""
         self.critic_target.load_state_dict(self.critic.state_dict())

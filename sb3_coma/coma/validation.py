@@ -145,6 +145,8 @@ _ACCELERATORS = {"cuda": "CUDA", "mps": "MPS (Apple GPU)"}
 #: the default), ``"q"`` (the paper's ``Q(s, u)`` minus the baseline), ``"gae"`` (the return
 #: bootstrapped with the baseline) and ``"v_return"`` (bootstrapped with a fitted state value).
 ADVANTAGES = ("return", "q", "gae", "v_return")
+#: ``normalize_q``'s value that also rescales the critic's output layer when its statistics move.
+POPART = "popart"
 
 
 def _start(rate: Any) -> Any:
@@ -173,13 +175,14 @@ _ARGUMENT_RULES: tuple[tuple[tuple[str, ...], Callable[[Any], bool], str], ...] 
     ),
     (("n_steps",), lambda v: v is None or v >= 1, "be None or >= 1"),
     (("ent_coef", "kl_coef"), lambda v: is_real(v) and v >= 0, "be a number >= 0"),
-    (("clip_range",), lambda v: v is None or _positive(v), "be None or a positive number"),
+    (("clip_range",), lambda v: v is None or _positive(_start(v)), "be None, a positive number or a schedule of one"),
     (("max_grad_norm",), _positive, "be positive"),
     (
-        ("normalize_advantage", "normalize_q", "advantage_before_critic_update", "bootstrap_time_limits"),
+        ("normalize_advantage", "advantage_before_critic_update", "bootstrap_time_limits"),
         is_flag,
         "be True or False",
     ),
+    (("normalize_q",), lambda v: is_flag(v) or v == POPART, f"be True, False or {POPART!r}"),
     (("advantage",), lambda v: v in ADVANTAGES, f"be one of {ADVANTAGES}"),
     (("seed",), lambda v: v is None or (is_whole(v) and v >= 0), "be None or an integer >= 0"),
 )

@@ -19,6 +19,7 @@ Phases (resumable: a finished run's record is kept and skipped, files are moved 
 from __future__ import annotations
 
 import argparse
+import copy
 import csv
 import dataclasses
 import json
@@ -259,6 +260,32 @@ VALUE_FIT_ROUND: dict[str, dict[str, Any]] = {
     },
 }
 VARIANTS.update(VALUE_FIT_ROUND)
+#: Round 17 (after the entry's logs showed its early fall while the scale of the critic's targets grows
+#: six-fold, their standard deviation from 4 to 24 over the first 40k joint steps, as the time-limit
+#: bootstrap carries the infinite-horizon value (about -80) into every return; and round 6's slower
+#: critics doing far worse with ``normalize_q``): PopArt (``normalize_q="popart"``), which rescales the
+#: critic's output layer whenever the statistics move, so it is never read at a scale it was not fitted
+#: at; and the entry without the time-limit bootstrap (round 7 flew that at trace decay 0.8 only).
+SCALE_ROUND: dict[str, dict[str, Any]] = {
+    "before_lambda_95_q_norm_popart": {**VARIANTS["before_lambda_95_q_norm"], "normalize_q": "popart"},
+    "before_lambda_95_q_norm_no_time_limit_bootstrap": {
+        **VARIANTS["before_lambda_95_q_norm"],
+        "bootstrap_time_limits": False,
+    },
+}
+VARIANTS.update(SCALE_ROUND)
+#: Round 19 (after the whole-budget runs showed COMA's entry and round 3's both levelling off near a
+#: training return of -18.6 per agent over the second half of the budget while MAPPO's keeps rising):
+#: rl-zoo3's linear schedule to 0 for both learning rates (``lin_<x>``, read as the zoo reads it), so
+#: the late updates, made on a policy that is already good, get smaller. Flown at the whole budget.
+LATE_STEP_ROUND: dict[str, dict[str, Any]] = {
+    "before_lambda_95_q_norm_lin_lr": {
+        **VARIANTS["before_lambda_95_q_norm"],
+        "learning_rate": "lin_3e-4",
+        "critic_learning_rate": "lin_1e-3",
+    },
+}
+VARIANTS.update(LATE_STEP_ROUND)
 #: Variants flown by a class of :mod:`sb3_coma.experiments.coma_probes` (named, so that importing the
 #: study loads no torch) instead of :class:`~sb3_coma.COMA`.
 PROBES: dict[str, str] = {
@@ -327,6 +354,8 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     VALUE_FIT_ROUND,
                     ACTOR_DEPTH_ROUND,
                     ENTROPY_HOLD_ROUND,
+                    SCALE_ROUND,
+                    LATE_STEP_ROUND,
                     PROBES,
                 )
             )
@@ -362,6 +391,11 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "mappo_foraging_8x8_choice_round": (REFERENCE, "mappo_lr_7e-4", "mappo_epochs_15"),
     # the choice between IPPO's entry and the variant ahead of it in its round, on three seeds
     "ippo_choice_round": ("ippo", "ippo_epochs_15"),
+    # IPPO's share of the other tasks' tuning budget: its round there (--tasks lbf,simple_reference,lbf_8x8
+    # --seeds 1), then on three seeds the variants ahead of its entry on each (--tasks <task> --seeds 3)
+    "ippo_foraging_choice_round": ("ippo", "ippo_lr_7e-4", "ippo_epochs_15"),
+    "ippo_reference_choice_round": ("ippo", "ippo_ent_0", "ippo_lr_7e-4", "ippo_batch_1024"),
+    "ippo_foraging_8x8_choice_round": ("ippo", "ippo_lr_7e-4"),
     # simple_spread's entry against its return bootstrapped with V(s), on three seeds (--seeds 3)
     "state_value_round": (
         "before_lambda_95_q_norm",
@@ -398,6 +432,25 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "whole_budget_depth_round": ("before_lambda_95_q_norm", "mappo_pi_64x2"),
     # a larger entropy bonus for the entry (round 16), on three seeds (--tasks simple_spread --seeds 3)
     "entropy_hold_round": ("before_lambda_95_q_norm", *ENTROPY_HOLD_ROUND, REFERENCE, "mappo_norm_reward"),
+    # PopArt and the entry without the time-limit bootstrap (round 17), on three seeds (--seeds 3)
+    "scale_round": ("before_lambda_95_q_norm", *SCALE_ROUND, REFERENCE),
+    # COMA's share of simple_reference's tuning budget (round 18, --tasks simple_reference --seeds 3):
+    # the entry's actor step at MAPPO's choice there (learning rate 1e-4) and at PPO's clip 0.1
+    "reference_step_round": (
+        "before_lambda_95_q_norm",
+        *ACTOR_STEP_ROUND,
+        REFERENCE,
+        "mappo_lr_1e-4",
+    ),
+    # the late updates (round 19), at the whole budget: smaller (both learning rates annealed linearly
+    # to 0) or three times as many (12 minibatches a rollout, as PPO takes under MAPPO), beside the
+    # entry and MAPPO at COMA's depth (--tasks simple_spread_full --seeds 3)
+    "late_step_round": (
+        "before_lambda_95_q_norm",
+        *LATE_STEP_ROUND,
+        "minibatch_86_before_lambda_95_q_norm",
+        "mappo_pi_64x2",
+    ),
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
@@ -462,6 +515,7 @@ def run_variant(task_key: str, variant: str, seed: int, folder: Path) -> dict[st
     from stable_baselines3.common.logger import configure
 
     from sb3_coma import COMA
+    from sb3_coma.app.zoo_marl import preprocess_schedules
 
     th.set_num_threads(1)
     task = study_task(task_key)
@@ -474,7 +528,8 @@ def run_variant(task_key: str, variant: str, seed: int, folder: Path) -> dict[st
 
         venv, recorder = _vec_env(task, seed, learner)
         algorithm = getattr(coma_probes, PROBES[variant]) if variant in PROBES else COMA
-        model = algorithm("MlpPolicy", venv, seed=seed, device="cpu", **VARIANTS[variant])
+        settings = preprocess_schedules(copy.deepcopy(VARIANTS[variant]))  # "lin_<x>" as the zoo reads it
+        model = algorithm("MlpPolicy", venv, seed=seed, device="cpu", **settings)
     model.set_logger(configure(str(folder), ["csv"]))
     model.learn(_joint_to_learn(learner, task, recorder.n_agents))
     venv.close()

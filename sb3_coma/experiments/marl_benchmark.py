@@ -169,10 +169,11 @@ def _model(learner: str, venv: VecEnv, seed: int, settings: dict[str, Any]) -> A
     from stable_baselines3 import PPO
 
     from sb3_coma import COMA
+    from sb3_coma.app.zoo_marl import preprocess_schedules
     from sb3_coma.common.logger import use_folderless_logger
     from sb3_coma.mappo.central_value import CentralValuePolicy
 
-    settings = dict(settings)
+    settings = preprocess_schedules(dict(settings))  # "lin_<x>" as the zoo reads it
     policy = settings.pop("policy")
     if learner == "coma":
         return COMA(policy, venv, seed=seed, device="cpu", **settings)
