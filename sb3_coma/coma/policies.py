@@ -441,7 +441,6 @@ class COMAPolicy(BasePolicy):
         net = self.critic_target if target else self.critic
         return net(*self.critic_features(obs, state, actions)).view(batch, n_agents, self.n_actions)
 
-    @th.no_grad()
     def critic_output_layers(self) -> list[nn.Linear]:
         """The last linear layer of the critic, its target and ``value_net`` (if any): what
         :meth:`preserve_critic_outputs` rescales. A world-specific policy whose critic has no
@@ -464,6 +463,7 @@ class COMAPolicy(BasePolicy):
             layer.weight.mul_(old_std / new_std)
             layer.bias.mul_(old_std).add_(old_mean - new_mean).div_(new_std)
 
+    @th.no_grad()
     def sync_target(self) -> None:
         """Copy the critic into the target critic."""
         self.critic_target.load_state_dict(self.critic.state_dict())
