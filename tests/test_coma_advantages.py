@@ -23,20 +23,17 @@ def _spread(**kwargs: Any) -> ParallelEnv:
     return simple_spread_v3.parallel_env(N=3, max_cycles=25, continuous_actions=False, **kwargs)
 
 
+def _fast_coma(**kwargs: Any) -> COMA:
+    """COMA with the fast settings on two copies of simple_spread, seed 0."""
+    return COMA("MlpPolicy", make_marl_vec_env(_spread, n_envs=2, seed=0), seed=0, device="cpu", **FAST, **kwargs)
+
+
 def _scored_q(
     before: bool, monkeypatch: pytest.MonkeyPatch, normalize_q: bool = False
 ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     """(Q the advantages read, the critic's Q of the rollout before train(), after train()), all in
     units of return (``normalize_q``: each with the running statistics of its own time)."""
-    model = COMA(
-        "MlpPolicy",
-        make_marl_vec_env(_spread, n_envs=2, seed=0),
-        seed=0,
-        device="cpu",
-        advantage_before_critic_update=before,
-        normalize_q=normalize_q,
-        **FAST,
-    )
+    model = _fast_coma(advantage_before_critic_update=before, normalize_q=normalize_q)
     model.learn(32)  # one rollout collected and trained; the next one is scored below
     model._setup_learn(32, reset_num_timesteps=False)
     model.collect_rollouts(model.env, model._init_callback(None), model.rollout_buffer, model.n_steps)
@@ -114,22 +111,13 @@ def test_gae_over_the_baseline_is_the_textbook_recursion() -> None:
 
 
 def test_gae_trains() -> None:
-    env = make_marl_vec_env(_spread, n_envs=2, seed=0)
-    model = COMA("MlpPolicy", env, advantage="gae", seed=0, device="cpu", **FAST).learn(64)
+    model = _fast_coma(advantage="gae").learn(64)
     assert model.num_timesteps == 64 and np.isfinite(model.logger.name_to_value["train/advantage_std"])
 
 
 def _baseline_explained_variance(advantage: str, silent_critic: bool) -> float | None:
-    model = COMA(
-        "MlpPolicy",
-        make_marl_vec_env(_spread, n_envs=2, seed=0),
-        seed=0,
-        device="cpu",
-        advantage=advantage,
-        advantage_before_critic_update=True,
-        critic_learning_rate=1e-12,  # the critic as built, for one rollout
-        **FAST,
-    )
+    # the critic as built, for one rollout
+    model = _fast_coma(advantage=advantage, advantage_before_critic_update=True, critic_learning_rate=1e-12)
     if silent_critic:  # Q = 0 everywhere: the baseline is 0 and explains none of the return
         with th.no_grad():
             model.policy.critic.head.weight.zero_()
