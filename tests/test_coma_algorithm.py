@@ -290,7 +290,9 @@ def test_time_limit_truncation_is_bootstrapped(
 
     monkeypatch.setattr(venv, "step_wait", recording_step)
     monkeypatch.setattr(
-        model, "_expected_target_values", lambda obs, masks, states: th.full((len(obs["local"]) // 2, 2), 3.0)
+        model,
+        "_expected_target_values",
+        lambda obs, masks, states, time_left=None: th.full((len(obs["local"]) // 2, 2), 3.0),
     )
     monkeypatch.setattr(model, "train", lambda: None)
     model.learn(12)

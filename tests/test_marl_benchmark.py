@@ -218,6 +218,42 @@ def test_round_17_changes_one_setting_of_the_entry_per_variant() -> None:
     assert not set(coma_study.SCALE_ROUND) & set(coma_study.ROUNDS["study"])
 
 
+def test_round_20_gives_the_entrys_critic_the_clock_with_and_without_the_bootstrap() -> None:
+    """The clock of MPE's 25-step episodes on simple_spread's entry (the time-aware arm drops the
+    time-limit bootstrap) and on simple_reference's; each beside the entry it changes and MAPPO."""
+    entry = coma_study.VARIANTS["before_lambda_95_q_norm"]
+    clock = {"critic_time_feature": 25}
+    expected = {
+        "before_lambda_95_q_norm_clock_25": entry | clock | {"bootstrap_time_limits": False},
+        "before_lambda_95_q_norm_clock_25_bootstrap": entry | clock,
+        "minibatch_86_before_lambda_95_q_norm_clock_25": coma_study.VARIANTS["minibatch_86_before_lambda_95_q_norm"]
+        | clock
+        | {"bootstrap_time_limits": False},
+    }
+    assert expected == coma_study.CLOCK_ROUND
+    reference = coma_study.VARIANTS["before_lambda_95_q_norm_lr_1e-4"]
+    expected_reference = {
+        "before_lambda_95_q_norm_lr_1e-4_clock_25": reference | clock | {"bootstrap_time_limits": False}
+    }
+    assert expected_reference == coma_study.REFERENCE_CLOCK_ROUND
+    assert {"before_lambda_95_q_norm", "before_lambda_95_q_norm_no_time_limit_bootstrap", coma_study.REFERENCE} <= set(
+        coma_study.ROUNDS["clock_round"]
+    )
+    assert {"before_lambda_95_q_norm_lr_1e-4", "mappo_lr_1e-4"} <= set(coma_study.ROUNDS["reference_clock_round"])
+    assert "mappo_pi_64x2" in coma_study.ROUNDS["clock_whole_budget_round"]
+    assert not {*coma_study.CLOCK_ROUND, *coma_study.REFERENCE_CLOCK_ROUND} & set(coma_study.ROUNDS["study"])
+
+
+def test_round_21_gives_the_clocked_entry_mappos_actor_depth_and_nothing_else() -> None:
+    entry = coma_study.VARIANTS["minibatch_86_before_lambda_95_q_norm_clock_25"]
+    deeper = coma_study.CLOCK_DEPTH_ROUND["minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3"]
+    assert deeper == entry | {"policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}}}
+    assert {"minibatch_86_before_lambda_95_q_norm_clock_25", "mappo_pi_64x2"} <= set(
+        coma_study.ROUNDS["clock_depth_round"]
+    )
+    assert not set(coma_study.CLOCK_DEPTH_ROUND) & set(coma_study.ROUNDS["study"])
+
+
 @pytest.mark.parametrize("learner", ["coma", "mappo"])
 def test_an_entrys_linear_schedule_trains_as_the_zoo_reads_it(learner: str) -> None:
     """The benchmark and the study build a model from an entry as rl-zoo3 does: ``lin_<x>`` is its

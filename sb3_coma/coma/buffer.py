@@ -39,6 +39,7 @@ class JointRolloutBuffer:
     :param n_actions: actions per agent (the mask's width)
     :param state_shape: shape of the per-copy global state to store (``None``: the state is read
         from the observations, nothing extra is stored)
+    :param time_left: store each copy's time left in its episode (``COMA(critic_time_feature=...)``)
     :param device: where :meth:`time_major` puts the data
     """
 
@@ -50,6 +51,7 @@ class JointRolloutBuffer:
         observation_space: spaces.Space,
         n_actions: int,
         state_shape: tuple[int, ...] | None = None,
+        time_left: bool = False,
         device: th.device | str = "cpu",
     ) -> None:
         self.n_steps = n_steps
@@ -64,6 +66,8 @@ class JointRolloutBuffer:
             self.obs = _storage(observation_space, lead)
         #: The env's global state per copy (state source "env" only).
         self.states = None if state_shape is None else np.zeros((n_steps, n_copies, *state_shape), dtype=np.float32)
+        #: The fraction of the time limit left in each copy's episode at each step (the critic's clock).
+        self.time_left = np.zeros((n_steps, n_copies), dtype=np.float32) if time_left else None
         #: 1.0 for valid actions (all ones when the env gives no masks).
         self.mask = np.zeros((*lead, n_actions), dtype=np.float32)
         self.actions = np.zeros(lead, dtype=np.int64)
@@ -98,9 +102,10 @@ class JointRolloutBuffer:
         rewards: np.ndarray,
         dones: np.ndarray,
         states: np.ndarray | None = None,
+        time_left: np.ndarray | None = None,
     ) -> None:
         """Store one vec-env step; every array has ``E * N`` rows in the vec env's order
-        (``states``: one row per copy)."""
+        (``states`` and ``time_left``: one row per copy)."""
         if self.full:
             raise RuntimeError("JointRolloutBuffer is full; call reset() before adding more steps")
         t = self.pos
@@ -113,6 +118,9 @@ class JointRolloutBuffer:
         if self.states is not None:
             assert states is not None
             self.states[t] = np.asarray(states, dtype=np.float32).reshape(self.states.shape[1:])
+        if self.time_left is not None:
+            assert time_left is not None
+            self.time_left[t] = time_left
         self.mask[t] = self._grouped(mask)
         self.actions[t] = self._grouped(actions)
         self.rewards[t] = self._grouped(rewards)
@@ -124,12 +132,14 @@ class JointRolloutBuffer:
         self.bootstrap[...] = np.asarray(values, dtype=np.float32).reshape(self.n_copies, self.n_agents)
 
     def time_major(self) -> JointBatch:
-        """The filled part as tensors shaped ``(T, E, N, ...)`` (``states``: ``(T, E, ...)``; no copy on CPU)."""
+        """The filled part as tensors shaped ``(T, E, N, ...)`` (``states``: ``(T, E, ...)``,
+        ``time_left``: ``(T, E)``; no copy on CPU)."""
         t = self.pos
         to = lambda a: th.as_tensor(a[:t], device=self.device)  # noqa: E731
         return {
             "obs": map_obs(to, self.obs),
             "states": None if self.states is None else to(self.states),
+            "time_left": None if self.time_left is None else to(self.time_left),
             "mask": to(self.mask),
             "actions": to(self.actions),
             "rewards": to(self.rewards),

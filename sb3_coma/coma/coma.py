@@ -62,6 +62,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
 from sb3_coma.coma.buffer import JointRolloutBuffer
+from sb3_coma.coma.clock import EpisodeClock, append_time_left, with_time_left
 from sb3_coma.coma.plugins import resolve_policy, saved_policy_class
 from sb3_coma.coma.policies import CnnPolicy, COMAPolicy, MlpPolicy, MultiInputPolicy
 from sb3_coma.coma.progress import JointStepProgressBar
@@ -160,6 +161,14 @@ class COMA(OnPolicyAlgorithm):
         ``False``: the return stops there as at a true end (the MAPPO authors' code on MPE), so the
         critic's value of the last state, a guess about steps nobody flew, is not part of any
         advantage (docs/training.md, round 7)
+    :param critic_time_feature: the episodes' time limit in steps: the critic (and ``V``) then
+        reads the time left, ``1 - t / critic_time_feature`` (``t``: steps since the copy's episode
+        began), as one more state feature, as sb3-contrib's ``TimeFeatureWrapper`` gives it to a
+        single agent, but for the centralised critic only (the actors and the task stay as they
+        are). With ``bootstrap_time_limits=False`` the critic learns the finite-horizon return the
+        task scores (Pardo et al. 2018, "time awareness") instead of an infinite-horizon value
+        carried in by the time-limit bootstrap; needs a flat state. ``None``: no clock
+        (docs/training.md, round 20)
     :param target_update_interval: critic updates between target-critic synchronisations (a hard copy)
     :param exploration_initial_eps: initial weight of uniform-over-valid-actions exploration
     :param exploration_final_eps: final weight
@@ -218,6 +227,7 @@ class COMA(OnPolicyAlgorithm):
         normalize_q: bool | str = False,
         advantage_before_critic_update: bool = False,
         bootstrap_time_limits: bool = True,
+        critic_time_feature: int | None = None,
         target_update_interval: int = 4,
         exploration_initial_eps: float = 0.0,
         exploration_final_eps: float = 0.0,
@@ -274,6 +284,7 @@ class COMA(OnPolicyAlgorithm):
         self.normalize_q: bool | str = normalize_q if normalize_q == POPART else bool(normalize_q)
         self.advantage_before_critic_update = bool(advantage_before_critic_update)
         self.bootstrap_time_limits = bool(bootstrap_time_limits)
+        self.critic_time_feature = critic_time_feature
         self.target_update_interval = target_update_interval
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
@@ -311,6 +322,8 @@ class COMA(OnPolicyAlgorithm):
         self.state_source: str | None = None
         self.state_space: spaces.Space | None = None
         self._last_states: np.ndarray | None = None
+        #: The critic's clock (``critic_time_feature``), rebuilt whenever ``learn()`` resets the env.
+        self._clock: EpisodeClock | None = None
         self._n_critic_updates = 0
         self._n_target_updates = 0
         #: Running mean and variance of the critic's targets (``normalize_q``), saved with the model.
@@ -332,6 +345,10 @@ class COMA(OnPolicyAlgorithm):
             has_key = isinstance(self.observation_space, spaces.Dict) and KEY_STATE in self.observation_space.spaces
             self.state_source = "obs" if has_key else "concat"
             self.state_space = state_space_of(self.state_source, self.observation_space, self.n_agents)
+        else:  # loaded without an env: the saved state space (with its clock, if any) stands
+            return
+        if self.critic_time_feature is not None:
+            self.state_space = with_time_left(self.state_space)
 
     def _setup_model(self) -> None:
         """Build schedules, buffer and policy from attributes alone (``load`` relies on that)."""
@@ -363,7 +380,8 @@ class COMA(OnPolicyAlgorithm):
             self._agents,
             self.observation_space,
             int(self.action_space.n),
-            state_shape=tuple(self.state_space.shape or ()) if self.state_source == "env" else None,
+            state_shape=self._stored_state_shape(),
+            time_left=self.critic_time_feature is not None,
             device=self.device,
         )
         self.policy = self.policy_class(  # type: ignore[assignment]
@@ -377,6 +395,15 @@ class COMA(OnPolicyAlgorithm):
             **value_kwargs,
         )
         self.policy = self.policy.to(self.device)
+
+    def _stored_state_shape(self) -> tuple[int, ...] | None:
+        """The env's state per copy that the buffer stores (state source ``"env"``; without the clock,
+        which the buffer stores apart), else ``None``."""
+        if self.state_source != "env":
+            return None
+        assert self.state_space is not None
+        shape = tuple(self.state_space.shape or ())
+        return (shape[0] - 1,) if self.critic_time_feature is not None else shape
 
     def _state_value_kwargs(self) -> dict[str, Any]:
         """``{"state_value": True}`` for the policy when the advantage bootstraps with ``V(s)``.
@@ -401,7 +428,7 @@ class COMA(OnPolicyAlgorithm):
 
     def _excluded_save_params(self) -> list[str]:
         # the reference is a module: saved with the networks (_get_torch_save_params), not pickled
-        return [*super()._excluded_save_params(), "reference_actor"]
+        return [*super()._excluded_save_params(), "reference_actor", "_clock"]
 
     def set_reference_actor(self) -> None:
         """Freeze a copy of the current actor (e.g. after :func:`~sb3_coma.uav.imitation.clone_teacher`)
@@ -477,17 +504,28 @@ class COMA(OnPolicyAlgorithm):
         check_masks(masks, int(self.action_space.n))
         return masks
 
-    def _joint_state(self, obs: Any, states: th.Tensor | None) -> th.Tensor:
-        """The critic's state per agent row, ``(B, N, ...)``, from joint observations ``(B, N, ...)``
-        and (state source ``"env"``) the env's states ``(B, ...)``."""
+    def _joint_state(self, obs: Any, states: th.Tensor | None, time_left: th.Tensor | None = None) -> th.Tensor:
+        """The critic's state per agent row, ``(B, N, ...)``, from joint observations ``(B, N, ...)``,
+        (state source ``"env"``) the env's states ``(B, ...)`` and (``critic_time_feature``) each
+        joint step's time left ``(B,)``."""
         n = self._agents
         if self.state_source == "obs":
-            return obs[KEY_STATE].float()
-        if self.state_source == "env":
+            state = obs[KEY_STATE].float()
+        elif self.state_source == "env":
             assert states is not None
-            return states.float()[:, None].expand(-1, n, *states.shape[1:])
-        flat = concat_state(obs, self.observation_space, self.policy.normalize_images)
-        return flat[:, None].expand(-1, n, -1)
+            state = states.float()[:, None].expand(-1, n, *states.shape[1:])
+        else:
+            state = concat_state(obs, self.observation_space, self.policy.normalize_images)[:, None].expand(-1, n, -1)
+        if self.critic_time_feature is None:
+            return state
+        assert time_left is not None, "critic_time_feature: the time left of every joint step is needed"
+        return append_time_left(state, time_left)
+
+    def _time_left(self, elapsed: np.ndarray | None = None) -> th.Tensor | None:
+        """The clock's time left per copy now (or after ``elapsed`` steps), ``None`` without one."""
+        if self._clock is None:
+            return None
+        return th.as_tensor(self._clock.time_left(elapsed), device=self.device)
 
     def _current_states(self) -> np.ndarray | None:
         """The env's global state of every copy now (state source ``"env"`` only)."""
@@ -505,6 +543,7 @@ class COMA(OnPolicyAlgorithm):
         if own_logger:
             self._logger = folderless_logger(self.verbose)
             self._custom_logger = True
+        observed = self._last_obs
         try:
             out = super()._setup_learn(*args, **kwargs)
         finally:
@@ -512,10 +551,15 @@ class COMA(OnPolicyAlgorithm):
                 self._custom_logger = False
         self._env_masks = self.env is not None and self.env.has_attr("action_masks")
         self._last_states = self._current_states()
+        restarted = self._last_obs is not observed  # SB3 reset the env: every episode begins now
+        if self.critic_time_feature is not None and (restarted or self._clock is None):
+            self._clock = EpisodeClock(self.n_copies, self.critic_time_feature)
         return out
 
     @th.no_grad()
-    def _expected_target_values(self, obs: Any, masks: np.ndarray, states: np.ndarray | None) -> th.Tensor:
+    def _expected_target_values(
+        self, obs: Any, masks: np.ndarray, states: np.ndarray | None, time_left: th.Tensor | None = None
+    ) -> th.Tensor:
         """``V_i(s) = sum_u pi(u|o_i) Q_target(s, (u_-i, u))`` per agent of every copy in ``obs``.
 
         The other agents' actions ``u_-i`` are drawn from the current policy (no exploration),
@@ -524,13 +568,14 @@ class COMA(OnPolicyAlgorithm):
         returns bootstrap with ``V`` wherever they bootstrap, as MAPPO's.
         """
         joint = self._grouped(obs)
+        state = self._joint_state(
+            joint, None if states is None else th.as_tensor(states, device=self.device), time_left
+        )
         if self.policy.value_net is not None:
-            state = self._joint_state(joint, None if states is None else th.as_tensor(states, device=self.device))
             return self._q_units(self.policy.state_values(joint, state))
         rows = map_obs(lambda x: x.flatten(0, 1), joint)
         probs = self.policy.action_probs(rows, th.as_tensor(masks, device=self.device))
         actions = th.multinomial(probs, 1).view(-1, self._agents)
-        state = self._joint_state(joint, None if states is None else th.as_tensor(states, device=self.device))
         q = self._q_units(self.policy.q_values(joint, state, actions, target=True))
         return (probs.view(q.shape) * q).sum(-1)
 
@@ -555,7 +600,11 @@ class COMA(OnPolicyAlgorithm):
         states = None
         if self.state_source == "env":
             states = np.stack([infos[c * n]["terminal_state"] for c in copies])
-        values = self._expected_target_values(terminal, self._masks(terminal), states).flatten().cpu().numpy()
+        time_left = None  # the terminal state is one step past the clock's count (advanced after this)
+        if self._clock is not None:
+            time_left = self._time_left(self._clock.elapsed[copies] + 1)
+        masks = self._masks(terminal)
+        values = self._expected_target_values(terminal, masks, states, time_left).flatten().cpu().numpy()
         for row, value in zip(rows, values):
             if row in truncated:
                 rewards[row] += self.gamma * value
@@ -603,13 +652,16 @@ class COMA(OnPolicyAlgorithm):
             self._update_info_buffer(infos, dones)
             if self.bootstrap_time_limits:
                 rewards = self._bootstrap_truncations(rewards, dones, infos)
-            buffer.add(self._last_obs, masks, actions, rewards, dones, self._last_states)  # type: ignore[arg-type]
+            time_left = None if self._clock is None else self._clock.time_left()
+            buffer.add(self._last_obs, masks, actions, rewards, dones, self._last_states, time_left)  # type: ignore[arg-type]
+            if self._clock is not None:
+                self._clock.advance(np.asarray(dones).reshape(self.n_copies, -1).any(axis=1))
             self._last_obs = new_obs  # type: ignore[assignment]
             self._last_states = self._current_states()
             self._last_episode_starts = dones
             masks = self._masks(new_obs, env)
 
-        bootstrap = self._expected_target_values(new_obs, masks, self._last_states)
+        bootstrap = self._expected_target_values(new_obs, masks, self._last_states, self._time_left())
         buffer.set_bootstrap(bootstrap.cpu().numpy())
         callback.update_locals(locals())
         callback.on_rollout_end()
@@ -658,14 +710,18 @@ class COMA(OnPolicyAlgorithm):
         """The critic's output ``(b, N, n)`` for ``Q(s, u_-i, .)`` on joint steps ``idx`` of the
         rollout (standardised with ``normalize_q``: :meth:`_q_units` gives ``Q``)."""
         obs = self._take(data["obs"], idx)
-        states = None if data["states"] is None else data["states"][idx]
-        return self.policy.q_values(obs, self._joint_state(obs, states), data["actions"][idx], target=target)
+        return self.policy.q_values(obs, self._critic_state(data, obs, idx), data["actions"][idx], target=target)
 
     def _v(self, data: dict[str, Any], idx: th.Tensor) -> th.Tensor:
         """The state value ``V_i(s)`` ``(b, N)`` on joint steps ``idx`` (critic's units)."""
         obs = self._take(data["obs"], idx)
+        return self.policy.state_values(obs, self._critic_state(data, obs, idx))
+
+    def _critic_state(self, data: dict[str, Any], obs: Any, idx: th.Tensor) -> th.Tensor:
+        """The critic's state on joint steps ``idx`` of the rollout (``obs``: theirs, already taken)."""
         states = None if data["states"] is None else data["states"][idx]
-        return self.policy.state_values(obs, self._joint_state(obs, states))
+        time_left = None if data["time_left"] is None else data["time_left"][idx]
+        return self._joint_state(obs, states, time_left)
 
     @th.no_grad()
     def _state_value_returns(self) -> tuple[th.Tensor, th.Tensor] | None:

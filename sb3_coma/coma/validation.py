@@ -173,7 +173,7 @@ _ARGUMENT_RULES: tuple[tuple[tuple[str, ...], Callable[[Any], bool], str], ...] 
         lambda v: v >= 1,
         "be >= 1",
     ),
-    (("n_steps",), lambda v: v is None or v >= 1, "be None or >= 1"),
+    (("n_steps", "critic_time_feature"), lambda v: v is None or v >= 1, "be None or >= 1"),
     (("ent_coef", "kl_coef"), lambda v: is_real(v) and v >= 0, "be a number >= 0"),
     (("clip_range",), lambda v: v is None or _positive(_start(v)), "be None, a positive number or a schedule of one"),
     (("max_grad_norm",), _positive, "be positive"),
@@ -188,7 +188,15 @@ _ARGUMENT_RULES: tuple[tuple[tuple[str, ...], Callable[[Any], bool], str], ...] 
 )
 #: The counts among them: a value of another type is a ``TypeError`` ("must be an int").
 _COUNTS = frozenset(
-    {"batch_size", "n_critic_epochs", "n_epochs", "target_update_interval", "stats_window_size", "n_steps"}
+    {
+        "batch_size",
+        "n_critic_epochs",
+        "n_epochs",
+        "target_update_interval",
+        "stats_window_size",
+        "n_steps",
+        "critic_time_feature",
+    }
 )
 
 

@@ -286,6 +286,53 @@ LATE_STEP_ROUND: dict[str, dict[str, Any]] = {
     },
 }
 VARIANTS.update(LATE_STEP_ROUND)
+#: Round 20 (after round 17 found that without the time-limit bootstrap the early fall is gone but the
+#: critic cannot fit returns that depend on a clock the state lacks): the critic reads the time left in
+#: the episode (``critic_time_feature``, MPE's limit of 25 steps: fly this round on the MPE tasks only),
+#: with and without the bootstrap; with the clock and no bootstrap the critic learns the 25-step return
+#: the task scores ("time awareness", Pardo et al. 2018). Round 17's arm without either is the fourth cell.
+CLOCK_ROUND: dict[str, dict[str, Any]] = {
+    "before_lambda_95_q_norm_clock_25": {
+        **VARIANTS["before_lambda_95_q_norm"],
+        "critic_time_feature": 25,
+        "bootstrap_time_limits": False,
+    },
+    "before_lambda_95_q_norm_clock_25_bootstrap": {**VARIANTS["before_lambda_95_q_norm"], "critic_time_feature": 25},
+    # with the clock the early fall is gone and COMA's sampled return keeps pace with MAPPO's until half
+    # the budget, then gains half as much; PPO under MAPPO takes three times as many actor steps a rollout
+    "minibatch_86_before_lambda_95_q_norm_clock_25": {
+        **VARIANTS["minibatch_86_before_lambda_95_q_norm"],
+        "critic_time_feature": 25,
+        "bootstrap_time_limits": False,
+    },
+}
+VARIANTS.update(CLOCK_ROUND)
+#: Round 21 (after round 20's clock and 12 minibatches brought simple_spread's entry level with MAPPO at
+#: COMA's actor depth on the validation seeds): the new entry with MAPPO's depth (three 64-unit layers),
+#: which round 15 measured as costing the old entry about 8 while it still fell early.
+CLOCK_DEPTH_ROUND: dict[str, dict[str, Any]] = {
+    "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3": {
+        **VARIANTS["minibatch_86_before_lambda_95_q_norm_clock_25"],
+        "policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}},
+    },
+}
+VARIANTS.update(CLOCK_DEPTH_ROUND)
+#: Round 20 on simple_reference (its other MPE task, also 25 steps an episode): the clock on its entry.
+REFERENCE_CLOCK_ROUND: dict[str, dict[str, Any]] = {
+    "before_lambda_95_q_norm_lr_1e-4_clock_25": {
+        **VARIANTS["before_lambda_95_q_norm_lr_1e-4"],
+        "critic_time_feature": 25,
+        "bootstrap_time_limits": False,
+    },
+}
+VARIANTS.update(REFERENCE_CLOCK_ROUND)
+#: Round 20 on the Foraging tasks (50 steps an episode, ended earlier when the food is gone): the clock on
+#: each one's entry (Foraging-5x5's 12 minibatches with a standardised critic; Foraging-8x8's without).
+FORAGING_CLOCK_ROUND: dict[str, dict[str, Any]] = {
+    f"{entry}_clock_50": {**VARIANTS[entry], "critic_time_feature": 50, "bootstrap_time_limits": False}
+    for entry in ("minibatch_86_before_lambda_95_q_norm", "minibatch_86_before")
+}
+VARIANTS.update(FORAGING_CLOCK_ROUND)
 #: Variants flown by a class of :mod:`sb3_coma.experiments.coma_probes` (named, so that importing the
 #: study loads no torch) instead of :class:`~sb3_coma.COMA`.
 PROBES: dict[str, str] = {
@@ -356,6 +403,10 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     ENTROPY_HOLD_ROUND,
                     SCALE_ROUND,
                     LATE_STEP_ROUND,
+                    CLOCK_ROUND,
+                    CLOCK_DEPTH_ROUND,
+                    REFERENCE_CLOCK_ROUND,
+                    FORAGING_CLOCK_ROUND,
                     PROBES,
                 )
             )
@@ -451,6 +502,40 @@ ROUNDS: dict[str, tuple[str, ...]] = {
         "minibatch_86_before_lambda_95_q_norm",
         "mappo_pi_64x2",
     ),
+    # the critic's clock (round 20), with and without the time-limit bootstrap, beside the entry and
+    # round 17's arm without either, on three seeds (--tasks simple_spread --seeds 3)
+    "clock_round": (
+        "before_lambda_95_q_norm",
+        "before_lambda_95_q_norm_no_time_limit_bootstrap",
+        "before_lambda_95_q_norm_clock_25",
+        "before_lambda_95_q_norm_clock_25_bootstrap",
+        REFERENCE,
+    ),
+    # round 20's clock at the whole budget, where the entry's gap to MAPPO is made by its early fall
+    # (--tasks simple_spread_full --seeds 3), beside the entry and MAPPO at COMA's depth
+    "clock_whole_budget_round": (
+        "before_lambda_95_q_norm",
+        "before_lambda_95_q_norm_clock_25",
+        "minibatch_86_before_lambda_95_q_norm_clock_25",
+        "mappo_pi_64x2",
+    ),
+    # round 20's entry with MAPPO's actor depth (round 21), at the whole budget (--tasks simple_spread_full
+    # --seeds 3), beside the entry and MAPPO at COMA's depth
+    "clock_depth_round": ("minibatch_86_before_lambda_95_q_norm_clock_25", *CLOCK_DEPTH_ROUND, "mappo_pi_64x2"),
+    # the clock on simple_reference's entry (--tasks simple_reference --seeds 3), beside MAPPO's entry
+    "reference_clock_round": (
+        "before_lambda_95_q_norm_lr_1e-4",
+        *REFERENCE_CLOCK_ROUND,
+        "mappo_lr_1e-4",
+    ),
+    # the clock on the Foraging entries (--tasks lbf --seeds 3 flies the first pair, --tasks lbf_8x8 the
+    # second), beside MAPPO's entry there
+    "foraging_clock_round": (
+        "minibatch_86_before_lambda_95_q_norm",
+        "minibatch_86_before_lambda_95_q_norm_clock_50",
+        "mappo_epochs_15",
+    ),
+    "foraging_8x8_clock_round": ("minibatch_86_before", "minibatch_86_before_clock_50", "mappo_lr_7e-4"),
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
