@@ -252,6 +252,10 @@ def test_round_21_gives_the_clocked_entry_mappos_actor_depth_and_nothing_else() 
         coma_study.ROUNDS["clock_depth_round"]
     )
     assert not set(coma_study.CLOCK_DEPTH_ROUND) & set(coma_study.ROUNDS["study"])
+    foraging = coma_study.VARIANTS["minibatch_86_before_lambda_95_q_norm"]
+    expected = {"minibatch_86_before_lambda_95_q_norm_pi_64x3": foraging | {"policy_kwargs": deeper["policy_kwargs"]}}
+    assert expected == coma_study.FORAGING_DEPTH_ROUND
+    assert not set(coma_study.FORAGING_DEPTH_ROUND) & set(coma_study.ROUNDS["study"])
 
 
 @pytest.mark.parametrize("learner", ["coma", "mappo"])
@@ -365,7 +369,8 @@ def test_a_normalized_entry_trains_on_scaled_rewards_and_is_scored_on_the_envs_o
 
 
 def test_the_tables_word_on_actor_depth_holds_for_the_benchmarks_entries() -> None:
-    """results.md says COMA's and IPPO's actors have two 64-unit tanh layers and MAPPO's one more."""
+    """results.md says COMA's and IPPO's actors have two 64-unit tanh layers, COMA's on simple_spread
+    and Foraging-5x5 three (round 21), and MAPPO's one more than two."""
     from torch import nn
 
     def hidden_layers(model: Any) -> list[int]:
@@ -381,9 +386,16 @@ def test_the_tables_word_on_actor_depth_holds_for_the_benchmarks_entries() -> No
             ]
         return [m.out_features for m in modules]
 
-    task = TASKS["simple_spread"]
-    for learner, expected in (("coma", [64, 64]), ("ippo", [64, 64]), ("mappo", [64, 64, 64])):
-        model, venv, _ = marl_benchmark._trainee(learner, task, 0)
-        assert hidden_layers(model) == expected, learner
+    cases = (
+        ("coma", "simple_reference", [64, 64]),
+        ("coma", "simple_spread", [64, 64, 64]),
+        ("coma", "lbf", [64, 64, 64]),
+        ("ippo", "simple_spread", [64, 64]),
+        ("mappo", "simple_spread", [64, 64, 64]),
+    )
+    for learner, task_key, expected in cases:
+        model, venv, _ = marl_benchmark._trainee(learner, TASKS[task_key], 0)
+        assert hidden_layers(model) == expected, (learner, task_key)
         venv.close()
-    assert "MAPPO's (`CentralValuePolicy`) reads its\nkeys through one more" in marl_benchmark.HEADER
+    assert "but COMA's on simple_spread and Foraging-5x5 have\nthree" in marl_benchmark.HEADER
+    assert "reads its keys\nthrough one more than two" in marl_benchmark.HEADER

@@ -317,6 +317,15 @@ CLOCK_DEPTH_ROUND: dict[str, dict[str, Any]] = {
     },
 }
 VARIANTS.update(CLOCK_DEPTH_ROUND)
+#: Round 21 on Foraging-5x5 (where COMA's entry scores 0.89 on the validation seeds at the study's budget
+#: against MAPPO's 1.00): its entry with the same third layer.
+FORAGING_DEPTH_ROUND: dict[str, dict[str, Any]] = {
+    "minibatch_86_before_lambda_95_q_norm_pi_64x3": {
+        **VARIANTS["minibatch_86_before_lambda_95_q_norm"],
+        "policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}},
+    },
+}
+VARIANTS.update(FORAGING_DEPTH_ROUND)
 #: Round 20 on simple_reference (its other MPE task, also 25 steps an episode): the clock on its entry.
 REFERENCE_CLOCK_ROUND: dict[str, dict[str, Any]] = {
     "before_lambda_95_q_norm_lr_1e-4_clock_25": {
@@ -405,6 +414,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     LATE_STEP_ROUND,
                     CLOCK_ROUND,
                     CLOCK_DEPTH_ROUND,
+                    FORAGING_DEPTH_ROUND,
                     REFERENCE_CLOCK_ROUND,
                     FORAGING_CLOCK_ROUND,
                     PROBES,
@@ -522,6 +532,8 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     # round 20's entry with MAPPO's actor depth (round 21), at the whole budget (--tasks simple_spread_full
     # --seeds 3), beside the entry and MAPPO at COMA's depth
     "clock_depth_round": ("minibatch_86_before_lambda_95_q_norm_clock_25", *CLOCK_DEPTH_ROUND, "mappo_pi_64x2"),
+    # the same third layer on Foraging-5x5's entry (--tasks lbf --seeds 3), beside MAPPO's entry there
+    "foraging_depth_round": ("minibatch_86_before_lambda_95_q_norm", *FORAGING_DEPTH_ROUND, "mappo_epochs_15"),
     # the clock on simple_reference's entry (--tasks simple_reference --seeds 3), beside MAPPO's entry
     "reference_clock_round": (
         "before_lambda_95_q_norm_lr_1e-4",

@@ -572,8 +572,9 @@ training. Train minutes: wall time of one run on the recording machine, shared w
 figure: the speed table below is).
 
 **Settings and tuning budget**: each learner's settings are its entry in `zoo_configs/marl/<learner>.yml`.
-Actors: COMA's and IPPO's have two hidden layers of 64 tanh units; MAPPO's (`CentralValuePolicy`) reads its
-keys through one more (docs/design.md; the COMA study's round 15 measures what it is worth).
+Actors: COMA's and IPPO's have two hidden layers of 64 tanh units, but COMA's on simple_spread and Foraging-5x5 have
+three (their entries' `net_arch`, chosen by the study's round 21); MAPPO's (`CentralValuePolicy`) reads its keys
+through one more than two (docs/design.md; the COMA study's rounds 15 and 21 measure what the third layer is worth).
 {tuning}
 """
 
