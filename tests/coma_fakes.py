@@ -254,6 +254,14 @@ class CaptureWriter(KVWriter):
         return [d[key] for d in self.dumps if key in d]
 
 
+def collect_rollout(model: Any, total_timesteps: int = 10_000, **setup: Any) -> None:
+    """Set ``model`` up for ``learn(total_timesteps)`` (``setup``: more of ``_setup_learn``'s
+    arguments) and fill its rollout buffer once, without training: what a test of one rollout's
+    targets or advantages inspects."""
+    model._setup_learn(total_timesteps, **setup)
+    model.collect_rollouts(model.env, model._init_callback(None), model.rollout_buffer, model.n_steps)
+
+
 def capture_logger() -> tuple[Logger, CaptureWriter]:
     writer = CaptureWriter()
     return Logger(folder=None, output_formats=[writer]), writer

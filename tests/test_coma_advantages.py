@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch as th
+from coma_fakes import collect_rollout
 from pettingzoo import ParallelEnv
 
 from sb3_coma import COMA, make_marl_vec_env
@@ -35,8 +36,7 @@ def _scored_q(
     units of return (``normalize_q``: each with the running statistics of its own time)."""
     model = _fast_coma(advantage_before_critic_update=before, normalize_q=normalize_q)
     model.learn(32)  # one rollout collected and trained; the next one is scored below
-    model._setup_learn(32, reset_num_timesteps=False)
-    model.collect_rollouts(model.env, model._init_callback(None), model.rollout_buffer, model.n_steps)
+    collect_rollout(model, 32, reset_num_timesteps=False)
     data = model.rollout_buffer.joint_steps()
     everything = th.arange(data["actions"].shape[0])
     with th.no_grad():
@@ -93,8 +93,7 @@ def test_gae_over_the_baseline_is_the_textbook_recursion() -> None:
         n_steps=30,
         batch_size=20,
     )
-    model._setup_learn(60)
-    model.collect_rollouts(model.env, model._init_callback(None), model.rollout_buffer, model.n_steps)
+    collect_rollout(model, 60)
     data = model.rollout_buffer.time_major()
     T, E, N = data["actions"].shape
     assert data["dones"].sum() > 0  # the rollout holds an episode end (25-step episodes, 30 steps)

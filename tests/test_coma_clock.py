@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch as th
+from coma_fakes import collect_rollout
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
@@ -29,11 +30,6 @@ def _spread() -> ParallelEnv:
 def _model(state: str = "auto", **kwargs: Any) -> COMA:
     args = {"seed": 0, "device": "cpu", "critic_time_feature": LIMIT, **FAST, **kwargs}
     return COMA("MlpPolicy", make_marl_vec_env(_spread, n_envs=2, seed=0, state=state), **args)
-
-
-def _collected(model: COMA) -> None:
-    model._setup_learn(10_000)
-    model.collect_rollouts(model.env, model._init_callback(None), model.rollout_buffer, model.n_steps)
 
 
 def test_the_clock_counts_each_copy_and_restarts_the_copies_that_ended() -> None:
@@ -76,7 +72,7 @@ def test_a_bad_time_limit_is_refused_naming_it(value: Any, error: type[Exception
 
 def test_without_the_option_nothing_changes() -> None:
     model = _model(critic_time_feature=None)
-    _collected(model)
+    collect_rollout(model)
     assert model._clock is None and model.rollout_buffer.time_left is None
     assert model.state_space.shape == (3 * 18,)  # type: ignore[union-attr]  # simple_spread: 18 per agent
 
@@ -87,7 +83,7 @@ def test_the_critic_reads_the_time_left_of_every_joint_step(state: str) -> None:
     observations side by side (simple_spread's state() is as long as those: 3 x 18)."""
     model = _model(state=state)
     assert model.state_source == state and model.state_space.shape == (3 * 18 + 1,)  # type: ignore[union-attr]
-    _collected(model)
+    collect_rollout(model)
     time_left = model.rollout_buffer.time_left
     assert time_left is not None
     expected = np.array([1.0 - (t % LIMIT) / LIMIT for t in range(FAST["n_steps"])], dtype=np.float32)
@@ -111,7 +107,7 @@ def test_the_bootstraps_read_the_clock_of_the_state_they_value() -> None:
         return real(obs, masks, states, time_left)
 
     model._expected_target_values = spy  # type: ignore[method-assign]
-    _collected(model)
+    collect_rollout(model)
     truncations, rollout_end = seen[:-1], seen[-1]
     assert len(truncations) == 1  # both copies cut at step 25, valued in one call
     th.testing.assert_close(truncations[0], th.zeros(2))

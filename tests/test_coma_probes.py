@@ -6,6 +6,7 @@ from typing import Any
 
 import pytest
 import torch as th
+from coma_fakes import collect_rollout
 from pettingzoo import ParallelEnv
 
 from sb3_coma import COMA, make_marl_vec_env
@@ -25,8 +26,7 @@ def _spread() -> ParallelEnv:
 def _advantage_seen(algorithm: type[COMA], monkeypatch: pytest.MonkeyPatch) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     """(the advantage the actor is trained on, V of collection time, the V-bootstrapped returns)."""
     model = algorithm("MlpPolicy", make_marl_vec_env(_spread, n_envs=2, seed=0), seed=0, device="cpu", **FAST)
-    model._setup_learn(10_000)
-    model.collect_rollouts(model.env, model._init_callback(None), model.rollout_buffer, model.n_steps)
+    collect_rollout(model)
     values, returns = model._state_value_returns()  # type: ignore[misc]
     seen: list[th.Tensor] = []
     real = model._fit_actor

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch as th
+from coma_fakes import collect_rollout
 from pettingzoo import ParallelEnv
 
 from sb3_coma import COMA, make_marl_vec_env
@@ -28,11 +29,6 @@ def _model(**kwargs: Any) -> COMA:
     return COMA("MlpPolicy", make_marl_vec_env(_spread, n_envs=2, seed=0), **args)
 
 
-def _collected(model: COMA) -> None:
-    model._setup_learn(10_000)
-    model.collect_rollouts(model.env, model._init_callback(None), model.rollout_buffer, model.n_steps)
-
-
 def test_only_v_return_builds_a_state_value() -> None:
     assert _model(advantage="return").policy.value_net is None
     model = _model()
@@ -50,7 +46,7 @@ def test_the_returns_bootstrap_with_the_state_value_of_collection_time(normalize
     model = _model(td_lambda=0.8, gamma=0.9, n_steps=30, batch_size=20, normalize_q=normalize_q)
     if normalize_q:  # statistics away from (0, 1), so a missed conversion shows
         model.q_scale.update(np.array([-40.0, -20.0, -35.0]))
-    _collected(model)
+    collect_rollout(model)
     data = model.rollout_buffer.time_major()
     T, E, N = data["actions"].shape
     assert data["dones"].sum() > 0  # an episode end inside the rollout (25-step episodes)
@@ -73,7 +69,7 @@ def test_the_returns_bootstrap_with_the_state_value_of_collection_time(normalize
 
 def test_the_advantage_is_that_return_minus_the_baseline(monkeypatch: pytest.MonkeyPatch) -> None:
     model = _model()
-    _collected(model)
+    collect_rollout(model)
     _values, expected = model._state_value_returns()  # type: ignore[misc]
     seen: list[th.Tensor] = []
     real = model._advantages
@@ -90,7 +86,7 @@ def test_the_advantage_is_that_return_minus_the_baseline(monkeypatch: pytest.Mon
 def test_the_state_value_learns_its_returns() -> None:
     """Critic epochs on one rollout bring V toward the returns it is fitted to."""
     model = _model(n_critic_epochs=1, batch_size=32)
-    _collected(model)
+    collect_rollout(model)
     data = model.rollout_buffer.joint_steps()
     _values, returns = model._state_value_returns()  # type: ignore[misc]
     everything = th.arange(returns.shape[0])
@@ -140,7 +136,7 @@ def test_it_bootstraps_with_the_state_value_wherever_it_bootstraps() -> None:
     target critic's expected Q: the returns bootstrap with V as MAPPO's do."""
     model = _model(normalize_q=True)
     model.q_scale.update(np.array([-40.0, -20.0, -35.0]))
-    _collected(model)
+    collect_rollout(model)
     joint, states = model._grouped(model._last_obs), model._last_states
     with th.no_grad():
         state = model._joint_state(joint, None if states is None else th.as_tensor(states))
