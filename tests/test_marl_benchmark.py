@@ -258,6 +258,71 @@ def test_round_21_gives_the_clocked_entry_mappos_actor_depth_and_nothing_else() 
     assert not set(coma_study.FORAGING_DEPTH_ROUND) & set(coma_study.ROUNDS["study"])
 
 
+def test_round_22_gives_the_other_tasks_entries_the_third_layer_and_nothing_else() -> None:
+    """simple_reference's and Foraging-8x8's entries with round 21's third actor layer, each beside its
+    entry and MAPPO's entry on that task."""
+    deeper = {"policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}}}
+    entries = ("before_lambda_95_q_norm_lr_1e-4_clock_25", "minibatch_86_before")
+    assert {f"{e}_pi_64x3": coma_study.VARIANTS[e] | deeper for e in entries} == coma_study.LATE_DEPTH_ROUND
+    assert {entries[0], "mappo_lr_1e-4"} <= set(coma_study.ROUNDS["reference_depth_round"])
+    assert {entries[1], "mappo_lr_7e-4"} <= set(coma_study.ROUNDS["foraging_8x8_depth_round"])
+    assert not set(coma_study.LATE_DEPTH_ROUND) & set(coma_study.ROUNDS["study"])
+
+
+def test_round_23_gives_the_entry_mappos_clip_beside_mappos_own_entry() -> None:
+    entry = "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3"
+    assert {f"{entry}_clip_0.1": coma_study.VARIANTS[entry] | {"clip_range": 0.1}} == coma_study.CLOCK_STEP_ROUND
+    arms = coma_study.ROUNDS["clock_step_round"]
+    assert entry in arms and "mappo_clip_0.1" in arms
+    # the benchmark's MAPPO on simple_spread, flown on the validation seeds
+    assert coma_study.ppo_settings("mappo_clip_0.1") == learner_settings("mappo", TASKS["simple_spread"])
+    assert not set(coma_study.CLOCK_STEP_ROUND) & set(coma_study.ROUNDS["study"])
+
+
+def test_round_24_gives_each_other_tasks_entry_the_clip_beside_its_entry_and_mappos() -> None:
+    rounds = {
+        "reference_clip_round": ("before_lambda_95_q_norm_lr_1e-4_clock_25", "mappo_lr_1e-4"),
+        "foraging_clip_round": ("minibatch_86_before_lambda_95_q_norm_pi_64x3", "mappo_epochs_15"),
+        "foraging_8x8_clip_round": ("minibatch_86_before", "mappo_lr_7e-4"),
+    }
+    for name, (entry, mappo) in rounds.items():
+        assert coma_study.ROUNDS[name] == (entry, f"{entry}_clip_0.1", mappo)
+        assert coma_study.LATE_STEP_CLIP_ROUND[f"{entry}_clip_0.1"] == coma_study.VARIANTS[entry] | {"clip_range": 0.1}
+    assert len(coma_study.LATE_STEP_CLIP_ROUND) == len(rounds)
+    assert not set(coma_study.LATE_STEP_CLIP_ROUND) & set(coma_study.ROUNDS["study"])
+
+
+def test_round_25_offers_mappos_entry_more_actor_steps_as_round_20_gave_coma() -> None:
+    entry = coma_study.ppo_settings("mappo_clip_0.1")
+    assert coma_study.ppo_settings("mappo_clip_0.1_batch_96") == entry | {"batch_size": 96}
+    rollout_rows = entry["n_steps"] * marl_benchmark.N_ENVS * 3  # the copies of simple_spread's 3 agents
+    assert rollout_rows % 96 == 0 and rollout_rows // 96 > rollout_rows // entry["batch_size"] == 12
+    assert coma_study.ppo_settings("mappo_clip_0.1_epochs_15") == entry | {"n_epochs": 15}
+    arms = coma_study.ROUNDS["mappo_whole_budget_round"]
+    assert {"mappo_clip_0.1", *coma_study.MAPPO_WHOLE_BUDGET_ROUND} <= set(arms)
+    assert [coma_study.learner_of(a) for a in arms] == ["mappo", "mappo", "mappo", "coma"]
+
+
+#: The study variant each studied task's COMA entry took (its comment in zoo_configs/marl/coma.yml says
+#: which round chose it), and MAPPO's.
+CHOSEN = {
+    "simple_spread": ("minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1", "mappo_clip_0.1"),
+    "simple_reference": ("before_lambda_95_q_norm_lr_1e-4_clock_25", "mappo_lr_1e-4"),
+    "lbf": ("minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1", "mappo_epochs_15"),
+    "lbf_8x8": ("minibatch_86_before", "mappo_lr_7e-4"),
+}
+
+
+@pytest.mark.parametrize("task", sorted(CHOSEN))
+def test_a_studied_tasks_benchmark_entries_are_the_study_variants_validation_chose(task: str) -> None:
+    """The benchmark trains exactly what the study measured on the validation seeds: a hand edit of a
+    config that no study variant matches would report a learner nobody chose."""
+    coma, mappo = CHOSEN[task]
+    entry = learner_settings("coma", TASKS[task])
+    assert entry.pop("policy") == "MlpPolicy" and entry == coma_study.VARIANTS[coma]
+    assert learner_settings("mappo", TASKS[task]) == coma_study.ppo_settings(mappo)
+
+
 @pytest.mark.parametrize("learner", ["coma", "mappo"])
 def test_an_entrys_linear_schedule_trains_as_the_zoo_reads_it(learner: str) -> None:
     """The benchmark and the study build a model from an entry as rl-zoo3 does: ``lin_<x>`` is its

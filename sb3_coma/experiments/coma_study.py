@@ -342,6 +342,35 @@ FORAGING_CLOCK_ROUND: dict[str, dict[str, Any]] = {
     for entry in ("minibatch_86_before_lambda_95_q_norm", "minibatch_86_before")
 }
 VARIANTS.update(FORAGING_CLOCK_ROUND)
+#: Round 22 (after round 21's third actor layer helped simple_spread and Foraging-5x5): the same third
+#: layer on the entries of the two tasks it was not flown on, simple_reference and Foraging-8x8.
+LATE_DEPTH_ROUND: dict[str, dict[str, Any]] = {
+    f"{entry}_pi_64x3": {**VARIANTS[entry], "policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}}}
+    for entry in ("before_lambda_95_q_norm_lr_1e-4_clock_25", "minibatch_86_before")
+}
+VARIANTS.update(LATE_DEPTH_ROUND)
+#: Round 23 (after round 21's entry scored level with MAPPO at COMA's old depth on the validation seeds
+#: but 2.6 below MAPPO's entry on the reported ones): since round 20 COMA's actor takes 12 minibatch steps
+#: an epoch, three times PPO's under MAPPO, each clipped at 0.2; MAPPO took clip 0.1 in its own round.
+#: Round 13 found clip 0.1 costly while the entry still fell early, which the clock has since removed.
+CLOCK_STEP_ROUND: dict[str, dict[str, Any]] = {
+    "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1": {
+        **VARIANTS["minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3"],
+        "clip_range": 0.1,
+    },
+}
+VARIANTS.update(CLOCK_STEP_ROUND)
+#: Round 24 (after round 23's clip 0.1 brought simple_spread's entry level with MAPPO's entry on the
+#: validation seeds): the same clip on the other three studied tasks' entries.
+LATE_STEP_CLIP_ROUND: dict[str, dict[str, Any]] = {
+    f"{entry}_clip_0.1": {**VARIANTS[entry], "clip_range": 0.1}
+    for entry in (
+        "before_lambda_95_q_norm_lr_1e-4_clock_25",
+        "minibatch_86_before_lambda_95_q_norm_pi_64x3",
+        "minibatch_86_before",
+    )
+}
+VARIANTS.update(LATE_STEP_CLIP_ROUND)
 #: Variants flown by a class of :mod:`sb3_coma.experiments.coma_probes` (named, so that importing the
 #: study loads no torch) instead of :class:`~sb3_coma.COMA`.
 PROBES: dict[str, str] = {
@@ -386,6 +415,15 @@ PPO_VARIANTS["mappo_norm_reward"] = (REFERENCE, {"normalize": {"norm_obs": False
 #: MAPPO's actor at COMA's and IPPO's depth (round 15's twin): the extractor's tanh layer and one 64-unit
 #: layer, two hidden layers where MAPPO's policy otherwise has three.
 PPO_VARIANTS["mappo_pi_64x2"] = (REFERENCE, {"policy_kwargs": {"net_arch": {"pi": [64], "vf": [64, 64]}}})
+#: MAPPO's share of the whole-budget tuning on simple_spread (round 25): its entry (clip 0.1) with more
+#: actor steps a rollout, as round 20 gave COMA (three times its minibatches): minibatches of 96 agent
+#: rows, 32 an epoch where 256 give 12 (SB3's PPO counts a minibatch in agent rows, 24 a joint step of
+#: 8 copies; 96 divides the rollout's 3072), or 15 epochs, the other change ahead in MAPPO's own round.
+MAPPO_WHOLE_BUDGET_ROUND: dict[str, tuple[str, dict[str, Any]]] = {
+    f"mappo_clip_0.1_{name}": (REFERENCE, {**PPO_CHANGES["clip_0.1"], **change})
+    for name, change in (("batch_96", {"batch_size": 96}), ("epochs_15", PPO_CHANGES["epochs_15"]))
+}
+PPO_VARIANTS.update(MAPPO_WHOLE_BUDGET_ROUND)
 ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
 ROUNDS: dict[str, tuple[str, ...]] = {
@@ -417,6 +455,9 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     FORAGING_DEPTH_ROUND,
                     REFERENCE_CLOCK_ROUND,
                     FORAGING_CLOCK_ROUND,
+                    LATE_DEPTH_ROUND,
+                    CLOCK_STEP_ROUND,
+                    LATE_STEP_CLIP_ROUND,
                     PROBES,
                 )
             )
@@ -548,6 +589,41 @@ ROUNDS: dict[str, tuple[str, ...]] = {
         "mappo_epochs_15",
     ),
     "foraging_8x8_clock_round": ("minibatch_86_before", "minibatch_86_before_clock_50", "mappo_lr_7e-4"),
+    # round 21's third actor layer on simple_reference's entry (--tasks simple_reference --seeds 3) and on
+    # Foraging-8x8's (--tasks lbf_8x8 --seeds 3), each beside its entry and MAPPO's entry there
+    "reference_depth_round": (
+        "before_lambda_95_q_norm_lr_1e-4_clock_25",
+        "before_lambda_95_q_norm_lr_1e-4_clock_25_pi_64x3",
+        "mappo_lr_1e-4",
+    ),
+    "foraging_8x8_depth_round": ("minibatch_86_before", "minibatch_86_before_pi_64x3", "mappo_lr_7e-4"),
+    # MAPPO's clip on simple_spread's entry (round 23), at the whole budget (--tasks simple_spread_full
+    # --seeds 3), beside the entry and MAPPO's own entry (the benchmark's MAPPO, on the validation seeds)
+    "clock_step_round": (
+        "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3",
+        *CLOCK_STEP_ROUND,
+        "mappo_clip_0.1",
+    ),
+    # round 23's clip on the other tasks' entries (round 24), each beside its entry and MAPPO's entry there:
+    # --tasks simple_reference, lbf and lbf_8x8 (each --seeds 3) fly the three rounds below
+    "reference_clip_round": (
+        "before_lambda_95_q_norm_lr_1e-4_clock_25",
+        "before_lambda_95_q_norm_lr_1e-4_clock_25_clip_0.1",
+        "mappo_lr_1e-4",
+    ),
+    "foraging_clip_round": (
+        "minibatch_86_before_lambda_95_q_norm_pi_64x3",
+        "minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1",
+        "mappo_epochs_15",
+    ),
+    "foraging_8x8_clip_round": ("minibatch_86_before", "minibatch_86_before_clip_0.1", "mappo_lr_7e-4"),
+    # MAPPO's entry with 32 minibatches or 15 epochs (round 25), at the whole budget (--tasks
+    # simple_spread_full --seeds 3), beside MAPPO's and COMA's entries
+    "mappo_whole_budget_round": (
+        "mappo_clip_0.1",
+        *MAPPO_WHOLE_BUDGET_ROUND,
+        "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1",
+    ),
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
