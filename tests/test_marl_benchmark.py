@@ -274,8 +274,8 @@ def test_round_23_gives_the_entry_mappos_clip_beside_mappos_own_entry() -> None:
     assert {f"{entry}_clip_0.1": coma_study.VARIANTS[entry] | {"clip_range": 0.1}} == coma_study.CLOCK_STEP_ROUND
     arms = coma_study.ROUNDS["clock_step_round"]
     assert entry in arms and "mappo_clip_0.1" in arms
-    # the benchmark's MAPPO on simple_spread, flown on the validation seeds
-    assert coma_study.ppo_settings("mappo_clip_0.1") == learner_settings("mappo", TASKS["simple_spread"])
+    # MAPPO's simple_spread entry of that round (round 26 has since moved it to clip 0.05)
+    assert coma_study.ppo_settings("mappo_clip_0.1") == coma_study.ppo_settings("mappo") | {"clip_range": 0.1}
     assert not set(coma_study.CLOCK_STEP_ROUND) & set(coma_study.ROUNDS["study"])
 
 
@@ -303,10 +303,26 @@ def test_round_25_offers_mappos_entry_more_actor_steps_as_round_20_gave_coma() -
     assert [coma_study.learner_of(a) for a in arms] == ["mappo", "mappo", "mappo", "coma"]
 
 
+def test_round_26_moves_mappos_actor_step_one_way_each() -> None:
+    paper = coma_study.ppo_settings("mappo")
+    assert coma_study.ppo_settings("mappo_clip_0.05") == paper | {"clip_range": 0.05}
+    assert coma_study.ppo_settings("mappo_clip_0.1_lr_7e-4") == paper | {"clip_range": 0.1, "learning_rate": 7e-4}
+    assert {"mappo_clip_0.1", *coma_study.MAPPO_STEP_ROUND} <= set(coma_study.ROUNDS["mappo_step_round"])
+
+
+def test_round_27_offers_coma_the_clip_round_26_offered_mappo() -> None:
+    entry = coma_study.VARIANTS["minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1"]
+    assert {
+        "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.05": entry | {"clip_range": 0.05}
+    } == coma_study.SMALL_CLIP_ROUND
+    assert {"mappo_clip_0.05", "mappo_clip_0.1"} <= set(coma_study.ROUNDS["small_clip_round"])
+    assert not set(coma_study.SMALL_CLIP_ROUND) & set(coma_study.ROUNDS["study"])
+
+
 #: The study variant each studied task's COMA entry took (its comment in zoo_configs/marl/coma.yml says
 #: which round chose it), and MAPPO's.
 CHOSEN = {
-    "simple_spread": ("minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1", "mappo_clip_0.1"),
+    "simple_spread": ("minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.05", "mappo_clip_0.05"),
     "simple_reference": ("before_lambda_95_q_norm_lr_1e-4_clock_25", "mappo_lr_1e-4"),
     "lbf": ("minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1", "mappo_epochs_15"),
     "lbf_8x8": ("minibatch_86_before", "mappo_lr_7e-4"),

@@ -371,6 +371,15 @@ LATE_STEP_CLIP_ROUND: dict[str, dict[str, Any]] = {
     )
 }
 VARIANTS.update(LATE_STEP_CLIP_ROUND)
+#: Round 27 (after round 26 offered MAPPO a clip of 0.05 on simple_spread): the same clip offered back
+#: to COMA's entry there.
+SMALL_CLIP_ROUND: dict[str, dict[str, Any]] = {
+    "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.05": {
+        **VARIANTS["minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3"],
+        "clip_range": 0.05,
+    },
+}
+VARIANTS.update(SMALL_CLIP_ROUND)
 #: Variants flown by a class of :mod:`sb3_coma.experiments.coma_probes` (named, so that importing the
 #: study loads no torch) instead of :class:`~sb3_coma.COMA`.
 PROBES: dict[str, str] = {
@@ -424,6 +433,14 @@ MAPPO_WHOLE_BUDGET_ROUND: dict[str, tuple[str, dict[str, Any]]] = {
     for name, change in (("batch_96", {"batch_size": 96}), ("epochs_15", PPO_CHANGES["epochs_15"]))
 }
 PPO_VARIANTS.update(MAPPO_WHOLE_BUDGET_ROUND)
+#: Round 26, more of MAPPO's share on the axis that paid for both learners, the actor's step: a smaller
+#: clip (0.05), or clip 0.1 with the MAPPO paper's MPE learning rate (7e-4, costly at clip 0.2 in
+#: MAPPO's own round).
+MAPPO_STEP_ROUND: dict[str, tuple[str, dict[str, Any]]] = {
+    "mappo_clip_0.05": (REFERENCE, {"clip_range": 0.05}),
+    "mappo_clip_0.1_lr_7e-4": (REFERENCE, {**PPO_CHANGES["clip_0.1"], **PPO_CHANGES["lr_7e-4"]}),
+}
+PPO_VARIANTS.update(MAPPO_STEP_ROUND)
 ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
 ROUNDS: dict[str, tuple[str, ...]] = {
@@ -458,6 +475,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     LATE_DEPTH_ROUND,
                     CLOCK_STEP_ROUND,
                     LATE_STEP_CLIP_ROUND,
+                    SMALL_CLIP_ROUND,
                     PROBES,
                 )
             )
@@ -622,6 +640,20 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "mappo_whole_budget_round": (
         "mappo_clip_0.1",
         *MAPPO_WHOLE_BUDGET_ROUND,
+        "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1",
+    ),
+    # round 26's smaller clip offered to COMA's entry (round 27), at the whole budget (--tasks
+    # simple_spread_full --seeds 3), beside both entries and MAPPO with the same clip
+    "small_clip_round": (
+        "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1",
+        *SMALL_CLIP_ROUND,
+        "mappo_clip_0.1",
+        "mappo_clip_0.05",
+    ),
+    # MAPPO's actor step (round 26), at the whole budget (--tasks simple_spread_full --seeds 3)
+    "mappo_step_round": (
+        "mappo_clip_0.1",
+        *MAPPO_STEP_ROUND,
         "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1",
     ),
     "time_limit_round": (
