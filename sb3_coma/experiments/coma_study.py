@@ -228,11 +228,11 @@ VARIANTS.update(ACTOR_STEP_ROUND)
 #: whose own tanh layer comes before PPO's two 64-unit layers, so MAPPO's actor has three hidden layers
 #: where COMA's and IPPO's have two, and on simple_spread both two-layer learners sit about 20 below
 #: MAPPO in the benchmark): the entry with MAPPO's actor depth, three 64-unit tanh layers.
+#: MAPPO's actor depth for COMA: three 64-unit tanh layers, the critic's two 128-unit layers unchanged
+#: (rounds 15, 21 and 22 give it to an entry).
+MAPPO_DEPTH: dict[str, Any] = {"policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}}}
 ACTOR_DEPTH_ROUND: dict[str, dict[str, Any]] = {
-    "before_lambda_95_q_norm_pi_64x3": {
-        **VARIANTS["before_lambda_95_q_norm"],
-        "policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}},
-    },
+    "before_lambda_95_q_norm_pi_64x3": {**VARIANTS["before_lambda_95_q_norm"], **MAPPO_DEPTH},
 }
 VARIANTS.update(ACTOR_DEPTH_ROUND)
 #: Round 16 (after MAPPO's value-normalisation arm showed MAPPO falling as COMA does once its V fits
@@ -313,17 +313,14 @@ VARIANTS.update(CLOCK_ROUND)
 CLOCK_DEPTH_ROUND: dict[str, dict[str, Any]] = {
     "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3": {
         **VARIANTS["minibatch_86_before_lambda_95_q_norm_clock_25"],
-        "policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}},
+        **MAPPO_DEPTH,
     },
 }
 VARIANTS.update(CLOCK_DEPTH_ROUND)
 #: Round 21 on Foraging-5x5 (where COMA's entry scores 0.89 on the validation seeds at the study's budget
 #: against MAPPO's 1.00): its entry with the same third layer.
 FORAGING_DEPTH_ROUND: dict[str, dict[str, Any]] = {
-    "minibatch_86_before_lambda_95_q_norm_pi_64x3": {
-        **VARIANTS["minibatch_86_before_lambda_95_q_norm"],
-        "policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}},
-    },
+    "minibatch_86_before_lambda_95_q_norm_pi_64x3": {**VARIANTS["minibatch_86_before_lambda_95_q_norm"], **MAPPO_DEPTH},
 }
 VARIANTS.update(FORAGING_DEPTH_ROUND)
 #: Round 20 on simple_reference (its other MPE task, also 25 steps an episode): the clock on its entry.
@@ -345,7 +342,7 @@ VARIANTS.update(FORAGING_CLOCK_ROUND)
 #: Round 22 (after round 21's third actor layer helped simple_spread and Foraging-5x5): the same third
 #: layer on the entries of the two tasks it was not flown on, simple_reference and Foraging-8x8.
 LATE_DEPTH_ROUND: dict[str, dict[str, Any]] = {
-    f"{entry}_pi_64x3": {**VARIANTS[entry], "policy_kwargs": {"net_arch": {"pi": [64, 64, 64], "qf": [128, 128]}}}
+    f"{entry}_pi_64x3": {**VARIANTS[entry], **MAPPO_DEPTH}
     for entry in ("before_lambda_95_q_norm_lr_1e-4_clock_25", "minibatch_86_before")
 }
 VARIANTS.update(LATE_DEPTH_ROUND)
@@ -616,7 +613,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     ),
     "foraging_8x8_depth_round": ("minibatch_86_before", "minibatch_86_before_pi_64x3", "mappo_lr_7e-4"),
     # MAPPO's clip on simple_spread's entry (round 23), at the whole budget (--tasks simple_spread_full
-    # --seeds 3), beside the entry and MAPPO's own entry (the benchmark's MAPPO, on the validation seeds)
+    # --seeds 3), beside the entry and MAPPO's own entry (the benchmark's MAPPO until round 26)
     "clock_step_round": (
         "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3",
         *CLOCK_STEP_ROUND,
@@ -642,6 +639,12 @@ ROUNDS: dict[str, tuple[str, ...]] = {
         *MAPPO_WHOLE_BUDGET_ROUND,
         "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1",
     ),
+    # MAPPO's actor step (round 26), at the whole budget (--tasks simple_spread_full --seeds 3)
+    "mappo_step_round": (
+        "mappo_clip_0.1",
+        *MAPPO_STEP_ROUND,
+        "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1",
+    ),
     # round 26's smaller clip offered to COMA's entry (round 27), at the whole budget (--tasks
     # simple_spread_full --seeds 3), beside both entries and MAPPO with the same clip
     "small_clip_round": (
@@ -649,12 +652,6 @@ ROUNDS: dict[str, tuple[str, ...]] = {
         *SMALL_CLIP_ROUND,
         "mappo_clip_0.1",
         "mappo_clip_0.05",
-    ),
-    # MAPPO's actor step (round 26), at the whole budget (--tasks simple_spread_full --seeds 3)
-    "mappo_step_round": (
-        "mappo_clip_0.1",
-        *MAPPO_STEP_ROUND,
-        "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.1",
     ),
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
