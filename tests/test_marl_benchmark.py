@@ -319,13 +319,51 @@ def test_round_27_offers_coma_the_clip_round_26_offered_mappo() -> None:
     assert not set(coma_study.SMALL_CLIP_ROUND) & set(coma_study.ROUNDS["study"])
 
 
+def test_round_28_screens_one_change_neighbours_of_each_ppo_entry() -> None:
+    for task, screens in coma_study.BUDGET_SCREENS.items():
+        arms = coma_study.budget_arms(task)
+        assert len(arms) == len(set(arms)) == sum(1 + count for _, count in screens)
+        for entry, count in screens:
+            learner, change = coma_study.PPO_VARIANTS[entry]
+            neighbours = coma_study.entry_neighbours(entry, count)
+            assert len(neighbours) == count and {entry, *neighbours} <= set(arms)
+            for owner, settings in neighbours.values():
+                added = {key: value for key, value in settings.items() if key not in change}
+                assert owner == learner and len(added) == 1 and settings | change == settings
+                assert added in coma_study.BUDGET_OFFERS.values()
+
+
+def test_a_neighbour_flown_under_another_name_keeps_that_name() -> None:
+    """Foraging-8x8's MAPPO entry (lr 7e-4) with clip 0.1 is round 26's simple_spread arm: one setting, one name."""
+    neighbours = coma_study.entry_neighbours("mappo_lr_7e-4", 2)
+    assert list(neighbours) == ["mappo_lr_7e-4_clip_0.05", "mappo_clip_0.1_lr_7e-4"]
+    assert neighbours["mappo_clip_0.1_lr_7e-4"] == coma_study.PPO_VARIANTS["mappo_clip_0.1_lr_7e-4"]
+    assert "mappo_lr_1e-4_lr_7e-4" not in coma_study.entry_neighbours("mappo_lr_1e-4", 10)  # its own axis is skipped
+
+
+def test_round_29_flies_each_entrys_first_neighbour_beside_it() -> None:
+    for task, screens in coma_study.BUDGET_SCREENS.items():
+        arms = coma_study.confirm_arms(task)
+        assert arms[::2] == tuple(entry for entry, _ in screens)
+        for (entry, count), best in zip(screens, arms[1::2]):
+            assert best in coma_study.entry_neighbours(entry, count)
+
+
+def test_the_budget_rounds_bring_mappo_and_ippo_to_comas_budget_on_their_tasks() -> None:
+    """Counted from the round tables in git, as the benchmark's results count it."""
+    runs = coma_study.tuning_runs(Path(__file__).resolve().parents[1] / "docs" / "coma_study")
+    for key in coma_study.BUDGET_SCREENS:
+        task = TASKS[key].name
+        assert runs[("mappo", task)] == runs[("ippo", task)] == runs[("coma", task)], task
+
+
 #: The study variant each studied task's COMA entry took (its comment in zoo_configs/marl/coma.yml says
-#: which round chose it), and MAPPO's.
+#: which round chose it), MAPPO's and IPPO's.
 CHOSEN = {
-    "simple_spread": ("minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.05", "mappo_clip_0.05"),
-    "simple_reference": ("before_lambda_95_q_norm_lr_1e-4_clock_25", "mappo_lr_1e-4"),
-    "lbf": ("minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1", "mappo_epochs_15"),
-    "lbf_8x8": ("minibatch_86_before", "mappo_lr_7e-4"),
+    "simple_spread": ("minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.05", "mappo_clip_0.05", "ippo"),
+    "simple_reference": ("before_lambda_95_q_norm_lr_1e-4_clock_25", "mappo_lr_1e-4", "ippo_ent_0_batch_128"),
+    "lbf": ("minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1", "mappo_epochs_15", "ippo_lr_7e-4"),
+    "lbf_8x8": ("minibatch_86_before", "mappo_lr_7e-4", "ippo_ent_0_lr_7e-4"),
 }
 
 
@@ -333,10 +371,11 @@ CHOSEN = {
 def test_a_studied_tasks_benchmark_entries_are_the_study_variants_validation_chose(task: str) -> None:
     """The benchmark trains exactly what the study measured on the validation seeds: a hand edit of a
     config that no study variant matches would report a learner nobody chose."""
-    coma, mappo = CHOSEN[task]
+    coma, mappo, ippo = CHOSEN[task]
     entry = learner_settings("coma", TASKS[task])
     assert entry.pop("policy") == "MlpPolicy" and entry == coma_study.VARIANTS[coma]
     assert learner_settings("mappo", TASKS[task]) == coma_study.ppo_settings(mappo)
+    assert learner_settings("ippo", TASKS[task]) == coma_study.ppo_settings(ippo)
 
 
 @pytest.mark.parametrize("learner", ["coma", "mappo"])
@@ -412,7 +451,14 @@ def test_the_tuning_budget_is_counted_from_the_round_tables(tmp_path: Path) -> N
     assert coma_study.tuning_runs(tmp_path) == {("coma", "simple_spread"): 3, ("mappo", "simple_spread"): 2}
     text = marl_benchmark.tuning_paragraph(tmp_path)
     assert "COMA: simple_spread 3; MAPPO: simple_spread 2; IPPO: none." in text
-    assert "The budget is NOT equal across learners" in text
+    assert "The budget is NOT equal across learners on simple_spread;" in text
+    for learner, seeds in (("mappo", 1), ("ippo", 3)):
+        (tmp_path / f"{learner}_round.md").write_text(
+            head + f"| simple_spread | {learner}_lr_1e-4 | x | {seeds} | -50 |\n| lbf | paper | x | 2 | 0.5 |\n"
+        )
+    text = marl_benchmark.tuning_paragraph(tmp_path)
+    assert "COMA: lbf 2, simple_spread 3; MAPPO: simple_spread 3; IPPO: simple_spread 3." in text
+    assert "The budget is NOT equal across learners on lbf (equal on simple_spread);" in text
 
 
 def test_an_entrys_normalize_key_is_read_as_rl_zoo_reads_it() -> None:

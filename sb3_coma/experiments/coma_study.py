@@ -438,6 +438,72 @@ MAPPO_STEP_ROUND: dict[str, tuple[str, dict[str, Any]]] = {
     "mappo_clip_0.1_lr_7e-4": (REFERENCE, {**PPO_CHANGES["clip_0.1"], **PPO_CHANGES["lr_7e-4"]}),
 }
 PPO_VARIANTS.update(MAPPO_STEP_ROUND)
+#: Round 28, the PPO learners' share of the tuning budget (issue #45, item 3: the same number of validation
+#: runs for every learner) on the two tasks where COMA's lead over them is least explained by ceiling
+#: effects, simple_reference and Foraging-8x8: one-change neighbours of each PPO entry, in this order (the
+#: changes that paid on simple_spread first), skipping any setting the entry already changes. They are
+#: screened on the first validation seed, as the first rounds screened; the best of them then flies two
+#: more seeds beside its entry (round 29). 128-row minibatches are 16 a rollout on these two-agent tasks.
+BUDGET_OFFERS: dict[str, dict[str, Any]] = {
+    "clip_0.05": {"clip_range": 0.05},
+    "clip_0.1": {"clip_range": 0.1},
+    "epochs_15": {"n_epochs": 15},
+    "epochs_5": {"n_epochs": 5},
+    "lr_7e-4": {"learning_rate": 7e-4},
+    "lr_1e-4": {"learning_rate": 1e-4},
+    "batch_128": {"batch_size": 128},
+    "batch_1024": {"batch_size": 1024},
+    "ent_0": {"ent_coef": 0.0},
+    "gae_0.99": {"gae_lambda": 0.99},
+}
+
+
+def entry_neighbours(entry: str, count: int) -> dict[str, tuple[str, dict[str, Any]]]:
+    """The first ``count`` one-change neighbours of a PPO learner's ``entry`` variant from
+    :data:`BUDGET_OFFERS`; a neighbour that an earlier round flew under another name keeps that name."""
+    learner, change = PPO_VARIANTS[entry]
+    offers = [(name, offer) for name, offer in BUDGET_OFFERS.items() if not offer.keys() & change.keys()]
+    flown = {(owner, json.dumps(settings, sort_keys=True)): name for name, (owner, settings) in PPO_VARIANTS.items()}
+    found = {}
+    for name, offer in offers[:count]:
+        settings = {**change, **offer}
+        found[flown.get((learner, json.dumps(settings, sort_keys=True)), f"{entry}_{name}")] = (learner, settings)
+    return found
+
+
+#: How many neighbours each (PPO entry, task) screens: its runs then reach COMA's on the task, counted as
+#: :func:`tuning_runs` counts (before round 28: simple_reference COMA 27, MAPPO 19, IPPO 16; Foraging-8x8
+#: COMA 21, MAPPO 14, IPPO 12), each count plus the two seeds round 29 adds to the best neighbour.
+BUDGET_SCREENS: dict[str, tuple[tuple[str, int], ...]] = {
+    "simple_reference": (("mappo_lr_1e-4", 6), ("ippo_ent_0", 9)),
+    "lbf_8x8": (("mappo_lr_7e-4", 5), ("ippo_lr_7e-4", 7)),
+}
+for _entry, _count in (screen for screens in BUDGET_SCREENS.values() for screen in screens):
+    PPO_VARIANTS.update(entry_neighbours(_entry, _count))
+
+
+def budget_arms(task: str) -> tuple[str, ...]:
+    """Round 28's arms on ``task``: each PPO entry followed by the neighbours it screens."""
+    return tuple(name for entry, count in BUDGET_SCREENS[task] for name in (entry, *entry_neighbours(entry, count)))
+
+
+#: Round 29: the neighbour of each PPO entry that round 28's seed ranked first, on the two other validation
+#: seeds beside its entry, whether or not it beat the entry there (simple_reference: 128-row minibatches for
+#: both MAPPO, -36.81 against its entry's -37.84, and IPPO, -36.67 against -37.31; Foraging-8x8: MAPPO's 5
+#: epochs, 0.06 against 0.07, and IPPO without the entropy bonus, 0.23 against 0.21).
+BUDGET_CONFIRMS: dict[str, tuple[str, ...]] = {
+    "simple_reference": ("mappo_lr_1e-4_batch_128", "ippo_ent_0_batch_128"),
+    "lbf_8x8": ("mappo_lr_7e-4_epochs_5", "ippo_ent_0_lr_7e-4"),
+}
+
+
+def confirm_arms(task: str) -> tuple[str, ...]:
+    """Round 29's arms on ``task``: each PPO entry followed by its neighbour that round 28 ranked first."""
+    return tuple(
+        name for (entry, _), best in zip(BUDGET_SCREENS[task], BUDGET_CONFIRMS[task]) for name in (entry, best)
+    )
+
+
 ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
 ROUNDS: dict[str, tuple[str, ...]] = {
@@ -653,6 +719,13 @@ ROUNDS: dict[str, tuple[str, ...]] = {
         "mappo_clip_0.1",
         "mappo_clip_0.05",
     ),
+    # the PPO learners' share of the budget (round 28), screened on one seed beside their entries: --tasks
+    # simple_reference or lbf_8x8 --seeds 1
+    "reference_budget_round": budget_arms("simple_reference"),
+    "foraging_8x8_budget_round": budget_arms("lbf_8x8"),
+    # round 28's first on its seed, beside its entry, on three seeds (round 29): --tasks simple_reference --seeds 3
+    "reference_budget_confirm_round": confirm_arms("simple_reference"),
+    "foraging_8x8_budget_confirm_round": confirm_arms("lbf_8x8"),  # --tasks lbf_8x8 --seeds 3
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,

@@ -591,12 +591,17 @@ def tuning_paragraph(study: Path) -> str:
     for learner in learners:
         counts = [f"{task} {runs[(learner, task)]}" for task in tasks if (learner, task) in runs]
         per_learner.append(f"{learner.upper()}: {', '.join(counts) or 'none'}")
-    equal = all(len({runs.get((learner, task), 0) for learner in learners}) == 1 for task in tasks)
-    verdict = "equal across learners" if equal else "NOT equal across learners"
+    equal = [task for task in tasks if len({runs.get((learner, task), 0) for learner in learners}) == 1]
+    unequal = [task for task in tasks if task not in equal]
+    if not unequal:
+        verdict = "The budget is equal across learners on every task"
+    else:
+        verdict = f"The budget is NOT equal across learners on {', '.join(unequal)}"
+        verdict += f" (equal on {', '.join(equal)})" if equal else ""
     return (
         "Settings were chosen on validation seeds and episodes only (`python -m sb3_coma.experiments.coma_study`, "
         f"{study}/, one table a round). Tuning budget in validation runs per task (one variant on one seed, "
-        f"counted from those tables): {'; '.join(per_learner)}. The budget is {verdict}; where a learner has "
+        f"counted from those tables): {'; '.join(per_learner)}. {verdict}; where a learner has "
         "no runs, its entry was not tuned on that task (each entry's comment in the config says where it "
         "comes from)."
     )
