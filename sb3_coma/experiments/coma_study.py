@@ -478,6 +478,8 @@ BUDGET_SCREENS: dict[str, tuple[tuple[str, int], ...]] = {
     "simple_reference": (("mappo_lr_1e-4", 6), ("ippo_ent_0", 9)),
     "lbf_8x8": (("mappo_lr_7e-4", 5), ("ippo_lr_7e-4", 7)),
 }
+# one screen at a time: a later screen's neighbour with an earlier one's settings finds it by name
+# (Foraging-8x8's IPPO without the entropy bonus is simple_reference's ippo_ent_0_lr_7e-4)
 for _entry, _count in (screen for screens in BUDGET_SCREENS.values() for screen in screens):
     PPO_VARIANTS.update(entry_neighbours(_entry, _count))
 
