@@ -444,18 +444,17 @@ PPO_VARIANTS.update(MAPPO_STEP_ROUND)
 #: changes that paid on simple_spread first), skipping any setting the entry already changes. They are
 #: screened on the first validation seed, as the first rounds screened; the best of them then flies two
 #: more seeds beside its entry (round 29). 128-row minibatches are 16 a rollout on these two-agent tasks.
-BUDGET_OFFERS: dict[str, dict[str, Any]] = {
-    "clip_0.05": {"clip_range": 0.05},
-    "clip_0.1": {"clip_range": 0.1},
-    "epochs_15": {"n_epochs": 15},
-    "epochs_5": {"n_epochs": 5},
-    "lr_7e-4": {"learning_rate": 7e-4},
-    "lr_1e-4": {"learning_rate": 1e-4},
+#: The offers are the first rounds' changes (PPO_CHANGES) and three more.
+_NEW_OFFERS: dict[str, dict[str, Any]] = {
+    "clip_0.05": MAPPO_STEP_ROUND["mappo_clip_0.05"][1],
     "batch_128": {"batch_size": 128},
-    "batch_1024": {"batch_size": 1024},
-    "ent_0": {"ent_coef": 0.0},
     "gae_0.99": {"gae_lambda": 0.99},
 }
+_OFFER_ORDER = (
+    *("clip_0.05", "clip_0.1", "epochs_15", "epochs_5", "lr_7e-4"),
+    *("lr_1e-4", "batch_128", "batch_1024", "ent_0", "gae_0.99"),
+)
+BUDGET_OFFERS: dict[str, dict[str, Any]] = {name: (PPO_CHANGES | _NEW_OFFERS)[name] for name in _OFFER_ORDER}
 
 
 def entry_neighbours(entry: str, count: int) -> dict[str, tuple[str, dict[str, Any]]]:
@@ -466,8 +465,8 @@ def entry_neighbours(entry: str, count: int) -> dict[str, tuple[str, dict[str, A
     flown = {(owner, json.dumps(settings, sort_keys=True)): name for name, (owner, settings) in PPO_VARIANTS.items()}
     found = {}
     for name, offer in offers[:count]:
-        settings = {**change, **offer}
-        found[flown.get((learner, json.dumps(settings, sort_keys=True)), f"{entry}_{name}")] = (learner, settings)
+        arm = (learner, {**change, **offer})
+        found[flown.get((learner, json.dumps(arm[1], sort_keys=True)), f"{entry}_{name}")] = arm
     return found
 
 
@@ -502,7 +501,9 @@ BUDGET_CONFIRMS: dict[str, tuple[str, ...]] = {
 def confirm_arms(task: str) -> tuple[str, ...]:
     """Round 29's arms on ``task``: each PPO entry followed by its neighbour that round 28 ranked first."""
     return tuple(
-        name for (entry, _), best in zip(BUDGET_SCREENS[task], BUDGET_CONFIRMS[task]) for name in (entry, best)
+        name
+        for (entry, _), best in zip(BUDGET_SCREENS[task], BUDGET_CONFIRMS[task], strict=True)
+        for name in (entry, best)
     )
 
 
