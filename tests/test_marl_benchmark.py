@@ -349,12 +349,72 @@ def test_round_29_flies_each_entrys_first_neighbour_beside_it() -> None:
             assert best in coma_study.entry_neighbours(entry, count)
 
 
-def test_the_budget_rounds_bring_mappo_and_ippo_to_comas_budget_on_their_tasks() -> None:
+def test_round_29s_neighbours_are_those_round_28s_tables_rank_first() -> None:
+    """The confirmations are read off the screen's tables in git by one rule, not typed by hand."""
+    study = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
+    for task, table in (("simple_reference", "reference_budget_round"), ("lbf_8x8", "foraging_8x8_budget_round")):
+        text = (study / f"{table}.md").read_text()
+        for (entry, count), best in zip(coma_study.BUDGET_SCREENS[task], coma_study.BUDGET_CONFIRMS[task], strict=True):
+            assert (
+                coma_study.screen_first(text, TASKS[task].name, tuple(coma_study.entry_neighbours(entry, count)))
+                == best
+            )
+
+
+def test_round_32_confirms_what_round_31s_table_ranks_first_beside_each_entry() -> None:
+    text = (Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "warehouse_screen_round.md").read_text()
+    for entry, best in zip(coma_study.WAREHOUSE_ENTRIES, coma_study.WAREHOUSE_CONFIRMS, strict=True):
+        assert coma_study.screen_first(text, TASKS["rware_tiny"].name, coma_study.warehouse_neighbours(entry)) == best
+    arms = coma_study.ROUNDS["warehouse_confirm_round"]
+    assert arms[::2] == coma_study.WAREHOUSE_ENTRIES and arms[1::2] == coma_study.WAREHOUSE_CONFIRMS
+
+
+def test_a_screen_ranks_by_validation_then_training_return_then_offer_order() -> None:
+    def row(variant: str, validation: str, last: str) -> str:
+        return f"| T | {variant} | s | 1 | {validation} | {validation} | 0 | - | - | - | 0.0 / 0.0 / {last} | 1.0 |"
+
+    table = "\n".join(
+        [row("a", "0.00", "0.1"), row("b", "0.00", "0.3"), row("c", "0.00", "0.3"), row("d", "-0.01", "9")]
+    )
+    assert coma_study.screen_first(table, "T", ("a", "b", "c", "d")) == "b"
+    assert coma_study.screen_first(table, "T", ("c", "b")) == "c"
+    with pytest.raises(ValueError, match="'e'"):
+        coma_study.screen_first(table, "T", ("a", "e"))
+
+
+def test_the_budget_rounds_and_rwares_rounds_give_every_learner_the_same_budget() -> None:
     """Counted from the round tables in git, as the benchmark's results count it."""
     runs = coma_study.tuning_runs(Path(__file__).resolve().parents[1] / "docs" / "coma_study")
-    for key in coma_study.BUDGET_SCREENS:
+    for key in (*coma_study.BUDGET_SCREENS, "rware_tiny"):
         task = TASKS[key].name
         assert runs[("mappo", task)] == runs[("ippo", task)] == runs[("coma", task)], task
+
+
+def test_round_30_flies_each_learners_rware_entry_at_its_whole_budget() -> None:
+    """The entries as they were before round 30: COMA's (which rounds 31 and 32 kept) and the PPO
+    learners' MAPPO-paper settings (which round 32 changed)."""
+    assert coma_study.study_task("rware_tiny").joint_steps == TASKS["rware_tiny"].joint_steps
+    coma, *ppo = coma_study.WAREHOUSE_ENTRIES
+    entry = learner_settings("coma", TASKS["rware_tiny"])
+    assert entry.pop("policy") == "MlpPolicy" and entry == coma_study.VARIANTS[coma]
+    assert [coma_study.PPO_VARIANTS[name] for name in ppo] == [("mappo", {}), ("ippo", {})]
+    assert coma_study.ROUNDS["warehouse_round"] == coma_study.WAREHOUSE_ENTRIES
+
+
+def test_round_31_gives_every_learner_the_same_offers_on_rware() -> None:
+    """The same first offers, in the same order, applied to each learner's entry: an equal budget."""
+    arms = coma_study.ROUNDS["warehouse_screen_round"]
+    offers = list(coma_study.WAREHOUSE_OFFERS.values())
+    assert offers[:5] == list(coma_study.BUDGET_OFFERS.values())[:5]
+    assert len(arms) == len(set(arms)) == 3 * (1 + len(offers))
+    for k, entry in enumerate(coma_study.WAREHOUSE_ENTRIES):
+        block = arms[k * (1 + len(offers)) : (k + 1) * (1 + len(offers))]
+        assert block[0] == entry and {coma_study.learner_of(a) for a in block} == {coma_study.learner_of(entry)}
+        base = coma_study.VARIANTS[entry] if k == 0 else coma_study.ppo_settings(entry)
+        for name, offer in zip(block[1:], offers, strict=True):
+            settings = coma_study.VARIANTS[name] if k == 0 else coma_study.ppo_settings(name)
+            assert settings == base | offer and settings != base
+    assert not set(coma_study.WAREHOUSE_ROUND) & set(coma_study.ROUNDS["study"])
 
 
 #: The study variant each studied task's COMA entry took (its comment in zoo_configs/marl/coma.yml says
@@ -364,6 +424,7 @@ CHOSEN = {
     "simple_reference": ("before_lambda_95_q_norm_lr_1e-4_clock_25", "mappo_lr_1e-4", "ippo_ent_0_batch_128"),
     "lbf": ("minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1", "mappo_epochs_15", "ippo_lr_7e-4"),
     "lbf_8x8": ("minibatch_86_before", "mappo_lr_7e-4", "ippo_ent_0_lr_7e-4"),
+    "rware_tiny": ("minibatch_86", "mappo_clip_0.05", "ippo_lr_7e-4"),
 }
 
 

@@ -457,17 +457,24 @@ _OFFER_ORDER = (
 BUDGET_OFFERS: dict[str, dict[str, Any]] = {name: (PPO_CHANGES | _NEW_OFFERS)[name] for name in _OFFER_ORDER}
 
 
-def entry_neighbours(entry: str, count: int) -> dict[str, tuple[str, dict[str, Any]]]:
-    """The first ``count`` one-change neighbours of a PPO learner's ``entry`` variant from
-    :data:`BUDGET_OFFERS`; a neighbour that an earlier round flew under another name keeps that name."""
+def ppo_neighbours(entry: str, offers: dict[str, dict[str, Any]]) -> dict[str, tuple[str, dict[str, Any]]]:
+    """Each of ``offers`` applied to a PPO learner's ``entry`` variant (overriding the entry's own value of
+    that setting); a neighbour that an earlier round flew under another name keeps that name."""
     learner, change = PPO_VARIANTS[entry]
-    offers = [(name, offer) for name, offer in BUDGET_OFFERS.items() if not offer.keys() & change.keys()]
     flown = {(owner, json.dumps(settings, sort_keys=True)): name for name, (owner, settings) in PPO_VARIANTS.items()}
     found = {}
-    for name, offer in offers[:count]:
+    for name, offer in offers.items():
         arm = (learner, {**change, **offer})
         found[flown.get((learner, json.dumps(arm[1], sort_keys=True)), f"{entry}_{name}")] = arm
     return found
+
+
+def entry_neighbours(entry: str, count: int) -> dict[str, tuple[str, dict[str, Any]]]:
+    """The first ``count`` one-change neighbours of a PPO learner's ``entry`` variant from
+    :data:`BUDGET_OFFERS`, skipping the offers of a setting the entry already changes."""
+    change = PPO_VARIANTS[entry][1]
+    offers = [(name, offer) for name, offer in BUDGET_OFFERS.items() if not offer.keys() & change.keys()]
+    return ppo_neighbours(entry, dict(offers[:count]))
 
 
 #: How many neighbours each (PPO entry, task) screens: its runs then reach COMA's on the task, counted as
@@ -507,6 +514,81 @@ def confirm_arms(task: str) -> tuple[str, ...]:
     )
 
 
+#: Each learner's RWARE entry before round 30, the first round to fly RWARE (COMA's: round 2's
+#: Foraging-5x5 entry, the best mean rank over rounds 1 and 2; MAPPO's and IPPO's: the MAPPO paper's
+#: MPE settings).
+WAREHOUSE_ENTRIES = ("minibatch_86", REFERENCE, "ippo")
+#: Round 31, RWARE's tuning, the same for every learner: these offers applied to each learner's entry,
+#: screened on the first validation seed. The first five budget offers, in their fixed order (COMA takes
+#: them as they are: its clip, actor epochs and actor learning rate mean what PPO's do); then two that
+#: round 30's logs point to. There the advantage's spread before standardising was 0.001 to 0.01 (a
+#: delivery is rare), so the standardised advantage the actor steps on is mostly noise, and the actor's
+#: entropy fell from 1.6 to about 0.6 (COMA) and 1.0 (MAPPO) with no return to show for it: the raw
+#: advantage (SB3's ``normalize_advantage=False``, which COMA shares), whose noise is small beside the
+#: entropy bonus, and a five times larger entropy bonus.
+WAREHOUSE_OFFERS: dict[str, dict[str, Any]] = {
+    **dict(list(BUDGET_OFFERS.items())[:5]),
+    "adv_raw": {"normalize_advantage": False},
+    "ent_0.05": {"ent_coef": 0.05},
+}
+
+
+def coma_neighbours(entry: str, offers: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Each of ``offers`` applied to COMA's ``entry`` variant (overriding the entry's own value of that
+    setting); a neighbour that an earlier round flew under another name keeps that name."""
+    flown = {json.dumps(settings, sort_keys=True): name for name, settings in VARIANTS.items()}
+    found = {}
+    for name, offer in offers.items():
+        settings = {**VARIANTS[entry], **offer}
+        found[flown.get(json.dumps(settings, sort_keys=True), f"{entry}_{name}")] = settings
+    return found
+
+
+WAREHOUSE_ROUND = coma_neighbours(WAREHOUSE_ENTRIES[0], WAREHOUSE_OFFERS)
+VARIANTS.update(WAREHOUSE_ROUND)
+for _entry in WAREHOUSE_ENTRIES[1:]:
+    PPO_VARIANTS.update(ppo_neighbours(_entry, WAREHOUSE_OFFERS))
+
+
+def warehouse_neighbours(entry: str) -> tuple[str, ...]:
+    """Round 31's neighbours of one learner's RWARE ``entry``, in the order of :data:`WAREHOUSE_OFFERS`."""
+    found = coma_neighbours(entry, WAREHOUSE_OFFERS) if entry in VARIANTS else ppo_neighbours(entry, WAREHOUSE_OFFERS)
+    return tuple(found)
+
+
+def warehouse_arms() -> tuple[str, ...]:
+    """Round 31's arms: each learner's RWARE entry followed by its neighbours."""
+    return tuple(name for entry in WAREHOUSE_ENTRIES for name in (entry, *warehouse_neighbours(entry)))
+
+
+def screen_first(table: str, task: str, candidates: tuple[str, ...]) -> str:
+    """The candidate a screen's table ranks first on ``task``: the best validation return as the table
+    prints it, ties broken by the training return at the end (the sampled policy's, which moves where the
+    most likely actions deliver nothing), then by the order of ``candidates`` (the offers' fixed order)."""
+    scores: dict[str, tuple[float, float]] = {}
+    for line in table.splitlines():
+        cells = [cell.strip() for cell in line.split("|")[1:-1]]
+        if len(cells) > 10 and cells[0] == task and cells[1] in candidates:
+            scores[cells[1]] = (float(cells[4]), float(cells[10].split("/")[-1]))
+    missing = [name for name in candidates if name not in scores]
+    if missing:
+        raise ValueError(f"the screen's table has no row for {missing[0]!r} on {task}")
+    return max(candidates, key=lambda name: (*scores[name], -candidates.index(name)))
+
+
+#: Round 32: the neighbour of each learner's RWARE entry that round 31's table ranks first
+#: (:func:`screen_first`), on two more validation seeds beside its entry, whether or not it beat the entry
+#: on the first (COMA's: the raw advantage, every COMA arm at 0.00 and it alone at 0.1 in training; MAPPO's:
+#: clip 0.05, 0.64 against 0.00; IPPO's: learning rate 7e-4, 2.28 against 0.00).
+WAREHOUSE_CONFIRMS = ("minibatch_86_adv_raw", "mappo_clip_0.05", "ippo_lr_7e-4")
+
+
+def warehouse_confirm_arms() -> tuple[str, ...]:
+    """Round 32's arms: each learner's RWARE entry followed by its neighbour that round 31 ranked first."""
+    pairs = zip(WAREHOUSE_ENTRIES, WAREHOUSE_CONFIRMS, strict=True)
+    return tuple(name for pair in pairs for name in pair)
+
+
 ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
 ROUNDS: dict[str, tuple[str, ...]] = {
@@ -542,6 +624,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     CLOCK_STEP_ROUND,
                     LATE_STEP_CLIP_ROUND,
                     SMALL_CLIP_ROUND,
+                    WAREHOUSE_ROUND,
                     PROBES,
                 )
             )
@@ -729,6 +812,10 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     # round 28's first on its seed, beside its entry, on three seeds (round 29): --tasks simple_reference --seeds 3
     "reference_budget_confirm_round": confirm_arms("simple_reference"),
     "foraging_8x8_budget_confirm_round": confirm_arms("lbf_8x8"),  # --tasks lbf_8x8 --seeds 3
+    # round 30: each learner's RWARE entry, which no round had flown (--tasks rware_tiny)
+    "warehouse_round": WAREHOUSE_ENTRIES,
+    "warehouse_screen_round": warehouse_arms(),  # round 31: --tasks rware_tiny (seed 1000)
+    "warehouse_confirm_round": warehouse_confirm_arms(),  # round 32: --tasks rware_tiny --seeds 3
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
@@ -741,6 +828,9 @@ STUDY_STEPS = {"simple_spread": 150_000, "lbf": 100_000, "simple_reference": 150
 #: and MAPPO part after 150k joint steps (COMA gains little more, MAPPO keeps rising).
 WHOLE_BUDGET_SUFFIX = "_full"
 STUDY_STEPS[f"simple_spread{WHOLE_BUDGET_SUFFIX}"] = TASKS["simple_spread"].joint_steps
+#: RWARE flies its whole budget: at it, the benchmark's COMA and MAPPO deliver nothing on any reported
+#: seed and IPPO's training return only starts to rise in the last third (docs/training.md, round 30).
+STUDY_STEPS["rware_tiny"] = TASKS["rware_tiny"].joint_steps
 #: The tasks of rounds 1 and 2 (``--tasks`` default); the others are flown when a round names them.
 FIRST_TASKS = ("simple_spread", "lbf")
 #: First training seed of the study (validation seeds; the benchmark reports seeds 0, 1, ...).
