@@ -369,6 +369,22 @@ def test_round_32_confirms_what_round_31s_table_ranks_first_beside_each_entry() 
     assert arms[::2] == coma_study.WAREHOUSE_ENTRIES and arms[1::2] == coma_study.WAREHOUSE_CONFIRMS
 
 
+def test_round_33_offers_every_rware_entry_a_longer_trace_alone_and_with_standardised_targets() -> None:
+    arms = coma_study.ROUNDS["warehouse_trace_round"]
+    assert arms[::3] == coma_study.WAREHOUSE_TRACE_ENTRIES == ("minibatch_86", "mappo_clip_0.05", "ippo_lr_7e-4")
+    coma = coma_study.VARIANTS["minibatch_86"]
+    assert [coma_study.VARIANTS[name] for name in arms[1:3]] == [
+        coma | {"td_lambda": 0.95},
+        coma | {"td_lambda": 0.95, "normalize_q": True},
+    ]
+    for k, entry in enumerate(arms[3::3], start=1):
+        base = coma_study.ppo_settings(entry)
+        longer, scaled = (coma_study.ppo_settings(name) for name in arms[3 * k + 1 : 3 * k + 3])
+        assert longer == base | {"gae_lambda": 0.99}
+        assert scaled == longer | {"normalize": {"norm_obs": False, "norm_reward": True}}
+    assert not set(coma_study.WAREHOUSE_TRACE_ROUND) & set(coma_study.ROUNDS["study"])
+
+
 def test_a_screen_ranks_by_validation_then_training_return_then_offer_order() -> None:
     def row(variant: str, validation: str, last: str) -> str:
         return f"| T | {variant} | s | 1 | {validation} | {validation} | 0 | - | - | - | 0.0 / 0.0 / {last} | 1.0 |"

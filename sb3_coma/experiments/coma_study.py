@@ -589,6 +589,37 @@ def warehouse_confirm_arms() -> tuple[str, ...]:
     return tuple(name for pair in pairs for name in pair)
 
 
+#: Round 33, a screen on RWARE's first validation seed after round 32 (whose logs show COMA's critic
+#: explaining none of its targets unless the actor stays uniform): each learner's entry with a longer trace,
+#: alone and with its value's targets standardised, two runs each. COMA's trace decay goes from its
+#: default 0.8 (a delivery's reward reaches about 5 steps back) to MAPPO's 0.95 (about 17), with its
+#: standardised critic (``normalize_q``, in COMA's entries on three other tasks); the PPO learners'
+#: GAE lambda from 0.95 to 0.99, with SB3's reward normalisation (round 12's ``mappo_norm_reward``).
+TRACE_OFFERS: dict[str, dict[str, dict[str, Any]]] = {
+    "coma": {"lambda_95": {"td_lambda": 0.95}, "lambda_95_q_norm": {"td_lambda": 0.95, "normalize_q": True}},
+    "ppo": {
+        "gae_0.99": BUDGET_OFFERS["gae_0.99"],
+        "gae_0.99_norm_reward": {**BUDGET_OFFERS["gae_0.99"], **PPO_VARIANTS["mappo_norm_reward"][1]},
+    },
+}
+#: The RWARE entries since round 32, which round 33 starts from.
+WAREHOUSE_TRACE_ENTRIES = ("minibatch_86", *WAREHOUSE_CONFIRMS[1:])
+WAREHOUSE_TRACE_ROUND = coma_neighbours(WAREHOUSE_TRACE_ENTRIES[0], TRACE_OFFERS["coma"])
+VARIANTS.update(WAREHOUSE_TRACE_ROUND)
+for _entry in WAREHOUSE_TRACE_ENTRIES[1:]:
+    PPO_VARIANTS.update(ppo_neighbours(_entry, TRACE_OFFERS["ppo"]))
+
+
+def warehouse_trace_arms() -> tuple[str, ...]:
+    """Round 33's arms: each learner's RWARE entry followed by its two trace neighbours."""
+    coma, *ppo = WAREHOUSE_TRACE_ENTRIES
+    return (
+        coma,
+        *WAREHOUSE_TRACE_ROUND,
+        *(name for entry in ppo for name in (entry, *ppo_neighbours(entry, TRACE_OFFERS["ppo"]))),
+    )
+
+
 ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
 ROUNDS: dict[str, tuple[str, ...]] = {
@@ -625,6 +656,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     LATE_STEP_CLIP_ROUND,
                     SMALL_CLIP_ROUND,
                     WAREHOUSE_ROUND,
+                    WAREHOUSE_TRACE_ROUND,
                     PROBES,
                 )
             )
@@ -816,6 +848,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "warehouse_round": WAREHOUSE_ENTRIES,
     "warehouse_screen_round": warehouse_arms(),  # round 31: --tasks rware_tiny (seed 1000)
     "warehouse_confirm_round": warehouse_confirm_arms(),  # round 32: --tasks rware_tiny --seeds 3
+    "warehouse_trace_round": warehouse_trace_arms(),  # round 33: --tasks rware_tiny (seed 1000)
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
