@@ -457,16 +457,28 @@ _OFFER_ORDER = (
 BUDGET_OFFERS: dict[str, dict[str, Any]] = {name: (PPO_CHANGES | _NEW_OFFERS)[name] for name in _OFFER_ORDER}
 
 
-def ppo_neighbours(entry: str, offers: dict[str, dict[str, Any]]) -> dict[str, tuple[str, dict[str, Any]]]:
-    """Each of ``offers`` applied to a PPO learner's ``entry`` variant (overriding the entry's own value of
-    that setting); a neighbour that an earlier round flew under another name keeps that name."""
-    learner, change = PPO_VARIANTS[entry]
-    flown = {(owner, json.dumps(settings, sort_keys=True)): name for name, (owner, settings) in PPO_VARIANTS.items()}
+def _offered(
+    entry: str, base: dict[str, Any], offers: dict[str, dict[str, Any]], flown: dict[str, str]
+) -> dict[str, Any]:
+    """Each of ``offers`` applied to ``base``, the settings of ``entry`` (overriding the entry's own value of
+    that setting), by name: ``flown`` maps the settings an earlier round flew (as sorted JSON) to that arm's
+    name, which the neighbour keeps (one setting, one record); a new one is named ``<entry>_<offer>``."""
     found = {}
     for name, offer in offers.items():
-        arm = (learner, {**change, **offer})
-        found[flown.get((learner, json.dumps(arm[1], sort_keys=True)), f"{entry}_{name}")] = arm
+        settings = {**base, **offer}
+        found[flown.get(json.dumps(settings, sort_keys=True), f"{entry}_{name}")] = settings
     return found
+
+
+def ppo_neighbours(entry: str, offers: dict[str, dict[str, Any]]) -> dict[str, tuple[str, dict[str, Any]]]:
+    """Each of ``offers`` applied to a PPO learner's ``entry`` variant (see :func:`_offered`)."""
+    learner, change = PPO_VARIANTS[entry]
+    flown = {
+        json.dumps(settings, sort_keys=True): name
+        for name, (owner, settings) in PPO_VARIANTS.items()
+        if owner == learner
+    }
+    return {name: (learner, settings) for name, settings in _offered(entry, change, offers, flown).items()}
 
 
 def entry_neighbours(entry: str, count: int) -> dict[str, tuple[str, dict[str, Any]]]:
@@ -534,14 +546,9 @@ WAREHOUSE_OFFERS: dict[str, dict[str, Any]] = {
 
 
 def coma_neighbours(entry: str, offers: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """Each of ``offers`` applied to COMA's ``entry`` variant (overriding the entry's own value of that
-    setting); a neighbour that an earlier round flew under another name keeps that name."""
+    """Each of ``offers`` applied to COMA's ``entry`` variant (see :func:`_offered`)."""
     flown = {json.dumps(settings, sort_keys=True): name for name, settings in VARIANTS.items()}
-    found = {}
-    for name, offer in offers.items():
-        settings = {**VARIANTS[entry], **offer}
-        found[flown.get(json.dumps(settings, sort_keys=True), f"{entry}_{name}")] = settings
-    return found
+    return _offered(entry, VARIANTS[entry], offers, flown)
 
 
 WAREHOUSE_ROUND = coma_neighbours(WAREHOUSE_ENTRIES[0], WAREHOUSE_OFFERS)
@@ -550,10 +557,10 @@ for _entry in WAREHOUSE_ENTRIES[1:]:
     PPO_VARIANTS.update(ppo_neighbours(_entry, WAREHOUSE_OFFERS))
 
 
-def warehouse_neighbours(entry: str) -> tuple[str, ...]:
-    """Round 31's neighbours of one learner's RWARE ``entry``, in the order of :data:`WAREHOUSE_OFFERS`."""
-    found = coma_neighbours(entry, WAREHOUSE_OFFERS) if entry in VARIANTS else ppo_neighbours(entry, WAREHOUSE_OFFERS)
-    return tuple(found)
+def warehouse_neighbours(entry: str, offers: dict[str, dict[str, Any]] = WAREHOUSE_OFFERS) -> tuple[str, ...]:
+    """The names of ``offers`` applied to one learner's RWARE ``entry`` (COMA's or a PPO learner's), in
+    the offers' order (round 31's by default)."""
+    return tuple(coma_neighbours(entry, offers) if entry in VARIANTS else ppo_neighbours(entry, offers))
 
 
 def warehouse_arms() -> tuple[str, ...]:
@@ -568,6 +575,7 @@ def screen_first(table: str, task: str, candidates: tuple[str, ...]) -> str:
     scores: dict[str, tuple[float, float]] = {}
     for line in table.splitlines():
         cells = [cell.strip() for cell in line.split("|")[1:-1]]
+        # report_phase's columns: 0 task, 1 variant, 4 validation return, 10 training return first / lowest / last
         if len(cells) > 10 and cells[0] == task and cells[1] in candidates:
             scores[cells[1]] = (float(cells[4]), float(cells[10].split("/")[-1]))
     missing = [name for name in candidates if name not in scores]
@@ -602,8 +610,8 @@ TRACE_OFFERS: dict[str, dict[str, dict[str, Any]]] = {
         "gae_0.99_norm_reward": {**BUDGET_OFFERS["gae_0.99"], **PPO_VARIANTS["mappo_norm_reward"][1]},
     },
 }
-#: The RWARE entries since round 32, which round 33 starts from.
-WAREHOUSE_TRACE_ENTRIES = ("minibatch_86", *WAREHOUSE_CONFIRMS[1:])
+#: The RWARE entries since round 32, which round 33 starts from (COMA's kept its entry).
+WAREHOUSE_TRACE_ENTRIES = (WAREHOUSE_ENTRIES[0], *WAREHOUSE_CONFIRMS[1:])
 WAREHOUSE_TRACE_ROUND = coma_neighbours(WAREHOUSE_TRACE_ENTRIES[0], TRACE_OFFERS["coma"])
 VARIANTS.update(WAREHOUSE_TRACE_ROUND)
 for _entry in WAREHOUSE_TRACE_ENTRIES[1:]:
@@ -612,11 +620,10 @@ for _entry in WAREHOUSE_TRACE_ENTRIES[1:]:
 
 def warehouse_trace_arms() -> tuple[str, ...]:
     """Round 33's arms: each learner's RWARE entry followed by its two trace neighbours."""
-    coma, *ppo = WAREHOUSE_TRACE_ENTRIES
-    return (
-        coma,
-        *WAREHOUSE_TRACE_ROUND,
-        *(name for entry in ppo for name in (entry, *ppo_neighbours(entry, TRACE_OFFERS["ppo"]))),
+    return tuple(
+        name
+        for entry in WAREHOUSE_TRACE_ENTRIES
+        for name in (entry, *warehouse_neighbours(entry, TRACE_OFFERS["coma" if entry in VARIANTS else "ppo"]))
     )
 
 
