@@ -385,6 +385,121 @@ def test_round_33_offers_every_rware_entry_a_longer_trace_alone_and_with_standar
     assert not set(coma_study.WAREHOUSE_TRACE_ROUND) & set(coma_study.ROUNDS["study"])
 
 
+def test_round_34_rings_are_the_next_offers_in_round_31s_order_and_comas_foraging_settings() -> None:
+    """The PPO learners' two-change arms are read off round 31's table by one rule (the next four offers
+    after the confirmed one, skipping the confirmed setting); COMA's are its tuned Foraging-5x5 entry, that
+    entry with clip 0.05, that with MAPPO's return, and round 11's probe on it (the baseline alone differs);
+    every learner gets four new arms beside its entry."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "warehouse_screen_round.md").read_text()
+    for entry, offers in coma_study.WAREHOUSE_RING_OFFERS.items():
+        learner = coma_study.learner_of(entry)
+        ranked = coma_study.screen_order(text, TASKS["rware_tiny"].name, coma_study.warehouse_neighbours(learner))
+        offer_of = {name: name.removeprefix(f"{learner}_") for name in ranked}
+        assert entry == ranked[0]  # round 32 confirmed the screen's first
+        changed = set(coma_study.WAREHOUSE_OFFERS[offer_of[entry]])
+        following = [
+            offer_of[name] for name in ranked[1:] if not set(coma_study.WAREHOUSE_OFFERS[offer_of[name]]) & changed
+        ]
+        assert offers == tuple(following[:4])
+        ring = coma_study.warehouse_neighbours(entry, {offer: coma_study.WAREHOUSE_OFFERS[offer] for offer in offers})
+        for name, offer in zip(ring, offers, strict=True):
+            assert coma_study.ppo_settings(name) == coma_study.ppo_settings(entry) | coma_study.WAREHOUSE_OFFERS[offer]
+    arms = coma_study.ROUNDS["warehouse_ring_round"]
+    assert arms[::5] == coma_study.WAREHOUSE_TRACE_ENTRIES
+    assert len(arms) == len(set(arms)) == 15
+    assert [coma_study.learner_of(name) for name in arms] == ["coma"] * 5 + ["mappo"] * 5 + ["ippo"] * 5
+    foraging = coma_study.VARIANTS[arms[1]]
+    assert foraging == coma_study.VARIANTS[CHOSEN["lbf"][0]]
+    assert coma_study.VARIANTS[arms[2]] == foraging | {"clip_range": 0.05}
+    assert (
+        coma_study.VARIANTS[arms[3]]
+        == coma_study.VARIANTS[arms[4]]
+        == foraging | {"clip_range": 0.05, "advantage": "v_return"}
+    )
+    assert [name in coma_study.PROBES for name in arms[:5]] == [False] * 4 + [True]
+    assert not set(coma_study.WAREHOUSE_RING_ROUND) & set(coma_study.ROUNDS["study"])
+
+
+def test_round_35_screens_every_offer_off_each_ppo_foraging_entrys_axis() -> None:
+    """Foraging-5x5's budget: each PPO learner's entry (the benchmark's) with all eight one-change offers
+    that do not touch the setting it already changes, and confirmations that fill its runs up to COMA's."""
+    arms = coma_study.ROUNDS["foraging_budget_round"]
+    entries = tuple(entry for entry, _ in coma_study.FORAGING_SCREENS)
+    # the benchmark's entries before round 38 (MAPPO's stays; IPPO's took a neighbour: CHOSEN)
+    assert entries == ("mappo_epochs_15", "ippo_lr_7e-4") == tuple(coma_study.FORAGING_CONFIRM_COUNTS)
+    assert CHOSEN["lbf"][1] == entries[0] and CHOSEN["lbf"][2] in coma_study.FORAGING_CONFIRMS[entries[1]]
+    assert arms[::9] == entries and len(arms) == len(set(arms)) == 18
+    for k, (entry, count) in enumerate(coma_study.FORAGING_SCREENS):
+        base = coma_study.ppo_settings(entry)
+        axis = set(coma_study.PPO_VARIANTS[entry][1])
+        off_axis = [offer for offer in coma_study.BUDGET_OFFERS.values() if not set(offer) & axis]
+        assert count == len(off_axis) == 8
+        assert [coma_study.ppo_settings(name) for name in arms[9 * k + 1 : 9 * (k + 1)]] == [base | o for o in off_axis]
+        assert {coma_study.learner_of(name) for name in arms[9 * k : 9 * (k + 1)]} == {coma_study.learner_of(entry)}
+    # the runs before round 35 (MAPPO 16, IPPO 14), its screen and two more seeds for each confirmed arm: COMA's 36
+    assert 16 + 8 + 2 * coma_study.FORAGING_CONFIRM_COUNTS["mappo_epochs_15"] == 36
+    assert 14 + 8 + 2 * coma_study.FORAGING_CONFIRM_COUNTS["ippo_lr_7e-4"] == 36
+
+
+def test_round_36_gives_comas_probe_twin_a_dueling_critic_and_every_ppo_entry_its_next_ring_offer() -> None:
+    arms = coma_study.ROUNDS["warehouse_dueling_round"]
+    twin, probe, dueling = arms[1:4]
+    assert arms[0] == coma_study.WAREHOUSE_TRACE_ENTRIES[0] and dueling == coma_study.WAREHOUSE_DUELING
+    assert probe in coma_study.PROBES and twin not in coma_study.PROBES and dueling not in coma_study.PROBES
+    assert coma_study.VARIANTS[twin] == coma_study.VARIANTS[probe]  # only the probe's baseline differs
+    settings = dict(coma_study.VARIANTS[dueling])
+    assert settings.pop("policy_kwargs") == {**coma_study.VARIANTS[twin]["policy_kwargs"], "dueling_critic": True}
+    assert settings == {k: v for k, v in coma_study.VARIANTS[twin].items() if k != "policy_kwargs"}
+    text = (Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "warehouse_screen_round.md").read_text()
+    for (entry, offer), (pair_entry, neighbour) in zip(
+        coma_study.WAREHOUSE_DUELING_OFFERS.items(), zip(arms[4::2], arms[5::2]), strict=True
+    ):
+        learner = coma_study.learner_of(entry)
+        ranked = coma_study.screen_order(text, TASKS["rware_tiny"].name, coma_study.warehouse_neighbours(learner))
+        axis = set(coma_study.PPO_VARIANTS[entry][1])
+        ring = [n.removeprefix(f"{learner}_") for n in ranked[1:] if not set(coma_study.PPO_VARIANTS[n][1]) & axis]
+        assert ring[4] == offer and (*coma_study.WAREHOUSE_RING_OFFERS[entry], offer) == tuple(ring[:5])
+        assert pair_entry == entry
+        assert coma_study.ppo_settings(neighbour) == coma_study.ppo_settings(entry) | coma_study.WAREHOUSE_OFFERS[offer]
+    assert coma_study.WAREHOUSE_DUELING not in coma_study.ROUNDS["study"]
+
+
+def test_round_37_confirms_the_first_two_new_arms_of_rounds_34_and_36_beside_each_entry() -> None:
+    study = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
+    text = "\n".join((study / f"{name}.md").read_text() for name in ("warehouse_ring_round", "warehouse_dueling_round"))
+    arms = coma_study.ROUNDS["warehouse_ring_confirm_round"]
+    assert arms[::3] == tuple(coma_study.WAREHOUSE_RING_CONFIRMS) == coma_study.WAREHOUSE_TRACE_ENTRIES
+    for entry, pair in coma_study.WAREHOUSE_RING_CONFIRMS.items():
+        candidates = coma_study.warehouse_ring_candidates(entry)
+        assert len(candidates) == len(set(candidates)) == 5 and entry not in candidates
+        assert coma_study.screen_order(text, TASKS["rware_tiny"].name, candidates)[:2] == pair
+    assert coma_study.WAREHOUSE_RING_CONFIRMS["minibatch_86"][0] in coma_study.PROBES  # flown, never taken
+
+
+def test_round_38_confirms_the_first_of_round_35s_table_that_fill_each_budget() -> None:
+    text = (Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "foraging_budget_round.md").read_text()
+    arms = coma_study.ROUNDS["foraging_budget_confirm_round"]
+    start = 0
+    for entry, count in coma_study.FORAGING_SCREENS:
+        confirms = coma_study.FORAGING_CONFIRMS[entry]
+        ranked = coma_study.screen_order(text, TASKS["lbf"].name, tuple(coma_study.entry_neighbours(entry, count)))
+        assert confirms == ranked[: coma_study.FORAGING_CONFIRM_COUNTS[entry]]
+        assert arms[start : start + 1 + len(confirms)] == (entry, *confirms)
+        start += 1 + len(confirms)
+    assert start == len(arms)
+
+
+def test_a_screens_order_is_its_first_again_and_again() -> None:
+    def row(variant: str, validation: str, last: str) -> str:
+        return f"| T | {variant} | s | 1 | {validation} | {validation} | 0 | - | - | - | 0.0 / 0.0 / {last} | 1.0 |"
+
+    table = "\n".join(
+        [row("a", "0.00", "0.1"), row("b", "0.00", "0.3"), row("c", "0.20", "0.0"), row("d", "0.00", "0.1")]
+    )
+    assert coma_study.screen_order(table, "T", ("a", "b", "c", "d")) == ("c", "b", "a", "d")
+    assert coma_study.screen_order(table, "T", ("d", "a")) == ("d", "a")
+
+
 def test_a_screen_ranks_by_validation_then_training_return_then_offer_order() -> None:
     def row(variant: str, validation: str, last: str) -> str:
         return f"| T | {variant} | s | 1 | {validation} | {validation} | 0 | - | - | - | 0.0 / 0.0 / {last} | 1.0 |"
@@ -398,21 +513,20 @@ def test_a_screen_ranks_by_validation_then_training_return_then_offer_order() ->
         coma_study.screen_first(table, "T", ("a", "e"))
 
 
-def test_the_budget_rounds_and_rwares_rounds_give_every_learner_the_same_budget() -> None:
+def test_the_budget_rounds_rwares_and_foraging_5x5s_give_every_learner_the_same_budget() -> None:
     """Counted from the round tables in git, as the benchmark's results count it."""
     runs = coma_study.tuning_runs(Path(__file__).resolve().parents[1] / "docs" / "coma_study")
-    for key in (*coma_study.BUDGET_SCREENS, "rware_tiny"):
+    for key in (*coma_study.BUDGET_SCREENS, "rware_tiny", "lbf"):
         task = TASKS[key].name
         assert runs[("mappo", task)] == runs[("ippo", task)] == runs[("coma", task)], task
 
 
 def test_round_30_flies_each_learners_rware_entry_at_its_whole_budget() -> None:
-    """The entries as they were before round 30: COMA's (which rounds 31 and 32 kept) and the PPO
-    learners' MAPPO-paper settings (which round 32 changed)."""
+    """The entries as they were before round 30: COMA's (round 2's Foraging-5x5 entry, which rounds 31 to 33
+    kept and round 37 replaced) and the PPO learners' MAPPO-paper settings (which round 32 changed)."""
     assert coma_study.study_task("rware_tiny").joint_steps == TASKS["rware_tiny"].joint_steps
     coma, *ppo = coma_study.WAREHOUSE_ENTRIES
-    entry = learner_settings("coma", TASKS["rware_tiny"])
-    assert entry.pop("policy") == "MlpPolicy" and entry == coma_study.VARIANTS[coma]
+    assert coma_study.VARIANTS[coma] == {"n_steps": 128, "batch_size": 86, "n_epochs": 10}
     assert [coma_study.PPO_VARIANTS[name] for name in ppo] == [("mappo", {}), ("ippo", {})]
     assert coma_study.ROUNDS["warehouse_round"] == coma_study.WAREHOUSE_ENTRIES
 
@@ -438,9 +552,9 @@ def test_round_31_gives_every_learner_the_same_offers_on_rware() -> None:
 CHOSEN = {
     "simple_spread": ("minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.05", "mappo_clip_0.05", "ippo"),
     "simple_reference": ("before_lambda_95_q_norm_lr_1e-4_clock_25", "mappo_lr_1e-4", "ippo_ent_0_batch_128"),
-    "lbf": ("minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1", "mappo_epochs_15", "ippo_lr_7e-4"),
+    "lbf": ("minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1", "mappo_epochs_15", "ippo_lr_7e-4_batch_128"),
     "lbf_8x8": ("minibatch_86_before", "mappo_lr_7e-4", "ippo_ent_0_lr_7e-4"),
-    "rware_tiny": ("minibatch_86", "mappo_clip_0.05", "ippo_lr_7e-4"),
+    "rware_tiny": (coma_study.WAREHOUSE_DUELING, "mappo_lr_7e-4_clip_0.05", "ippo_lr_7e-4"),
 }
 
 

@@ -95,7 +95,12 @@ class ActorNet(nn.Module):
 
 class CriticNet(nn.Module):
     """COMA's critic: [state features, own observation features, one-hot id, others' one-hot
-    actions] -> hidden layers -> ``Q`` of every action of the agent."""
+    actions] -> hidden layers -> ``Q`` of every action of the agent.
+
+    ``dueling``: the head gives a value ``W(s, u_-i)`` and one deviation ``D(s, u_-i, u)`` per action,
+    ``Q = W + D - mean_u D`` (Wang et al. 2016). A plain head fits only the taken action's output per
+    sample, so the untaken actions' outputs, which COMA's baseline weighs by the policy, are what the
+    shared layers leave them at; ``W``, which the baseline mostly reads, is fitted by every sample."""
 
     def __init__(
         self,
@@ -105,20 +110,26 @@ class CriticNet(nn.Module):
         hidden: list[int],
         activation_fn: type[nn.Module],
         n_actions: int,
+        dueling: bool = False,
     ) -> None:
         super().__init__()
         self.state_extractor = state_extractor
         self.obs_extractor = obs_extractor
+        self.dueling = dueling
         width = state_extractor.features_dim + extra_dim + (obs_extractor.features_dim if obs_extractor else 0)
         self.mlp = nn.Sequential(*create_mlp(width, -1, hidden, activation_fn))
-        self.head = nn.Linear(hidden[-1] if hidden else width, n_actions)
+        self.head = nn.Linear(hidden[-1] if hidden else width, n_actions + int(dueling))
 
     def forward(self, state: th.Tensor, obs: PyTorchObs | None, extra: th.Tensor) -> th.Tensor:
         parts = [self.state_extractor(state), extra]
         if self.obs_extractor is not None:
             assert obs is not None
             parts.insert(1, self.obs_extractor(obs))
-        return self.head(self.mlp(th.cat(parts, dim=1)))
+        out = self.head(self.mlp(th.cat(parts, dim=1)))
+        if not self.dueling:
+            return out
+        deviations = out[:, 1:]
+        return out[:, :1] + deviations - deviations.mean(dim=1, keepdim=True)
 
 
 def one_hot_others(actions: th.Tensor, n_actions: int) -> th.Tensor:
@@ -201,6 +212,9 @@ class COMAPolicy(BasePolicy):
         input without the others' actions, one output) that COMA's ``advantage="v_return"``
         bootstraps its returns with; trained by the critic's optimizer. COMA sets it from its
         ``advantage``
+    :param dueling_critic: the critic's head gives ``Q`` as a value of the others' actions plus
+        centred per-action deviations (:class:`CriticNet`), so that the counterfactual baseline
+        reads a value every sample fits (docs/training.md, round 36)
     """
 
     #: The shared actor, the critic and its target (world-specific policies build their own modules).
@@ -233,6 +247,7 @@ class COMAPolicy(BasePolicy):
         ortho_init: bool = True,
         normalize_images: bool = True,
         state_value: bool = False,
+        dueling_critic: bool = False,
     ) -> None:
         super().__init__(
             observation_space,
@@ -253,6 +268,7 @@ class COMAPolicy(BasePolicy):
         self.n_actions = int(action_space.n)
         self.ortho_init = ortho_init
         self.state_value = bool(state_value)
+        self.dueling_critic = bool(dueling_critic)
         #: What the actor reads (the observation without ``state`` / ``action_mask``).
         self.actor_space = actor_observation_space(observation_space)
         extractor = self.features_extractor_class
@@ -287,7 +303,9 @@ class COMAPolicy(BasePolicy):
         if self.critic_obs:
             obs_extractor = self.features_extractor_class(self.actor_space, **self.features_extractor_kwargs)
         extra = self.n_agents + self.n_agents * self.n_actions
-        critic = CriticNet(self._state_extractor(), obs_extractor, extra, qf, self.activation_fn, self.n_actions)
+        critic = CriticNet(
+            self._state_extractor(), obs_extractor, extra, qf, self.activation_fn, self.n_actions, self.dueling_critic
+        )
         value_net = self._value_net() if self.state_value else None
         if self.ortho_init:
             for module in (actor, critic, value_net):
@@ -356,6 +374,7 @@ class COMAPolicy(BasePolicy):
             "activation_fn": self.activation_fn,
             "critic_obs": self.critic_obs,
             "state_value": self.state_value,
+            "dueling_critic": self.dueling_critic,
         }
 
     def set_training_mode(self, mode: bool) -> None:

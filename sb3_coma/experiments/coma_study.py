@@ -627,6 +627,148 @@ def warehouse_trace_arms() -> tuple[str, ...]:
     )
 
 
+def screen_order(table: str, task: str, candidates: tuple[str, ...]) -> tuple[str, ...]:
+    """``candidates`` in the order a screen's table ranks them on ``task`` (:func:`screen_first`'s rule)."""
+    left, order = list(candidates), []
+    while left:
+        order.append(screen_first(table, task, tuple(left)))
+        left.remove(order[-1])
+    return tuple(order)
+
+
+#: Round 34, RWARE's second screen on its first validation seed: four new arms for every learner, each its
+#: next guesses. MAPPO and IPPO, whose round 32 confirmed a change, take their confirmed entry with the next
+#: four offers in round 31's order (:func:`screen_order`, leaving out an offer of the setting the entry
+#: already changed): the second ring of two-change offers. COMA, whose screen found no arm that delivers,
+#: takes the settings its Foraging-5x5 entry was tuned to on the other sparse-reward grid task (rounds 2, 9,
+#: 21 and 24: the baseline scored by the critic of collection time, a standardised critic, trace decay 0.95,
+#: three actor layers, clip 0.1); the same with the clip 0.05 of simple_spread's entry and MAPPO's RWARE
+#: entry; that with MAPPO's return (``advantage="v_return"``, bootstrapped with ``V_i(s)``); and, as a
+#: diagnosis, round 11's probe on it: ``V_i(s)`` itself as the baseline, so that the last two differ in the
+#: counterfactual baseline alone (does it remove the few deliveries' signal?).
+WAREHOUSE_RING_OFFERS: dict[str, tuple[str, ...]] = {
+    "mappo_clip_0.05": ("lr_7e-4", "epochs_15", "epochs_5", "adv_raw"),
+    "ippo_lr_7e-4": ("clip_0.05", "ent_0.05", "clip_0.1", "adv_raw"),
+}
+WAREHOUSE_FORAGING = "minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1"
+WAREHOUSE_RING_ROUND = coma_neighbours(
+    "minibatch_86_before_lambda_95_q_norm_pi_64x3", {"clip_0.05": {"clip_range": 0.05}}
+)
+_ring_clip = next(iter(WAREHOUSE_RING_ROUND))
+VARIANTS.update(WAREHOUSE_RING_ROUND)
+WAREHOUSE_RING_ROUND.update(coma_neighbours(_ring_clip, {"v_return": {"advantage": "v_return"}}))
+WAREHOUSE_RING_ROUND[f"{_ring_clip}_v_baseline"] = {**VARIANTS[_ring_clip], "advantage": "v_return"}
+PROBES[f"{_ring_clip}_v_baseline"] = "StateValueBaselineCOMA"
+VARIANTS.update(WAREHOUSE_RING_ROUND)
+for _entry, _offers in WAREHOUSE_RING_OFFERS.items():
+    PPO_VARIANTS.update(ppo_neighbours(_entry, {name: WAREHOUSE_OFFERS[name] for name in _offers}))
+
+
+def warehouse_ring_arms() -> tuple[str, ...]:
+    """Round 34's arms: each learner's RWARE entry since round 32 followed by its four new arms."""
+    coma = (WAREHOUSE_TRACE_ENTRIES[0], WAREHOUSE_FORAGING, *WAREHOUSE_RING_ROUND)
+    ppo = (
+        name
+        for entry, offers in WAREHOUSE_RING_OFFERS.items()
+        for name in (entry, *warehouse_neighbours(entry, {offer: WAREHOUSE_OFFERS[offer] for offer in offers}))
+    )
+    return (*coma, *ppo)
+
+
+#: Round 36, on RWARE's first validation seed: round 34's probe delivered (0.88) where its COMA twin, the
+#: same run but for the counterfactual baseline, did not (0.00). The baseline sums the critic's ``Q`` over the
+#: agent's own actions, and a plain head fits only the taken action's output per sample: COMA's arm is that
+#: twin with a dueling critic (``policy_kwargs: {dueling_critic: true}``), whose baseline mostly reads a value
+#: that every sample fits. MAPPO and IPPO take the next offer of their ring (round 34's rule): one run each.
+_ring_return = f"{_ring_clip}_v_return"
+WAREHOUSE_DUELING = f"{_ring_return}_dueling"
+VARIANTS[WAREHOUSE_DUELING] = {
+    **VARIANTS[_ring_return],
+    "policy_kwargs": {**VARIANTS[_ring_return]["policy_kwargs"], "dueling_critic": True},
+}
+WAREHOUSE_DUELING_OFFERS: dict[str, str] = {"mappo_clip_0.05": "ent_0.05", "ippo_lr_7e-4": "epochs_15"}
+for _entry, _offer in WAREHOUSE_DUELING_OFFERS.items():
+    PPO_VARIANTS.update(ppo_neighbours(_entry, {_offer: WAREHOUSE_OFFERS[_offer]}))
+
+
+def warehouse_dueling_arms() -> tuple[str, ...]:
+    """Round 36's arms: COMA's dueling critic beside its probe twin, and each PPO entry's next ring offer."""
+    ppo = (
+        name
+        for entry, offer in WAREHOUSE_DUELING_OFFERS.items()
+        for name in (entry, *warehouse_neighbours(entry, {offer: WAREHOUSE_OFFERS[offer]}))
+    )
+    return (WAREHOUSE_TRACE_ENTRIES[0], _ring_return, f"{_ring_clip}_v_baseline", WAREHOUSE_DUELING, *ppo)
+
+
+def warehouse_ring_candidates(entry: str) -> tuple[str, ...]:
+    """The new arms that rounds 34 and 36 flew beside one learner's RWARE ``entry``, in the rounds' order."""
+    learner = learner_of(entry)
+    flown = dict.fromkeys((*ROUNDS_34_36[0], *ROUNDS_34_36[1]))  # round 36 flies two of round 34's again
+    return tuple(name for name in flown if name != entry and learner_of(name) == learner)
+
+
+ROUNDS_34_36 = (warehouse_ring_arms(), warehouse_dueling_arms())
+#: Round 37: the first two of each learner's new arms of rounds 34 and 36 (:func:`screen_order` over both
+#: tables), on the two other validation seeds beside its entry: four runs per learner. COMA's first is round
+#: 34's probe, which no config can take (it is not a COMA): flown to see whether the dueling critic, its
+#: second, does on three seeds what the probe's baseline does.
+WAREHOUSE_RING_CONFIRMS: dict[str, tuple[str, str]] = {
+    "minibatch_86": (f"{_ring_clip}_v_baseline", WAREHOUSE_DUELING),
+    "mappo_clip_0.05": ("mappo_lr_7e-4_clip_0.05", "mappo_clip_0.05_ent_0.05"),
+    "ippo_lr_7e-4": ("ippo_lr_7e-4_clip_0.1", "ippo_lr_7e-4_clip_0.05"),
+}
+
+
+def warehouse_ring_confirm_arms() -> tuple[str, ...]:
+    """Round 37's arms: each learner's RWARE entry followed by the two arms it confirms."""
+    return tuple(name for entry, pair in WAREHOUSE_RING_CONFIRMS.items() for name in (entry, *pair))
+
+
+#: Foraging-5x5's budget (issue #45, item 3): before these rounds COMA had 36 validation runs there, MAPPO
+#: 16 and IPPO 14. Round 35 screens each PPO entry's eight one-change offers off its own axis on the first
+#: validation seed; round 36 flies the first ``k`` of them in the screen's order (:func:`screen_order`) on
+#: the two other seeds beside the entry, ``k`` filling the learner's runs up to COMA's: 16 + 8 + 2 * 6 and
+#: 14 + 8 + 2 * 7.
+FORAGING_SCREENS: tuple[tuple[str, int], ...] = (("mappo_epochs_15", 8), ("ippo_lr_7e-4", 8))
+FORAGING_CONFIRM_COUNTS = {"mappo_epochs_15": 6, "ippo_lr_7e-4": 7}
+for _entry, _count in FORAGING_SCREENS:
+    PPO_VARIANTS.update(entry_neighbours(_entry, _count))
+
+
+def foraging_budget_arms() -> tuple[str, ...]:
+    """Round 35's arms: each PPO learner's Foraging-5x5 entry followed by the neighbours it screens."""
+    return tuple(name for entry, count in FORAGING_SCREENS for name in (entry, *entry_neighbours(entry, count)))
+
+
+#: Round 38: the first ``FORAGING_CONFIRM_COUNTS[entry]`` of each entry's round-35 neighbours in its table's
+#: order (:func:`screen_order`), on the two other validation seeds beside the entry.
+FORAGING_CONFIRMS: dict[str, tuple[str, ...]] = {
+    "mappo_epochs_15": (
+        "mappo_clip_0.1_epochs_15",
+        "mappo_lr_7e-4_epochs_15",
+        "mappo_epochs_15_batch_128",
+        "mappo_epochs_15_gae_0.99",
+        "mappo_epochs_15_ent_0",
+        "mappo_epochs_15_batch_1024",
+    ),
+    "ippo_lr_7e-4": (
+        "ippo_lr_7e-4_batch_128",
+        "ippo_ent_0_lr_7e-4",
+        "ippo_lr_7e-4_clip_0.1",
+        "ippo_lr_7e-4_batch_1024",
+        "ippo_lr_7e-4_gae_0.99",
+        "ippo_lr_7e-4_epochs_15",
+        "ippo_lr_7e-4_epochs_5",
+    ),
+}
+
+
+def foraging_budget_confirm_arms() -> tuple[str, ...]:
+    """Round 38's arms: each PPO learner's Foraging-5x5 entry followed by the neighbours it confirms."""
+    return tuple(name for entry, confirms in FORAGING_CONFIRMS.items() for name in (entry, *confirms))
+
+
 ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
 ROUNDS: dict[str, tuple[str, ...]] = {
@@ -664,6 +806,8 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     SMALL_CLIP_ROUND,
                     WAREHOUSE_ROUND,
                     WAREHOUSE_TRACE_ROUND,
+                    WAREHOUSE_RING_ROUND,
+                    {WAREHOUSE_DUELING: None},
                     PROBES,
                 )
             )
@@ -856,6 +1000,11 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "warehouse_screen_round": warehouse_arms(),  # round 31: --tasks rware_tiny (seed 1000)
     "warehouse_confirm_round": warehouse_confirm_arms(),  # round 32: --tasks rware_tiny --seeds 3
     "warehouse_trace_round": warehouse_trace_arms(),  # round 33: --tasks rware_tiny (seed 1000)
+    "warehouse_ring_round": warehouse_ring_arms(),  # round 34: --tasks rware_tiny (seed 1000)
+    "foraging_budget_round": foraging_budget_arms(),  # round 35: --tasks lbf (seed 1000)
+    "foraging_budget_confirm_round": foraging_budget_confirm_arms(),  # round 38: --tasks lbf --seeds 3
+    "warehouse_dueling_round": warehouse_dueling_arms(),  # round 36: --tasks rware_tiny (seed 1000)
+    "warehouse_ring_confirm_round": warehouse_ring_confirm_arms(),  # round 37: --tasks rware_tiny --seeds 3
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
