@@ -451,7 +451,7 @@ def test_round_36_gives_comas_probe_twin_a_dueling_critic_and_every_ppo_entry_it
     assert settings.pop("policy_kwargs") == {**coma_study.VARIANTS[twin]["policy_kwargs"], "dueling_critic": True}
     assert settings == {k: v for k, v in coma_study.VARIANTS[twin].items() if k != "policy_kwargs"}
     text = (Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "warehouse_screen_round.md").read_text()
-    for (entry, offer), (pair_entry, neighbour) in zip(
+    for (entry, (offer,)), (pair_entry, neighbour) in zip(
         coma_study.WAREHOUSE_DUELING_OFFERS.items(), zip(arms[4::2], arms[5::2]), strict=True
     ):
         learner = coma_study.learner_of(entry)
@@ -462,6 +462,7 @@ def test_round_36_gives_comas_probe_twin_a_dueling_critic_and_every_ppo_entry_it
         assert pair_entry == entry
         assert coma_study.ppo_settings(neighbour) == coma_study.ppo_settings(entry) | coma_study.WAREHOUSE_OFFERS[offer]
     assert coma_study.WAREHOUSE_DUELING not in coma_study.ROUNDS["study"]
+    assert set(coma_study.WAREHOUSE_DUELING_ROUND) == {coma_study.WAREHOUSE_DUELING}
 
 
 def test_round_37_confirms_the_first_two_new_arms_of_rounds_34_and_36_beside_each_entry() -> None:

@@ -657,22 +657,35 @@ WAREHOUSE_RING_ROUND = coma_neighbours(
 _ring_clip = next(iter(WAREHOUSE_RING_ROUND))
 VARIANTS.update(WAREHOUSE_RING_ROUND)
 WAREHOUSE_RING_ROUND.update(coma_neighbours(_ring_clip, {"v_return": {"advantage": "v_return"}}))
-WAREHOUSE_RING_ROUND[f"{_ring_clip}_v_baseline"] = {**VARIANTS[_ring_clip], "advantage": "v_return"}
-PROBES[f"{_ring_clip}_v_baseline"] = "StateValueBaselineCOMA"
+_ring_return = f"{_ring_clip}_v_return"
+#: Round 34's probe (not a COMA): ``_ring_return``'s settings with ``V_i(s)`` itself as the baseline.
+WAREHOUSE_PROBE = f"{_ring_clip}_v_baseline"
+WAREHOUSE_RING_ROUND[WAREHOUSE_PROBE] = dict(WAREHOUSE_RING_ROUND[_ring_return])
+PROBES[WAREHOUSE_PROBE] = "StateValueBaselineCOMA"
 VARIANTS.update(WAREHOUSE_RING_ROUND)
+
+
+def _ring_offers(offers: tuple[str, ...]) -> dict[str, dict[str, Any]]:
+    """Round 31's offers of these names, in the given order."""
+    return {name: WAREHOUSE_OFFERS[name] for name in offers}
+
+
+def _ring_arms(offers_by_entry: dict[str, tuple[str, ...]]) -> tuple[str, ...]:
+    """Each PPO learner's RWARE entry followed by its neighbours of ``offers_by_entry[entry]``."""
+    return tuple(
+        name
+        for entry, offers in offers_by_entry.items()
+        for name in (entry, *warehouse_neighbours(entry, _ring_offers(offers)))
+    )
+
+
 for _entry, _offers in WAREHOUSE_RING_OFFERS.items():
-    PPO_VARIANTS.update(ppo_neighbours(_entry, {name: WAREHOUSE_OFFERS[name] for name in _offers}))
+    PPO_VARIANTS.update(ppo_neighbours(_entry, _ring_offers(_offers)))
 
 
 def warehouse_ring_arms() -> tuple[str, ...]:
     """Round 34's arms: each learner's RWARE entry since round 32 followed by its four new arms."""
-    coma = (WAREHOUSE_TRACE_ENTRIES[0], WAREHOUSE_FORAGING, *WAREHOUSE_RING_ROUND)
-    ppo = (
-        name
-        for entry, offers in WAREHOUSE_RING_OFFERS.items()
-        for name in (entry, *warehouse_neighbours(entry, {offer: WAREHOUSE_OFFERS[offer] for offer in offers}))
-    )
-    return (*coma, *ppo)
+    return (WAREHOUSE_TRACE_ENTRIES[0], WAREHOUSE_FORAGING, *WAREHOUSE_RING_ROUND, *_ring_arms(WAREHOUSE_RING_OFFERS))
 
 
 #: Round 36, on RWARE's first validation seed: round 34's probe delivered (0.88) where its COMA twin, the
@@ -680,41 +693,41 @@ def warehouse_ring_arms() -> tuple[str, ...]:
 #: agent's own actions, and a plain head fits only the taken action's output per sample: COMA's arm is that
 #: twin with a dueling critic (``policy_kwargs: {dueling_critic: true}``), whose baseline mostly reads a value
 #: that every sample fits. MAPPO and IPPO take the next offer of their ring (round 34's rule): one run each.
-_ring_return = f"{_ring_clip}_v_return"
 WAREHOUSE_DUELING = f"{_ring_return}_dueling"
-VARIANTS[WAREHOUSE_DUELING] = {
-    **VARIANTS[_ring_return],
-    "policy_kwargs": {**VARIANTS[_ring_return]["policy_kwargs"], "dueling_critic": True},
+WAREHOUSE_DUELING_ROUND: dict[str, dict[str, Any]] = {
+    WAREHOUSE_DUELING: {
+        **VARIANTS[_ring_return],
+        "policy_kwargs": {**VARIANTS[_ring_return]["policy_kwargs"], "dueling_critic": True},
+    }
 }
-WAREHOUSE_DUELING_OFFERS: dict[str, str] = {"mappo_clip_0.05": "ent_0.05", "ippo_lr_7e-4": "epochs_15"}
-for _entry, _offer in WAREHOUSE_DUELING_OFFERS.items():
-    PPO_VARIANTS.update(ppo_neighbours(_entry, {_offer: WAREHOUSE_OFFERS[_offer]}))
+VARIANTS.update(WAREHOUSE_DUELING_ROUND)
+WAREHOUSE_DUELING_OFFERS: dict[str, tuple[str, ...]] = {
+    "mappo_clip_0.05": ("ent_0.05",),
+    "ippo_lr_7e-4": ("epochs_15",),
+}
+for _entry, _offers in WAREHOUSE_DUELING_OFFERS.items():
+    PPO_VARIANTS.update(ppo_neighbours(_entry, _ring_offers(_offers)))
 
 
 def warehouse_dueling_arms() -> tuple[str, ...]:
     """Round 36's arms: COMA's dueling critic beside its probe twin, and each PPO entry's next ring offer."""
-    ppo = (
-        name
-        for entry, offer in WAREHOUSE_DUELING_OFFERS.items()
-        for name in (entry, *warehouse_neighbours(entry, {offer: WAREHOUSE_OFFERS[offer]}))
-    )
-    return (WAREHOUSE_TRACE_ENTRIES[0], _ring_return, f"{_ring_clip}_v_baseline", WAREHOUSE_DUELING, *ppo)
+    coma = (WAREHOUSE_TRACE_ENTRIES[0], _ring_return, WAREHOUSE_PROBE, WAREHOUSE_DUELING)
+    return (*coma, *_ring_arms(WAREHOUSE_DUELING_OFFERS))
 
 
 def warehouse_ring_candidates(entry: str) -> tuple[str, ...]:
     """The new arms that rounds 34 and 36 flew beside one learner's RWARE ``entry``, in the rounds' order."""
     learner = learner_of(entry)
-    flown = dict.fromkeys((*ROUNDS_34_36[0], *ROUNDS_34_36[1]))  # round 36 flies two of round 34's again
+    flown = dict.fromkeys((*warehouse_ring_arms(), *warehouse_dueling_arms()))  # round 36 flies two of 34's again
     return tuple(name for name in flown if name != entry and learner_of(name) == learner)
 
 
-ROUNDS_34_36 = (warehouse_ring_arms(), warehouse_dueling_arms())
 #: Round 37: the first two of each learner's new arms of rounds 34 and 36 (:func:`screen_order` over both
 #: tables), on the two other validation seeds beside its entry: four runs per learner. COMA's first is round
 #: 34's probe, which no config can take (it is not a COMA): flown to see whether the dueling critic, its
 #: second, does on three seeds what the probe's baseline does.
 WAREHOUSE_RING_CONFIRMS: dict[str, tuple[str, str]] = {
-    "minibatch_86": (f"{_ring_clip}_v_baseline", WAREHOUSE_DUELING),
+    "minibatch_86": (WAREHOUSE_PROBE, WAREHOUSE_DUELING),
     "mappo_clip_0.05": ("mappo_lr_7e-4_clip_0.05", "mappo_clip_0.05_ent_0.05"),
     "ippo_lr_7e-4": ("ippo_lr_7e-4_clip_0.1", "ippo_lr_7e-4_clip_0.05"),
 }
@@ -727,7 +740,7 @@ def warehouse_ring_confirm_arms() -> tuple[str, ...]:
 
 #: Foraging-5x5's budget (issue #45, item 3): before these rounds COMA had 36 validation runs there, MAPPO
 #: 16 and IPPO 14. Round 35 screens each PPO entry's eight one-change offers off its own axis on the first
-#: validation seed; round 36 flies the first ``k`` of them in the screen's order (:func:`screen_order`) on
+#: validation seed; round 38 flies the first ``k`` of them in the screen's order (:func:`screen_order`) on
 #: the two other seeds beside the entry, ``k`` filling the learner's runs up to COMA's: 16 + 8 + 2 * 6 and
 #: 14 + 8 + 2 * 7.
 FORAGING_SCREENS: tuple[tuple[str, int], ...] = (("mappo_epochs_15", 8), ("ippo_lr_7e-4", 8))
@@ -807,7 +820,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
                     WAREHOUSE_ROUND,
                     WAREHOUSE_TRACE_ROUND,
                     WAREHOUSE_RING_ROUND,
-                    {WAREHOUSE_DUELING: None},
+                    WAREHOUSE_DUELING_ROUND,
                     PROBES,
                 )
             )
@@ -1002,9 +1015,9 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "warehouse_trace_round": warehouse_trace_arms(),  # round 33: --tasks rware_tiny (seed 1000)
     "warehouse_ring_round": warehouse_ring_arms(),  # round 34: --tasks rware_tiny (seed 1000)
     "foraging_budget_round": foraging_budget_arms(),  # round 35: --tasks lbf (seed 1000)
-    "foraging_budget_confirm_round": foraging_budget_confirm_arms(),  # round 38: --tasks lbf --seeds 3
     "warehouse_dueling_round": warehouse_dueling_arms(),  # round 36: --tasks rware_tiny (seed 1000)
     "warehouse_ring_confirm_round": warehouse_ring_confirm_arms(),  # round 37: --tasks rware_tiny --seeds 3
+    "foraging_budget_confirm_round": foraging_budget_confirm_arms(),  # round 38: --tasks lbf --seeds 3
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
