@@ -490,6 +490,32 @@ def test_round_38_confirms_the_first_of_round_35s_table_that_fill_each_budget() 
     assert start == len(arms)
 
 
+def test_round_39_flies_every_off_axis_offer_of_each_ppo_entry_on_simple_spreads_whole_budget() -> None:
+    arms = coma_study.ROUNDS["spread_budget_round"]
+    mappo, ippo = coma_study.SPREAD_ENTRIES
+    assert coma_study.PPO_VARIANTS[mappo][1] == {"clip_range": 0.05}  # the entry since round 26
+    assert coma_study.PPO_VARIANTS[ippo][1] == {}  # the MAPPO paper's MPE settings
+    mappo_arms = coma_study.entry_neighbours(mappo, len(coma_study.BUDGET_OFFERS))
+    ippo_arms = coma_study.entry_neighbours(ippo, len(coma_study.BUDGET_OFFERS))
+    assert arms == (mappo, *mappo_arms, ippo, *ippo_arms)
+    assert len(mappo_arms) == 8 and len(ippo_arms) == 10  # MAPPO's two clip offers are its entry's axis
+    assert all("clip_range" not in change or change["clip_range"] == 0.05 for _, change in mappo_arms.values())
+    assert len({json.dumps(change, sort_keys=True) for _, change in mappo_arms.values()}) == 8
+    # every arm on the three validation seeds: MAPPO 38 + 8 * 3 runs, IPPO 12 + 11 * 3 (its entry's first
+    # whole-budget runs count: runs at 150k joint steps are other runs)
+    runs = coma_study.tuning_runs(Path(__file__).resolve().parents[1] / "docs" / "coma_study")
+    task = TASKS["simple_spread"].name
+    assert (runs[("mappo", task)], runs[("ippo", task)], runs[("coma", task)]) == (62, 45, 117)
+    # the benchmark's entries are each ring's first (the entry listed first: it keeps a tie)
+    text = (Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "spread_budget_round.md").read_text()
+    name = coma_study.study_task("simple_spread_full").name
+    firsts = [
+        coma_study.screen_first(text, name, (entry, *offers))
+        for entry, offers in ((mappo, mappo_arms), (ippo, ippo_arms))
+    ]
+    assert tuple(firsts) == CHOSEN["simple_spread"][1:]
+
+
 def test_a_screens_order_is_its_first_again_and_again() -> None:
     def row(variant: str, validation: str, last: str) -> str:
         return f"| T | {variant} | s | 1 | {validation} | {validation} | 0 | - | - | - | 0.0 / 0.0 / {last} | 1.0 |"
@@ -551,7 +577,11 @@ def test_round_31_gives_every_learner_the_same_offers_on_rware() -> None:
 #: The study variant each studied task's COMA entry took (its comment in zoo_configs/marl/coma.yml says
 #: which round chose it), MAPPO's and IPPO's.
 CHOSEN = {
-    "simple_spread": ("minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.05", "mappo_clip_0.05", "ippo"),
+    "simple_spread": (
+        "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.05",
+        "mappo_clip_0.05_epochs_15",
+        "ippo_clip_0.05",
+    ),
     "simple_reference": ("before_lambda_95_q_norm_lr_1e-4_clock_25", "mappo_lr_1e-4", "ippo_ent_0_batch_128"),
     "lbf": ("minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1", "mappo_epochs_15", "ippo_lr_7e-4_batch_128"),
     "lbf_8x8": ("minibatch_86_before", "mappo_lr_7e-4", "ippo_ent_0_lr_7e-4"),

@@ -782,6 +782,22 @@ def foraging_budget_confirm_arms() -> tuple[str, ...]:
     return tuple(name for entry, confirms in FORAGING_CONFIRMS.items() for name in (entry, *confirms))
 
 
+#: simple_spread's budget (issue #45, item 3): before round 39 COMA had 117 validation runs there, MAPPO 38
+#: and IPPO 12. A first ring on the task's whole budget (where its entries were last chosen: rounds 25 to 27)
+#: flies every one-change offer of each PPO entry off the entry's own axis (:data:`BUDGET_OFFERS`) on all
+#: three validation seeds, since on this task a ranking by one seed has reversed on three (IPPO's 15 epochs,
+#: docs/coma_study/ippo_choice_round.md): MAPPO's entry (clip 0.05) eight offers, 24 runs; IPPO's (the
+#: MAPPO paper's MPE settings, never flown at the whole budget) ten offers and itself, 33 runs.
+SPREAD_ENTRIES = ("mappo_clip_0.05", "ippo")
+for _entry in SPREAD_ENTRIES:
+    PPO_VARIANTS.update(entry_neighbours(_entry, len(BUDGET_OFFERS)))
+
+
+def spread_budget_arms() -> tuple[str, ...]:
+    """Round 39's arms: each PPO learner's simple_spread entry followed by all its off-axis offers."""
+    return tuple(name for entry in SPREAD_ENTRIES for name in (entry, *entry_neighbours(entry, len(BUDGET_OFFERS))))
+
+
 ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
 ROUNDS: dict[str, tuple[str, ...]] = {
@@ -1018,6 +1034,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "warehouse_dueling_round": warehouse_dueling_arms(),  # round 36: --tasks rware_tiny (seed 1000)
     "warehouse_ring_confirm_round": warehouse_ring_confirm_arms(),  # round 37: --tasks rware_tiny --seeds 3
     "foraging_budget_confirm_round": foraging_budget_confirm_arms(),  # round 38: --tasks lbf --seeds 3
+    "spread_budget_round": spread_budget_arms(),  # round 39: --tasks simple_spread_full --seeds 3
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
