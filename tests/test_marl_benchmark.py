@@ -516,6 +516,22 @@ def test_round_39_flies_every_off_axis_offer_of_each_ppo_entry_on_simple_spreads
     assert tuple(firsts) == CHOSEN["simple_spread"][1:]
 
 
+def test_round_40s_centres_are_round_39s_firsts_and_its_arms_all_new() -> None:
+    """The second ring: each learner's best arm of the first that was not yet a centre, and every offer off
+    the centre's axes, none of them in the first ring."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "spread_budget_round.md").read_text()
+    name = coma_study.study_task("simple_spread_full").name
+    ring_1 = coma_study.ROUNDS["spread_budget_round"]
+    for entry, centre in zip(coma_study.SPREAD_ENTRIES, coma_study.SPREAD_RING_2_CENTRES, strict=True):
+        learner = coma_study.learner_of(entry)
+        mine = tuple(arm for arm in ring_1 if coma_study.learner_of(arm) == learner)
+        assert mine[0] == entry and coma_study.screen_first(text, name, mine) == centre != entry
+    arms = coma_study.ROUNDS["spread_ring_2_round"]
+    assert arms == coma_study.spread_ring_arms(coma_study.SPREAD_RING_2_CENTRES)
+    new = [arm for arm in arms if arm not in coma_study.SPREAD_RING_2_CENTRES]
+    assert len(new) == 6 + 8 and not set(new) & set(ring_1)  # MAPPO's centre has two axes, IPPO's one
+
+
 def test_a_screens_order_is_its_first_again_and_again() -> None:
     def row(variant: str, validation: str, last: str) -> str:
         return f"| T | {variant} | s | 1 | {validation} | {validation} | 0 | - | - | - | 0.0 / 0.0 / {last} | 1.0 |"

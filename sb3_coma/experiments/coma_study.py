@@ -789,13 +789,20 @@ def foraging_budget_confirm_arms() -> tuple[str, ...]:
 #: docs/coma_study/ippo_choice_round.md): MAPPO's entry (clip 0.05) eight offers, 24 runs; IPPO's (the
 #: MAPPO paper's MPE settings, never flown at the whole budget) ten offers and itself, 33 runs.
 SPREAD_ENTRIES = ("mappo_clip_0.05", "ippo")
-for _entry in SPREAD_ENTRIES:
-    PPO_VARIANTS.update(entry_neighbours(_entry, len(BUDGET_OFFERS)))
+#: Round 40, the second ring: each learner's best arm of round 39 that was not yet a centre (:func:`screen_first`
+#: over its ring, the entry listed first), which round 39 made the learner's entry: MAPPO's 15 epochs (6
+#: offers off its two axes, 18 runs), IPPO's clip 0.05 (8 offers, 24 runs). Flown as round 39 was (--tasks
+#: simple_spread_full --seeds 3); the rings go on until each learner's runs reach COMA's.
+SPREAD_RING_2_CENTRES = ("mappo_clip_0.05_epochs_15", "ippo_clip_0.05")
 
 
-def spread_budget_arms() -> tuple[str, ...]:
-    """Round 39's arms: each PPO learner's simple_spread entry followed by all its off-axis offers."""
-    return tuple(name for entry in SPREAD_ENTRIES for name in (entry, *entry_neighbours(entry, len(BUDGET_OFFERS))))
+def spread_ring_arms(centres: tuple[str, ...]) -> tuple[str, ...]:
+    """A ring's arms on simple_spread: each PPO learner's centre followed by all its off-axis offers."""
+    return tuple(name for centre in centres for name in (centre, *entry_neighbours(centre, len(BUDGET_OFFERS))))
+
+
+for _centre in (*SPREAD_ENTRIES, *SPREAD_RING_2_CENTRES):  # one ring at a time: a later one finds a name
+    PPO_VARIANTS.update(entry_neighbours(_centre, len(BUDGET_OFFERS)))
 
 
 ARMS = (*VARIANTS, *PPO_VARIANTS)
@@ -1034,7 +1041,8 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "warehouse_dueling_round": warehouse_dueling_arms(),  # round 36: --tasks rware_tiny (seed 1000)
     "warehouse_ring_confirm_round": warehouse_ring_confirm_arms(),  # round 37: --tasks rware_tiny --seeds 3
     "foraging_budget_confirm_round": foraging_budget_confirm_arms(),  # round 38: --tasks lbf --seeds 3
-    "spread_budget_round": spread_budget_arms(),  # round 39: --tasks simple_spread_full --seeds 3
+    "spread_budget_round": spread_ring_arms(SPREAD_ENTRIES),  # round 39: --tasks simple_spread_full --seeds 3
+    "spread_ring_2_round": spread_ring_arms(SPREAD_RING_2_CENTRES),  # round 40: the same, not yet flown
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
