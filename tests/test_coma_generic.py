@@ -190,6 +190,24 @@ def test_masked_actions_are_never_taken(mask_in: str) -> None:
         assert all(masks[row, a] for row, a in enumerate(actions))
 
 
+def test_an_env_without_masks_trains_as_with_all_valid_masks_bit_for_bit() -> None:
+    """Without masks COMA masks nothing (as SB3's PPO), which must change no number: the same
+    weights as a run whose every step came with an all-ones mask (the path before 0.19.0)."""
+    trained = []
+    for all_ones in (False, True):
+        venv = make_marl_vec_env(_spread, n_envs=2, seed=0)
+        model = COMA("MlpPolicy", venv, seed=0, device="cpu", exploration_initial_eps=0.3, **FAST)
+        if all_ones:
+            n_actions = int(model.action_space.n)
+            model._masks = lambda obs, env=None: np.ones((len(obs), n_actions), dtype=np.float32)  # type: ignore[method-assign]
+        model.learn(64)
+        assert (model.rollout_buffer.time_major()["mask"] is None) is not all_ones
+        trained.append(model.policy.state_dict())
+    assert trained[0].keys() == trained[1].keys()
+    for key in trained[0]:
+        assert th.equal(trained[0][key], trained[1][key]), key
+
+
 def test_bad_masks_are_named() -> None:
     model = COMA("MlpPolicy", make_marl_vec_env(lambda: MaskedLine("info"), n_envs=1, seed=0), device="cpu", **FAST)
     obs = model.get_env().reset()

@@ -68,8 +68,12 @@ class JointRolloutBuffer:
         self.states = None if state_shape is None else np.zeros((n_steps, n_copies, *state_shape), dtype=np.float32)
         #: The fraction of the time limit left in each copy's episode at each step (the critic's clock).
         self.time_left = np.zeros((n_steps, n_copies), dtype=np.float32) if time_left else None
-        #: 1.0 for valid actions (all ones when the env gives no masks).
-        self.mask = np.zeros((*lead, n_actions), dtype=np.float32)
+        #: 1.0 for valid actions; read only once a step came with masks (:attr:`masked`).
+        self.mask = np.ones((*lead, n_actions), dtype=np.float32)
+        #: Whether the env gives masks: without them every action is valid and the rollout's
+        #: ``"mask"`` is ``None``, so that training skips masking (``th.where`` over all-valid rows
+        #: would return the logits unchanged, at a cost per minibatch).
+        self.masked = False
         self.actions = np.zeros(lead, dtype=np.int64)
         self.rewards = np.zeros(lead, dtype=np.float32)
         #: 1.0 where the episode ended with this step (termination or truncation).
@@ -97,7 +101,7 @@ class JointRolloutBuffer:
     def add(
         self,
         obs: np.ndarray | dict[str, np.ndarray],
-        mask: np.ndarray,
+        mask: np.ndarray | None,
         actions: np.ndarray,
         rewards: np.ndarray,
         dones: np.ndarray,
@@ -105,7 +109,7 @@ class JointRolloutBuffer:
         time_left: np.ndarray | None = None,
     ) -> None:
         """Store one vec-env step; every array has ``E * N`` rows in the vec env's order
-        (``states`` and ``time_left``: one row per copy)."""
+        (``states`` and ``time_left``: one row per copy; ``mask``: ``None`` when the env gives none)."""
         if self.full:
             raise RuntimeError("JointRolloutBuffer is full; call reset() before adding more steps")
         t = self.pos
@@ -121,7 +125,9 @@ class JointRolloutBuffer:
         if self.time_left is not None:
             assert time_left is not None
             self.time_left[t] = time_left
-        self.mask[t] = self._grouped(mask)
+        if mask is not None:
+            self.mask[t] = self._grouped(mask)
+            self.masked = True
         self.actions[t] = self._grouped(actions)
         self.rewards[t] = self._grouped(rewards)
         self.dones[t] = self._grouped(dones)
@@ -140,7 +146,7 @@ class JointRolloutBuffer:
             "obs": map_obs(to, self.obs),
             "states": None if self.states is None else to(self.states),
             "time_left": None if self.time_left is None else to(self.time_left),
-            "mask": to(self.mask),
+            "mask": to(self.mask) if self.masked else None,
             "actions": to(self.actions),
             "rewards": to(self.rewards),
             "dones": to(self.dones),

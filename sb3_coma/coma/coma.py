@@ -490,19 +490,23 @@ class COMA(OnPolicyAlgorithm):
             lambda x: th.as_tensor(np.asarray(x), device=self.device).view(-1, self._agents, *np.shape(x)[1:]), obs
         )
 
-    def _masks(self, obs: Any, env: VecEnv | None = None) -> np.ndarray:
+    def _masks(self, obs: Any, env: VecEnv | None = None) -> np.ndarray | None:
         """Valid actions of every row, float ``(rows, n)``: the ``action_mask`` key of the observation,
-        else sb3-contrib's ``action_masks()`` of ``env``, else all valid."""
+        else sb3-contrib's ``action_masks()`` of ``env``, else ``None`` (all valid: nothing to mask,
+        as SB3's PPO masks nothing; the same logits and draws as an all-ones mask, bit for bit)."""
         assert isinstance(self.action_space, spaces.Discrete)
         if isinstance(obs, dict) and KEY_MASK in obs:
             masks = np.asarray(obs[KEY_MASK], dtype=np.float32)
         elif env is not None and self._env_masks:
             masks = np.stack(env.env_method("action_masks")).astype(np.float32)
         else:
-            rows = len(next(iter(obs.values()))) if isinstance(obs, dict) else len(obs)
-            return np.ones((rows, int(self.action_space.n)), dtype=np.float32)
+            return None
         check_masks(masks, int(self.action_space.n))
         return masks
+
+    def _mask_tensor(self, masks: np.ndarray | None) -> th.Tensor | None:
+        """:meth:`_masks` as a tensor on the model's device (``None`` stays ``None``)."""
+        return None if masks is None else th.as_tensor(masks, device=self.device)
 
     def _joint_state(self, obs: Any, states: th.Tensor | None, time_left: th.Tensor | None = None) -> th.Tensor:
         """The critic's state per agent row, ``(B, N, ...)``, from joint observations ``(B, N, ...)``,
@@ -558,7 +562,7 @@ class COMA(OnPolicyAlgorithm):
 
     @th.no_grad()
     def _expected_target_values(
-        self, obs: Any, masks: np.ndarray, states: np.ndarray | None, time_left: th.Tensor | None = None
+        self, obs: Any, masks: np.ndarray | None, states: np.ndarray | None, time_left: th.Tensor | None = None
     ) -> th.Tensor:
         """``V_i(s) = sum_u pi(u|o_i) Q_target(s, (u_-i, u))`` per agent of every copy in ``obs``.
 
@@ -574,7 +578,7 @@ class COMA(OnPolicyAlgorithm):
         if self.policy.value_net is not None:
             return self._q_units(self.policy.state_values(joint, state))
         rows = map_obs(lambda x: x.flatten(0, 1), joint)
-        probs = self.policy.action_probs(rows, th.as_tensor(masks, device=self.device))
+        probs = self.policy.action_probs(rows, self._mask_tensor(masks))
         actions = th.multinomial(probs, 1).view(-1, self._agents)
         q = self._q_units(self.policy.q_values(joint, state, actions, target=True))
         return (probs.view(q.shape) * q).sum(-1)
@@ -640,7 +644,7 @@ class COMA(OnPolicyAlgorithm):
             self.exploration_rate = self.exploration_schedule(progress)
             with th.no_grad():
                 obs_tensor = map_obs(lambda x: th.as_tensor(x, device=self.device), self._last_obs)
-                mask_tensor = th.as_tensor(masks, device=self.device)
+                mask_tensor = self._mask_tensor(masks)
                 actions = self.policy.act(obs_tensor, mask_tensor, epsilon=self.exploration_rate).cpu().numpy()
 
             new_obs, rewards, dones, infos = env.step(actions)  # type: ignore[assignment]
@@ -794,7 +798,7 @@ class COMA(OnPolicyAlgorithm):
         ``Q(s, u)`` (``"q"``, the paper).
         """
         mask, actions = data["mask"], data["actions"]
-        logits = self.policy.masked_logits(self._rows(data["obs"]), mask.flatten(0, 1))
+        logits = self.policy.masked_logits(self._rows(data["obs"]), None if mask is None else mask.flatten(0, 1))
         log_probs = th.log_softmax(logits, dim=-1).view(*actions.shape, -1)
         q_advantage, baseline, _ = counterfactual_advantage(q_all, actions, log_probs.exp())
         if self.advantage == "gae":
@@ -821,7 +825,7 @@ class COMA(OnPolicyAlgorithm):
         of joint steps; returns (loss, mean entropy, fraction of clipped ratios)."""
         b_actions = data["actions"][idx].flatten()
         obs = self._rows(self._take(data["obs"], idx))
-        mask = data["mask"][idx].flatten(0, 1)
+        mask = None if data["mask"] is None else data["mask"][idx].flatten(0, 1)
         logits = self.policy.masked_logits(obs, mask)
         log_probs = th.log_softmax(logits, dim=-1)
         advantage = advantage.flatten()
