@@ -1,13 +1,13 @@
-"""One ``learn()`` of a benchmark learner on a benchmark task, as a whole process, for ``farm-bench``.
+"""One ``learn()`` of a benchmark learner on a benchmark task, as a whole process.
 
-    farm-bench -n 5 --timeout 600 --vs "python benchmarks/learn_once.py rware_tiny ippo" \\
-        -- python benchmarks/learn_once.py rware_tiny coma
+    python benchmarks/learn_once.py rware_tiny coma
 
 The learner benchmark's speed phase (``marl_benchmark --phases speed``) times ``learn()`` inside one
-process; this script lets ``farm-bench`` time the same work from outside, start-up included, pairing
-COMA against SB3's PPO run by run so that the ratio survives a machine whose speed drifts. The model is
-the benchmark's trainee (its entry in ``zoo_configs/marl/``, seed 0, one torch thread), trained by
-the speed phase's own function; it prints that phase's in-process rate too.
+process; this script is the same work as a whole process, start-up included, so that an outside timer
+can pair COMA against SB3's PPO run by run (``benchmarks/learn_pairs.py`` does, with the standard
+library), a ratio that survives a machine whose speed drifts. The model is the benchmark's trainee (its
+entry in ``zoo_configs/marl/``, seed 0, one torch thread), trained by the speed phase's own function; it
+prints that phase's in-process rate too.
 """
 
 from __future__ import annotations

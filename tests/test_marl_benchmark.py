@@ -4,6 +4,8 @@ a quick end-to-end run that resumes, and small records."""
 from __future__ import annotations
 
 import json
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -503,17 +505,22 @@ def test_round_39_flies_every_off_axis_offer_of_each_ppo_entry_on_simple_spreads
     assert len({json.dumps(change, sort_keys=True) for _, change in mappo_arms.values()}) == 8
     # every arm on the three validation seeds: MAPPO 38 + 8 * 3 runs, IPPO 12 + 11 * 3 (its entry's first
     # whole-budget runs count: runs at 150k joint steps are other runs)
-    runs = coma_study.tuning_runs(Path(__file__).resolve().parents[1] / "docs" / "coma_study")
+    folder = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
+    rounds = [path for path in folder.glob("*.md") if not path.name.startswith("spread_ring_")]
+    with tempfile.TemporaryDirectory() as until_39:
+        for path in rounds:
+            shutil.copy(path, until_39)
+        runs = coma_study.tuning_runs(Path(until_39))
     task = TASKS["simple_spread"].name
     assert (runs[("mappo", task)], runs[("ippo", task)], runs[("coma", task)]) == (62, 45, 117)
-    # the benchmark's entries are each ring's first (the entry listed first: it keeps a tie)
-    text = (Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "spread_budget_round.md").read_text()
+    # its choices, round 40's centres, are each ring's first (the entry listed first: it keeps a tie)
+    text = (folder / "spread_budget_round.md").read_text()
     name = coma_study.study_task("simple_spread_full").name
     firsts = [
         coma_study.screen_first(text, name, (entry, *offers))
         for entry, offers in ((mappo, mappo_arms), (ippo, ippo_arms))
     ]
-    assert tuple(firsts) == CHOSEN["simple_spread"][1:]
+    assert tuple(firsts) == coma_study.SPREAD_RING_2_CENTRES
 
 
 def test_round_40s_centres_are_round_39s_firsts_and_its_arms_all_new() -> None:
@@ -530,6 +537,31 @@ def test_round_40s_centres_are_round_39s_firsts_and_its_arms_all_new() -> None:
     assert arms == coma_study.spread_ring_arms(coma_study.SPREAD_RING_2_CENTRES)
     new = [arm for arm in arms if arm not in coma_study.SPREAD_RING_2_CENTRES]
     assert len(new) == 6 + 8 and not set(new) & set(ring_1)  # MAPPO's centre has two axes, IPPO's one
+
+
+def test_round_40_chose_the_benchmarks_entries_and_round_41s_centres_by_the_ring_rule() -> None:
+    """Round 40's firsts are the benchmark's entries (MAPPO's centre kept its place, IPPO took 15 epochs);
+    round 41's centres are each learner's best arm over rounds 39 and 40 not yet a centre; the runs so far
+    are read off the tables (MAPPO 62 + 6 * 3, IPPO 45 + 8 * 3; COMA's 117)."""
+    folder = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
+    ring_2 = (folder / "spread_ring_2_round.md").read_text()
+    both = (folder / "spread_budget_round.md").read_text() + "\n" + ring_2
+    name = coma_study.study_task("simple_spread_full").name
+    arms = coma_study.ROUNDS["spread_budget_round"] + coma_study.ROUNDS["spread_ring_2_round"]
+    centres = {*coma_study.SPREAD_ENTRIES, *coma_study.SPREAD_RING_2_CENTRES}
+    for i, (centre, third) in enumerate(zip(coma_study.SPREAD_RING_2_CENTRES, coma_study.SPREAD_RING_3_CENTRES)):
+        learner = coma_study.learner_of(centre)
+        ring = tuple(arm for arm in coma_study.ROUNDS["spread_ring_2_round"] if coma_study.learner_of(arm) == learner)
+        assert ring[0] == centre and coma_study.screen_first(ring_2, name, ring) == CHOSEN["simple_spread"][1 + i]
+        mine = tuple(dict.fromkeys(arm for arm in arms if coma_study.learner_of(arm) == learner))
+        assert coma_study.screen_first(both, name, tuple(a for a in mine if a not in centres)) == third
+    assert CHOSEN["simple_spread"][1] == coma_study.SPREAD_RING_2_CENTRES[0]  # MAPPO's entry stays
+    assert CHOSEN["simple_spread"][2] == coma_study.SPREAD_RING_3_CENTRES[1]  # IPPO's winner is its next centre
+    runs = coma_study.tuning_runs(folder)
+    task = TASKS["simple_spread"].name
+    assert (runs[("mappo", task)], runs[("ippo", task)], runs[("coma", task)]) == (80, 69, 117)
+    new = [arm for arm in coma_study.ROUNDS["spread_ring_3_round"] if arm not in coma_study.SPREAD_RING_3_CENTRES]
+    assert len(new) == 5 + 6 and not set(new) & set(arms)
 
 
 def test_a_screens_order_is_its_first_again_and_again() -> None:
@@ -596,7 +628,7 @@ CHOSEN = {
     "simple_spread": (
         "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.05",
         "mappo_clip_0.05_epochs_15",
-        "ippo_clip_0.05",
+        "ippo_clip_0.05_epochs_15",
     ),
     "simple_reference": ("before_lambda_95_q_norm_lr_1e-4_clock_25", "mappo_lr_1e-4", "ippo_ent_0_batch_128"),
     "lbf": ("minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1", "mappo_epochs_15", "ippo_lr_7e-4_batch_128"),

@@ -794,6 +794,11 @@ SPREAD_ENTRIES = ("mappo_clip_0.05", "ippo")
 #: offers off its two axes, 18 runs), IPPO's clip 0.05 (8 offers, 24 runs). Flown as round 39 was (--tasks
 #: simple_spread_full --seeds 3); the rings go on until each learner's runs reach COMA's.
 SPREAD_RING_2_CENTRES = ("mappo_clip_0.05_epochs_15", "ippo_clip_0.05")
+#: Round 41, the third ring, by the same rule over rounds 39 and 40 (spread_ring_2_round.md): MAPPO's centre
+#: stayed its best arm (-36.78; no offer of round 40 beat it), so its next is the best arm not yet a centre,
+#: no entropy bonus on top of its entry (-37.34; 5 offers, 15 runs); IPPO's is round 40's winner, its entry
+#: since then, clip 0.05 with 15 epochs (-38.37 against -42.88, ahead on every seed; 6 offers, 18 runs).
+SPREAD_RING_3_CENTRES = ("mappo_clip_0.05_epochs_15_ent_0", "ippo_clip_0.05_epochs_15")
 
 
 def spread_ring_arms(centres: tuple[str, ...]) -> tuple[str, ...]:
@@ -801,7 +806,7 @@ def spread_ring_arms(centres: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(name for centre in centres for name in (centre, *entry_neighbours(centre, len(BUDGET_OFFERS))))
 
 
-for _centre in (*SPREAD_ENTRIES, *SPREAD_RING_2_CENTRES):  # one ring at a time: a later one finds a name
+for _centre in (*SPREAD_ENTRIES, *SPREAD_RING_2_CENTRES, *SPREAD_RING_3_CENTRES):  # a later ring finds a name
     PPO_VARIANTS.update(entry_neighbours(_centre, len(BUDGET_OFFERS)))
 
 
@@ -1042,7 +1047,8 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "warehouse_ring_confirm_round": warehouse_ring_confirm_arms(),  # round 37: --tasks rware_tiny --seeds 3
     "foraging_budget_confirm_round": foraging_budget_confirm_arms(),  # round 38: --tasks lbf --seeds 3
     "spread_budget_round": spread_ring_arms(SPREAD_ENTRIES),  # round 39: --tasks simple_spread_full --seeds 3
-    "spread_ring_2_round": spread_ring_arms(SPREAD_RING_2_CENTRES),  # round 40: the same, not yet flown
+    "spread_ring_2_round": spread_ring_arms(SPREAD_RING_2_CENTRES),  # round 40: the same
+    "spread_ring_3_round": spread_ring_arms(SPREAD_RING_3_CENTRES),  # round 41: the same, not yet flown
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
