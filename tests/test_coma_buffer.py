@@ -57,3 +57,15 @@ def test_minibatches_hold_whole_joint_steps() -> None:
     for row in tags:
         t, base = divmod(int(row[0].item()), 100)
         assert base % N == 0 and row.tolist() == [100 * t + base + a for a in range(N)]
+
+
+def test_a_rollout_without_masks_reads_none_even_after_one_with_masks() -> None:
+    """An env that gives no masks leaves the rollout's mask ``None`` (nothing to mask), also when the
+    buffer's last rollout came from an env that gave some (``set_env`` with another env)."""
+    buf = filled()
+    assert buf.time_major()["mask"] is not None
+    buf.reset()
+    rows = np.arange(E * N)
+    for t in range(T):
+        buf.add(step_obs(t), None, rows % 6, np.zeros(E * N), np.zeros(E * N))
+    assert buf.time_major()["mask"] is None and buf.joint_steps()["mask"] is None

@@ -92,7 +92,9 @@ class JointRolloutBuffer:
         return self.pos * self.n_copies
 
     def reset(self) -> None:
+        """Start a new rollout; whether it has masks is its own (a model may be given another env)."""
         self.pos = 0
+        self.masked = False
 
     def _grouped(self, flat: Any) -> np.ndarray:
         """``(E * N, ...) -> (E, N, ...)`` (a view)."""
