@@ -198,8 +198,8 @@ def test_an_env_without_masks_trains_as_with_all_valid_masks_bit_for_bit() -> No
         venv = make_marl_vec_env(_spread, n_envs=2, seed=0)
         model = COMA("MlpPolicy", venv, seed=0, device="cpu", exploration_initial_eps=0.3, **FAST)
         if all_ones:
-            n_actions = int(model.action_space.n)
-            model._masks = lambda obs, env=None: np.ones((len(obs), n_actions), dtype=np.float32)  # type: ignore[method-assign]
+            width = int(model.action_space.n)
+            model._masks = lambda obs, env=None, n=width: np.ones((len(obs), n), dtype=np.float32)  # type: ignore[method-assign]
         model.learn(64)
         assert (model.rollout_buffer.time_major()["mask"] is None) is not all_ones
         trained.append(model.policy.state_dict())
