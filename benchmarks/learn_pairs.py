@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+from sb3_coma.experiments.marl_benchmark import TASKS
+
 LEARN_ONCE = Path(__file__).resolve().with_name("learn_once.py")
 
 
@@ -34,12 +36,13 @@ def wall_seconds(task: str, learner: str, joint_steps: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("task", help="a benchmark task key (learn_once.py's choices)")
+    parser.add_argument("task", choices=sorted(TASKS), help="a benchmark task key")
     parser.add_argument("--pairs", type=int, default=5, help="counted pairs (after one warm-up pair)")
     parser.add_argument("--joint-steps", type=int, default=20_480, help="joint env steps each run learns")
     args = parser.parse_args()
-    if args.pairs < 1 or args.joint_steps < 1:
-        parser.error(f"--pairs {args.pairs} and --joint-steps {args.joint_steps} must both be at least 1")
+    for flag, value in (("--pairs", args.pairs), ("--joint-steps", args.joint_steps)):
+        if value < 1:
+            parser.error(f"{flag} {value}: must be at least 1")
     ratios = []
     for pair in range(args.pairs + 1):
         coma = wall_seconds(args.task, "coma", args.joint_steps)

@@ -30,3 +30,9 @@ def test_learn_pairs_times_coma_against_ppo_pair_by_pair() -> None:
 def test_learn_pairs_names_a_bad_count_in_one_line() -> None:
     done = subprocess.run([sys.executable, str(PAIRS), "simple_spread", "--pairs", "0"], capture_output=True, text=True)
     assert done.returncode == 2 and "--pairs 0" in done.stderr.strip().splitlines()[-1]
+
+
+def test_learn_pairs_names_an_unknown_task_before_running_anything() -> None:
+    done = subprocess.run([sys.executable, str(PAIRS), "no_such_task"], capture_output=True, text=True)
+    assert done.returncode == 2 and "no_such_task" in done.stderr.strip().splitlines()[-1]
+    assert "Traceback" not in done.stderr
