@@ -506,11 +506,8 @@ def test_round_39_flies_every_off_axis_offer_of_each_ppo_entry_on_simple_spreads
     # every arm on the three validation seeds: MAPPO 38 + 8 * 3 runs, IPPO 12 + 11 * 3 (its entry's first
     # whole-budget runs count: runs at 150k joint steps are other runs)
     folder = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
-    rounds = [path for path in folder.glob("*.md") if not path.name.startswith("spread_ring_")]
-    with tempfile.TemporaryDirectory() as until_39:
-        for path in rounds:
-            shutil.copy(path, until_39)
-        runs = coma_study.tuning_runs(Path(until_39))
+    later = tuple(path.name for path in folder.glob("spread_*.md") if path.name != "spread_budget_round.md")
+    runs = _runs_without(folder, later)
     task = TASKS["simple_spread"].name
     assert (runs[("mappo", task)], runs[("ippo", task)], runs[("coma", task)]) == (62, 45, 117)
     # its choices, round 40's centres, are each ring's first (the entry listed first: it keeps a tie)
@@ -521,6 +518,15 @@ def test_round_39_flies_every_off_axis_offer_of_each_ppo_entry_on_simple_spreads
         for entry, offers in ((mappo, mappo_arms), (ippo, ippo_arms))
     ]
     assert tuple(firsts) == coma_study.SPREAD_RING_2_CENTRES
+
+
+def _runs_without(folder: Path, later: tuple[str, ...]) -> dict[tuple[str, str], int]:
+    """:func:`coma_study.tuning_runs` over the round tables in ``folder`` but the ``later`` ones."""
+    with tempfile.TemporaryDirectory() as until:
+        for path in folder.glob("*.md"):
+            if path.name not in later:
+                shutil.copy(path, until)
+        return coma_study.tuning_runs(Path(until))
 
 
 def test_round_40s_centres_are_round_39s_firsts_and_its_arms_all_new() -> None:
@@ -552,16 +558,82 @@ def test_round_40_chose_the_benchmarks_entries_and_round_41s_centres_by_the_ring
     for i, (centre, third) in enumerate(zip(coma_study.SPREAD_RING_2_CENTRES, coma_study.SPREAD_RING_3_CENTRES)):
         learner = coma_study.learner_of(centre)
         ring = tuple(arm for arm in coma_study.ROUNDS["spread_ring_2_round"] if coma_study.learner_of(arm) == learner)
-        assert ring[0] == centre and coma_study.screen_first(ring_2, name, ring) == CHOSEN["simple_spread"][1 + i]
+        assert ring[0] == centre and coma_study.screen_first(ring_2, name, ring) == ENTRIES_0_19["simple_spread"][i]
         mine = tuple(dict.fromkeys(arm for arm in arms if coma_study.learner_of(arm) == learner))
         assert coma_study.screen_first(both, name, tuple(a for a in mine if a not in centres)) == third
-    assert CHOSEN["simple_spread"][1] == coma_study.SPREAD_RING_2_CENTRES[0]  # MAPPO's entry stays
-    assert CHOSEN["simple_spread"][2] == coma_study.SPREAD_RING_3_CENTRES[1]  # IPPO's winner is its next centre
-    runs = coma_study.tuning_runs(folder)
+    assert ENTRIES_0_19["simple_spread"][0] == coma_study.SPREAD_RING_2_CENTRES[0]  # MAPPO's entry stays
+    assert ENTRIES_0_19["simple_spread"][1] == coma_study.SPREAD_RING_3_CENTRES[1]  # IPPO's winner is its next centre
+    runs = _runs_without(folder, ("spread_ring_3_round.md", "spread_fill_round.md"))
     task = TASKS["simple_spread"].name
     assert (runs[("mappo", task)], runs[("ippo", task)], runs[("coma", task)]) == (80, 69, 117)
     new = [arm for arm in coma_study.ROUNDS["spread_ring_3_round"] if arm not in coma_study.SPREAD_RING_3_CENTRES]
     assert len(new) == 5 + 6 and not set(new) & set(arms)
+
+
+#: MAPPO's and IPPO's simple_spread entries after round 40 (0.19.0), the incumbents of rounds 41 and 42.
+ENTRIES_0_19 = {"simple_spread": ("mappo_clip_0.05_epochs_15", "ippo_clip_0.05_epochs_15")}
+
+
+def test_round_41_kept_mappos_entry_and_gave_ippo_its_best_arm_over_three_rings() -> None:
+    """After the third ring each entry is the learner's best arm over rounds 39 to 41, the incumbent listed
+    first (MAPPO's stays; IPPO's takes GAE lambda 0.99, ahead on the mean)."""
+    folder = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
+    rings = ("spread_budget_round", "spread_ring_2_round", "spread_ring_3_round")
+    tables = "\n".join((folder / f"{ring}.md").read_text() for ring in rings)
+    name = coma_study.study_task("simple_spread_full").name
+    for i, (learner, incumbent) in enumerate(zip(("mappo", "ippo"), ENTRIES_0_19["simple_spread"], strict=True)):
+        arms = (incumbent, *(arm for ring in rings for arm in coma_study.ROUNDS[ring]))
+        mine = tuple(dict.fromkeys(arm for arm in arms if coma_study.learner_of(arm) == learner))
+        assert coma_study.screen_first(tables, name, mine) == CHOSEN["simple_spread"][1 + i]
+    mappo_0_19, ippo_0_19 = ENTRIES_0_19["simple_spread"]
+    assert CHOSEN["simple_spread"][1] == mappo_0_19 and CHOSEN["simple_spread"][2] != ippo_0_19
+
+
+FILL_TABLE = Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "spread_fill_round.md"
+
+
+@pytest.mark.skipif(not FILL_TABLE.exists(), reason="round 42 (spread_fill_round) has not reported yet")
+def test_round_42_leaves_each_learner_its_best_arm_over_the_four_rings_and_comas_budget() -> None:
+    """The entries after the last ring are each learner's best arm over rounds 39 to 42 (the incumbent first,
+    so that it keeps a tie), and every learner has COMA's runs on simple_spread, up to an arm's seeds over."""
+    folder = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
+    rings = ("spread_budget_round", "spread_ring_2_round", "spread_ring_3_round", "spread_fill_round")
+    tables = "\n".join((folder / f"{ring}.md").read_text() for ring in rings)
+    name = coma_study.study_task("simple_spread_full").name
+    for i, (learner, incumbent) in enumerate(zip(("mappo", "ippo"), ENTRIES_0_19["simple_spread"], strict=True)):
+        arms = (incumbent, *(arm for ring in rings for arm in coma_study.ROUNDS[ring]))
+        mine = tuple(dict.fromkeys(arm for arm in arms if coma_study.learner_of(arm) == learner))
+        assert coma_study.screen_first(tables, name, mine) == CHOSEN["simple_spread"][1 + i]
+    runs = coma_study.tuning_runs(folder)
+    task = TASKS["simple_spread"].name
+    for learner in ("mappo", "ippo"):
+        assert 0 <= runs[(learner, task)] - runs[("coma", task)] < 3, learner
+
+
+def test_round_42s_centres_follow_the_ranking_and_fill_each_budget_to_comas() -> None:
+    """The fill ring: each learner's centres are its best arms over rounds 39 to 41 not yet centres, in
+    order; every arm they bring is new on the task; the last centre's offers stop where the learner's runs
+    reach COMA's (three seeds an arm)."""
+    folder = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
+    rings = ("spread_budget_round", "spread_ring_2_round", "spread_ring_3_round")
+    tables = "\n".join((folder / f"{ring}.md").read_text() for ring in rings)
+    name = coma_study.study_task("simple_spread_full").name
+    flown = [arm for ring in rings for arm in coma_study.ROUNDS[ring]]
+    centres = {*coma_study.SPREAD_ENTRIES, *coma_study.SPREAD_RING_2_CENTRES, *coma_study.SPREAD_RING_3_CENTRES}
+    before = _runs_without(folder, ("spread_fill_round.md",))
+    task = TASKS["simple_spread"].name
+    arms = coma_study.ROUNDS["spread_fill_round"]
+    earlier = "\n".join(path.read_text() for path in folder.glob("*.md") if path.name != "spread_fill_round.md")
+    rows = {line.split("|")[2].strip() for line in earlier.splitlines() if line.startswith(f"| {name} |")}
+    for learner in ("mappo", "ippo"):
+        mine = tuple(dict.fromkeys(arm for arm in flown if coma_study.learner_of(arm) == learner))
+        ranking = [arm for arm in coma_study.screen_order(tables, name, mine) if arm not in centres]
+        fill = [(centre, count) for centre, count in coma_study.SPREAD_FILL if coma_study.learner_of(centre) == learner]
+        assert [centre for centre, _ in fill] == ranking[: len(fill)]
+        new = [arm for arm in arms if coma_study.learner_of(arm) == learner and arm not in dict(fill)]
+        assert len(new) == sum(count for _, count in fill) == len(set(new)) and not set(new) & rows
+        short = before[("coma", task)] - before[(learner, task)]
+        assert 0 <= 3 * len(new) - short < 3, learner
 
 
 def test_a_screens_order_is_its_first_again_and_again() -> None:
@@ -628,7 +700,7 @@ CHOSEN = {
     "simple_spread": (
         "minibatch_86_before_lambda_95_q_norm_clock_25_pi_64x3_clip_0.05",
         "mappo_clip_0.05_epochs_15",
-        "ippo_clip_0.05_epochs_15",
+        "ippo_clip_0.05_epochs_15_gae_0.99",
     ),
     "simple_reference": ("before_lambda_95_q_norm_lr_1e-4_clock_25", "mappo_lr_1e-4", "ippo_ent_0_batch_128"),
     "lbf": ("minibatch_86_before_lambda_95_q_norm_pi_64x3_clip_0.1", "mappo_epochs_15", "ippo_lr_7e-4_batch_128"),

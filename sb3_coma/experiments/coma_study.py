@@ -809,6 +809,46 @@ def spread_ring_arms(centres: tuple[str, ...]) -> tuple[str, ...]:
 for _centre in (*SPREAD_ENTRIES, *SPREAD_RING_2_CENTRES, *SPREAD_RING_3_CENTRES):  # a later ring finds a name
     PPO_VARIANTS.update(entry_neighbours(_centre, len(BUDGET_OFFERS)))
 
+#: Round 42, the last ring: it fills each PPO learner's runs up to COMA's in one round (a ring a round would
+#: need several more). Its centres are each learner's arms over rounds 39 to 41 in their ranking
+#: (:func:`screen_order` over the three tables, entry first) that were not yet centres; each brings its
+#: off-axis offers that no ring flew, in :data:`BUDGET_OFFERS`' order, and the last centre's offers stop at
+#: the first that brings the learner's runs to COMA's (three seeds an arm). Values: how many new arms.
+SPREAD_FILL: tuple[tuple[str, int], ...] = (
+    ("mappo_clip_0.05_ent_0", 6),
+    ("mappo_clip_0.05_epochs_15_ent_0_gae_0.99", 2),
+    ("ippo_clip_0.05_epochs_15_gae_0.99", 5),
+    ("ippo_clip_0.05_epochs_15_ent_0", 4),
+    ("ippo_clip_0.05_gae_0.99", 1),
+)
+
+
+def _ring_flown() -> set[str]:
+    """The arms that rounds 39 to 41 flew on simple_spread's whole budget."""
+    rings = (SPREAD_ENTRIES, SPREAD_RING_2_CENTRES, SPREAD_RING_3_CENTRES)
+    return {name for centres in rings for name in spread_ring_arms(centres)}
+
+
+def fill_offers(centre: str, count: int, flown: set[str]) -> dict[str, tuple[str, dict[str, Any]]]:
+    """The first ``count`` off-axis neighbours of ``centre`` that are not in ``flown``, in the offers' order."""
+    fresh = {name: arm for name, arm in entry_neighbours(centre, len(BUDGET_OFFERS)).items() if name not in flown}
+    return dict(list(fresh.items())[:count])
+
+
+def spread_fill_arms() -> tuple[str, ...]:
+    """Round 42's arms: each fill centre followed by its new neighbours (an arm a centre before it brought
+    is not brought again)."""
+    flown, arms = _ring_flown(), []
+    for centre, count in SPREAD_FILL:
+        new = fill_offers(centre, count, flown)
+        flown |= new.keys()
+        arms += [centre, *new]
+    return tuple(arms)
+
+
+for _centre, _count in SPREAD_FILL:
+    PPO_VARIANTS.update(entry_neighbours(_centre, len(BUDGET_OFFERS)))
+
 
 ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
@@ -1048,7 +1088,8 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "foraging_budget_confirm_round": foraging_budget_confirm_arms(),  # round 38: --tasks lbf --seeds 3
     "spread_budget_round": spread_ring_arms(SPREAD_ENTRIES),  # round 39: --tasks simple_spread_full --seeds 3
     "spread_ring_2_round": spread_ring_arms(SPREAD_RING_2_CENTRES),  # round 40: the same
-    "spread_ring_3_round": spread_ring_arms(SPREAD_RING_3_CENTRES),  # round 41: the same, not yet flown
+    "spread_ring_3_round": spread_ring_arms(SPREAD_RING_3_CENTRES),  # round 41: the same
+    "spread_fill_round": spread_fill_arms(),  # round 42: the same
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
