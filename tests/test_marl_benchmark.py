@@ -574,17 +574,25 @@ def test_round_40_chose_the_benchmarks_entries_and_round_41s_centres_by_the_ring
 ENTRIES_0_19 = {"simple_spread": ("mappo_clip_0.05_epochs_15", "ippo_clip_0.05_epochs_15")}
 
 
+def _best_over_rings(rings: tuple[str, ...]) -> tuple[str, str]:
+    """MAPPO's and IPPO's best arm on simple_spread's whole budget over the ``rings``' tables, each
+    learner's 0.19.0 entry listed first so that it keeps a tie (:func:`coma_study.screen_first`)."""
+    folder = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
+    tables = "\n".join((folder / f"{ring}.md").read_text() for ring in rings)
+    name = coma_study.study_task("simple_spread_full").name
+    best = []
+    for learner, incumbent in zip(("mappo", "ippo"), ENTRIES_0_19["simple_spread"], strict=True):
+        arms = (incumbent, *(arm for ring in rings for arm in coma_study.ROUNDS[ring]))
+        mine = tuple(dict.fromkeys(arm for arm in arms if coma_study.learner_of(arm) == learner))
+        best.append(coma_study.screen_first(tables, name, mine))
+    return best[0], best[1]
+
+
 def test_round_41_kept_mappos_entry_and_gave_ippo_its_best_arm_over_three_rings() -> None:
     """After the third ring each entry is the learner's best arm over rounds 39 to 41, the incumbent listed
     first (MAPPO's stays; IPPO's takes GAE lambda 0.99, ahead on the mean)."""
-    folder = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
     rings = ("spread_budget_round", "spread_ring_2_round", "spread_ring_3_round")
-    tables = "\n".join((folder / f"{ring}.md").read_text() for ring in rings)
-    name = coma_study.study_task("simple_spread_full").name
-    for i, (learner, incumbent) in enumerate(zip(("mappo", "ippo"), ENTRIES_0_19["simple_spread"], strict=True)):
-        arms = (incumbent, *(arm for ring in rings for arm in coma_study.ROUNDS[ring]))
-        mine = tuple(dict.fromkeys(arm for arm in arms if coma_study.learner_of(arm) == learner))
-        assert coma_study.screen_first(tables, name, mine) == CHOSEN["simple_spread"][1 + i]
+    assert _best_over_rings(rings) == CHOSEN["simple_spread"][1:]
     mappo_0_19, ippo_0_19 = ENTRIES_0_19["simple_spread"]
     assert CHOSEN["simple_spread"][1] == mappo_0_19 and CHOSEN["simple_spread"][2] != ippo_0_19
 
@@ -596,14 +604,9 @@ FILL_TABLE = Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "spre
 def test_round_42_leaves_each_learner_its_best_arm_over_the_four_rings_and_comas_budget() -> None:
     """The entries after the last ring are each learner's best arm over rounds 39 to 42 (the incumbent first,
     so that it keeps a tie), and every learner has COMA's runs on simple_spread, up to an arm's seeds over."""
-    folder = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
     rings = ("spread_budget_round", "spread_ring_2_round", "spread_ring_3_round", "spread_fill_round")
-    tables = "\n".join((folder / f"{ring}.md").read_text() for ring in rings)
-    name = coma_study.study_task("simple_spread_full").name
-    for i, (learner, incumbent) in enumerate(zip(("mappo", "ippo"), ENTRIES_0_19["simple_spread"], strict=True)):
-        arms = (incumbent, *(arm for ring in rings for arm in coma_study.ROUNDS[ring]))
-        mine = tuple(dict.fromkeys(arm for arm in arms if coma_study.learner_of(arm) == learner))
-        assert coma_study.screen_first(tables, name, mine) == CHOSEN["simple_spread"][1 + i]
+    assert _best_over_rings(rings) == CHOSEN["simple_spread"][1:]
+    folder = FILL_TABLE.parent
     runs = coma_study.tuning_runs(folder)
     task = TASKS["simple_spread"].name
     for learner in ("mappo", "ippo"):
