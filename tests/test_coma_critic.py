@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch as th
 from coma_fakes import make_fake_vec_env, one_torch_thread  # noqa: F401 (autouse fixture)
@@ -112,3 +114,55 @@ def test_target_sync_copies_the_critic(model: COMA) -> None:
     for t, c in zip(policy.critic_target.parameters(), policy.critic.parameters()):
         assert th.equal(t, c)
     assert not any(p.requires_grad for p in policy.critic_target.parameters())
+
+
+@pytest.fixture(scope="module")
+def dueling_model() -> COMA:
+    return COMA(
+        "CBAMPolicy",
+        make_fake_vec_env(n_envs=2, n_agents=3, seed=0),
+        batch_size=8,
+        n_steps=4,
+        seed=0,
+        policy_kwargs={**SMALL, "dueling_critic": True},
+    )
+
+
+def test_a_dueling_uav_critic_is_its_value_plus_the_centred_deviations(dueling_model: COMA) -> None:
+    """The generic option on the world's spatial critic: one more output, ``Q = W + D - mean_u D``; agent
+    ``i``'s row still ignores ``u_i``, and under the uniform policy the baseline is ``W`` itself."""
+    critic = dueling_model.policy.critic
+    assert critic.head.out_features == 7 and dueling_model.policy.critic_target.dueling
+    local, state, _ = joint_obs(dueling_model)
+    actions = th.tensor([[0, 1, 2], [3, 4, 5]])
+    with th.no_grad():
+        q = dueling_model.policy.q_values({"local": local}, state, actions)
+        out = critic.head(critic.features_extractor(critic_input(local, state, actions).flatten(0, 1))).view(2, 3, 7)
+        changed = actions.clone()
+        changed[:, 0] = 5
+        assert th.equal(dueling_model.policy.q_values({"local": local}, state, changed)[:, 0], q[:, 0])
+    assert th.allclose(q, out[..., :1] + out[..., 1:] - out[..., 1:].mean(dim=-1, keepdim=True), atol=1e-6)
+    _adv, baseline, _taken = counterfactual_advantage(q, actions, th.full((2, 3, 6), 1 / 6))
+    assert th.allclose(baseline, out[..., 0], atol=1e-5)
+
+
+def test_a_dueling_uav_critic_is_saved_with_the_model_and_a_plain_one_stays_plain(
+    dueling_model: COMA, model: COMA, tmp_path: Path
+) -> None:
+    for trained, dueling in ((dueling_model, True), (model, False)):
+        trained.save(tmp_path / "m.zip")
+        loaded = COMA.load(tmp_path / "m.zip", device="cpu")
+        assert loaded.policy.dueling_critic is dueling and loaded.policy.critic.head.out_features == 6 + dueling
+        for a, b in zip(loaded.policy.critic.parameters(), trained.policy.critic.parameters()):
+            assert th.equal(a, b)
+
+
+def test_a_dueling_critic_that_is_not_a_flag_is_refused_by_name() -> None:
+    with pytest.raises(ValueError, match=r"dueling_critic='no': must be true or false"):
+        COMA(
+            "CBAMPolicy",
+            make_fake_vec_env(n_envs=2, n_agents=2, seed=0),
+            n_steps=4,
+            batch_size=8,
+            policy_kwargs={**SMALL, "dueling_critic": "no"},
+        )

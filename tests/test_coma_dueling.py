@@ -93,3 +93,9 @@ def _critic_inputs(model: COMA, data: dict[str, Any], idx: th.Tensor) -> tuple[A
 def test_the_default_critic_is_not_dueling() -> None:
     model = _model(dueling=False)
     assert not model.policy.dueling_critic and model.policy.critic.head.out_features == model.policy.n_actions
+
+
+def test_a_dueling_critic_that_is_not_a_flag_is_refused_by_name() -> None:
+    """A config's ``"yes"`` or ``"no"`` would otherwise turn the head on either way."""
+    with pytest.raises(ValueError, match=r"dueling_critic='yes': must be true or false"):
+        COMA("MlpPolicy", make_marl_vec_env(_spread, n_envs=2, seed=0), policy_kwargs={"dueling_critic": "yes"}, **FAST)

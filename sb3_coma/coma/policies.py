@@ -39,6 +39,7 @@ from torch.nn import functional as F
 
 from sb3_coma.common.joint import KEY_MASK, actor_observation_space, actor_view, map_obs
 from sb3_coma.common.masking import behaviour_probs, mask_logits, sample_actions
+from sb3_coma.common.numbers import flag
 
 _CRITIC_PREFIX = "critic."
 _TARGET_PREFIX = "critic_target."
@@ -126,10 +127,15 @@ class CriticNet(nn.Module):
             assert obs is not None
             parts.insert(1, self.obs_extractor(obs))
         out = self.head(self.mlp(th.cat(parts, dim=1)))
-        if not self.dueling:
-            return out
-        deviations = out[:, 1:]
-        return out[:, :1] + deviations - deviations.mean(dim=1, keepdim=True)
+        return dueling_q(out) if self.dueling else out
+
+
+def dueling_q(out: th.Tensor) -> th.Tensor:
+    """``Q = W + D - mean_u D`` from a dueling head's outputs ``(B, 1 + n_actions)``: the value ``W`` first,
+    then one deviation ``D`` per action. Centring makes ``W`` the mean of ``Q``, which is what COMA's
+    baseline reads under a near-uniform policy, and lets PopArt rescale every output alike."""
+    deviations = out[:, 1:]
+    return out[:, :1] + deviations - deviations.mean(dim=1, keepdim=True)
 
 
 def one_hot_others(actions: th.Tensor, n_actions: int) -> th.Tensor:
@@ -268,7 +274,7 @@ class COMAPolicy(BasePolicy):
         self.n_actions = int(action_space.n)
         self.ortho_init = ortho_init
         self.state_value = bool(state_value)
-        self.dueling_critic = bool(dueling_critic)
+        self.dueling_critic = flag("dueling_critic", dueling_critic)
         #: What the actor reads (the observation without ``state`` / ``action_mask``).
         self.actor_space = actor_observation_space(observation_space)
         extractor = self.features_extractor_class

@@ -32,6 +32,14 @@ def is_flag(value: Any) -> TypeGuard[bool]:
     return isinstance(value, (bool, np.bool_))
 
 
+def flag(name: str, value: Any) -> bool:
+    """``value`` as a ``bool`` if it is a flag, else a ``ValueError`` naming ``name`` and the value: a
+    string such as ``"no"`` from a config would otherwise turn the option on."""
+    if not is_flag(value):
+        raise ValueError(f"{name}={value!r}: must be true or false")
+    return bool(value)
+
+
 def is_whole(value: Any) -> TypeGuard[int]:
     """An integer: an ``int`` or a numpy integer (``np.int64`` is not an ``int`` subclass), never a
     flag (``True`` is an ``int``; ``np.bool_`` is not a numpy integer)."""

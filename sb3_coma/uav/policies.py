@@ -22,10 +22,10 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_coma.coma.policies import COMAPolicy
+from sb3_coma.coma.policies import COMAPolicy, dueling_q
 from sb3_coma.common.extractors import GAIN_ENCODER_DIM, CBAMExtractor, CnnExtractor
 from sb3_coma.common.masking import mask_logits
-from sb3_coma.common.numbers import is_flag, is_real, plain
+from sb3_coma.common.numbers import flag, is_flag, is_real, plain
 from uav_ipp import layout
 
 #: FOOTPRINT marks the current cell with 1.0 and earlier visits with 0.5; anything above this
@@ -59,14 +59,21 @@ def critic_input(local: th.Tensor, state: th.Tensor, actions: th.Tensor) -> th.T
 
 
 class _Head(nn.Module):
-    """A features extractor followed by one linear layer to one output per action."""
+    """A features extractor followed by one linear layer to one output per action (``dueling``: one more,
+    a value, combined as :func:`~sb3_coma.coma.policies.dueling_q` does for the generic critic)."""
 
     def __init__(
-        self, features_extractor: BaseFeaturesExtractor, n_actions: int, gain: float, ortho_init: bool = True
+        self,
+        features_extractor: BaseFeaturesExtractor,
+        n_actions: int,
+        gain: float,
+        ortho_init: bool = True,
+        dueling: bool = False,
     ) -> None:
         super().__init__()
         self.features_extractor = features_extractor
-        self.head = nn.Linear(features_extractor.features_dim, n_actions)
+        self.dueling = dueling
+        self.head = nn.Linear(features_extractor.features_dim, n_actions + int(dueling))
         if ortho_init:
             # As SB3 does for A2C/PPO: PyTorch's default init shrinks activations through the
             # ReLU trunk until features barely vary between inputs and the actor cannot learn.
@@ -75,7 +82,8 @@ class _Head(nn.Module):
         nn.init.zeros_(self.head.bias)
 
     def forward(self, x: th.Tensor) -> th.Tensor:
-        return self.head(self.features_extractor(x))
+        out = self.head(self.features_extractor(x))
+        return dueling_q(out) if self.dueling else out
 
 
 class _Actor(_Head):
@@ -304,6 +312,10 @@ class UavCOMAPolicy(COMAPolicy):
         through a learned encoder joined to the trunk's features before the head. Nothing is
         added to the logits by hand: the weights start random and the network learns what the
         gains are worth. Needs the ``action_gain`` key
+    :param dueling_critic: the critic's head gives ``Q`` as a value plus centred deviations, one per
+        action (as the generic policy's option of the same name, which made COMA deliver on RWARE):
+        a plain head fits only the taken action's output per sample, and the baseline reads them all.
+        Off by default, so a model saved without the key (every shipped one) loads as a plain head
     """
 
     actor: _Actor
@@ -331,8 +343,10 @@ class UavCOMAPolicy(COMAPolicy):
         gain_prior_speed: float = 100.0,
         correction_bound: float | None = None,
         gain_inputs: bool = False,
+        dueling_critic: bool = False,
     ) -> None:
         check_uav_spaces(observation_space, action_space)
+        self.dueling_critic = flag("dueling_critic", dueling_critic)
         self.correction_bound = _correction_bound(correction_bound)
         #: How many ``action_gain`` values the actor's network reads (0: it reads none).
         self.gain_input_size = _gain_input_size(gain_inputs, observation_space)
@@ -393,6 +407,7 @@ class UavCOMAPolicy(COMAPolicy):
             self.n_actions,
             gain=1.0,
             ortho_init=self.ortho_init,
+            dueling=self.dueling_critic,
         )
         self._finish_build(lr_schedule, critic_lr_schedule)
 
@@ -403,6 +418,7 @@ class UavCOMAPolicy(COMAPolicy):
             "gain_prior_speed": self.gain_prior_speed,
             "correction_bound": self.correction_bound,
             "gain_inputs": self.gain_inputs,
+            "dueling_critic": self.dueling_critic,
         }
 
     def log_values(self) -> dict[str, float]:
