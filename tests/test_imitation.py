@@ -196,6 +196,19 @@ def test_dagger_experiment_command_writes_a_model_and_a_paired_report(tmp_path):
     model = COMA.load(tuned / "finetuned.zip", device="cpu")
     assert model.n_epochs == 1 and model.advantage_before_critic_update is True
     assert model.n_steps == 40 and model.num_timesteps == 40 * 8  # one rollout of 40 steps x 8 copies
+    # the same clone with a fresh dueling critic: its actor and the actor's optimizer state are the clone's
+    clone = COMA.load(out / "clone.zip", device="cpu")
+    swapped = dagger.with_dueling_critic(COMA.load(out / "clone.zip", device="cpu"))
+    assert swapped.policy.dueling_critic and swapped.policy.critic.head.out_features == clone.action_space.n + 1
+    for a, b in zip(swapped.policy.actor.state_dict().values(), clone.policy.actor.state_dict().values()):
+        assert th.equal(a, b)
+    moments = [state["exp_avg"] for state in clone.policy.optimizer.state_dict()["state"].values()]
+    kept = [state["exp_avg"] for state in swapped.policy.optimizer.state_dict()["state"].values()]
+    assert moments and all(th.equal(a, b) for a, b in zip(kept, moments, strict=True))
+    dueling = tmp_path / "u"
+    argv = ["--env", "env1", "--from", str(out / "clone.zip"), "--finetune", "40", "--missions-eval", "2"]
+    assert dagger.main([*argv, "--set", "n_steps=5", "--dueling-critic", "--out", str(dueling)]) == 0
+    assert COMA.load(dueling / "finetuned.zip", device="cpu").policy.dueling_critic
 
 
 @pytest.mark.parametrize(
@@ -215,3 +228,12 @@ def test_dagger_refuses_a_setting_coma_has_not_in_one_line(setting, message, cap
     with pytest.raises(SystemExit) as stop:
         dagger.parse_args(["--out", "x", "--set", setting])
     assert stop.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_dagger_builds_a_new_clone_with_the_dueling_critic_and_keeps_a_loaded_clones_networks():
+    from sb3_coma.experiments import dagger
+
+    new = dagger.parse_args(["--out", "x", "--dueling-critic", "--set", "n_epochs=3"])
+    assert dagger.config_overrides(new) == {"policy_kwargs.dueling_critic": True, "n_epochs": 3}
+    loaded = dagger.parse_args(["--out", "x", "--from", "c.zip", "--dueling-critic", "--observation", "v3"])
+    assert dagger.config_overrides(loaded) == {"env_kwargs.observation": "v3"}  # swapped after loading

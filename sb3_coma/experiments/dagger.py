@@ -15,7 +15,9 @@ the same ``--missions-eval`` missions (``--split``: the validation missions by d
 recipes are chosen; ``--split test`` reports only) and prints the paired verdicts (scene-clustered t test, Holm over the table). Writes ``clone.zip`` or
 ``finetuned.zip`` and ``report.json`` into ``--out``. ``--set NAME=VALUE`` changes one of COMA's
 constructor arguments for the fine-tuning (the same clone fine-tuned two ways is a paired comparison
-of the two settings: issue #45, docs/training.md).
+of the two settings: issue #45, docs/training.md). ``--dueling-critic`` gives the fine-tuning the
+dueling critic head (``policy_kwargs`` ``dueling_critic``): with ``--from`` a fresh one replaces the
+clone's, the actor and its optimizer state kept, so the same clone can be fine-tuned with either head.
 """
 
 from __future__ import annotations
@@ -82,6 +84,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         metavar="NAME=VALUE",
         help="a COMA constructor argument of the fine-tuning, e.g. --set n_epochs=10 (repeatable)",
     )
+    parser.add_argument(
+        "--dueling-critic",
+        action="store_true",
+        help="the fine-tuning's critic has a dueling head (policy_kwargs dueling_critic): with --from, a fresh "
+        "one takes the place of the clone's, which DAgger never trains; else the clone is built with it",
+    )
     parser.add_argument("--out", required=True, help="output folder")
     args = parser.parse_args(argv)
     try:
@@ -115,10 +123,34 @@ def coma_settings(pairs: dict[str, Any]) -> dict[str, Any]:
     return pairs
 
 
+def config_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """What the command changes in the map's config entry: the observation, the clone's critic head (a
+    clone loaded with ``--from`` has its own networks) and the ``--set`` settings."""
+    overrides: dict[str, Any] = {"env_kwargs.observation": args.observation} if args.observation else {}
+    if args.dueling_critic and not args.source:
+        overrides["policy_kwargs.dueling_critic"] = True
+    return overrides | args.settings
+
+
+def with_dueling_critic(model: COMA) -> COMA:
+    """``model`` with a fresh dueling critic in place of its own, its actor and the actor's optimizer
+    state kept: the same clone fine-tuned with either critic is then a paired comparison of the two
+    heads (DAgger trains only the actor, so the clone's own critic is as untrained as the fresh one)."""
+    old = model.policy
+    settings = old._get_constructor_parameters() | {"dueling_critic": True}
+    settings.update(lr_schedule=model.lr_schedule, critic_lr_schedule=model.critic_lr_schedule)
+    new = type(old)(**settings).to(model.device)
+    new.actor.load_state_dict(old.actor.state_dict())
+    new.optimizer.load_state_dict(old.optimizer.state_dict())
+    model.policy = new
+    model.policy_kwargs = {**model.policy_kwargs, "dueling_critic": True}
+    return model
+
+
 def _clone(args: argparse.Namespace, plan: Any, venv: Any) -> tuple[COMA, dict[str, Any]]:
     if args.source:
         custom = {"learning_rate": args.lr} if args.lr else {}
-        return COMA.load(
+        loaded = COMA.load(
             args.source,
             env=venv,
             device="cpu",
@@ -126,7 +158,8 @@ def _clone(args: argparse.Namespace, plan: Any, venv: Any) -> tuple[COMA, dict[s
             kl_fraction=args.kl_fraction,
             **custom,
             **args.settings,
-        ), {}
+        )
+        return (with_dueling_critic(loaded) if args.dueling_critic else loaded), {}
     model = build_model(plan, venv, device="cpu")
     model.kl_coef, model.kl_fraction = args.kl, args.kl_fraction
     tic = time.perf_counter()
@@ -154,8 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     th.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    overrides = {"env_kwargs.observation": args.observation} if args.observation else {}
-    plan = plan_run(env=args.env, seed=args.seed, device="cpu", overrides=overrides | args.settings or None)
+    plan = plan_run(env=args.env, seed=args.seed, device="cpu", overrides=config_overrides(args) or None)
     venv = make_training_env(plan.cfg, seed=args.seed, workers=1)  # the oracle reads the env's state
     model, record = _clone(args, plan, venv)
     record_env_options(model, plan.cfg.world)
