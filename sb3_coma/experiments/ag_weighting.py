@@ -107,6 +107,27 @@ def _decide(paired: Mapping[str, Any]) -> tuple[str, str]:
     return "class", "tie on entropy and F1: ipp-marl's class weighting"
 
 
+def _check_pick_inputs(n_missions: Any, seed: Any, env_options: dict[str, Any]) -> None:
+    """One rule, one raise: both counts an integer from its least value, the split the picker's own."""
+    fixed = [k for k in _FIXED if k in env_options]
+    needs = (
+        (_at_least(n_missions, 2), f"n_missions={n_missions!r}: a paired test needs an integer >= 2"),
+        (
+            _at_least(seed, VALIDATION_SEED),
+            f"seed={seed!r}: validation seeds start at {VALIDATION_SEED} (below are the seeds the protocols "
+            "and the training's checkpoint validation use)",
+        ),
+        (
+            not fixed,
+            f"pick_ag_weighting chooses on split={VALIDATION_SPLIT!r} validation missions; "
+            f"do not pass {', '.join(fixed)}= (got {', '.join(repr(env_options[k]) for k in fixed)})",
+        ),
+    )
+    problem = next((message for ok, message in needs if not ok), None)
+    if problem is not None:
+        raise ValueError(problem)
+
+
 def pick_ag_weighting(
     name: str,
     n_missions: int = VALIDATION_MISSIONS,
@@ -134,23 +155,7 @@ def pick_ag_weighting(
         from sb3_coma.app.evaluation import evaluate as evaluate_method
 
         evaluate = evaluate_method
-    fixed = [k for k in _FIXED if k in env_options]
-    needs = (  # one rule, one raise: both counts an integer from its least value, the split the picker's own
-        (_at_least(n_missions, 2), f"n_missions={n_missions!r}: a paired test needs an integer >= 2"),
-        (
-            _at_least(seed, VALIDATION_SEED),
-            f"seed={seed!r}: validation seeds start at {VALIDATION_SEED} (below are the seeds the protocols "
-            "and the training's checkpoint validation use)",
-        ),
-        (
-            not fixed,
-            f"pick_ag_weighting chooses on split={VALIDATION_SPLIT!r} validation missions; "
-            f"do not pass {', '.join(fixed)}= (got {', '.join(repr(env_options[k]) for k in fixed)})",
-        ),
-    )
-    problem = next((message for ok, message in needs if not ok), None)
-    if problem is not None:
-        raise ValueError(problem)
+    _check_pick_inputs(n_missions, seed, env_options)
     options = validation_options(noise=noise, **env_options)
     results = {}
     for weighting in WEIGHTINGS:

@@ -597,6 +597,52 @@ def _sweep_section(run: Any) -> list[str]:
     ]
 
 
+def _prior_section(rows: Any) -> list[str]:
+    """What training adds over the greedy planner it starts from (models with a gain prior only)."""
+    return [
+        "## What training adds: the untrained gain prior vs the trained model (100 % budget)",
+        "",
+        "This actor adds a learned mix of each action's expected information gain to its logits "
+        '(docs/training.md, "Gain prior"). "untrained prior" flies the same model with that mix at its '
+        "starting weights and the network's own term removed, argmax actions: the greedy planner the "
+        "training starts from.",
+        "",
+        prior_markdown(rows),
+        "",
+    ]
+
+
+def _user_maps_section(table: str) -> list[str]:
+    """The models on a user's own photos, read as a user reads them."""
+    return [
+        "## A user's own map",
+        "",
+        "Ten Landsat-8 colour crops that no model trained on (2.4 km at 30 m; env3 trains on Sentinel-2 "
+        "scenes, env2 on the Landsat thermal band), read as a user reads a photo: `map_path=` and the "
+        "`threshold` rule (`python -m sb3_coma.experiments.user_maps`, images and provenance in "
+        "`sb3_coma/experiments/user_map_images/`). Each image is one scene: mission k of image i is env "
+        "seed 5i + k, random starts; ± clustered by image, Holm over the four comparisons.",
+        "",
+        table,
+        "",
+    ]
+
+
+def _latency_section(table: str) -> list[str]:
+    """What one UAV computes on board per decision, and what it costs."""
+    return [
+        "## Deployment latency and cost (per UAV decision, batch of one, one thread)",
+        "",
+        "What one UAV computes on board per step (`sb3_coma.experiments.costs`): the fusion of the maps it received "
+        "(own + 3 received, all valid: the worst case) and the actor, in PyTorch and in ONNX Runtime "
+        "(`sb3-coma export`'s graphs); AG with look-ahead k = 1, 2, 3 (`planner.predict` on one mission / "
+        "number of UAVs). Medians of repeated calls; the machine is shared, so these are upper bounds.",
+        "",
+        table,
+        "",
+    ]
+
+
 def results_markdown(run: Any, figures: Sequence[Path], base: Path) -> str:
     """The RESULTS.md report of a run (figure paths relative to ``base``)."""
     s = run.summary
@@ -619,17 +665,7 @@ def results_markdown(run: Any, figures: Sequence[Path], base: Path) -> str:
     if run.paper is not None:
         lines += _paper_section(run)
     if s.get("untrained_prior"):  # only models with a gain prior in their logits have this row
-        lines += [
-            "## What training adds: the untrained gain prior vs the trained model (100 % budget)",
-            "",
-            "This actor adds a learned mix of each action's expected information gain to its logits "
-            '(docs/training.md, "Gain prior"). "untrained prior" flies the same model with that mix at its '
-            "starting weights and the network's own term removed, argmax actions: the greedy planner the "
-            "training starts from.",
-            "",
-            prior_markdown(s["untrained_prior"]),
-            "",
-        ]
+        lines += _prior_section(s["untrained_prior"])
     if s.get("ablation"):
         lines += _ablation_section(run)
     if run.sections.get("paired"):
@@ -648,30 +684,9 @@ def results_markdown(run: Any, figures: Sequence[Path], base: Path) -> str:
         "",
     ]
     if run.sections.get("user_maps"):
-        lines += [
-            "## A user's own map",
-            "",
-            "Ten Landsat-8 colour crops that no model trained on (2.4 km at 30 m; env3 trains on Sentinel-2 "
-            "scenes, env2 on the Landsat thermal band), read as a user reads a photo: `map_path=` and the "
-            "`threshold` rule (`python -m sb3_coma.experiments.user_maps`, images and provenance in "
-            "`sb3_coma/experiments/user_map_images/`). Each image is one scene: mission k of image i is env "
-            "seed 5i + k, random starts; ± clustered by image, Holm over the four comparisons.",
-            "",
-            run.sections["user_maps"],
-            "",
-        ]
+        lines += _user_maps_section(run.sections["user_maps"])
     if run.sections.get("latency"):
-        lines += [
-            "## Deployment latency and cost (per UAV decision, batch of one, one thread)",
-            "",
-            "What one UAV computes on board per step (`sb3_coma.experiments.costs`): the fusion of the maps it received "
-            "(own + 3 received, all valid: the worst case) and the actor, in PyTorch and in ONNX Runtime "
-            "(`sb3-coma export`'s graphs); AG with look-ahead k = 1, 2, 3 (`planner.predict` on one mission / "
-            "number of UAVs). Medians of repeated calls; the machine is shared, so these are upper bounds.",
-            "",
-            run.sections["latency"],
-            "",
-        ]
+        lines += _latency_section(run.sections["latency"])
     if run.skipped:
         lines += ["## Skipped", ""] + [f"* {what}: {why}" for what, why in run.skipped.items()] + [""]
     if figures:
