@@ -54,16 +54,21 @@ def test_critic_input_stacks_twelve_channels() -> None:
     assert x[0, 1, 11, 0, 0].item() == pytest.approx(2 / 6)
 
 
-@pytest.fixture(scope="module")
-def model() -> COMA:
+def _cbam_model(**policy_kwargs: object) -> COMA:
+    """A small CBAM COMA on the fake world: 2 copies, 3 UAVs, one rollout of 4 steps."""
     return COMA(
         "CBAMPolicy",
         make_fake_vec_env(n_envs=2, n_agents=3, seed=0),
         batch_size=8,
         n_steps=4,
         seed=0,
-        policy_kwargs=SMALL,
+        policy_kwargs={**SMALL, **policy_kwargs},
     )
+
+
+@pytest.fixture(scope="module")
+def model() -> COMA:
+    return _cbam_model()
 
 
 def joint_obs(model: COMA) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
@@ -118,14 +123,7 @@ def test_target_sync_copies_the_critic(model: COMA) -> None:
 
 @pytest.fixture(scope="module")
 def dueling_model() -> COMA:
-    return COMA(
-        "CBAMPolicy",
-        make_fake_vec_env(n_envs=2, n_agents=3, seed=0),
-        batch_size=8,
-        n_steps=4,
-        seed=0,
-        policy_kwargs={**SMALL, "dueling_critic": True},
-    )
+    return _cbam_model(dueling_critic=True)
 
 
 def test_a_dueling_uav_critic_is_its_value_plus_the_centred_deviations(dueling_model: COMA) -> None:
@@ -159,10 +157,4 @@ def test_a_dueling_uav_critic_is_saved_with_the_model_and_a_plain_one_stays_plai
 
 def test_a_dueling_critic_that_is_not_a_flag_is_refused_by_name() -> None:
     with pytest.raises(ValueError, match=r"dueling_critic='no': must be true or false"):
-        COMA(
-            "CBAMPolicy",
-            make_fake_vec_env(n_envs=2, n_agents=2, seed=0),
-            n_steps=4,
-            batch_size=8,
-            policy_kwargs={**SMALL, "dueling_critic": "no"},
-        )
+        _cbam_model(dueling_critic="no")

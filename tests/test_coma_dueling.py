@@ -99,3 +99,5 @@ def test_a_dueling_critic_that_is_not_a_flag_is_refused_by_name() -> None:
     """A config's ``"yes"`` or ``"no"`` would otherwise turn the head on either way."""
     with pytest.raises(ValueError, match=r"dueling_critic='yes': must be true or false"):
         COMA("MlpPolicy", make_marl_vec_env(_spread, n_envs=2, seed=0), policy_kwargs={"dueling_critic": "yes"}, **FAST)
+    with pytest.raises(ValueError, match=r"critic_obs='no': must be true or false"):  # the same rule, its neighbour
+        COMA("MlpPolicy", make_marl_vec_env(_spread, n_envs=2, seed=0), policy_kwargs={"critic_obs": "no"}, **FAST)

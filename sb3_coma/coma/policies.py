@@ -268,7 +268,7 @@ class COMAPolicy(BasePolicy):
         self.state_space = state_space
         self.net_arch = _net_arch(net_arch)
         self.activation_fn = activation_fn
-        self.critic_obs = bool(critic_obs)
+        self.critic_obs = flag("critic_obs", critic_obs)
         self.critic_features_extractor_class = critic_features_extractor_class
         self.critic_features_extractor_kwargs = dict(critic_features_extractor_kwargs or {})
         self.n_actions = int(action_space.n)
