@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # the names as the type checker sees them; at run time __geta
     from sb3_coma.common.marl_vec_env import make_marl_vec_env
     from sb3_coma.sendfuse import SenDFuseNet
 
-__version__ = "0.20.0"
+__version__ = "0.21.0"
 
 #: Names served lazily (``name -> module``): the library, the application's front doors and the
 #: UAV policies. The application's modules are named here as data, never imported by a statement.

@@ -806,6 +806,21 @@ def test_the_tuning_budget_is_counted_from_the_round_tables(tmp_path: Path) -> N
     assert "The budget is NOT equal across learners on lbf (equal on simple_spread);" in text
 
 
+def test_a_budget_one_arm_apart_is_called_equal_to_within_one_arm_and_a_missing_learner_is_not() -> None:
+    """The rings fill a budget three runs (one arm's seeds) at a time: counts fewer than three apart are equal
+    to within one arm, said as such; three apart, or a learner with no runs, is unequal."""
+    verdict = marl_benchmark._budget_verdict
+    assert verdict({"a": [5, 5, 5]}) == "The budget is equal across learners on every task"
+    assert verdict({"a": [5, 5, 5], "b": [117, 119, 117]}) == (
+        "The budget is equal across learners on every task, to within one arm of 3 validation seeds on b (exactly on a)"
+    )
+    assert verdict({"b": [117, 119, 117]}).endswith("to within one arm of 3 validation seeds on b")
+    assert verdict({"a": [5, 5, 5], "b": [117, 119, 117], "c": [117, 120, 117]}) == (
+        "The budget is NOT equal across learners on c (equal on a; to within one arm of 3 validation seeds on b)"
+    )
+    assert verdict({"c": [2, 0, 2]}) == "The budget is NOT equal across learners on c"
+
+
 def test_an_entrys_normalize_key_is_read_as_rl_zoo_reads_it() -> None:
     split = marl_benchmark.split_normalize
     entry = {"policy": "MlpPolicy", "n_epochs": 10}

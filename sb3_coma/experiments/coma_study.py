@@ -1089,7 +1089,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "spread_budget_round": spread_ring_arms(SPREAD_ENTRIES),  # round 39: --tasks simple_spread_full --seeds 3
     "spread_ring_2_round": spread_ring_arms(SPREAD_RING_2_CENTRES),  # round 40: the same
     "spread_ring_3_round": spread_ring_arms(SPREAD_RING_3_CENTRES),  # round 41: the same
-    "spread_fill_round": spread_fill_arms(),  # round 42: the same (started in 0.20.0, not yet reported)
+    "spread_fill_round": spread_fill_arms(),  # round 42: the same (reported in 0.21.0)
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,

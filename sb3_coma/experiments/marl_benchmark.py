@@ -579,6 +579,32 @@ through one more than two (docs/design.md; the COMA study's rounds 15 and 21 mea
 """
 
 
+#: The study's rings fly an arm on three validation seeds, so a learner's budget fills three runs at a time:
+#: counts fewer than this apart (every learner having some) are equal to within one arm.
+ARM_RUNS = 3
+
+
+def _budget_verdict(counts: dict[str, list[int]]) -> str:
+    """Whether each task's validation runs (one count per learner) are equal, equal to within one arm, or
+    not: the sentence the table prints, so a budget one arm apart is neither hidden nor called unequal."""
+    equal = [task for task, runs in counts.items() if len(set(runs)) == 1]
+    near = [
+        task for task, runs in counts.items() if task not in equal and 0 < min(runs) <= max(runs) < min(runs) + ARM_RUNS
+    ]
+    unequal = [task for task in counts if task not in equal and task not in near]
+    one_arm = f"to within one arm of {ARM_RUNS} validation seeds on {', '.join(near)}"
+    if unequal:
+        kept = [f"equal on {', '.join(equal)}"] * bool(equal) + [one_arm] * bool(near)
+        return f"The budget is NOT equal across learners on {', '.join(unequal)}" + (
+            f" ({'; '.join(kept)})" if kept else ""
+        )
+    if near:
+        return f"The budget is equal across learners on every task, {one_arm}" + (
+            f" (exactly on {', '.join(equal)})" if equal else ""
+        )
+    return "The budget is equal across learners on every task"
+
+
 def tuning_paragraph(study: Path) -> str:
     """How many validation runs chose each learner's settings, per task, counted from the study's round
     tables in ``study`` (written, not typed), and whether that budget is equal across learners."""
@@ -591,13 +617,7 @@ def tuning_paragraph(study: Path) -> str:
     for learner in learners:
         counts = [f"{task} {runs[(learner, task)]}" for task in tasks if (learner, task) in runs]
         per_learner.append(f"{learner.upper()}: {', '.join(counts) or 'none'}")
-    equal = [task for task in tasks if len({runs.get((learner, task), 0) for learner in learners}) == 1]
-    unequal = [task for task in tasks if task not in equal]
-    if not unequal:
-        verdict = "The budget is equal across learners on every task"
-    else:
-        verdict = f"The budget is NOT equal across learners on {', '.join(unequal)}"
-        verdict += f" (equal on {', '.join(equal)})" if equal else ""
+    verdict = _budget_verdict({task: [runs.get((learner, task), 0) for learner in learners] for task in tasks})
     return (
         "Settings were chosen on validation seeds and episodes only (`python -m sb3_coma.experiments.coma_study`, "
         f"{study}/, one table a round). Tuning budget in validation runs per task (one variant on one seed, "
