@@ -639,6 +639,43 @@ def test_round_42s_centres_follow_the_ranking_and_fill_each_budget_to_comas() ->
         assert 0 <= 3 * len(new) - short < 3, learner
 
 
+def test_round_43_flies_each_foraging_entry_and_one_arm_at_the_whole_budget() -> None:
+    """COMA's arm is its entry with the dueling critic and nothing else; MAPPO's and IPPO's are their best
+    other arms over Foraging-5x5's earlier tables; every learner flies two arms, so the budget stays equal."""
+    assert coma_study.study_task("lbf_full").joint_steps == TASKS["lbf"].joint_steps
+    entries, arms = coma_study.FORAGING_WHOLE_ENTRIES, coma_study.FORAGING_WHOLE_ARMS
+    assert coma_study.ROUNDS["foraging_whole_round"] == tuple(x for pair in zip(entries, arms) for x in pair)
+    coma_entry, coma_arm = coma_study.VARIANTS[entries[0]], coma_study.VARIANTS[arms[0]]
+    assert coma_arm["policy_kwargs"] == {**coma_entry["policy_kwargs"], "dueling_critic": True}
+    assert {k: v for k, v in coma_arm.items() if k != "policy_kwargs"} == {
+        k: v for k, v in coma_entry.items() if k != "policy_kwargs"
+    }
+    folder = Path(__file__).resolve().parents[1] / "docs" / "coma_study"
+    tables = "\n".join(p.read_text() for p in sorted(folder.glob("*.md")) if p.name != "foraging_whole_round.md")
+    name = coma_study.study_task("lbf").name
+    rows = [line.split("|")[2].strip() for line in tables.splitlines() if line.startswith(f"| {name} |")]
+    for entry, arm in zip(entries[1:], arms[1:], strict=True):  # the entry first, so that it keeps a tie
+        learner = coma_study.learner_of(entry)
+        mine = tuple(
+            dict.fromkeys(r for r in (entry, *rows) if r in coma_study.ARMS and coma_study.learner_of(r) == learner)
+        )
+        assert coma_study.screen_order(tables, name, mine)[:2] == (entry, arm), learner
+    assert [coma_study.learner_of(a) for a in arms] == [coma_study.learner_of(e) for e in entries]
+
+
+WHOLE_FORAGING_TABLE = Path(__file__).resolve().parents[1] / "docs" / "coma_study" / "foraging_whole_round.md"
+
+
+@pytest.mark.skipif(not WHOLE_FORAGING_TABLE.exists(), reason="round 43 (foraging_whole_round) has not reported yet")
+def test_round_43_leaves_each_learner_the_arm_its_whole_budget_ranks_first() -> None:
+    """Foraging-5x5's entries after round 43 are each learner's first of (entry, arm) on the whole-budget table
+    (:func:`coma_study.screen_first`, the entry listed first)."""
+    table = WHOLE_FORAGING_TABLE.read_text()
+    name = coma_study.study_task("lbf_full").name
+    pairs = zip(coma_study.FORAGING_WHOLE_ENTRIES, coma_study.FORAGING_WHOLE_ARMS, strict=True)
+    assert tuple(coma_study.screen_first(table, name, pair) for pair in pairs) == CHOSEN["lbf"]
+
+
 def test_a_screens_order_is_its_first_again_and_again() -> None:
     def row(variant: str, validation: str, last: str) -> str:
         return f"| T | {variant} | s | 1 | {validation} | {validation} | 0 | - | - | - | 0.0 / 0.0 / {last} | 1.0 |"

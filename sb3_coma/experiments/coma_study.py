@@ -849,6 +849,26 @@ def spread_fill_arms() -> tuple[str, ...]:
 for _centre, _count in SPREAD_FILL:
     PPO_VARIANTS.update(entry_neighbours(_centre, len(BUDGET_OFFERS)))
 
+#: Round 43, Foraging-5x5 at its whole budget (``lbf_full``, three validation seeds): COMA's entry there
+#: misses MAPPO's zero seed spread by one evaluation episode on the reported seeds, and its validation mean
+#: (0.99, at the study's half budget) is one hundredth below MAPPO's. COMA's arm is the change with a reason
+#: on a sparse-reward grid: the dueling critic head, which made COMA deliver on RWARE (round 36; the
+#: counterfactual baseline then reads a value that every sample fits). MAPPO and IPPO take the same number of
+#: runs: their best other arm over Foraging-5x5's tables (:func:`screen_order`), at the whole budget. Each
+#: learner flies its entry and one arm: six runs each, so the budget stays equal.
+FORAGING_WHOLE_ENTRIES = (WAREHOUSE_FORAGING, "mappo_epochs_15", "ippo_lr_7e-4_batch_128")
+FORAGING_DUELING = f"{WAREHOUSE_FORAGING}_dueling"
+VARIANTS[FORAGING_DUELING] = {
+    **VARIANTS[WAREHOUSE_FORAGING],
+    "policy_kwargs": {**VARIANTS[WAREHOUSE_FORAGING]["policy_kwargs"], "dueling_critic": True},
+}
+FORAGING_WHOLE_ARMS = (FORAGING_DUELING, "mappo_clip_0.1_epochs_15", "ippo_lr_7e-4")
+
+
+def foraging_whole_arms() -> tuple[str, ...]:
+    """Round 43's arms: each learner's Foraging-5x5 entry followed by its one arm."""
+    return tuple(name for pair in zip(FORAGING_WHOLE_ENTRIES, FORAGING_WHOLE_ARMS, strict=True) for name in pair)
+
 
 ARMS = (*VARIANTS, *PPO_VARIANTS)
 #: Each round is one table: the variants it flies (a variant's runs are shared by the rounds that fly it).
@@ -1090,6 +1110,7 @@ ROUNDS: dict[str, tuple[str, ...]] = {
     "spread_ring_2_round": spread_ring_arms(SPREAD_RING_2_CENTRES),  # round 40: the same
     "spread_ring_3_round": spread_ring_arms(SPREAD_RING_3_CENTRES),  # round 41: the same
     "spread_fill_round": spread_fill_arms(),  # round 42: the same (reported in 0.21.0)
+    "foraging_whole_round": foraging_whole_arms(),  # round 43: --tasks lbf_full --seeds 3
     "time_limit_round": (
         *(name for twin in TIME_LIMIT_ROUND for name in (twin.removesuffix("_no_time_limit_bootstrap"), twin)),
         REFERENCE,
@@ -1105,6 +1126,8 @@ STUDY_STEPS[f"simple_spread{WHOLE_BUDGET_SUFFIX}"] = TASKS["simple_spread"].join
 #: RWARE flies its whole budget: at it, the benchmark's COMA and MAPPO deliver nothing on any reported
 #: seed and IPPO's training return only starts to rise in the last third (docs/training.md, round 30).
 STUDY_STEPS["rware_tiny"] = TASKS["rware_tiny"].joint_steps
+#: Foraging-5x5 at its whole budget (round 43): the reported seeds' one missed episode is at 200k steps.
+STUDY_STEPS[f"lbf{WHOLE_BUDGET_SUFFIX}"] = TASKS["lbf"].joint_steps
 #: The tasks of rounds 1 and 2 (``--tasks`` default); the others are flown when a round names them.
 FIRST_TASKS = ("simple_spread", "lbf")
 #: First training seed of the study (validation seeds; the benchmark reports seeds 0, 1, ...).
