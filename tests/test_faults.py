@@ -105,6 +105,29 @@ def single_thread():
 
 
 # ----------------------------------------------------------------------------- SIGKILL + resume
+def _kill_after_two_checkpoints(tmp_path: Path, run: Path, command: list[str]) -> int:
+    """Start the throttled training, SIGKILL it once two checkpoints exist; its return code."""
+    log = (tmp_path / "first.log").open("wb")
+    proc = subprocess.Popen(
+        command, cwd=tmp_path, env=_env(tmp_path, throttle=0.03), stdout=log, stderr=subprocess.STDOUT
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            if [s for s in _steps(run / "checkpoints") if s >= 2 * SAVE_FREQ]:
+                break
+            time.sleep(0.005)
+        assert proc.poll() is None, f"training ended before it could be killed:\n{(tmp_path / 'first.log').read_text()}"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        log.close()
+    return proc.returncode
+
+
 def test_sigkill_mid_run_resumes_from_last_checkpoint(tmp_path):
     (tmp_path / "throttle.py").write_text(THROTTLE)
     config = tmp_path / "faults.yml"
@@ -131,25 +154,7 @@ def test_sigkill_mid_run_resumes_from_last_checkpoint(tmp_path):
         "-v",
         "0",
     ]
-    log = (tmp_path / "first.log").open("wb")
-    proc = subprocess.Popen(
-        command, cwd=tmp_path, env=_env(tmp_path, throttle=0.03), stdout=log, stderr=subprocess.STDOUT
-    )
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None:
-            if [s for s in _steps(run / "checkpoints") if s >= 2 * SAVE_FREQ]:
-                break
-            time.sleep(0.005)
-        assert proc.poll() is None, f"training ended before it could be killed:\n{(tmp_path / 'first.log').read_text()}"
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        log.close()
-    assert proc.returncode == -signal.SIGKILL
+    assert _kill_after_two_checkpoints(tmp_path, run, command) == -signal.SIGKILL
 
     # What a hard kill leaves behind: no final model, only complete checkpoints under their
     # names (at worst a hidden .tmp file from a save in progress), progress past the last one.

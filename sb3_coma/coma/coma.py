@@ -69,7 +69,6 @@ from sb3_coma.coma.progress import JointStepProgressBar
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
     POPART,
-    check_batch_fits_rollout,
     check_coma_arguments,
     check_device,
     check_finite_weights,
@@ -206,6 +205,16 @@ class COMA(OnPolicyAlgorithm):
     #: The manifest entry of a shipped model, set by ``sb3_coma.load_pretrained`` (absent otherwise).
     pretrained_info: dict[str, Any]
 
+    #: What ``OnPolicyAlgorithm.__init__`` is always given: no value coefficient (the critic has its own
+    #: optimizer), no gSDE, discrete actions only, and the model set up here, after COMA's own attributes.
+    _SB3_FIXED: ClassVar[dict[str, Any]] = {
+        "vf_coef": 1.0,
+        "use_sde": False,
+        "sde_sample_freq": -1,
+        "supported_action_spaces": (spaces.Discrete,),
+        "_init_setup_model": False,
+    }
+
     @plain_arguments  # np.int64(8), np.float32(0.9): stored (and saved) as int and float
     def __init__(
         self,
@@ -246,9 +255,6 @@ class COMA(OnPolicyAlgorithm):
         policy_class = self._resolve_policy(policy)
         n_agents = self._agents_of(env)
         check_coma_arguments(locals())
-        if env is not None and n_steps is not None:
-            assert n_agents is not None
-            check_batch_fits_rollout(batch_size, n_steps, env.num_envs // n_agents)  # type: ignore[union-attr]
 
         super().__init__(
             policy_class,  # type: ignore[arg-type]  # SB3 types it as an ActorCriticPolicy class
@@ -258,18 +264,14 @@ class COMA(OnPolicyAlgorithm):
             gamma=gamma,
             gae_lambda=td_lambda,
             ent_coef=ent_coef,
-            vf_coef=1.0,
             max_grad_norm=max_grad_norm,
-            use_sde=False,
-            sde_sample_freq=-1,
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             policy_kwargs=policy_kwargs,
             verbose=verbose,
             seed=seed,
             device=device,
-            _init_setup_model=False,
-            supported_action_spaces=(spaces.Discrete,),
+            **self._SB3_FIXED,
         )
         self.n_agents = n_agents
         self.n_steps_requested = n_steps
@@ -289,7 +291,6 @@ class COMA(OnPolicyAlgorithm):
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
         self.exploration_fraction = exploration_fraction
-        self.exploration_rate = exploration_initial_eps
         self.kl_coef = kl_coef
         self.kl_fraction = kl_fraction
         self._init_run_state()
@@ -308,6 +309,7 @@ class COMA(OnPolicyAlgorithm):
 
     def _init_run_state(self) -> None:
         """What a model holds besides its hyperparameters: KL reference, env options, counters."""
+        self.exploration_rate = self.exploration_initial_eps  # follows its schedule during learn()
         #: A frozen copy of the actor that the KL term pulls toward (``set_reference_actor``); saved
         #: as ``reference_actor.pth`` so that a resumed run keeps the pull (a model saved before it
         #: was saved loads without one).

@@ -203,7 +203,8 @@ _COUNTS = frozenset(
 def check_coma_arguments(args: dict[str, Any]) -> None:
     """Check ``COMA``'s constructor arguments (``locals()`` of ``__init__``) against
     :data:`_ARGUMENT_RULES`: one error naming the argument, its value and what is allowed
-    (``TypeError`` for a count that is not an int, ``ValueError`` otherwise)."""
+    (``TypeError`` for a count that is not an int, ``ValueError`` otherwise); with an env and
+    ``n_steps``, a ``batch_size`` larger than one rollout (:class:`BatchLargerThanRollout`)."""
     for names, accepts, allowed in _ARGUMENT_RULES:
         for name in names:
             value = args[name]
@@ -211,3 +212,6 @@ def check_coma_arguments(args: dict[str, Any]) -> None:
             if not_int or not accepts(value):
                 error = TypeError if not_int else ValueError
                 raise error(f"{name} must {'be an int' if not_int else allowed}, got {value!r}")
+    env, n_steps = args["env"], args["n_steps"]
+    if env is not None and n_steps is not None:  # a minibatch of joint steps must fit one rollout
+        check_batch_fits_rollout(args["batch_size"], n_steps, env.num_envs // args["n_agents"])
