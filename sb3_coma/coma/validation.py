@@ -212,6 +212,6 @@ def check_coma_arguments(args: dict[str, Any]) -> None:
             if not_int or not accepts(value):
                 error = TypeError if not_int else ValueError
                 raise error(f"{name} must {'be an int' if not_int else allowed}, got {value!r}")
-    env, n_steps = args["env"], args["n_steps"]
+    env, n_steps = args.get("env"), args.get("n_steps")  # a settings mapping without an env: no rollout yet
     if env is not None and n_steps is not None:  # a minibatch of joint steps must fit one rollout
         check_batch_fits_rollout(args["batch_size"], n_steps, env.num_envs // args["n_agents"])
