@@ -810,31 +810,31 @@ def train(
     )
     callback_args = (save_freq, eval_freq, eval_missions, callbacks, handle_signals)
     try:  # the run folder stays locked until the run is over, however it ends
-        return _run_plan(plan, run_dir, runs_root, device, verbose, callback_args, progress_bar, say)
+        model, run_path, standard, callback_list = _set_up(plan, run_dir, runs_root, device, verbose, callback_args)
+        _fly(model, plan, run_path, (standard, callback_list), progress_bar, say, handle_signals)
     finally:
         plan.release()
+    return model, run_path
 
 
-def _run_plan(
+def _fly(
+    model: COMA,
     plan: RunPlan,
-    run_dir: str | os.PathLike[str] | None,
-    runs_root: str | os.PathLike[str],
-    device: str,
-    verbose: int,
-    callback_args: tuple[int | None, int, int | None, list[BaseCallback] | None, bool],
+    run_path: Path,
+    callbacks: tuple[MissionCallbacks, list[BaseCallback]],
     progress_bar: bool,
     say: Callable[[str], None],
-) -> tuple[COMA, Path]:
-    """One planned run, its folder locked by :func:`train`: set up, resume or warm-start, learn, save."""
-    model, run_path, standard, callback_list = _set_up(plan, run_dir, runs_root, device, verbose, callback_args)
+    handle_signals: bool,
+) -> None:
+    """A set-up run, its folder locked by :func:`train`: resume or warm-start, learn, save."""
+    standard, callback_list = callbacks
     say(f"Run folder: {run_path}")
     if plan.resume_model is not None:
         say(f"Resuming from {plan.resume_model} at {plan.done_steps} joint steps")
     elif plan.cfg.entry.get(WARM_START_KEY) is not None:
-        _warm_start(model, plan, run_path, standard, say, handle_signals=callback_args[-1])
+        _warm_start(model, plan, run_path, standard, say, handle_signals)
     learn(model, plan, standard, callback_list, progress_bar=progress_bar, say=say)
     save_final(model, plan, run_path, standard, say=say)
-    return model, run_path
 
 
 def _set_up(

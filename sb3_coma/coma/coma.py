@@ -69,6 +69,7 @@ from sb3_coma.coma.progress import JointStepProgressBar
 from sb3_coma.coma.targets import counterfactual_advantage, td_lambda_targets
 from sb3_coma.coma.validation import (
     POPART,
+    check_batch_fits_rollout,
     check_coma_arguments,
     check_device,
     check_finite_weights,
@@ -255,7 +256,7 @@ class COMA(OnPolicyAlgorithm):
         policy_class = self._resolve_policy(policy)
         n_agents = self._agents_of(env)
         check_coma_arguments(locals())
-
+        check_batch_fits_rollout(batch_size, n_steps, env, n_agents)
         super().__init__(
             policy_class,  # type: ignore[arg-type]  # SB3 types it as an ActorCriticPolicy class
             env,  # type: ignore[arg-type]  # None only when loading (SB3's load does the same)

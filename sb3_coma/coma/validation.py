@@ -73,8 +73,13 @@ class BatchLargerThanRollout(ValueError):
     """``batch_size`` is more joint steps than one rollout holds (a search prunes such a trial)."""
 
 
-def check_batch_fits_rollout(batch_size: int, n_steps: int, n_copies: int) -> None:
-    """A minibatch of joint steps cannot be larger than what one rollout collects."""
+def check_batch_fits_rollout(batch_size: int, n_steps: int | None, env: Any, n_agents: int | None) -> None:
+    """A minibatch of joint steps cannot be larger than what one rollout collects (``env``'s copies times
+    ``n_steps``); before there is an env and a rollout length (loading) there is nothing to check."""
+    if env is None or n_steps is None:
+        return
+    assert n_agents is not None  # an env gives its agent count
+    n_copies = env.num_envs // n_agents
     if batch_size > n_steps * n_copies:
         raise BatchLargerThanRollout(
             f"batch_size={batch_size} joint steps is larger than one rollout (n_steps={n_steps} x "
@@ -203,8 +208,7 @@ _COUNTS = frozenset(
 def check_coma_arguments(args: dict[str, Any]) -> None:
     """Check ``COMA``'s constructor arguments (``locals()`` of ``__init__``) against
     :data:`_ARGUMENT_RULES`: one error naming the argument, its value and what is allowed
-    (``TypeError`` for a count that is not an int, ``ValueError`` otherwise); with an env and
-    ``n_steps``, a ``batch_size`` larger than one rollout (:class:`BatchLargerThanRollout`)."""
+    (``TypeError`` for a count that is not an int, ``ValueError`` otherwise)."""
     for names, accepts, allowed in _ARGUMENT_RULES:
         for name in names:
             value = args[name]
@@ -212,6 +216,3 @@ def check_coma_arguments(args: dict[str, Any]) -> None:
             if not_int or not accepts(value):
                 error = TypeError if not_int else ValueError
                 raise error(f"{name} must {'be an int' if not_int else allowed}, got {value!r}")
-    env, n_steps = args.get("env"), args.get("n_steps")  # a settings mapping without an env: no rollout yet
-    if env is not None and n_steps is not None:  # a minibatch of joint steps must fit one rollout
-        check_batch_fits_rollout(args["batch_size"], n_steps, env.num_envs // args["n_agents"])
